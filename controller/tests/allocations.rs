@@ -1,0 +1,140 @@
+//! Proof that the learning hot path allocates nothing after construction.
+//!
+//! A counting global allocator counts, per thread, every allocation made while a
+//! [`Tracked`] guard is alive; tests run in parallel on their own threads, so each counts
+//! only its own work.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+
+use tes_controller::mdagl::synthetic::{SparseMultinomialStream, SyntheticSpec};
+use tes_controller::mdagl::{Features, Mdagl, MdaglParams};
+
+struct CountingAllocator;
+
+thread_local! {
+    static TRACKING: Cell<bool> = const { Cell::new(false) };
+    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+}
+
+fn note_allocation() {
+    // `try_with`: thread-locals may already be gone while a thread shuts down.
+    let _ = TRACKING.try_with(|t| {
+        if t.get() {
+            let _ = ALLOCATIONS.try_with(|a| a.set(a.get() + 1));
+        }
+    });
+}
+
+// SAFETY: defers every operation to the system allocator; counting has no effect on memory.
+unsafe impl GlobalAlloc for CountingAllocator {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        note_allocation();
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: same contract as the caller's.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        note_allocation();
+        // SAFETY: same contract as the caller's.
+        unsafe { System.alloc_zeroed(layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        note_allocation();
+        // SAFETY: same contract as the caller's.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: CountingAllocator = CountingAllocator;
+
+/// Counts this thread's allocations while alive.
+struct Tracked;
+
+impl Tracked {
+    fn start() -> Self {
+        ALLOCATIONS.with(|a| a.set(0));
+        TRACKING.with(|t| t.set(true));
+        Tracked
+    }
+    fn allocations(&self) -> u64 {
+        ALLOCATIONS.with(Cell::get)
+    }
+}
+
+impl Drop for Tracked {
+    fn drop(&mut self) {
+        TRACKING.with(|t| t.set(false));
+    }
+}
+
+#[test]
+fn the_counter_sees_allocations() {
+    let guard = Tracked::start();
+    let v: Vec<u64> = std::hint::black_box(Vec::with_capacity(8));
+    assert!(guard.allocations() >= 1);
+    drop(v);
+}
+
+#[test]
+fn mdagl_predict_and_update_allocate_nothing() {
+    // Sparse binary input: the paper's robot shape, d = 312, K = 20.
+    let spec = SyntheticSpec {
+        classes: 20,
+        features: 312,
+        relevant: 12,
+        density: 15.0 / 312.0,
+        ..SyntheticSpec::default()
+    };
+    let mut data = SparseMultinomialStream::new(spec, 5).unwrap();
+    let rows: Vec<(usize, Vec<u32>)> = (0..2_000)
+        .map(|_| {
+            let (y, x) = data.next_row();
+            (y, x.to_vec())
+        })
+        .collect();
+    let mut model = Mdagl::new(20, 312, MdaglParams::default()).unwrap();
+    let mut probs = vec![0.0; 20];
+    let mut checksum = 0.0;
+
+    let guard = Tracked::start();
+    for _ in 0..5 {
+        for (y, x) in &rows {
+            let x = Features::SparseBinary(x);
+            model.predict_into(x, &mut probs).unwrap();
+            checksum += model.predict(x).unwrap()[*y];
+            checksum += model.log_prob(x, *y).unwrap();
+            checksum += model.update(x, *y).unwrap().log_prob;
+            // Refused input takes the same no-allocation path.
+            assert!(model.update(x, 20).is_err());
+        }
+    }
+    let allocations = guard.allocations();
+    drop(guard);
+    assert_eq!(allocations, 0, "the hot path allocated");
+    assert!(checksum.is_finite());
+    assert_eq!(model.n_updates(), 10_000);
+}
+
+#[test]
+fn mdagl_dense_updates_allocate_nothing() {
+    let mut model = Mdagl::new(
+        5,
+        210,
+        MdaglParams {
+            intercept: true,
+            ..MdaglParams::default()
+        },
+    )
+    .unwrap();
+    let x: Vec<f64> = (0..210).map(|i| ((i * 37) % 11) as f64 / 10.0).collect();
+    let guard = Tracked::start();
+    for t in 0..5_000 {
+        model.update(Features::Dense(&x), t % 5).unwrap();
+    }
+    assert_eq!(guard.allocations(), 0);
+}

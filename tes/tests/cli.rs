@@ -1,0 +1,113 @@
+//! The `tes` command line, run as a user would.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn tes(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_tes"))
+        .args(args)
+        .output()
+        .expect("the tes binary runs")
+}
+
+fn demo_csv() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/fit-demo.csv")
+}
+
+fn write(dir: &tempfile::TempDir, name: &str, text: &str) -> String {
+    let path = dir.path().join(name);
+    std::fs::write(&path, text).expect("temp file");
+    path.to_string_lossy().into_owned()
+}
+
+#[test]
+fn fit_json_on_the_demo_stream_finds_its_relevant_columns() {
+    let demo = demo_csv();
+    let out = tes(&["fit", demo.to_str().expect("utf-8 path"), "--json"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8(out.stdout).expect("utf-8");
+    assert_eq!(stdout.trim().lines().count(), 1, "exactly one JSON line");
+    let report: serde_json::Value = serde_json::from_str(&stdout).expect("one JSON object");
+    for key in [
+        "n",
+        "mean_logloss",
+        "accuracy",
+        "selected",
+        "updates_per_sec",
+    ] {
+        assert!(report.get(key).is_some(), "missing {key}");
+    }
+    assert_eq!(report["n"], 4000);
+    // data/README.md: seed 2017 → bias column 0 and relevant columns 125, 174, 175.
+    assert_eq!(report["selected"], serde_json::json!([0, 125, 174, 175]));
+    let loss = report["mean_logloss"].as_f64().expect("number");
+    assert!(
+        loss > 0.0 && loss < 5f64.ln(),
+        "better than uniform: {loss}"
+    );
+    assert!(report["updates_per_sec"].as_f64().expect("number") > 0.0);
+}
+
+#[test]
+fn fit_text_report_names_what_it_found() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    // Feature 1 decides the class; feature 0 is noise. Real values → dense path.
+    let mut text = String::new();
+    for t in 0..400 {
+        let on = t % 2;
+        text.push_str(&format!("{on},{}.5,{on}\n", t % 3));
+    }
+    let path = write(&dir, "tiny.csv", &text);
+    let out = tes(&["fit", &path, "--lambda", "0.01", "--intercept"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("400 rows"), "{stdout}");
+    assert!(stdout.contains("prequential accuracy"), "{stdout}");
+    assert!(stdout.contains("dense path"), "{stdout}");
+}
+
+#[test]
+fn malformed_rows_stop_with_the_line_and_report_nothing() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let cases = [
+        ("0,1,0\n1,0,1\n1,0,oops\n", ":3:", "not a number"),
+        ("0,1,0\n\n1,0\n", ":3:", "expected 3 columns"),
+        ("0,1,0\n-1,0,1\n", ":2:", "label"),
+        ("0,1,0\n1,NaN,1\n", ":2:", "not a finite number"),
+        ("", "", "no rows"),
+    ];
+    for (i, (text, line, reason)) in cases.into_iter().enumerate() {
+        let path = write(&dir, &format!("bad{i}.csv"), text);
+        let out = tes(&["fit", &path, "--json"]);
+        assert!(!out.status.success(), "case {i} should fail");
+        assert!(out.stdout.is_empty(), "case {i}: nothing half-reported");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            stderr.contains(&format!("bad{i}.csv{line}")) && stderr.contains(reason),
+            "case {i}: {stderr}"
+        );
+    }
+}
+
+#[test]
+fn labels_beyond_classes_and_bad_settings_are_refused() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = write(&dir, "k.csv", "0,1\n2,0\n");
+    let out = tes(&["fit", &path, "--classes", "2"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("k.csv:2: label 2 is out of range"));
+    let out = tes(&["fit", &path, "--lambda", "-1"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("lambda"));
+    let out = tes(&["fit", &dir.path().join("missing.csv").to_string_lossy()]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("cannot open"));
+}

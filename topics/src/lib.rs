@@ -1,0 +1,314 @@
+//! The messages the TES processes exchange, and the names of the services that carry them.
+//!
+//! TES runs as three processes — `perception-sim` (world + camera), `controller` (learn, plan,
+//! act) and `bridge` (LEGO NXT motors) — that share fixed-size buffers through iceoryx2
+//! zero-copy publish–subscribe:
+//!
+//! ```text
+//!  perception-sim ──Observation──▶ controller ──Command──▶ bridge ──▶ brick
+//!       ▲                                                   │
+//!       └───────────────────── MotorState ◀─────────────────┘
+//! ```
+//!
+//! Every payload here is `#[repr(C)]`, `Copy`, pointer-free and of fixed size, so a publisher
+//! writes it straight into shared memory (`loan_uninit().write_payload(..)`) and no process
+//! ever serialises or allocates to send one.
+//!
+//! ```
+//! use tes_topics::{FeatureBits, Observation, StateAttributes};
+//!
+//! let mut features = FeatureBits::EMPTY;
+//! features.set(3);
+//! features.set(311);
+//! let obs = Observation {
+//!     state: StateAttributes { x: 2, y: 7, orientation: 5, reserved: 0 },
+//!     n_features: 312,
+//!     features,
+//!     ..Observation::default()
+//! };
+//! assert_eq!(obs.features.iter_ones().collect::<Vec<_>>(), vec![3, 311]);
+//! ```
+
+use iceoryx2::prelude::ZeroCopySend;
+
+/// Number of binary state features the robot arenas of the paper's §5.2.1 extract
+/// (100 green-mark, 100 blue-mark, 100 ball-distance, 8 orientation and 4 mark bits).
+pub const ARENA_FEATURES: usize = 312;
+
+/// Capacity, in bits, of a [`FeatureBits`] vector: [`ARENA_FEATURES`] rounded up to whole words.
+pub const FEATURE_CAPACITY: usize = FEATURE_WORDS * 64;
+
+/// Number of 64-bit words in a [`FeatureBits`] vector.
+pub const FEATURE_WORDS: usize = ARENA_FEATURES.div_ceil(64);
+
+/// The names of the iceoryx2 services, in one place so no process can disagree on them.
+pub mod service {
+    /// Publish–subscribe service carrying [`crate::Observation`]s from perception to the controller.
+    pub const OBSERVATION: &str = "tes/observation";
+    /// Event service perception notifies after publishing an observation (wakes a blocked controller).
+    pub const OBSERVATION_EVENT: &str = "tes/observation/event";
+    /// Publish–subscribe service carrying [`crate::Command`]s from the controller to the bridge.
+    pub const COMMAND: &str = "tes/command";
+    /// Event service the controller notifies after publishing a command.
+    pub const COMMAND_EVENT: &str = "tes/command/event";
+    /// Publish–subscribe service carrying [`crate::MotorState`]s from the bridge to perception.
+    pub const MOTOR_STATE: &str = "tes/motor-state";
+    /// Event service the bridge notifies after publishing a motor state.
+    pub const MOTOR_STATE_EVENT: &str = "tes/motor-state/event";
+}
+
+/// A fixed-capacity set of binary features, stored as a little bitset.
+///
+/// Bit `i` of word `i / 64` is feature `i`. Bits at or beyond the observation's
+/// `n_features` are always clear.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
+#[type_name("tes::FeatureBits")]
+#[repr(C)]
+pub struct FeatureBits {
+    /// The raw bit words.
+    pub words: [u64; FEATURE_WORDS],
+}
+
+impl FeatureBits {
+    /// No feature set.
+    pub const EMPTY: Self = Self {
+        words: [0; FEATURE_WORDS],
+    };
+
+    /// Turns feature `i` on. Indices at or beyond [`FEATURE_CAPACITY`] are ignored and
+    /// reported as `false`.
+    #[inline]
+    pub fn set(&mut self, i: usize) -> bool {
+        match self.words.get_mut(i / 64) {
+            Some(w) => {
+                *w |= 1 << (i % 64);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Whether feature `i` is on (`false` beyond the capacity).
+    #[inline]
+    pub fn get(&self, i: usize) -> bool {
+        self.words
+            .get(i / 64)
+            .is_some_and(|w| w & (1 << (i % 64)) != 0)
+    }
+
+    /// Turns every feature off.
+    #[inline]
+    pub fn clear(&mut self) {
+        self.words = [0; FEATURE_WORDS];
+    }
+
+    /// Number of features on.
+    #[inline]
+    pub fn count_ones(&self) -> u32 {
+        self.words.iter().map(|w| w.count_ones()).sum()
+    }
+
+    /// The indices of the features that are on, in increasing order.
+    pub fn iter_ones(&self) -> impl Iterator<Item = usize> + '_ {
+        self.words.iter().enumerate().flat_map(|(wi, &word)| {
+            let mut w = word;
+            core::iter::from_fn(move || {
+                if w == 0 {
+                    return None;
+                }
+                let bit = w.trailing_zeros() as usize;
+                w &= w - 1;
+                Some(wi * 64 + bit)
+            })
+        })
+    }
+
+    /// Whether any bit at or beyond `n` is set (such a vector is malformed for `n` features).
+    pub fn has_bits_beyond(&self, n: usize) -> bool {
+        self.words.iter().enumerate().any(|(wi, &w)| {
+            let lo = wi * 64;
+            if n <= lo {
+                w != 0
+            } else if n >= lo + 64 {
+                false
+            } else {
+                w >> (n - lo) != 0
+            }
+        })
+    }
+}
+
+/// The state attributes that identify a state in the robot arenas: the discretised pose.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
+#[type_name("tes::StateAttributes")]
+#[repr(C)]
+pub struct StateAttributes {
+    /// Grid column of the robot's cell.
+    pub x: u16,
+    /// Grid row of the robot's cell.
+    pub y: u16,
+    /// Heading, one of 8 sectors of 45°, counter-clockwise from +x.
+    pub orientation: u16,
+    /// Padding; always 0.
+    pub reserved: u16,
+}
+
+/// Bit flags of an [`Observation`].
+pub mod observation_flags {
+    /// The state is terminal: the episode ends with this observation.
+    pub const TERMINAL: u32 = 1;
+    /// This observation starts a new episode (no previous action to learn from).
+    pub const EPISODE_START: u32 = 1 << 1;
+    /// The episode was ended by the world (stuck, step cap) rather than a terminal state.
+    pub const TRUNCATED: u32 = 1 << 2;
+}
+
+/// What perception publishes each time the robot comes to rest: the state and its features.
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[type_name("tes::Observation")]
+#[repr(C)]
+pub struct Observation {
+    /// Strictly increasing per publisher, starting at 1.
+    pub seq: u64,
+    /// Monotonic clock (`CLOCK_MONOTONIC`, ns) when the observation was published.
+    pub stamp_ns: u64,
+    /// Sequence number of the command whose motion led here (0 at an episode start).
+    pub after_command: u64,
+    /// Episode index, from 0.
+    pub episode: u32,
+    /// Action index within the episode, from 0.
+    pub step: u32,
+    /// The discretised pose.
+    pub state: StateAttributes,
+    /// Number of meaningful bits in `features`.
+    pub n_features: u32,
+    /// The binary state features `f(s)`.
+    pub features: FeatureBits,
+    /// Reward received on entering this state.
+    pub reward: f32,
+    /// [`observation_flags`] bits.
+    pub flags: u32,
+}
+
+/// What the controller sends the bridge: one of the robot's abstract actions and its wheel targets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
+#[type_name("tes::Command")]
+#[repr(C)]
+pub struct Command {
+    /// Strictly increasing per publisher, starting at 1.
+    pub seq: u64,
+    /// The `seq` of the observation this command answers.
+    pub answers: u64,
+    /// Monotonic clock (ns) when the command was published.
+    pub stamp_ns: u64,
+    /// Abstract action id (0..3 for the paper's robot).
+    pub action: u32,
+    /// Signed target rotation of the left wheel, degrees.
+    pub left_deg: i32,
+    /// Signed target rotation of the right wheel, degrees.
+    pub right_deg: i32,
+    /// Reserved; always 0.
+    pub reserved: u32,
+}
+
+/// Motor run states as the NXT firmware reports them.
+pub mod run_state {
+    /// Motor is idle (coasting or braked, not running a command).
+    pub const IDLE: u8 = 0x00;
+    /// Ramping up.
+    pub const RAMP_UP: u8 = 0x10;
+    /// Running.
+    pub const RUNNING: u8 = 0x20;
+    /// Ramping down.
+    pub const RAMP_DOWN: u8 = 0x40;
+}
+
+/// Bit flags of a [`MotorState`].
+pub mod motor_flags {
+    /// All commanded motion has finished (both wheel motors idle).
+    pub const SETTLED: u32 = 1;
+    /// The bridge's watchdog braked the motors because commands stopped arriving.
+    pub const WATCHDOG_BRAKED: u32 = 1 << 1;
+    /// The transport to the brick failed; the counts are the last known ones.
+    pub const LINK_DOWN: u32 = 1 << 2;
+}
+
+/// What the bridge reports from the brick: wheel rotation counts and motor states.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
+#[type_name("tes::MotorState")]
+#[repr(C)]
+pub struct MotorState {
+    /// Strictly increasing per publisher, starting at 1.
+    pub seq: u64,
+    /// The `seq` of the command these counts follow.
+    pub after_command: u64,
+    /// Monotonic clock (ns) when the state was read.
+    pub stamp_ns: u64,
+    /// Tacho counts (degrees) of output ports A, B, C since the last reset.
+    pub tacho_count: [i32; 3],
+    /// Rotation counts (degrees) of ports A, B, C: the position relative to the last reset.
+    pub rotation_count: [i32; 3],
+    /// [`run_state`] of ports A, B, C.
+    pub run_state: [u8; 3],
+    /// Padding; always 0.
+    pub reserved: u8,
+    /// Battery voltage in millivolts.
+    pub battery_mv: u16,
+    /// Padding; always 0.
+    pub reserved2: u16,
+    /// [`motor_flags`] bits.
+    pub flags: u32,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn feature_bits_set_get_iterate() {
+        let mut b = FeatureBits::EMPTY;
+        for i in [0, 63, 64, 200, ARENA_FEATURES - 1] {
+            assert!(b.set(i));
+        }
+        assert!(!b.set(FEATURE_CAPACITY));
+        assert!(b.get(63) && b.get(64) && !b.get(65));
+        assert_eq!(b.count_ones(), 5);
+        assert_eq!(
+            b.iter_ones().collect::<Vec<_>>(),
+            vec![0, 63, 64, 200, ARENA_FEATURES - 1]
+        );
+        assert!(!b.has_bits_beyond(ARENA_FEATURES));
+        assert!(b.has_bits_beyond(300));
+        assert!(b.has_bits_beyond(0));
+        b.clear();
+        assert_eq!(b.count_ones(), 0);
+        assert!(!b.has_bits_beyond(0));
+    }
+
+    #[test]
+    fn payloads_are_fixed_size_and_pointer_free() {
+        // The sizes are part of the wire contract between processes: a change here is a
+        // protocol change and must be deliberate.
+        assert_eq!(core::mem::size_of::<FeatureBits>(), 8 * FEATURE_WORDS);
+        assert_eq!(core::mem::size_of::<Observation>(), 96);
+        assert_eq!(core::mem::size_of::<Command>(), 40);
+        assert_eq!(core::mem::size_of::<MotorState>(), 64);
+        assert_eq!(FEATURE_CAPACITY, 320);
+    }
+
+    #[test]
+    fn type_names_are_stable() {
+        // iceoryx2 matches services by payload type name; keep them independent of module paths.
+        // SAFETY: `type_name` only returns a static string.
+        unsafe {
+            assert_eq!(
+                <Observation as iceoryx2::prelude::ZeroCopySend>::type_name(),
+                "tes::Observation"
+            );
+            assert_eq!(
+                <Command as iceoryx2::prelude::ZeroCopySend>::type_name(),
+                "tes::Command"
+            );
+        }
+    }
+}
