@@ -3,9 +3,17 @@
 //! * [`mdagl`] — the view learner: online sparse multinomial logistic regression with group
 //!   lasso by dual averaging (the paper's Algorithms 4–5), which picks the few features that
 //!   predict an action's effect out of hundreds.
+//! * [`cmdp`] — the situation-calculus MDP (§3.1): known effect semantics, rewards and
+//!   features, and the learned effect probabilities.
+//! * [`plan`] — warm-started value iteration on that model.
+//! * [`agents`] — agents that learn and act: loreRL (Algorithm 6) and its bloreRL variant.
 //! * [`labelled_csv`] — the labelled-row format `tes fit` reads.
 //!
-//! The model, planner, agents and the controller process are built on top of these.
+//! Everything here is a plain struct with no IPC, clock or I/O inside; the controller process
+//! wraps it.
 
+pub mod agents;
+pub mod cmdp;
 pub mod labelled_csv;
 pub mod mdagl;
+pub mod plan;

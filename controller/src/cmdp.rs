@@ -1,0 +1,394 @@
+//! The situation-calculus MDP (CMDP) of the paper's §3.1, as the agent knows it.
+//!
+//! In a CMDP an action does not move the agent to a next state directly: it causes one of a few
+//! discrete *effects* (a relative state change such as "moved north" or "stayed"), and the
+//! effect's meaning is known. So
+//!
+//! `P(s' | s, a) = Σ_e P(s' | e, s) · P(e | x(s), a)`
+//!
+//! where `P(s' | e, s)` is 0 or 1 and known ([`CmdpStructure::next_state`]) — a move into a
+//! wall or off the map is a known outcome (stay put) — and `P(e | x(s), a)` is what the agent
+//! learns, one effect predictor (an mDAGL *view*) per action, from the state's features `x(s)`.
+//!
+//! [`CmdpStructure`] holds the known part: states, effect semantics, rewards, terminal states
+//! and the features of every state. [`EffectTable`] caches the learned part, `P(e | x(s), a)`
+//! for every state and action, and is refreshed one action at a time as views learn.
+
+use thiserror::Error;
+
+use crate::mdagl::{Features, Mdagl, MdaglError};
+
+/// Why a [`CmdpStructure`] is malformed.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum CmdpError {
+    /// No states, actions or effects.
+    #[error("a CMDP needs at least one state, action and effect ({states}, {actions}, {effects})")]
+    Empty {
+        /// States given.
+        states: usize,
+        /// Actions given.
+        actions: usize,
+        /// Effects given.
+        effects: usize,
+    },
+    /// A table has the wrong length.
+    #[error("{table} has {got} entries, expected {expected}")]
+    WrongLength {
+        /// Which table.
+        table: &'static str,
+        /// Its length.
+        got: usize,
+        /// The length it should have.
+        expected: usize,
+    },
+    /// An effect leads to a state that does not exist.
+    #[error("effect {effect} in state {state} leads to state {next}, beyond the {states} states")]
+    BadNextState {
+        /// State.
+        state: usize,
+        /// Effect.
+        effect: usize,
+        /// The bad destination.
+        next: u32,
+        /// Number of states.
+        states: usize,
+    },
+    /// A reward is NaN or infinite.
+    #[error("the reward for entering state {0} is not finite")]
+    BadReward(usize),
+    /// A state's features are out of range or unsorted.
+    #[error("state {state}: {source}")]
+    BadFeatures {
+        /// State.
+        state: usize,
+        /// What is wrong.
+        source: MdaglError,
+    },
+}
+
+/// The agent-known part of a CMDP: effect semantics, rewards, terminal states and features.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CmdpStructure {
+    n_states: usize,
+    n_actions: usize,
+    n_effects: usize,
+    n_features: usize,
+    /// `next[s * E + e]`: the state effect `e` leads to from `s`.
+    next: Vec<u32>,
+    /// Reward for entering each state.
+    reward: Vec<f64>,
+    terminal: Vec<bool>,
+    /// Sparse binary features, CSR: state `s` has `indices[offsets[s]..offsets[s+1]]`.
+    offsets: Vec<usize>,
+    indices: Vec<u32>,
+}
+
+impl CmdpStructure {
+    /// Builds and checks a structure.
+    ///
+    /// * `next_state(s, e)` — where effect `e` takes the agent from state `s`;
+    /// * `reward[s']` — the reward for entering `s'`;
+    /// * `terminal[s]` — whether an episode ends on entering `s`;
+    /// * `features(s)` — the sorted indices of the binary features on in `s`, below `n_features`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new<'a>(
+        n_states: usize,
+        n_actions: usize,
+        n_effects: usize,
+        n_features: usize,
+        next_state: impl Fn(usize, usize) -> usize,
+        reward: Vec<f64>,
+        terminal: Vec<bool>,
+        features: impl Fn(usize) -> &'a [u32],
+    ) -> Result<Self, CmdpError> {
+        if n_states == 0 || n_actions == 0 || n_effects == 0 {
+            return Err(CmdpError::Empty {
+                states: n_states,
+                actions: n_actions,
+                effects: n_effects,
+            });
+        }
+        for (table, got) in [("reward", reward.len()), ("terminal", terminal.len())] {
+            if got != n_states {
+                return Err(CmdpError::WrongLength {
+                    table,
+                    got,
+                    expected: n_states,
+                });
+            }
+        }
+        if let Some(s) = reward.iter().position(|r| !r.is_finite()) {
+            return Err(CmdpError::BadReward(s));
+        }
+        let mut next = Vec::with_capacity(n_states * n_effects);
+        for s in 0..n_states {
+            for e in 0..n_effects {
+                let to = next_state(s, e);
+                let to32 = u32::try_from(to).unwrap_or(u32::MAX);
+                if to >= n_states {
+                    return Err(CmdpError::BadNextState {
+                        state: s,
+                        effect: e,
+                        next: to32,
+                        states: n_states,
+                    });
+                }
+                next.push(to32);
+            }
+        }
+        let mut offsets = Vec::with_capacity(n_states + 1);
+        let mut indices = Vec::new();
+        offsets.push(0);
+        for s in 0..n_states {
+            let x = features(s);
+            Features::SparseBinary(x)
+                .validate(n_features)
+                .map_err(|source| CmdpError::BadFeatures { state: s, source })?;
+            indices.extend_from_slice(x);
+            offsets.push(indices.len());
+        }
+        Ok(Self {
+            n_states,
+            n_actions,
+            n_effects,
+            n_features,
+            next,
+            reward,
+            terminal,
+            offsets,
+            indices,
+        })
+    }
+
+    /// Number of states.
+    pub fn n_states(&self) -> usize {
+        self.n_states
+    }
+
+    /// Number of actions.
+    pub fn n_actions(&self) -> usize {
+        self.n_actions
+    }
+
+    /// Number of effects.
+    pub fn n_effects(&self) -> usize {
+        self.n_effects
+    }
+
+    /// Number of state features.
+    pub fn n_features(&self) -> usize {
+        self.n_features
+    }
+
+    /// The state effect `e` leads to from `s` (the known `P(s' | e, s)`).
+    #[inline]
+    pub fn next_state(&self, s: usize, e: usize) -> usize {
+        self.next[s * self.n_effects + e] as usize
+    }
+
+    /// Reward for entering state `s`.
+    #[inline]
+    pub fn reward(&self, s: usize) -> f64 {
+        self.reward[s]
+    }
+
+    /// Whether an episode ends on entering `s`.
+    #[inline]
+    pub fn is_terminal(&self, s: usize) -> bool {
+        self.terminal[s]
+    }
+
+    /// The binary features on in state `s`, sorted.
+    #[inline]
+    pub fn features(&self, s: usize) -> &[u32] {
+        &self.indices[self.offsets[s]..self.offsets[s + 1]]
+    }
+
+    /// Which effect leads from `s` to `next`, if one does (the lowest such effect id).
+    ///
+    /// Used where only states are observed; when several effects lead to the same state (a
+    /// blocked move and "stay") the world should report the effect itself instead.
+    pub fn effect_between(&self, s: usize, next: usize) -> Option<usize> {
+        (0..self.n_effects).find(|&e| self.next_state(s, e) == next)
+    }
+}
+
+/// `P(e | x(s), a)` for every action, state and effect: the learned half of the transition
+/// model, cached so planning does not call the views.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EffectTable {
+    n_states: usize,
+    n_effects: usize,
+    /// `probs[(a * S + s) * E + e]`.
+    probs: Vec<f64>,
+}
+
+impl EffectTable {
+    /// A table with every effect equally likely everywhere (what a fresh view predicts).
+    pub fn uniform(structure: &CmdpStructure) -> Self {
+        let (s, a, e) = (
+            structure.n_states(),
+            structure.n_actions(),
+            structure.n_effects(),
+        );
+        Self {
+            n_states: s,
+            n_effects: e,
+            probs: vec![1.0 / e as f64; a * s * e],
+        }
+    }
+
+    /// `P(· | x(s), a)` as a slice over effects.
+    #[inline]
+    pub fn probs(&self, a: usize, s: usize) -> &[f64] {
+        let start = (a * self.n_states + s) * self.n_effects;
+        &self.probs[start..start + self.n_effects]
+    }
+
+    /// Recomputes action `a`'s rows from its view, for every state. Allocation-free.
+    ///
+    /// The view must predict `n_effects` classes from `n_features` features.
+    pub fn refresh(
+        &mut self,
+        a: usize,
+        view: &Mdagl,
+        structure: &CmdpStructure,
+    ) -> Result<(), MdaglError> {
+        let e = self.n_effects;
+        for s in 0..self.n_states {
+            let start = (a * self.n_states + s) * e;
+            view.predict_into(
+                Features::SparseBinary(structure.features(s)),
+                &mut self.probs[start..start + e],
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Overwrites `P(· | s, a)` directly (for models that are not mDAGL views).
+    ///
+    /// `probs` must hold one value per effect.
+    pub fn set(&mut self, a: usize, s: usize, probs: &[f64]) {
+        let start = (a * self.n_states + s) * self.n_effects;
+        self.probs[start..start + self.n_effects].copy_from_slice(probs);
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    /// A corridor of `n` cells, 2 actions (left, right), 3 effects (left, right, stay); the
+    /// right end is a +1 terminal, the left end a −1 terminal; −0.01 elsewhere. Feature 0 is a
+    /// bias, feature 1 marks "slippery" cells.
+    pub(crate) fn corridor(n: usize, slippery: &[usize]) -> CmdpStructure {
+        let feats: Vec<Vec<u32>> = (0..n)
+            .map(|s| {
+                if slippery.contains(&s) {
+                    vec![0, 1]
+                } else {
+                    vec![0]
+                }
+            })
+            .collect();
+        let mut reward = vec![-0.01; n];
+        reward[0] = -1.0;
+        reward[n - 1] = 1.0;
+        let mut terminal = vec![false; n];
+        terminal[0] = true;
+        terminal[n - 1] = true;
+        CmdpStructure::new(
+            n,
+            2,
+            3,
+            2,
+            |s, e| match e {
+                0 => s.saturating_sub(1),
+                1 => (s + 1).min(n - 1),
+                _ => s,
+            },
+            reward,
+            terminal,
+            |s| &feats[s],
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn structure_answers_what_it_was_given() {
+        let c = corridor(5, &[2]);
+        assert_eq!((c.n_states(), c.n_actions(), c.n_effects()), (5, 2, 3));
+        assert_eq!(c.next_state(0, 0), 0);
+        assert_eq!(c.next_state(2, 1), 3);
+        assert_eq!(c.features(2), &[0, 1]);
+        assert_eq!(c.features(3), &[0]);
+        assert!(c.is_terminal(4) && !c.is_terminal(2));
+        assert_eq!(c.effect_between(2, 1), Some(0));
+        assert_eq!(c.effect_between(2, 2), Some(2));
+        assert_eq!(c.effect_between(2, 4), None);
+    }
+
+    #[test]
+    fn malformed_structures_are_refused() {
+        let f = [0u32];
+        let ok = |s: usize| -> &[u32] {
+            let _ = s;
+            &f
+        };
+        assert!(matches!(
+            CmdpStructure::new(0, 1, 1, 1, |s, _| s, vec![], vec![], ok),
+            Err(CmdpError::Empty { .. })
+        ));
+        assert!(matches!(
+            CmdpStructure::new(2, 1, 1, 1, |_, _| 2, vec![0.0; 2], vec![false; 2], ok),
+            Err(CmdpError::BadNextState { next: 2, .. })
+        ));
+        assert!(matches!(
+            CmdpStructure::new(2, 1, 1, 1, |s, _| s, vec![0.0; 3], vec![false; 2], ok),
+            Err(CmdpError::WrongLength {
+                table: "reward",
+                ..
+            })
+        ));
+        assert!(matches!(
+            CmdpStructure::new(
+                2,
+                1,
+                1,
+                1,
+                |s, _| s,
+                vec![f64::NAN, 0.0],
+                vec![false; 2],
+                ok
+            ),
+            Err(CmdpError::BadReward(0))
+        ));
+        let bad = [3u32];
+        assert!(matches!(
+            CmdpStructure::new(2, 1, 1, 1, |s, _| s, vec![0.0; 2], vec![false; 2], |_| &bad),
+            Err(CmdpError::BadFeatures { state: 0, .. })
+        ));
+    }
+
+    #[test]
+    fn effect_table_follows_the_view() {
+        let c = corridor(5, &[2]);
+        let mut table = EffectTable::uniform(&c);
+        assert!(
+            table
+                .probs(1, 3)
+                .iter()
+                .all(|&p| (p - 1.0 / 3.0).abs() < 1e-15)
+        );
+        let mut view = Mdagl::new(3, 2, crate::mdagl::MdaglParams::default()).unwrap();
+        for _ in 0..200 {
+            view.update(Features::SparseBinary(&[0]), 1).unwrap();
+        }
+        table.refresh(1, &view, &c).unwrap();
+        assert!(table.probs(1, 3)[1] > 0.6);
+        // Action 0's rows are untouched.
+        assert!((table.probs(0, 3)[1] - 1.0 / 3.0).abs() < 1e-15);
+        table.set(0, 1, &[0.0, 0.0, 1.0]);
+        assert_eq!(table.probs(0, 1), &[0.0, 0.0, 1.0]);
+    }
+}

@@ -1,0 +1,284 @@
+//! Planning on the learned CMDP: warm-started value iteration.
+//!
+//! `V(s) = max_a Σ_e P(e | x(s), a) · [R(s'_e) + γ · V(s'_e)]` with `s'_e` the state effect
+//! `e` leads to, `V = 0` beyond a terminal state, γ = 0.95 by default (the paper's §5).
+//!
+//! Sweeps are Gauss–Seidel (values updated in place, which converges in fewer sweeps) and
+//! start from the previous solution, so after one view learned from one step a re-plan costs a
+//! few sweeps, not a solve from scratch. A plan stops when the largest change of any value in a
+//! sweep is at most [`PlannerParams::tolerance`] or after [`PlannerParams::max_sweeps`] sweeps;
+//! with γ < 1 the values are then within `tolerance·γ/(1−γ)` of the fixed point.
+
+use thiserror::Error;
+
+use crate::cmdp::{CmdpStructure, EffectTable};
+
+/// Planner settings, validated by [`ValueIteration::new`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PlannerParams {
+    /// Discount factor γ in [0, 1).
+    pub gamma: f64,
+    /// Stop when no value changes by more than this in a sweep (> 0).
+    pub tolerance: f64,
+    /// Stop after this many sweeps even if not converged (≥ 1).
+    pub max_sweeps: usize,
+}
+
+impl Default for PlannerParams {
+    /// γ = 0.95, tolerance 1e-6, at most 10 000 sweeps.
+    fn default() -> Self {
+        Self {
+            gamma: 0.95,
+            tolerance: 1e-6,
+            max_sweeps: 10_000,
+        }
+    }
+}
+
+/// Invalid planner settings.
+#[derive(Debug, Clone, Copy, PartialEq, Error)]
+pub enum PlanError {
+    /// γ outside [0, 1).
+    #[error("gamma must be in [0, 1), got {0}")]
+    BadGamma(f64),
+    /// Tolerance not finite and positive.
+    #[error("tolerance must be a finite number > 0, got {0}")]
+    BadTolerance(f64),
+    /// Zero sweeps allowed.
+    #[error("max_sweeps must be at least 1")]
+    NoSweeps,
+}
+
+/// How a plan went.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PlanStats {
+    /// Sweeps run.
+    pub sweeps: usize,
+    /// Largest value change in the last sweep.
+    pub residual: f64,
+    /// Whether the residual fell to the tolerance.
+    pub converged: bool,
+}
+
+/// Value iteration with its values and greedy policy kept between plans (the warm start).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ValueIteration {
+    params: PlannerParams,
+    values: Vec<f64>,
+    policy: Vec<u32>,
+}
+
+impl ValueIteration {
+    /// A planner for `structure`, starting from `V = 0`.
+    pub fn new(structure: &CmdpStructure, params: PlannerParams) -> Result<Self, PlanError> {
+        if !(0.0..1.0).contains(&params.gamma) {
+            return Err(PlanError::BadGamma(params.gamma));
+        }
+        if !(params.tolerance.is_finite() && params.tolerance > 0.0) {
+            return Err(PlanError::BadTolerance(params.tolerance));
+        }
+        if params.max_sweeps == 0 {
+            return Err(PlanError::NoSweeps);
+        }
+        Ok(Self {
+            params,
+            values: vec![0.0; structure.n_states()],
+            policy: vec![0; structure.n_states()],
+        })
+    }
+
+    /// The settings.
+    pub fn params(&self) -> PlannerParams {
+        self.params
+    }
+
+    /// Forgets the warm start: back to `V = 0`.
+    pub fn reset(&mut self) {
+        self.values.fill(0.0);
+        self.policy.fill(0);
+    }
+
+    /// `Q(s, a)` under the current values.
+    #[inline]
+    pub fn q_value(
+        &self,
+        structure: &CmdpStructure,
+        table: &EffectTable,
+        s: usize,
+        a: usize,
+    ) -> f64 {
+        let gamma = self.params.gamma;
+        table
+            .probs(a, s)
+            .iter()
+            .enumerate()
+            .map(|(e, &p)| {
+                if p == 0.0 {
+                    return 0.0;
+                }
+                let next = structure.next_state(s, e);
+                let future = if structure.is_terminal(next) {
+                    0.0
+                } else {
+                    gamma * self.values[next]
+                };
+                p * (structure.reward(next) + future)
+            })
+            .sum()
+    }
+
+    /// The best action in `s` and its value (lowest action id on ties).
+    #[inline]
+    fn best(&self, structure: &CmdpStructure, table: &EffectTable, s: usize) -> (usize, f64) {
+        let mut best = (0, f64::NEG_INFINITY);
+        for a in 0..structure.n_actions() {
+            let q = self.q_value(structure, table, s, a);
+            if q > best.1 {
+                best = (a, q);
+            }
+        }
+        best
+    }
+
+    /// Plans to convergence (or the sweep cap) from the current values. Allocation-free.
+    pub fn plan(&mut self, structure: &CmdpStructure, table: &EffectTable) -> PlanStats {
+        let mut stats = PlanStats {
+            sweeps: 0,
+            residual: f64::INFINITY,
+            converged: false,
+        };
+        while stats.sweeps < self.params.max_sweeps {
+            let mut residual: f64 = 0.0;
+            for s in 0..structure.n_states() {
+                if structure.is_terminal(s) {
+                    continue;
+                }
+                let (a, v) = self.best(structure, table, s);
+                residual = residual.max((v - self.values[s]).abs());
+                self.values[s] = v;
+                self.policy[s] = a as u32;
+            }
+            stats.sweeps += 1;
+            stats.residual = residual;
+            if residual <= self.params.tolerance {
+                stats.converged = true;
+                break;
+            }
+        }
+        stats
+    }
+
+    /// `V(s)` from the last plan.
+    #[inline]
+    pub fn value(&self, s: usize) -> f64 {
+        self.values[s]
+    }
+
+    /// The greedy action in `s` from the last plan.
+    #[inline]
+    pub fn action(&self, s: usize) -> usize {
+        self.policy[s] as usize
+    }
+
+    /// All values, by state.
+    pub fn values(&self) -> &[f64] {
+        &self.values
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cmdp::tests::corridor;
+
+    #[test]
+    fn deterministic_corridor_has_the_closed_form_values() {
+        // Right always moves right: from cell s the exit is k = n−1−s moves away, paying −0.01
+        // for each of the first k−1 and +1 for the last: V = −0.01·Σ_{i<k−1} γ^i + γ^{k−1}.
+        let n = 8;
+        let c = corridor(n, &[]);
+        let mut table = EffectTable::uniform(&c);
+        for s in 0..n {
+            table.set(0, s, &[1.0, 0.0, 0.0]);
+            table.set(1, s, &[0.0, 1.0, 0.0]);
+        }
+        let mut vi = ValueIteration::new(&c, PlannerParams::default()).unwrap();
+        let stats = vi.plan(&c, &table);
+        assert!(stats.converged);
+        let g: f64 = 0.95;
+        for s in 1..n - 1 {
+            let k = (n - 1 - s) as i32;
+            let expected = -0.01 * (0..k - 1).map(|i| g.powi(i)).sum::<f64>() + g.powi(k - 1);
+            assert!((vi.value(s) - expected).abs() < 1e-6, "V({s})");
+            assert_eq!(vi.action(s), 1);
+        }
+    }
+
+    #[test]
+    fn stochastic_chain_matches_the_linear_solution() {
+        // 3 cells: 0 is a −1 pit, 2 the +1 exit. In cell 1, "right" reaches the exit with
+        // probability p and otherwise stays; "left" falls in the pit.
+        // V = p·1 + (1−p)(−0.01 + γV)  ⇒  V = (p − 0.01(1−p)) / (1 − γ(1−p)).
+        let c = corridor(3, &[]);
+        let p = 0.3;
+        let mut table = EffectTable::uniform(&c);
+        table.set(0, 1, &[1.0, 0.0, 0.0]);
+        table.set(1, 1, &[0.0, p, 1.0 - p]);
+        let mut vi = ValueIteration::new(&c, PlannerParams::default()).unwrap();
+        vi.plan(&c, &table);
+        let expected = (p - 0.01 * (1.0 - p)) / (1.0 - 0.95 * (1.0 - p));
+        assert!((vi.value(1) - expected).abs() < 1e-5);
+        assert_eq!(vi.action(1), 1);
+        assert_eq!(vi.value(0), 0.0, "terminal states keep V = 0");
+    }
+
+    #[test]
+    fn warm_start_replans_in_fewer_sweeps() {
+        let n = 30;
+        let c = corridor(n, &[]);
+        let mut table = EffectTable::uniform(&c);
+        for s in 0..n {
+            table.set(0, s, &[0.8, 0.1, 0.1]);
+            table.set(1, s, &[0.1, 0.8, 0.1]);
+        }
+        let mut vi = ValueIteration::new(&c, PlannerParams::default()).unwrap();
+        let cold = vi.plan(&c, &table);
+        table.set(1, 10, &[0.1, 0.75, 0.15]);
+        let warm = vi.plan(&c, &table);
+        assert!(cold.converged && warm.converged);
+        assert!(warm.sweeps < cold.sweeps, "{warm:?} vs {cold:?}");
+        let mut fresh = ValueIteration::new(&c, PlannerParams::default()).unwrap();
+        fresh.plan(&c, &table);
+        for s in 0..n {
+            assert!((fresh.value(s) - vi.value(s)).abs() < 1e-4);
+        }
+    }
+
+    #[test]
+    fn sweep_cap_is_respected_and_settings_checked() {
+        let c = corridor(50, &[]);
+        let table = EffectTable::uniform(&c);
+        let params = PlannerParams {
+            max_sweeps: 2,
+            ..PlannerParams::default()
+        };
+        let stats = ValueIteration::new(&c, params).unwrap().plan(&c, &table);
+        assert_eq!(stats.sweeps, 2);
+        assert!(!stats.converged);
+        let ok = PlannerParams::default();
+        for bad in [
+            PlannerParams { gamma: 1.0, ..ok },
+            PlannerParams { gamma: -0.1, ..ok },
+            PlannerParams {
+                tolerance: 0.0,
+                ..ok
+            },
+            PlannerParams {
+                max_sweeps: 0,
+                ..ok
+            },
+        ] {
+            assert!(ValueIteration::new(&c, bad).is_err());
+        }
+    }
+}
