@@ -6,7 +6,8 @@
 //! * [`cmdp`] — the situation-calculus MDP (§3.1): known effect semantics, rewards and
 //!   features, and the learned effect probabilities.
 //! * [`plan`] — warm-started value iteration on that model.
-//! * [`agents`] — agents that learn and act: loreRL (Algorithm 6) and its bloreRL variant.
+//! * [`agents`] — agents that learn and act: loreRL (Algorithm 6), bloreRL, and the
+//!   count-based baselines Rmax, factored Rmax and factored ε-greedy.
 //! * [`labelled_csv`] — the labelled-row format `tes fit` reads.
 //!
 //! Everything here is a plain struct with no IPC, clock or I/O inside; the controller process

@@ -60,6 +60,15 @@ pub struct PlanStats {
     pub converged: bool,
 }
 
+/// Which state–action pairs R-max treats as unknown, and what they are worth.
+#[derive(Debug, Clone, Copy)]
+pub struct Optimism<'a> {
+    /// `unknown[a * n_states + s]`.
+    pub unknown: &'a [bool],
+    /// The optimistic value of an unknown pair.
+    pub value: f64,
+}
+
 /// Value iteration with its values and greedy policy kept between plans (the warm start).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ValueIteration {
@@ -129,10 +138,19 @@ impl ValueIteration {
 
     /// The best action in `s` and its value (lowest action id on ties).
     #[inline]
-    fn best(&self, structure: &CmdpStructure, table: &EffectTable, s: usize) -> (usize, f64) {
+    fn best(
+        &self,
+        structure: &CmdpStructure,
+        table: &EffectTable,
+        optimism: Option<Optimism<'_>>,
+        s: usize,
+    ) -> (usize, f64) {
         let mut best = (0, f64::NEG_INFINITY);
         for a in 0..structure.n_actions() {
-            let q = self.q_value(structure, table, s, a);
+            let q = match optimism {
+                Some(o) if o.unknown[a * structure.n_states() + s] => o.value,
+                _ => self.q_value(structure, table, s, a),
+            };
             if q > best.1 {
                 best = (a, q);
             }
@@ -142,6 +160,28 @@ impl ValueIteration {
 
     /// Plans to convergence (or the sweep cap) from the current values. Allocation-free.
     pub fn plan(&mut self, structure: &CmdpStructure, table: &EffectTable) -> PlanStats {
+        self.plan_inner(structure, table, None)
+    }
+
+    /// Plans with R-max optimism: every `(s, a)` marked unknown is valued at `optimism.value`
+    /// (typically `R_max / (1 − γ)`) instead of by the model, which drives exploration to it.
+    ///
+    /// `optimism.unknown` is indexed `a * n_states + s`.
+    pub fn plan_optimistic(
+        &mut self,
+        structure: &CmdpStructure,
+        table: &EffectTable,
+        optimism: Optimism<'_>,
+    ) -> PlanStats {
+        self.plan_inner(structure, table, Some(optimism))
+    }
+
+    fn plan_inner(
+        &mut self,
+        structure: &CmdpStructure,
+        table: &EffectTable,
+        optimism: Option<Optimism<'_>>,
+    ) -> PlanStats {
         let mut stats = PlanStats {
             sweeps: 0,
             residual: f64::INFINITY,
@@ -153,7 +193,7 @@ impl ValueIteration {
                 if structure.is_terminal(s) {
                     continue;
                 }
-                let (a, v) = self.best(structure, table, s);
+                let (a, v) = self.best(structure, table, optimism, s);
                 residual = residual.max((v - self.values[s]).abs());
                 self.values[s] = v;
                 self.policy[s] = a as u32;

@@ -9,8 +9,10 @@ use thiserror::Error;
 use crate::mdagl::{MdaglConfigError, MdaglError};
 use crate::plan::PlanError;
 
+mod counting;
 mod lore_rl;
 
+pub use counting::{Contexts, CountingAgent, Exploration};
 pub use lore_rl::{LoreRl, LoreRlParams};
 
 /// Why an agent could not be built or could not learn from a step. On a step error the agent
