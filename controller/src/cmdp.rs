@@ -81,6 +81,9 @@ pub struct CmdpStructure {
     /// Sparse binary features, CSR: state `s` has `indices[offsets[s]..offsets[s+1]]`.
     offsets: Vec<usize>,
     indices: Vec<u32>,
+    /// The transpose, CSR: feature `i` is on in states `holders[holder_offsets[i]..holder_offsets[i+1]]`.
+    holder_offsets: Vec<usize>,
+    holders: Vec<u32>,
 }
 
 impl CmdpStructure {
@@ -147,6 +150,21 @@ impl CmdpStructure {
             indices.extend_from_slice(x);
             offsets.push(indices.len());
         }
+        let mut holder_offsets = vec![0usize; n_features + 1];
+        for &i in &indices {
+            holder_offsets[i as usize + 1] += 1;
+        }
+        for i in 0..n_features {
+            holder_offsets[i + 1] += holder_offsets[i];
+        }
+        let mut fill = holder_offsets.clone();
+        let mut holders = vec![0u32; indices.len()];
+        for s in 0..n_states {
+            for &i in &indices[offsets[s]..offsets[s + 1]] {
+                holders[fill[i as usize]] = s as u32;
+                fill[i as usize] += 1;
+            }
+        }
         Ok(Self {
             n_states,
             n_actions,
@@ -157,6 +175,8 @@ impl CmdpStructure {
             terminal,
             offsets,
             indices,
+            holder_offsets,
+            holders,
         })
     }
 
@@ -204,6 +224,12 @@ impl CmdpStructure {
         &self.indices[self.offsets[s]..self.offsets[s + 1]]
     }
 
+    /// The states in which feature `i` is on, in increasing order.
+    #[inline]
+    pub fn states_with_feature(&self, i: usize) -> &[u32] {
+        &self.holders[self.holder_offsets[i]..self.holder_offsets[i + 1]]
+    }
+
     /// Which effect leads from `s` to `next`, if one does (the lowest such effect id).
     ///
     /// Used where only states are observed; when several effects lead to the same state (a
@@ -247,6 +273,9 @@ impl EffectTable {
 
     /// Recomputes action `a`'s rows from its view, for every state. Allocation-free.
     ///
+    /// Equal to calling [`Mdagl::predict_into`] on every state, but it visits only the
+    /// features the view uses (a sparse view over hundreds of features touches a handful),
+    /// adding each used column's weights to the scores of the states where it is on.
     /// The view must predict `n_effects` classes from `n_features` features.
     pub fn refresh(
         &mut self,
@@ -255,12 +284,47 @@ impl EffectTable {
         structure: &CmdpStructure,
     ) -> Result<(), MdaglError> {
         let e = self.n_effects;
-        for s in 0..self.n_states {
-            let start = (a * self.n_states + s) * e;
-            view.predict_into(
-                Features::SparseBinary(structure.features(s)),
-                &mut self.probs[start..start + e],
-            )?;
+        if view.n_classes() != e {
+            return Err(MdaglError::WrongOutputLen {
+                expected: view.n_classes(),
+                got: e,
+            });
+        }
+        if view.n_features() != structure.n_features() {
+            return Err(MdaglError::WrongFeatureCount {
+                expected: view.n_features(),
+                got: structure.n_features(),
+            });
+        }
+        let rows = &mut self.probs[a * self.n_states * e..(a + 1) * self.n_states * e];
+        rows.fill(0.0);
+        view.for_each_weight_column(|col, scale, sums| {
+            let mut add = |s: usize| {
+                for (score, &g) in rows[s * e..(s + 1) * e].iter_mut().zip(sums) {
+                    *score += scale * g;
+                }
+            };
+            if col < structure.n_features() {
+                structure
+                    .states_with_feature(col)
+                    .iter()
+                    .for_each(|&s| add(s as usize));
+            } else {
+                // The intercept is on everywhere.
+                (0..structure.n_states()).for_each(add);
+            }
+        });
+        for row in rows.chunks_exact_mut(e) {
+            let max = row.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            if !max.is_finite() {
+                return Err(MdaglError::Overflow);
+            }
+            let mut sum = 0.0;
+            for p in row.iter_mut() {
+                *p = (*p - max).exp();
+                sum += *p;
+            }
+            row.iter_mut().for_each(|p| *p /= sum);
         }
         Ok(())
     }
@@ -370,6 +434,42 @@ pub(crate) mod tests {
         ));
     }
 
+    proptest::proptest! {
+        /// The column-wise refresh equals predicting every state one by one.
+        #[test]
+        fn refresh_equals_per_state_prediction(
+            seed in 0u64..1000,
+            features in 1usize..60,
+            intercept in proptest::bool::ANY,
+            lambda in 0.0..0.1f64,
+        ) {
+            use rand::{RngExt, SeedableRng};
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+            let n = 12;
+            let feats: Vec<Vec<u32>> = (0..n)
+                .map(|_| (0..features as u32).filter(|_| rng.random::<f64>() < 0.3).collect())
+                .collect();
+            let c = CmdpStructure::new(
+                n, 2, 4, features, |s, _| s, vec![0.0; n], vec![false; n], |s| &feats[s],
+            ).unwrap();
+            let params = crate::mdagl::MdaglParams { lambda, alpha: 0.5, intercept };
+            let mut view = Mdagl::new(4, features, params).unwrap();
+            for t in 0..200 {
+                let s = rng.random_range(0..n);
+                view.update(Features::SparseBinary(&feats[s]), (s + t % 2) % 4).unwrap();
+            }
+            let mut table = EffectTable::uniform(&c);
+            table.refresh(1, &view, &c).unwrap();
+            let mut p = [0.0; 4];
+            for (s, f) in feats.iter().enumerate() {
+                view.predict_into(Features::SparseBinary(f), &mut p).unwrap();
+                for (a, b) in p.iter().zip(table.probs(1, s)) {
+                    proptest::prop_assert!((a - b).abs() < 1e-12);
+                }
+            }
+        }
+    }
+
     #[test]
     fn effect_table_follows_the_view() {
         let c = corridor(5, &[2]);
@@ -388,6 +488,17 @@ pub(crate) mod tests {
         assert!(table.probs(1, 3)[1] > 0.6);
         // Action 0's rows are untouched.
         assert!((table.probs(0, 3)[1] - 1.0 / 3.0).abs() < 1e-15);
+        // The fast refresh equals per-state prediction.
+        let mut p = [0.0; 3];
+        for s in 0..5 {
+            view.predict_into(Features::SparseBinary(c.features(s)), &mut p)
+                .unwrap();
+            for (a, b) in p.iter().zip(table.probs(1, s)) {
+                assert!((a - b).abs() < 1e-12);
+            }
+        }
+        assert_eq!(c.states_with_feature(1), &[2]);
+        assert_eq!(c.states_with_feature(0), &[0, 1, 2, 3, 4]);
         table.set(0, 1, &[0.0, 0.0, 1.0]);
         assert_eq!(table.probs(0, 1), &[0.0, 0.0, 1.0]);
     }

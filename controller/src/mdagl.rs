@@ -499,6 +499,25 @@ impl Mdagl {
         }
     }
 
+    /// Calls `f(column, scale, sums)` for every column with non-zero weights, where the
+    /// column's weights are `scale · sums` (`sums` has `K` entries). The intercept, when the
+    /// model has one, is column `n_features()`.
+    ///
+    /// This lets a caller that predicts for many inputs at once (the planner's model refresh)
+    /// visit only the features the model uses. Allocation-free.
+    pub fn for_each_weight_column(&self, mut f: impl FnMut(usize, f64, &[f64])) {
+        let Some((inv_beta, cut)) = self.step_constants() else {
+            return;
+        };
+        let k = self.classes;
+        for col in 0..self.norms.len() {
+            let scale = self.column_scale(col, inv_beta, cut);
+            if scale != 0.0 {
+                f(col, scale, &self.sums[col * k..(col + 1) * k]);
+            }
+        }
+    }
+
     /// Writes column `i` of the current weight matrix `W` into `out` (length `K`).
     /// Column `n_features()` is the intercept, when the model has one.
     pub fn weight_column(&self, i: usize, out: &mut [f64]) -> Result<(), MdaglError> {
