@@ -138,3 +138,65 @@ fn mdagl_dense_updates_allocate_nothing() {
     }
     assert_eq!(guard.allocations(), 0);
 }
+
+/// loreRL's whole step — choose an action (re-planning on the learned model), learn from its
+/// effect, refresh the model — allocates nothing after construction.
+#[test]
+fn lore_rl_steps_allocate_nothing() {
+    use std::sync::Arc;
+    use tes_controller::agents::{Agent, LoreRl, LoreRlParams};
+    use tes_controller::cmdp::CmdpStructure;
+
+    // A 10×10 open grid, 4 moves, 5 effects (4 moves + stay), 60 features: bias, a "mud"
+    // marker on a third of the cells, and random irrelevant ones.
+    let (w, n) = (10usize, 100usize);
+    let features: Vec<Vec<u32>> = (0..n)
+        .map(|s| {
+            let mut f = vec![0u32];
+            if s.is_multiple_of(3) {
+                f.push(1);
+            }
+            f.extend((2..60u32).filter(|i| (s as u32 * 7 + i * 13).is_multiple_of(5)));
+            f
+        })
+        .collect();
+    let mut reward = vec![-0.01; n];
+    reward[n - 1] = 1.0;
+    let mut terminal = vec![false; n];
+    terminal[n - 1] = true;
+    let step = |s: usize, e: usize| -> usize {
+        let (x, y) = (s % w, s / w);
+        match e {
+            0 if y + 1 < w => s + w,
+            1 if x + 1 < w => s + 1,
+            2 if y > 0 => s - w,
+            3 if x > 0 => s - 1,
+            _ => s,
+        }
+    };
+    let structure = Arc::new(
+        CmdpStructure::new(n, 4, 5, 60, step, reward, terminal, |s| &features[s]).unwrap(),
+    );
+    let mut agent = LoreRl::new(structure.clone(), LoreRlParams::default(), 9).unwrap();
+    let mut s = 0;
+    let mut run = |agent: &mut LoreRl, steps: usize| {
+        for t in 0..steps {
+            let a = agent.act(s).unwrap();
+            // Mud cells stall one move in three.
+            let e = if structure.features(s).contains(&1) && t.is_multiple_of(3) {
+                4
+            } else {
+                a
+            };
+            agent.observe(s, a, e).unwrap();
+            s = structure.next_state(s, e);
+            if structure.is_terminal(s) {
+                s = t % (n - 1);
+            }
+        }
+    };
+    run(&mut agent, 200); // warm-up
+    let guard = Tracked::start();
+    run(&mut agent, 2_000);
+    assert_eq!(guard.allocations(), 0, "the acting loop allocated");
+}
