@@ -211,6 +211,11 @@ pub struct Command {
     pub reserved: u32,
 }
 
+/// The [`Command::action`] that moves nothing and only tells the bridge the controller is
+/// alive: it feeds the bridge's watchdog, which brakes the motors when neither a command nor
+/// a keep-alive arrives within its deadline while a motor runs.
+pub const KEEP_ALIVE_ACTION: u32 = u32::MAX;
+
 /// Motor run states as the NXT firmware reports them.
 pub mod run_state {
     /// Motor is idle (coasting or braked, not running a command).

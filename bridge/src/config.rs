@@ -1,0 +1,489 @@
+//! The bridge's TOML configuration, validated once.
+//!
+//! Every key is optional; the defaults are the simulated brick and the paper's three actions.
+//! Switching to a real NXT is one line: `transport = "serial:/dev/rfcomm0"`.
+//!
+//! ```
+//! use tes_bridge::config::{BridgeConfig, TransportKind};
+//!
+//! let cfg = BridgeConfig::from_toml_str(r#"
+//!     transport = "serial:/dev/rfcomm0"
+//!     [watchdog]
+//!     deadline_ms = 800
+//! "#)?;
+//! assert_eq!(cfg.transport, TransportKind::Serial("/dev/rfcomm0".into()));
+//! assert_eq!(cfg.watchdog_deadline.as_millis(), 800);
+//! assert!(BridgeConfig::from_toml_str("transport = \"usb\"").is_err());
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde::Deserialize;
+
+use crate::actions::{ActionConfig, ActionMap, ActionSpec, MotorsConfig, paper_actions};
+use crate::brick::SimBrickConfig;
+use crate::transport::SerialConfig;
+
+/// Which transport carries the telegrams.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum TransportKind {
+    /// The simulated brick, in-process (`transport = "sim"`).
+    Sim,
+    /// A serial device (`transport = "serial:/dev/rfcomm0"`).
+    Serial(PathBuf),
+}
+
+impl std::str::FromStr for TransportKind {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.split_once(':') {
+            None if s == "sim" => Ok(TransportKind::Sim),
+            Some(("serial", path)) if !path.is_empty() => {
+                Ok(TransportKind::Serial(PathBuf::from(path)))
+            }
+            _ => Err(format!(
+                "expected \"sim\" or \"serial:PATH\" (e.g. \"serial:/dev/rfcomm0\"), got {s:?}"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for TransportKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            TransportKind::Sim => f.write_str("sim"),
+            TransportKind::Serial(p) => write!(f, "serial:{}", p.display()),
+        }
+    }
+}
+
+/// A configuration that could not be loaded.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read config {path}: {error}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// The error (part of the message, so not also chained as a source).
+        error: std::io::Error,
+    },
+    /// The TOML is malformed or has an unknown key or a wrongly typed value.
+    #[error("config {origin}: {message}")]
+    Parse {
+        /// The file, or `<string>`.
+        origin: String,
+        /// The parser's message (it names the key and line).
+        message: String,
+    },
+    /// A value is out of range.
+    #[error("config key {key}: {reason}")]
+    Invalid {
+        /// The key, e.g. `watchdog.deadline_ms`.
+        key: String,
+        /// What is wrong.
+        reason: String,
+    },
+}
+
+fn invalid(key: &str, reason: impl Into<String>) -> ConfigError {
+    ConfigError::Invalid {
+        key: key.to_owned(),
+        reason: reason.into(),
+    }
+}
+
+/// The simulated Bluetooth link delay (the `[link_delay]` table).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LinkDelayConfig {
+    /// Delay each reply of the `sim` transport (and of `bridge brick --pty`).
+    pub enabled: bool,
+    /// Mean delay per reply, ms.
+    pub mean_ms: u64,
+    /// Uniform jitter around the mean, ms.
+    pub jitter_ms: u64,
+}
+
+impl Default for LinkDelayConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            mean_ms: 30,
+            jitter_ms: 10,
+        }
+    }
+}
+
+/// Serial settings (the `[serial]` table).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SerialSection {
+    /// Line speed (ignored by rfcomm and pseudo-terminals).
+    pub baud_rate: u32,
+    /// Read timeout per reply part, ms.
+    pub read_timeout_ms: u64,
+    /// Wait between reconnection attempts, ms.
+    pub reconnect_backoff_ms: u64,
+    /// Consecutive timeouts before reopening the device.
+    pub max_timeouts: u32,
+    /// Open the device exclusively.
+    pub exclusive: bool,
+}
+
+impl Default for SerialSection {
+    fn default() -> Self {
+        Self {
+            baud_rate: 115_200,
+            read_timeout_ms: 500,
+            reconnect_backoff_ms: 1000,
+            max_timeouts: 3,
+            exclusive: true,
+        }
+    }
+}
+
+/// How the bridge polls the brick (the `[poll]` table).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PollConfig {
+    /// Poll period while a wheel moves, ms.
+    pub moving_period_ms: u64,
+    /// Heartbeat period while at rest (all ports and the battery are read and published), ms.
+    pub idle_period_ms: u64,
+    /// Consecutive polls with idle wheels and unchanged counts before a move is settled.
+    pub settle_polls: u32,
+    /// Period of KEEPALIVE telegrams to the brick (keeps it from sleeping), ms.
+    pub keepalive_period_ms: u64,
+}
+
+impl Default for PollConfig {
+    fn default() -> Self {
+        Self {
+            moving_period_ms: 20,
+            idle_period_ms: 1000,
+            settle_polls: 2,
+            keepalive_period_ms: 60_000,
+        }
+    }
+}
+
+impl PollConfig {
+    /// The moving poll period.
+    pub fn moving_period(&self) -> Duration {
+        Duration::from_millis(self.moving_period_ms)
+    }
+
+    /// The idle heartbeat period.
+    pub fn idle_period(&self) -> Duration {
+        Duration::from_millis(self.idle_period_ms)
+    }
+
+    /// The brick keep-alive period.
+    pub fn keepalive_period(&self) -> Duration {
+        Duration::from_millis(self.keepalive_period_ms)
+    }
+}
+
+/// iceoryx2 settings (the `[ipc]` table).
+#[derive(Debug, Clone, PartialEq, Eq, Default, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct IpcConfig {
+    /// Prefix for every service name (to run several systems side by side, or in tests).
+    pub service_prefix: String,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawConfig {
+    #[serde(default = "default_transport")]
+    transport: String,
+    #[serde(default)]
+    seed: u64,
+    #[serde(default)]
+    use_command_degrees: bool,
+    #[serde(default)]
+    link_delay: LinkDelayConfig,
+    #[serde(default)]
+    serial: SerialSection,
+    #[serde(default)]
+    watchdog: WatchdogSection,
+    #[serde(default)]
+    poll: PollConfig,
+    #[serde(default)]
+    ipc: IpcConfig,
+    #[serde(default)]
+    brick: SimBrickConfig,
+    #[serde(default)]
+    motors: MotorsConfig,
+    #[serde(default = "paper_actions")]
+    actions: Vec<ActionSpec>,
+}
+
+fn default_transport() -> String {
+    "sim".to_owned()
+}
+
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+struct WatchdogSection {
+    deadline_ms: u64,
+}
+
+impl Default for WatchdogSection {
+    fn default() -> Self {
+        Self { deadline_ms: 1000 }
+    }
+}
+
+/// The validated bridge configuration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BridgeConfig {
+    /// `transport`: `"sim"` (default) or `"serial:PATH"`.
+    pub transport: TransportKind,
+    /// `seed`: seeds the simulated brick and the simulated link delay (default 0).
+    pub seed: u64,
+    /// `use_command_degrees`: drive the wheels by the command's `left_deg`/`right_deg` instead
+    /// of looking its action id up in `[[actions]]` (default false).
+    pub use_command_degrees: bool,
+    /// `[link_delay]`: `None` when disabled.
+    pub link_delay: Option<(Duration, Duration)>,
+    /// `[serial]`.
+    pub serial: SerialSection,
+    /// `[watchdog] deadline_ms` (default 1000).
+    pub watchdog_deadline: Duration,
+    /// `[poll]`.
+    pub poll: PollConfig,
+    /// `[ipc]`.
+    pub ipc: IpcConfig,
+    /// `[brick]`: the simulated brick's physics.
+    pub brick: SimBrickConfig,
+    /// `[motors]` and `[[actions]]`.
+    pub actions: ActionMap,
+}
+
+impl Default for BridgeConfig {
+    fn default() -> Self {
+        Self {
+            transport: TransportKind::Sim,
+            seed: 0,
+            use_command_degrees: false,
+            link_delay: None,
+            serial: SerialSection::default(),
+            watchdog_deadline: Duration::from_millis(1000),
+            poll: PollConfig::default(),
+            ipc: IpcConfig::default(),
+            brick: SimBrickConfig::default(),
+            actions: ActionMap::paper_default(),
+        }
+    }
+}
+
+impl BridgeConfig {
+    /// Reads and validates a TOML file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Read {
+            path: path.to_owned(),
+            error,
+        })?;
+        Self::parse(&text, &path.display().to_string())
+    }
+
+    /// Parses and validates TOML text.
+    pub fn from_toml_str(text: &str) -> Result<Self, ConfigError> {
+        Self::parse(text, "<string>")
+    }
+
+    fn parse(text: &str, origin: &str) -> Result<Self, ConfigError> {
+        let raw: RawConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            origin: origin.to_owned(),
+            message: e.to_string(),
+        })?;
+        let transport = raw
+            .transport
+            .parse::<TransportKind>()
+            .map_err(|r| invalid("transport", r))?;
+        let ms = Duration::from_millis;
+        if raw.watchdog.deadline_ms < 50 {
+            return Err(invalid(
+                "watchdog.deadline_ms",
+                format!("must be at least 50, got {}", raw.watchdog.deadline_ms),
+            ));
+        }
+        let p = raw.poll;
+        if !(1..=1000).contains(&p.moving_period_ms) {
+            return Err(invalid(
+                "poll.moving_period_ms",
+                format!("must be in 1..=1000, got {}", p.moving_period_ms),
+            ));
+        }
+        if p.moving_period_ms >= raw.watchdog.deadline_ms {
+            return Err(invalid(
+                "poll.moving_period_ms",
+                format!(
+                    "must be shorter than watchdog.deadline_ms ({})",
+                    raw.watchdog.deadline_ms
+                ),
+            ));
+        }
+        if !(10..=600_000).contains(&p.idle_period_ms) {
+            return Err(invalid(
+                "poll.idle_period_ms",
+                format!("must be in 10..=600000, got {}", p.idle_period_ms),
+            ));
+        }
+        if !(1..=100).contains(&p.settle_polls) {
+            return Err(invalid(
+                "poll.settle_polls",
+                format!("must be in 1..=100, got {}", p.settle_polls),
+            ));
+        }
+        if p.keepalive_period_ms < 1000 {
+            return Err(invalid(
+                "poll.keepalive_period_ms",
+                format!("must be at least 1000, got {}", p.keepalive_period_ms),
+            ));
+        }
+        let s = raw.serial;
+        if !(10..=60_000).contains(&s.read_timeout_ms) {
+            return Err(invalid(
+                "serial.read_timeout_ms",
+                format!("must be in 10..=60000, got {}", s.read_timeout_ms),
+            ));
+        }
+        if s.max_timeouts == 0 {
+            return Err(invalid("serial.max_timeouts", "must be at least 1"));
+        }
+        let d = raw.link_delay;
+        if d.jitter_ms > d.mean_ms || d.mean_ms > 10_000 {
+            return Err(invalid(
+                "link_delay.jitter_ms",
+                format!(
+                    "need jitter_ms <= mean_ms <= 10000, got jitter {} mean {}",
+                    d.jitter_ms, d.mean_ms
+                ),
+            ));
+        }
+        raw.brick
+            .check()
+            .map_err(|e| invalid(&format!("brick.{}", e.key), e.reason))?;
+        let actions = ActionMap::new(ActionConfig {
+            motors: raw.motors,
+            actions: raw.actions,
+        })
+        .map_err(|e| invalid(&e.key, e.reason))?;
+        if raw.ipc.service_prefix.len() > 64 {
+            return Err(invalid("ipc.service_prefix", "must be at most 64 bytes"));
+        }
+        Ok(Self {
+            transport,
+            seed: raw.seed,
+            use_command_degrees: raw.use_command_degrees,
+            link_delay: d.enabled.then(|| (ms(d.mean_ms), ms(d.jitter_ms))),
+            serial: s,
+            watchdog_deadline: ms(raw.watchdog.deadline_ms),
+            poll: p,
+            ipc: raw.ipc,
+            brick: raw.brick,
+            actions,
+        })
+    }
+
+    /// The serial settings for `path`.
+    pub fn serial_config(&self, path: &Path) -> SerialConfig {
+        SerialConfig {
+            path: path.to_owned(),
+            baud_rate: self.serial.baud_rate,
+            read_timeout: Duration::from_millis(self.serial.read_timeout_ms),
+            reconnect_backoff: Duration::from_millis(self.serial.reconnect_backoff_ms),
+            max_timeouts: self.serial.max_timeouts,
+            exclusive: self.serial.exclusive,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn empty_config_is_the_default() {
+        assert_eq!(
+            BridgeConfig::from_toml_str("").expect("valid"),
+            BridgeConfig::default()
+        );
+    }
+
+    #[test]
+    fn example_config_is_the_default() {
+        let text = include_str!("../bridge.example.toml");
+        assert_eq!(
+            BridgeConfig::from_toml_str(text).expect("valid"),
+            BridgeConfig::default()
+        );
+    }
+
+    #[test]
+    fn full_config_parses() {
+        let cfg = BridgeConfig::from_toml_str(
+            r#"
+            transport = "sim"
+            seed = 9
+            use_command_degrees = true
+            [link_delay]
+            enabled = true
+            mean_ms = 30
+            jitter_ms = 5
+            [serial]
+            read_timeout_ms = 250
+            [watchdog]
+            deadline_ms = 700
+            [poll]
+            moving_period_ms = 10
+            [ipc]
+            service_prefix = "test/"
+            [brick]
+            speed_noise = 0.0
+            [motors]
+            power = 50
+            [[actions]]
+            id = 0
+            left_deg = 100
+            right_deg = 100
+            "#,
+        )
+        .expect("valid");
+        assert_eq!(
+            cfg.link_delay,
+            Some((Duration::from_millis(30), Duration::from_millis(5)))
+        );
+        assert_eq!(
+            cfg.serial_config(Path::new("/dev/x")).read_timeout,
+            Duration::from_millis(250)
+        );
+        assert_eq!(cfg.actions.config().motors.power, 50);
+        assert_eq!(cfg.ipc.service_prefix, "test/");
+        assert_eq!(cfg.brick.speed_noise, 0.0);
+    }
+
+    #[test]
+    fn errors_name_the_key() {
+        let msg = |s: &str| {
+            BridgeConfig::from_toml_str(s)
+                .expect_err("invalid")
+                .to_string()
+        };
+        assert!(msg("transport = \"serial:\"").contains("transport"));
+        assert!(msg("[watchdog]\ndeadline_ms = 10").contains("watchdog.deadline_ms"));
+        assert!(msg("[poll]\nmoving_period_ms = 2000").contains("poll.moving_period_ms"));
+        assert!(msg("[brick]\ntime_constant_s = -1.0").contains("brick.time_constant_s"));
+        assert!(msg("[motors]\npower = 101").contains("motors.power"));
+        assert!(msg("[link_delay]\njitter_ms = 40").contains("link_delay.jitter_ms"));
+        // Unknown keys are refused, with the key in the parser's message.
+        assert!(msg("[watchdog]\ndeadline = 10").contains("deadline"));
+        assert!(msg("bogus = 1").contains("bogus"));
+    }
+}

@@ -1,0 +1,160 @@
+//! `bridge`: the TES actuation process, and a simulated NXT brick server.
+//!
+//! ```text
+//! bridge run [--config FILE]                       commands in over iceoryx2, NXT telegrams out
+//! bridge brick --pty PATH [--seed N] [--config FILE] [--link-delay]
+//!                                                   serve the simulated brick on a pseudo-terminal
+//! ```
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+
+use anyhow::Context as _;
+use clap::{Parser, Subcommand};
+use tes_bridge::brick::SimBrick;
+use tes_bridge::bridge::Bridge;
+use tes_bridge::clock::MonotonicClock;
+use tes_bridge::config::{BridgeConfig, TransportKind};
+use tes_bridge::ipc::{self, RunOptions, ServiceNames};
+use tes_bridge::pty::PtyServer;
+use tes_bridge::transport::{
+    DelayedTransport, LinkDelay, SerialTransport, SimTransport, Transport,
+};
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "bridge",
+    version,
+    about = "TES bridge: controller commands to LEGO NXT direct commands"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Cmd,
+}
+
+#[derive(Debug, Subcommand)]
+enum Cmd {
+    /// Run the bridge process: subscribe to commands, drive the brick, publish motor states.
+    Run {
+        /// Bridge configuration (TOML); defaults to the simulated brick and the paper's actions.
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
+    /// Serve the simulated brick on a new pseudo-terminal linked at PATH, until SIGINT/SIGTERM.
+    Brick {
+        /// Where to link the pseudo-terminal's slave device (clients open this path).
+        #[arg(long, value_name = "PATH")]
+        pty: PathBuf,
+        /// Seed of the simulated brick (overrides the config's `seed`).
+        #[arg(long)]
+        seed: Option<u64>,
+        /// Bridge configuration: its `[brick]` table and `[link_delay]` are used.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Delay each reply like a Bluetooth link (≈ 30 ms ± 10 ms unless configured).
+        #[arg(long)]
+        link_delay: bool,
+    },
+}
+
+fn load(config: Option<&Path>) -> anyhow::Result<BridgeConfig> {
+    match config {
+        Some(p) => BridgeConfig::load(p).with_context(|| format!("loading {}", p.display())),
+        None => Ok(BridgeConfig::default()),
+    }
+}
+
+fn main() -> anyhow::Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    match Cli::parse().command {
+        Cmd::Run { config } => run(load(config.as_deref())?),
+        Cmd::Brick {
+            pty,
+            seed,
+            config,
+            link_delay,
+        } => {
+            let mut cfg = load(config.as_deref())?;
+            if let Some(s) = seed {
+                cfg.seed = s;
+            }
+            if link_delay && cfg.link_delay.is_none() {
+                let d = tes_bridge::config::LinkDelayConfig::default();
+                cfg.link_delay = Some((
+                    Duration::from_millis(d.mean_ms),
+                    Duration::from_millis(d.jitter_ms),
+                ));
+            }
+            brick(&pty, &cfg)
+        }
+    }
+}
+
+fn run(cfg: BridgeConfig) -> anyhow::Result<()> {
+    let clock = MonotonicClock::new();
+    let transport: Box<dyn Transport> = match &cfg.transport {
+        TransportKind::Sim => {
+            let brick = SimBrick::new(cfg.brick.clone(), cfg.seed)
+                .context("building the simulated brick")?;
+            let sim = SimTransport::new(brick, clock);
+            match cfg.link_delay {
+                Some((mean, jitter)) => Box::new(DelayedTransport::new(
+                    sim,
+                    LinkDelay::new(mean, jitter, cfg.seed),
+                )),
+                None => Box::new(sim),
+            }
+        }
+        TransportKind::Serial(path) => {
+            if cfg.link_delay.is_some() {
+                tracing::warn!(
+                    "link_delay is for the simulated brick; ignored with a serial transport"
+                );
+            }
+            Box::new(SerialTransport::new(cfg.serial_config(path)))
+        }
+    };
+    tracing::info!(transport = %transport.describe(), seed = cfg.seed, "bridge starting");
+    let mut bridge = Bridge::new(transport, &cfg);
+    let names = ServiceNames::with_prefix(&cfg.ipc.service_prefix);
+    let summary = ipc::run(&mut bridge, &clock, &names, &RunOptions::process())
+        .context("running the bridge loop")?;
+    tracing::info!(?summary, stats = ?bridge.stats(), "bridge stopped");
+    Ok(())
+}
+
+fn brick(link: &Path, cfg: &BridgeConfig) -> anyhow::Result<()> {
+    let stop = Arc::new(AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(sig, Arc::clone(&stop))
+            .context("installing the signal handlers")?;
+    }
+    let mut brick =
+        SimBrick::new(cfg.brick.clone(), cfg.seed).context("building the simulated brick")?;
+    let server = PtyServer::open(link)
+        .with_context(|| format!("serving the brick at {}", link.display()))?;
+    let delay = cfg
+        .link_delay
+        .map(|(mean, jitter)| LinkDelay::new(mean, jitter, cfg.seed));
+    tracing::info!(
+        link = %link.display(),
+        device = %server.slave_path().display(),
+        seed = cfg.seed,
+        link_delay = ?cfg.link_delay,
+        "simulated NXT brick serving; stop with SIGINT or SIGTERM"
+    );
+    let clock = MonotonicClock::new();
+    let stats = server
+        .serve(&mut brick, &clock, delay, &stop)
+        .context("serving the brick")?;
+    tracing::info!(?stats, brick = ?brick.stats(), "simulated brick stopped");
+    Ok(())
+}

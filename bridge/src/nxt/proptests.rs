@@ -1,0 +1,240 @@
+//! Property tests: every command and reply round-trips; no byte string panics a decoder.
+
+use proptest::prelude::*;
+
+use super::frame::{FrameDecoder, decode_frame};
+use super::*;
+use crate::brick::{SimBrick, SimBrickConfig};
+
+fn port() -> impl Strategy<Value = Port> {
+    prop::sample::select(Port::ALL.to_vec())
+}
+
+fn mode() -> impl Strategy<Value = Mode> {
+    (0u8..8).prop_map(|b| Mode::from_bits(b).unwrap_or_default())
+}
+
+fn regulation() -> impl Strategy<Value = RegulationMode> {
+    prop::sample::select(vec![
+        RegulationMode::Idle,
+        RegulationMode::Speed,
+        RegulationMode::Sync,
+    ])
+}
+
+fn run_state() -> impl Strategy<Value = RunState> {
+    prop::sample::select(vec![
+        RunState::Idle,
+        RunState::RampUp,
+        RunState::Running,
+        RunState::RampDown,
+    ])
+}
+
+fn status() -> impl Strategy<Value = Status> {
+    prop::sample::select(Status::ALL.to_vec())
+}
+
+fn set_output_state() -> impl Strategy<Value = SetOutputState> {
+    (
+        prop_oneof![port().prop_map(PortSelector::One), Just(PortSelector::All)],
+        any::<i8>(),
+        mode(),
+        regulation(),
+        any::<i8>(),
+        run_state(),
+        any::<u32>(),
+    )
+        .prop_map(
+            |(port, power, mode, regulation, turn_ratio, run_state, tacho_limit)| SetOutputState {
+                port,
+                power,
+                mode,
+                regulation,
+                turn_ratio,
+                run_state,
+                tacho_limit,
+            },
+        )
+}
+
+fn request() -> impl Strategy<Value = Request> {
+    prop_oneof![
+        (any::<u16>(), any::<u16>()).prop_map(|(frequency_hz, duration_ms)| Request::PlayTone {
+            frequency_hz,
+            duration_ms
+        }),
+        set_output_state().prop_map(Request::SetOutputState),
+        port().prop_map(|port| Request::GetOutputState { port }),
+        (port(), any::<bool>())
+            .prop_map(|(port, relative)| Request::ResetMotorPosition { port, relative }),
+        Just(Request::GetBatteryLevel),
+        Just(Request::KeepAlive),
+        Just(Request::GetFirmwareVersion),
+        Just(Request::GetDeviceInfo),
+    ]
+}
+
+fn output_state() -> impl Strategy<Value = OutputState> {
+    (
+        (
+            port(),
+            any::<i8>(),
+            mode(),
+            regulation(),
+            any::<i8>(),
+            run_state(),
+        ),
+        (any::<u32>(), any::<i32>(), any::<i32>(), any::<i32>()),
+    )
+        .prop_map(
+            |((port, power, mode, regulation, turn_ratio, run_state), (tl, tc, bc, rc))| {
+                OutputState {
+                    port,
+                    power,
+                    mode,
+                    regulation,
+                    turn_ratio,
+                    run_state,
+                    tacho_limit: tl,
+                    tacho_count: tc,
+                    block_tacho_count: bc,
+                    rotation_count: rc,
+                }
+            },
+        )
+}
+
+fn version() -> impl Strategy<Value = Version> {
+    (any::<u8>(), any::<u8>()).prop_map(|(major, minor)| Version { major, minor })
+}
+
+fn reply() -> impl Strategy<Value = Reply> {
+    let status_only = (any::<u8>(), status()).prop_filter_map(
+        "successful body-bearing opcodes need a body",
+        |(opcode, status)| {
+            let bodiless = Opcode::from_u8(opcode).is_some_and(|op| op.reply_len() == 3);
+            (bodiless || !status.is_success()).then_some(Reply::Status { opcode, status })
+        },
+    );
+    prop_oneof![
+        status_only,
+        (status(), output_state()).prop_map(|(status, state)| Reply::OutputState { status, state }),
+        (status(), any::<u16>())
+            .prop_map(|(status, millivolts)| Reply::BatteryLevel { status, millivolts }),
+        (status(), any::<u32>()).prop_map(|(status, sleep_timeout_ms)| Reply::KeepAlive {
+            status,
+            sleep_timeout_ms
+        }),
+        (status(), version(), version()).prop_map(|(status, protocol, firmware)| {
+            Reply::FirmwareVersion {
+                status,
+                protocol,
+                firmware,
+            }
+        }),
+        (
+            status(),
+            any::<[u8; 15]>(),
+            any::<[u8; 7]>(),
+            any::<[u8; 4]>(),
+            any::<u32>()
+        )
+            .prop_map(|(status, name, address, signal_strength, free_flash)| {
+                Reply::DeviceInfo {
+                    status,
+                    info: DeviceInfo {
+                        name,
+                        address,
+                        signal_strength,
+                        free_flash,
+                    },
+                }
+            }),
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 2000, ..ProptestConfig::default() })]
+
+    #[test]
+    fn requests_round_trip(req in request(), reply_required in any::<bool>()) {
+        let t = req.encode(reply_required);
+        prop_assert_eq!(t.len(), req.opcode().request_len());
+        prop_assert_eq!(t.reply_required(), reply_required);
+        prop_assert_eq!(Request::decode(t.as_bytes()), Ok((req, reply_required)));
+        let f = t.to_frame();
+        prop_assert_eq!(decode_frame(f.as_bytes()), Ok(t));
+    }
+
+    #[test]
+    fn replies_round_trip(reply in reply()) {
+        let t = reply.encode();
+        prop_assert_eq!(Reply::decode(t.as_bytes()), Ok(reply));
+        prop_assert_eq!(decode_frame(t.to_frame().as_bytes()), Ok(t));
+    }
+
+    /// Arbitrary bytes never panic a decoder, and whatever decodes is canonical:
+    /// it re-encodes to exactly the input.
+    #[test]
+    fn arbitrary_bytes_never_panic(bytes in prop::collection::vec(any::<u8>(), 0..80)) {
+        if let Ok((req, reply_required)) = Request::decode(&bytes) {
+            prop_assert_eq!(req.encode(reply_required).as_bytes().to_vec(), bytes.clone());
+        }
+        if let Ok(reply) = Reply::decode(&bytes) {
+            prop_assert_eq!(reply.encode().as_bytes().to_vec(), bytes.clone());
+        }
+        if let Ok(t) = decode_frame(&bytes) {
+            prop_assert_eq!(t.to_frame().as_bytes().to_vec(), bytes.clone());
+        }
+        let mut d = FrameDecoder::new();
+        for &b in &bytes {
+            if let Some(Ok(t)) = d.push(b) {
+                prop_assert!(!t.is_empty() && t.len() <= MAX_TELEGRAM_LEN);
+            }
+        }
+        let _ = Telegram::from_bytes(&bytes);
+    }
+
+    /// Mostly-valid telegrams (a real type byte and opcode, random tail) reach deeper.
+    #[test]
+    fn near_valid_bytes_never_panic(
+        ty in prop::sample::select(vec![0x00u8, 0x01, 0x02, 0x80, 0x81]),
+        op in prop::sample::select(Opcode::ALL.iter().map(|o| *o as u8).chain([0x00, 0x7F, 0xFF]).collect::<Vec<_>>()),
+        tail in prop::collection::vec(any::<u8>(), 0..40),
+    ) {
+        let mut bytes = vec![ty, op];
+        bytes.extend(tail);
+        if let Ok((req, reply_required)) = Request::decode(&bytes) {
+            prop_assert_eq!(req.encode(reply_required).as_bytes().to_vec(), bytes.clone());
+        }
+        if let Ok(reply) = Reply::decode(&bytes) {
+            prop_assert_eq!(reply.encode().as_bytes().to_vec(), bytes.clone());
+        }
+    }
+
+    /// The simulated brick survives any telegram sequence and only ever answers with
+    /// well-formed replies to the opcode it was asked.
+    #[test]
+    fn brick_handles_arbitrary_telegrams(
+        telegrams in prop::collection::vec(
+            prop_oneof![
+                prop::collection::vec(any::<u8>(), 0..70),
+                (request(), any::<bool>()).prop_map(|(r, rr)| r.encode(rr).as_bytes().to_vec()),
+            ],
+            1..30,
+        ),
+        steps_ms in prop::collection::vec(0u64..300, 30),
+    ) {
+        let mut brick = SimBrick::new(SimBrickConfig::default(), 0).map_err(|e| TestCaseError::fail(e.to_string()))?;
+        for (t, dt) in telegrams.iter().zip(steps_ms) {
+            brick.advance(std::time::Duration::from_millis(dt));
+            if let Some(reply) = brick.handle(t) {
+                prop_assert!(t.first().is_some_and(|ty| ty & 0x80 == 0));
+                let decoded = Reply::decode(reply.as_bytes());
+                prop_assert!(decoded.is_ok(), "brick sent undecodable {:?}: {:?}", reply, decoded);
+                prop_assert_eq!(reply.opcode(), t[1]);
+            }
+        }
+    }
+}

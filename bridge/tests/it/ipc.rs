@@ -1,0 +1,185 @@
+//! The iceoryx2 bridge loop: publish a Command, receive MotorStates.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use iceoryx2::port::update_connections::UpdateConnections;
+use iceoryx2::prelude::*;
+use tes_bridge::brick::SimBrick;
+use tes_bridge::bridge::Bridge;
+use tes_bridge::clock::MonotonicClock;
+use tes_bridge::config::BridgeConfig;
+use tes_bridge::ipc::{self as bridge_ipc, RunOptions, RunSummary, ServiceNames};
+use tes_bridge::nxt::Port;
+use tes_bridge::transport::SimTransport;
+use tes_topics::{Command, MotorState, motor_flags};
+
+/// Runs the bridge loop on a thread; stops and joins it on drop, even if the test panics.
+struct BridgeThread {
+    stop: Arc<AtomicBool>,
+    handle: Option<JoinHandle<RunSummary>>,
+}
+
+impl BridgeThread {
+    fn start(names: ServiceNames) -> Self {
+        let stop = Arc::new(AtomicBool::new(false));
+        let opts = RunOptions {
+            handle_signals: false,
+            stop: Some(Arc::clone(&stop)),
+        };
+        let handle = std::thread::spawn(move || {
+            let cfg = BridgeConfig::default();
+            let clock = MonotonicClock::new();
+            let brick = SimBrick::new(cfg.brick.clone(), 5).expect("valid brick");
+            let mut bridge = Bridge::new(SimTransport::new(brick, clock), &cfg);
+            bridge_ipc::run(&mut bridge, &clock, &names, &opts).expect("bridge loop")
+        });
+        Self {
+            stop,
+            handle: Some(handle),
+        }
+    }
+
+    fn finish(mut self) -> RunSummary {
+        self.stop.store(true, Ordering::SeqCst);
+        self.handle
+            .take()
+            .expect("running")
+            .join()
+            .expect("bridge thread panicked")
+    }
+}
+
+impl Drop for BridgeThread {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+fn unique_prefix() -> String {
+    static N: AtomicU32 = AtomicU32::new(0);
+    format!(
+        "tes-bridge-test-{}-{}/",
+        std::process::id(),
+        N.fetch_add(1, Ordering::SeqCst)
+    )
+}
+
+/// `open_or_create`, retried while the other side is mid-creation.
+fn retry<T, E: std::fmt::Debug>(mut f: impl FnMut() -> Result<T, E>) -> T {
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        match f() {
+            Ok(v) => return v,
+            Err(e) if Instant::now() > deadline => panic!("iceoryx2: {e:?}"),
+            Err(_) => std::thread::sleep(Duration::from_millis(20)),
+        }
+    }
+}
+
+#[test]
+fn bridge_loop_turns_commands_into_motor_states() {
+    let prefix = unique_prefix();
+    let names = ServiceNames::with_prefix(&prefix);
+    let bridge = BridgeThread::start(names.clone());
+
+    let node = NodeBuilder::new()
+        .config(&Config::default())
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<ipc::Service>()
+        .expect("node");
+    let sn = |s: &str| ServiceName::new(s).expect("valid name");
+    let cmd_service = retry(|| {
+        node.service_builder(&sn(&names.command))
+            .publish_subscribe::<Command>()
+            .open_or_create()
+    });
+    let publisher = cmd_service.publisher_builder().create().expect("publisher");
+    let cmd_event = retry(|| {
+        node.service_builder(&sn(&names.command_event))
+            .event()
+            .open_or_create()
+    });
+    let notifier = cmd_event.notifier_builder().create().expect("notifier");
+    let state_service = retry(|| {
+        node.service_builder(&sn(&names.motor_state))
+            .publish_subscribe::<MotorState>()
+            .open_or_create()
+    });
+    let subscriber = state_service
+        .subscriber_builder()
+        .create()
+        .expect("subscriber");
+    let state_event = retry(|| {
+        node.service_builder(&sn(&names.motor_state_event))
+            .event()
+            .open_or_create()
+    });
+    let listener = state_event.listener_builder().create().expect("listener");
+
+    // Wait until the bridge is up: its heartbeats arrive.
+    let next = |limit: Duration| -> Option<MotorState> {
+        let deadline = Instant::now() + limit;
+        while Instant::now() < deadline {
+            if let Some(s) = subscriber.receive().expect("receive") {
+                return Some(*s);
+            }
+            let _ = listener.timed_wait(|_| {}, Duration::from_millis(50));
+        }
+        None
+    };
+    let first = next(Duration::from_secs(10)).expect("a heartbeat from the bridge");
+    assert_ne!(first.flags & motor_flags::SETTLED, 0, "at rest: {first:?}");
+    assert!(first.stamp_ns > 0);
+
+    publisher.update_connections().expect("connect");
+    let cmd = Command {
+        seq: 1,
+        action: 0,
+        left_deg: 246,
+        right_deg: 246,
+        ..Command::default()
+    };
+    publisher
+        .loan_uninit()
+        .expect("loan")
+        .write_payload(cmd)
+        .send()
+        .expect("send");
+    notifier.notify().expect("notify");
+
+    let mut last_seq = first.seq;
+    let settled = loop {
+        let s = next(Duration::from_secs(10)).expect("motor states keep coming");
+        assert!(
+            s.seq > last_seq,
+            "seq increases: {} then {}",
+            last_seq,
+            s.seq
+        );
+        last_seq = s.seq;
+        if s.after_command == 1 && s.flags & motor_flags::SETTLED != 0 {
+            break s;
+        }
+    };
+    for p in [Port::B, Port::C] {
+        assert!(
+            (246..=262).contains(&settled.tacho_count[p.index()]),
+            "{settled:?}"
+        );
+    }
+    assert_eq!(
+        settled.flags & (motor_flags::WATCHDOG_BRAKED | motor_flags::LINK_DOWN),
+        0
+    );
+
+    let summary = bridge.finish();
+    assert_eq!(summary.commands, 1);
+    assert_eq!(summary.refused, 0);
+    assert!(summary.published >= 3);
+}
