@@ -1,8 +1,14 @@
 //! Benchmarks, data generators and experiment drivers for TES.
 //!
 //! * `benches/mdagl.rs` — criterion benchmarks of the view learner.
+//! * [`experiment`] — agents on episodic tasks: the machinery of the paper's experiments.
+//! * [`stats`], [`svg`] — confidence intervals and dependency-free SVG charts for reports.
 //! * [`write_labelled_csv`] and the `make-fit-demo` binary — the seeded demo stream that
 //!   `tes fit` runs on in the README (`data/fit-demo.csv`).
+
+pub mod experiment;
+pub mod stats;
+pub mod svg;
 
 use std::io::{self, Write};
 

@@ -111,3 +111,51 @@ fn labels_beyond_classes_and_bad_settings_are_refused() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("cannot open"));
 }
+
+#[test]
+fn experiment_grid_writes_its_summary_csv_and_plots() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let out = dir.path().join("grid");
+    let out_s = out.to_string_lossy().into_owned();
+    let run = tes(&[
+        "experiment",
+        "grid",
+        "--quick",
+        "--runs",
+        "2",
+        "--episodes",
+        "3",
+        "--out",
+        &out_s,
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let summary: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("summary.json")).expect("summary.json"),
+    )
+    .expect("valid JSON");
+    assert_eq!(summary["config"]["runs"], 2);
+    assert_eq!(summary["config"]["seed"], 1, "seeds are recorded");
+    for alg in ["loreRL", "fRmax", "fEpsG", "Rmax"] {
+        assert!(summary["fig3a_final"][alg]["mean"].is_number(), "{alg}");
+    }
+    assert!(summary["fig3c"]["bloreRL"]["200"]["mean"].is_number());
+    assert!(summary["table1"]["loreRL"]["seconds_per_episode"]["mean"].is_number());
+    let csv = std::fs::read_to_string(out.join("episodes.csv")).expect("episodes.csv");
+    // Header + 10 cells × 2 runs × 3 episodes.
+    assert_eq!(csv.lines().count(), 1 + 10 * 2 * 3);
+    for svg in ["fig3a.svg", "fig3b.svg", "fig3c.svg"] {
+        let text = std::fs::read_to_string(out.join(svg)).expect(svg);
+        assert!(text.starts_with("<svg") && text.contains("loreRL"), "{svg}");
+    }
+}
+
+#[test]
+fn experiment_rejects_zero_runs() {
+    let run = tes(&["experiment", "grid", "--runs", "0", "--out", "/nonexistent"]);
+    assert!(!run.status.success());
+    assert!(String::from_utf8_lossy(&run.stderr).contains("--runs"));
+}

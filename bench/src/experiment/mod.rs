@@ -1,0 +1,167 @@
+//! Running agents on episodic tasks: the machinery the paper's experiments share.
+//!
+//! A task ([`EpisodicTask`]) is a CMDP the agent knows the structure of, plus the true
+//! dynamics it does not know and samples effects from. An experiment builds agents
+//! ([`Algorithm::build`]), runs episodes ([`run_episode`]) and records, per episode, the
+//! reward collected, the number of actions and the time the agent spent.
+
+pub mod grid;
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+use tes_controller::agents::{Agent, AgentError, Contexts, CountingAgent, LoreRl, LoreRlParams};
+use tes_controller::cmdp::CmdpStructure;
+use tes_controller::plan::PlannerParams;
+
+/// An episodic task: known structure, unknown (sampled) dynamics.
+pub trait EpisodicTask: Sync {
+    /// What the agent knows: states, effect semantics, rewards, terminals, features.
+    fn structure(&self) -> Arc<CmdpStructure>;
+    /// The true DBN contexts (for the oracle baselines fRmax and fEpsG).
+    fn oracle_contexts(&self) -> Contexts;
+    /// A start state for a new episode.
+    fn random_start(&self, rng: &mut ChaCha8Rng) -> usize;
+    /// The effect the true dynamics produce for `action` in `state`.
+    fn sample_effect(&self, state: usize, action: usize, rng: &mut ChaCha8Rng) -> usize;
+    /// Actions after which an unfinished episode is cut off.
+    fn step_cap(&self) -> usize;
+}
+
+/// The algorithms the experiments compare.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
+pub enum Algorithm {
+    /// loreRL (λ = 0.05, α = 1.5, ε = 0.05).
+    #[serde(rename = "loreRL")]
+    LoreRl,
+    /// loreRL without the regulariser (λ = 0).
+    #[serde(rename = "bloreRL")]
+    BloreRl,
+    /// Tabular R-max, m = 5.
+    #[serde(rename = "Rmax")]
+    Rmax,
+    /// Factored R-max with the true DBN structure, m = 10.
+    #[serde(rename = "fRmax")]
+    FRmax,
+    /// Factored ε-greedy with the true DBN structure, ε = 0.1.
+    #[serde(rename = "fEpsG")]
+    FEpsG,
+}
+
+impl Algorithm {
+    /// The name used in reports and files.
+    pub fn name(self) -> &'static str {
+        match self {
+            Algorithm::LoreRl => "loreRL",
+            Algorithm::BloreRl => "bloreRL",
+            Algorithm::Rmax => "Rmax",
+            Algorithm::FRmax => "fRmax",
+            Algorithm::FEpsG => "fEpsG",
+        }
+    }
+
+    /// A fresh agent for `task` with the paper's §5.1 settings, exploring with `seed`.
+    pub fn build(
+        self,
+        task: &dyn EpisodicTask,
+        seed: u64,
+    ) -> Result<Box<dyn Agent + Send>, AgentError> {
+        let structure = task.structure();
+        let planner = PlannerParams::default();
+        Ok(match self {
+            Algorithm::LoreRl => Box::new(LoreRl::new(structure, LoreRlParams::default(), seed)?),
+            Algorithm::BloreRl => Box::new(LoreRl::new(structure, LoreRlParams::blore_rl(), seed)?),
+            Algorithm::Rmax => Box::new(CountingAgent::rmax(structure, 5, planner, seed)?),
+            Algorithm::FRmax => Box::new(CountingAgent::factored_rmax(
+                structure,
+                task.oracle_contexts(),
+                10,
+                planner,
+                seed,
+            )?),
+            Algorithm::FEpsG => Box::new(CountingAgent::factored_epsilon_greedy(
+                structure,
+                task.oracle_contexts(),
+                0.1,
+                planner,
+                seed,
+            )?),
+        })
+    }
+}
+
+/// What happened in one episode.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Episode {
+    /// Sum of the rewards received.
+    pub reward: f64,
+    /// Actions taken.
+    pub steps: u32,
+    /// Whether it ended in a terminal state (not by the step cap).
+    pub finished: bool,
+    /// Seconds the agent spent choosing actions and learning (the world's time excluded).
+    pub agent_seconds: f64,
+}
+
+/// Runs one episode of `agent` on `task`; `rng` drives the start state and the dynamics.
+pub fn run_episode(
+    agent: &mut dyn Agent,
+    task: &dyn EpisodicTask,
+    structure: &CmdpStructure,
+    rng: &mut ChaCha8Rng,
+) -> Result<Episode, AgentError> {
+    let mut state = task.random_start(rng);
+    agent.begin_episode(state);
+    let mut episode = Episode {
+        reward: 0.0,
+        steps: 0,
+        finished: false,
+        agent_seconds: 0.0,
+    };
+    let mut agent_time = std::time::Duration::ZERO;
+    for _ in 0..task.step_cap() {
+        let t = Instant::now();
+        let action = agent.act(state)?;
+        agent_time += t.elapsed();
+        let effect = task.sample_effect(state, action, rng);
+        let t = Instant::now();
+        agent.observe(state, action, effect)?;
+        agent_time += t.elapsed();
+        state = structure.next_state(state, effect);
+        episode.reward += structure.reward(state);
+        episode.steps += 1;
+        if structure.is_terminal(state) {
+            episode.finished = true;
+            break;
+        }
+    }
+    episode.agent_seconds = agent_time.as_secs_f64();
+    Ok(episode)
+}
+
+/// Runs `episodes` episodes of a fresh `algorithm` agent on `task`.
+///
+/// The agent explores with `seed`; the world (starts and dynamics) uses a stream derived from
+/// it, so two algorithms given the same seed face the same start states as long as the
+/// dynamics draw the same number of random numbers. `on_episode` is called after each.
+pub fn run_agent(
+    algorithm: Algorithm,
+    task: &dyn EpisodicTask,
+    episodes: usize,
+    seed: u64,
+    mut on_episode: impl FnMut(&Episode),
+) -> Result<Vec<Episode>, AgentError> {
+    let structure = task.structure();
+    let mut agent = algorithm.build(task, seed)?;
+    let mut world = ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_0F70_121D);
+    let mut out = Vec::with_capacity(episodes);
+    for _ in 0..episodes {
+        let e = run_episode(agent.as_mut(), task, &structure, &mut world)?;
+        on_episode(&e);
+        out.push(e);
+    }
+    Ok(out)
+}

@@ -1,0 +1,152 @@
+//! `tes experiment`: rerun the paper's experiments and write tables and plots.
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+
+use anyhow::{Result, bail};
+use clap::{Args, Subcommand};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use tes_bench::experiment::grid::{self, GridConfig};
+
+/// Arguments of `tes experiment`.
+#[derive(Debug, Args)]
+pub struct ExperimentArgs {
+    #[command(subcommand)]
+    which: Which,
+}
+
+#[derive(Debug, Subcommand)]
+enum Which {
+    /// §5.1 grid tasks: Fig. 3a–c and Table 1 (loreRL against its baselines).
+    Grid(GridArgs),
+}
+
+#[derive(Debug, Args)]
+struct GridArgs {
+    /// Independent runs per algorithm and feature count [default: 20; --quick: 3].
+    #[arg(long)]
+    runs: Option<usize>,
+    /// Episodes per run [default: 800; --quick: 60].
+    #[arg(long)]
+    episodes: Option<usize>,
+    /// Directory for summary.json, episodes.csv and the SVG plots.
+    #[arg(long, default_value = "results/grid")]
+    out: PathBuf,
+    /// Small settings for a first look (and CI): finishes in about two minutes on two cores.
+    #[arg(long)]
+    quick: bool,
+    /// First agent seed; run r uses seed + r.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Seed of the grid suite (layouts, dynamics, irrelevant features).
+    #[arg(long, default_value_t = 2017)]
+    world_seed: u64,
+    /// Worker threads [default: all cores].
+    #[arg(long)]
+    threads: Option<usize>,
+}
+
+/// Runs `tes experiment`.
+pub fn run(args: &ExperimentArgs) -> Result<()> {
+    match &args.which {
+        Which::Grid(g) => run_grid(g),
+    }
+}
+
+fn progress_bar(total_hint: &str) -> ProgressBar {
+    if !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::with_draw_target(Some(1), ProgressDrawTarget::stderr());
+    if let Ok(style) = ProgressStyle::with_template(
+        "{msg} [{bar:40}] {pos}/{len} episodes ({elapsed}, {eta} left)",
+    ) {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar.set_message(total_hint.to_owned());
+    bar
+}
+
+fn run_grid(args: &GridArgs) -> Result<()> {
+    let mut config = if args.quick {
+        GridConfig::quick()
+    } else {
+        GridConfig::paper(20, 800)
+    };
+    if let Some(runs) = args.runs {
+        config.runs = runs;
+    }
+    if let Some(episodes) = args.episodes {
+        config.episodes = episodes;
+    }
+    if config.runs == 0 || config.episodes == 0 {
+        bail!("--runs and --episodes must be at least 1");
+    }
+    config.seed = args.seed;
+    config.world_seed = args.world_seed;
+    if let Some(threads) = args.threads {
+        if threads == 0 {
+            bail!("--threads must be at least 1");
+        }
+        // Only the first call in a process can size the global pool; a failure means it was
+        // already built, which is harmless.
+        let _ = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build_global();
+    }
+    eprintln!(
+        "grid experiment: {} runs x {} episodes, irrelevant features {:?}, seeds {}.., world seed {} -> {}",
+        config.runs,
+        config.episodes,
+        config.irrelevant_levels,
+        config.seed,
+        config.world_seed,
+        args.out.display()
+    );
+    let bar = progress_bar("grid");
+    let report = grid::run(&config, &args.out, &|done, total| {
+        bar.set_length(total);
+        bar.set_position(done);
+    })?;
+    bar.finish_and_clear();
+
+    println!("{}; {:.1} s wall clock", report.task, report.wall_seconds);
+    let show = |title: &str, finals: &std::collections::BTreeMap<String, grid::Summary>| {
+        println!("{title}");
+        for (name, s) in finals {
+            println!("  {name:<8} {:>9.2}  [{:.2}, {:.2}]", s.mean, s.lo, s.hi);
+        }
+    };
+    show(
+        "Fig. 3a  accumulated reward after the last episode, 10 features (95% CI)",
+        &report.fig3a_final,
+    );
+    show(
+        "Fig. 3b  accumulated reward after the last episode, 210 features (95% CI)",
+        &report.fig3b_final,
+    );
+    println!("Fig. 3c  accumulated reward after the last episode by irrelevant features");
+    for (name, by_level) in &report.fig3c {
+        let cells: Vec<String> = by_level
+            .iter()
+            .map(|(level, s)| format!("{level}: {:.2}", s.mean))
+            .collect();
+        println!("  {name:<8} {}", cells.join("  "));
+    }
+    println!("Table 1  agent seconds per episode");
+    for (name, t) in &report.table1 {
+        println!(
+            "  {name:<8} {:>9.4} s  ({} features)",
+            t.seconds_per_episode.mean, t.features
+        );
+    }
+    println!(
+        "loreRL / fEpsG time per episode: {:.2} (paper: 2.2; target <= 2.5)",
+        report.lore_over_fepsg_time
+    );
+    println!(
+        "wrote summary.json, episodes.csv, fig3a.svg, fig3b.svg, fig3c.svg to {}",
+        args.out.display()
+    );
+    Ok(())
+}
