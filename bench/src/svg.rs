@@ -25,6 +25,8 @@ pub struct Series {
     pub name: String,
     /// Points in increasing `x`.
     pub points: Vec<BandPoint>,
+    /// Palette slot, so one name keeps one colour across charts (`None`: by position).
+    pub colour: Option<usize>,
 }
 
 /// A line chart: title, axis labels and series.
@@ -173,7 +175,7 @@ impl LineChart {
         );
         // Bands first, then lines on top.
         for (i, s) in self.series.iter().enumerate() {
-            let colour = COLOURS[i % COLOURS.len()];
+            let colour = COLOURS[s.colour.unwrap_or(i) % COLOURS.len()];
             if s.points.len() >= 2 {
                 let mut d = String::new();
                 for p in &s.points {
@@ -190,7 +192,7 @@ impl LineChart {
             }
         }
         for (i, s) in self.series.iter().enumerate() {
-            let colour = COLOURS[i % COLOURS.len()];
+            let colour = COLOURS[s.colour.unwrap_or(i) % COLOURS.len()];
             let mut d = String::new();
             for p in &s.points {
                 let _ = write!(d, "{:.1},{:.1} ", sx(p.x), sy(p.y));
@@ -257,6 +259,7 @@ mod tests {
                         hi: i as f64 + 0.5,
                     })
                     .collect(),
+                colour: None,
             }],
             markers: true,
         };

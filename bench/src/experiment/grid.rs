@@ -365,6 +365,7 @@ pub fn run(
             series.push(Series {
                 name: a.name().to_owned(),
                 points: accumulated_curve(runs),
+                colour: Some(a as usize),
             });
         }
         let chart = LineChart {
@@ -415,6 +416,7 @@ pub fn run(
         series.push(Series {
             name: a.name().to_owned(),
             points,
+            colour: Some(a as usize),
         });
     }
     let chart = LineChart {
