@@ -6,8 +6,9 @@
 //! * [`cmdp`] — the situation-calculus MDP (§3.1): known effect semantics, rewards and
 //!   features, and the learned effect probabilities.
 //! * [`plan`] — warm-started value iteration on that model.
-//! * [`agents`] — agents that learn and act: loreRL (Algorithm 6), bloreRL, and the
-//!   count-based baselines Rmax, factored Rmax and factored ε-greedy.
+//! * [`agents`] — agents that learn and act: loreRL (Algorithm 6), bloreRL, the count-based
+//!   baselines Rmax, factored Rmax and factored ε-greedy, and the structure learners RL-DT
+//!   (decision trees) and LSE-Rmax.
 //! * [`labelled_csv`] — the labelled-row format `tes fit` reads.
 //!
 //! Everything here is a plain struct with no IPC, clock or I/O inside; the controller process

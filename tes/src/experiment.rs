@@ -145,6 +145,10 @@ fn run_grid(args: &GridArgs) -> Result<()> {
         report.lore_over_fepsg_time
     );
     println!(
+        "RL-DT / loreRL time per episode: {:.1} (paper: 16.5; target >= 10)",
+        report.rldt_over_lore_time
+    );
+    println!(
         "wrote summary.json, episodes.csv, fig3a.svg, fig3b.svg, fig3c.svg to {}",
         args.out.display()
     );

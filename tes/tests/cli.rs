@@ -139,14 +139,14 @@ fn experiment_grid_writes_its_summary_csv_and_plots() {
     .expect("valid JSON");
     assert_eq!(summary["config"]["runs"], 2);
     assert_eq!(summary["config"]["seed"], 1, "seeds are recorded");
-    for alg in ["loreRL", "fRmax", "fEpsG", "Rmax"] {
+    for alg in ["loreRL", "fRmax", "fEpsG", "Rmax", "RL-DT", "LSE-Rmax"] {
         assert!(summary["fig3a_final"][alg]["mean"].is_number(), "{alg}");
     }
     assert!(summary["fig3c"]["bloreRL"]["200"]["mean"].is_number());
     assert!(summary["table1"]["loreRL"]["seconds_per_episode"]["mean"].is_number());
     let csv = std::fs::read_to_string(out.join("episodes.csv")).expect("episodes.csv");
-    // Header + 10 cells × 2 runs × 3 episodes.
-    assert_eq!(csv.lines().count(), 1 + 10 * 2 * 3);
+    // Header + 12 cells × 2 runs × 3 episodes.
+    assert_eq!(csv.lines().count(), 1 + 12 * 2 * 3);
     for svg in ["fig3a.svg", "fig3b.svg", "fig3c.svg"] {
         let text = std::fs::read_to_string(out.join(svg)).expect(svg);
         assert!(text.starts_with("<svg") && text.contains("loreRL"), "{svg}");

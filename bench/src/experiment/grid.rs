@@ -1,8 +1,7 @@
 //! The paper's §5.1 grid experiment: Figure 3a–c and Table 1.
 //!
 //! * **Fig. 3a** — accumulated reward per episode in the 900-cell task with only the relevant
-//!   features (10: bias, surface, walls): loreRL, fRmax, fEpsG, Rmax (and the slow baselines
-//!   when they are available).
+//!   features (10: bias, surface, walls): loreRL, fRmax, fEpsG, Rmax, RL-DT, LSE-Rmax.
 //! * **Fig. 3b** — the same task with 200 irrelevant binary features added (210 features):
 //!   loreRL, bloreRL, fRmax, fEpsG, Rmax.
 //! * **Fig. 3c** — accumulated reward after the last episode against the number of irrelevant
@@ -218,11 +217,13 @@ fn cells(config: &GridConfig) -> Vec<Cell> {
     cells
 }
 
-const FIG_3A: [Algorithm; 4] = [
+const FIG_3A: [Algorithm; 6] = [
     Algorithm::LoreRl,
     Algorithm::FRmax,
     Algorithm::FEpsG,
     Algorithm::Rmax,
+    Algorithm::RlDt,
+    Algorithm::LseRmax,
 ];
 const FIG_3B: [Algorithm; 5] = [
     Algorithm::LoreRl,
@@ -257,6 +258,8 @@ pub struct GridReport {
     pub table1: BTreeMap<String, TimeSummary>,
     /// Ratios the design targets: loreRL / fEpsG seconds per episode (paper: 2.2).
     pub lore_over_fepsg_time: f64,
+    /// RL-DT / loreRL seconds per episode (RL-DT at 10 features, loreRL at 210; paper: 16.5).
+    pub rldt_over_lore_time: f64,
 }
 
 /// Seconds per episode of one algorithm.
@@ -460,6 +463,10 @@ pub fn run(
         (Some(l), Some(f)) if f > 0.0 => l / f,
         _ => f64::NAN,
     };
+    let rldt_over_lore_time = match (time("RL-DT"), time("loreRL")) {
+        (Some(r), Some(l)) if l > 0.0 => r / l,
+        _ => f64::NAN,
+    };
     let report = GridReport {
         config: config.clone(),
         task: task_name,
@@ -469,6 +476,7 @@ pub fn run(
         fig3c,
         table1,
         lore_over_fepsg_time,
+        rldt_over_lore_time,
     };
     let json = serde_json::to_string_pretty(&report).context("cannot encode the summary")?;
     write_file(&out.join("summary.json"), &json)?;

@@ -13,7 +13,10 @@ use std::time::Instant;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
-use tes_controller::agents::{Agent, AgentError, Contexts, CountingAgent, LoreRl, LoreRlParams};
+use tes_controller::agents::{
+    Agent, AgentError, Contexts, CountingAgent, LoreRl, LoreRlParams, LseRmax, LseRmaxParams, RlDt,
+    RlDtParams,
+};
 use tes_controller::cmdp::CmdpStructure;
 use tes_controller::plan::PlannerParams;
 
@@ -49,6 +52,12 @@ pub enum Algorithm {
     /// Factored ε-greedy with the true DBN structure, ε = 0.1.
     #[serde(rename = "fEpsG")]
     FEpsG,
+    /// RL-DT: decision-tree effect models, ε-greedy.
+    #[serde(rename = "RL-DT")]
+    RlDt,
+    /// LSE-Rmax: R-max with learned parent sets (m = 10, σ = 0.99).
+    #[serde(rename = "LSE-Rmax")]
+    LseRmax,
 }
 
 impl Algorithm {
@@ -60,6 +69,8 @@ impl Algorithm {
             Algorithm::Rmax => "Rmax",
             Algorithm::FRmax => "fRmax",
             Algorithm::FEpsG => "fEpsG",
+            Algorithm::RlDt => "RL-DT",
+            Algorithm::LseRmax => "LSE-Rmax",
         }
     }
 
@@ -89,6 +100,10 @@ impl Algorithm {
                 planner,
                 seed,
             )?),
+            Algorithm::RlDt => Box::new(RlDt::new(structure, RlDtParams::default(), seed)?),
+            Algorithm::LseRmax => {
+                Box::new(LseRmax::new(structure, LseRmaxParams::default(), seed)?)
+            }
         })
     }
 }

@@ -10,10 +10,16 @@ use crate::mdagl::{MdaglConfigError, MdaglError};
 use crate::plan::PlanError;
 
 mod counting;
+mod decision_tree;
 mod lore_rl;
+mod lse_rmax;
+mod rl_dt;
 
 pub use counting::{Contexts, CountingAgent, Exploration};
+pub use decision_tree::{DecisionTree, Example, LeafId, TreeError, TreeParams};
 pub use lore_rl::{LoreRl, LoreRlParams};
+pub use lse_rmax::{LseRmax, LseRmaxParams};
+pub use rl_dt::{RlDt, RlDtParams};
 
 /// Why an agent could not be built or could not learn from a step. On a step error the agent
 /// is unchanged.
@@ -46,6 +52,14 @@ pub enum AgentError {
     /// ε outside [0, 1].
     #[error("epsilon must be in [0, 1], got {0}")]
     BadEpsilon(f64),
+    /// Another setting is out of range.
+    #[error("{param} must be {requirement}")]
+    Invalid {
+        /// The setting.
+        param: &'static str,
+        /// What it must be.
+        requirement: &'static str,
+    },
     /// The view settings are invalid.
     #[error("view settings: {0}")]
     View(#[from] MdaglConfigError),
