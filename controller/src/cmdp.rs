@@ -346,7 +346,7 @@ pub(crate) mod tests {
     /// right end is a +1 terminal, the left end a −1 terminal; −0.01 elsewhere. Feature 0 is a
     /// bias, feature 1 marks "slippery" cells.
     pub(crate) fn corridor(n: usize, slippery: &[usize]) -> CmdpStructure {
-        let feats: Vec<Vec<u32>> = (0..n)
+        let feats = (0..n)
             .map(|s| {
                 if slippery.contains(&s) {
                     vec![0, 1]
@@ -355,6 +355,12 @@ pub(crate) mod tests {
                 }
             })
             .collect();
+        corridor_with(feats, 2)
+    }
+
+    /// The same corridor (one cell per entry of `feats`) with any sparse features.
+    pub(crate) fn corridor_with(feats: Vec<Vec<u32>>, n_features: usize) -> CmdpStructure {
+        let n = feats.len();
         let mut reward = vec![-0.01; n];
         reward[0] = -1.0;
         reward[n - 1] = 1.0;
@@ -365,7 +371,7 @@ pub(crate) mod tests {
             n,
             2,
             3,
-            2,
+            n_features,
             |s, e| match e {
                 0 => s.saturating_sub(1),
                 1 => (s + 1).min(n - 1),

@@ -138,6 +138,7 @@ impl Agent for LoreRl {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::agents::tests::assert_refuses_bad_steps;
     use crate::cmdp::tests::corridor;
 
     /// True corridor dynamics: intended move w.p. 0.9 (else stay) on normal cells; on slippery
@@ -208,19 +209,7 @@ mod tests {
     fn bad_steps_are_refused_and_change_nothing() {
         let c = Arc::new(corridor(5, &[]));
         let mut agent = LoreRl::new(c, LoreRlParams::default(), 1).unwrap();
-        assert!(matches!(
-            agent.observe(9, 0, 0),
-            Err(AgentError::UnknownState { .. })
-        ));
-        assert!(matches!(
-            agent.observe(1, 2, 0),
-            Err(AgentError::UnknownAction { .. })
-        ));
-        assert!(matches!(
-            agent.observe(1, 0, 3),
-            Err(AgentError::UnknownEffect { .. })
-        ));
-        assert!(agent.act(5).is_err());
+        assert_refuses_bad_steps(&mut agent);
         assert_eq!(agent.view(0).unwrap().n_updates(), 0);
     }
 

@@ -468,6 +468,7 @@ impl Agent for LseRmax {
 mod tests {
     use super::*;
     use crate::agents::rl_dt::tests::{icy_corridor, run};
+    use crate::agents::tests::assert_refuses_bad_steps;
     use crate::cmdp::tests::corridor;
 
     #[test]
@@ -571,19 +572,7 @@ mod tests {
     fn bad_steps_and_settings_are_refused() {
         let c = Arc::new(corridor(5, &[]));
         let mut agent = LseRmax::new(c.clone(), LseRmaxParams::default(), 1).unwrap();
-        assert!(matches!(
-            agent.observe(9, 0, 0),
-            Err(AgentError::UnknownState { .. })
-        ));
-        assert!(matches!(
-            agent.observe(1, 2, 0),
-            Err(AgentError::UnknownAction { .. })
-        ));
-        assert!(matches!(
-            agent.observe(1, 0, 3),
-            Err(AgentError::UnknownEffect { .. })
-        ));
-        assert!(agent.act(5).is_err());
+        assert_refuses_bad_steps(&mut agent);
         assert!(agent.counts.iter().all(|&n| n == 0));
         let ok = LseRmaxParams::default();
         for bad in [

@@ -115,3 +115,26 @@ pub(crate) fn check_step(
     }
     Ok(())
 }
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    /// Every agent refuses out-of-range ids on a 5-state, 2-action, 3-effect CMDP (the
+    /// corridor of `cmdp::tests`). Callers then check that nothing changed.
+    pub(crate) fn assert_refuses_bad_steps(agent: &mut dyn Agent) {
+        assert!(matches!(
+            agent.observe(9, 0, 0),
+            Err(AgentError::UnknownState { .. })
+        ));
+        assert!(matches!(
+            agent.observe(1, 2, 0),
+            Err(AgentError::UnknownAction { .. })
+        ));
+        assert!(matches!(
+            agent.observe(1, 0, 3),
+            Err(AgentError::UnknownEffect { .. })
+        ));
+        assert!(agent.act(5).is_err());
+    }
+}

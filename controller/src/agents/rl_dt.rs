@@ -243,7 +243,8 @@ impl Agent for RlDt {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::cmdp::tests::corridor;
+    use crate::agents::tests::assert_refuses_bad_steps;
+    use crate::cmdp::tests::{corridor, corridor_with};
 
     /// A corridor of `n` cells with four binary features: 0 is a bias, 1 ("even cell") and
     /// 2 ("cell ≡ 1 mod 4") are noise unrelated to the dynamics, 3 marks the `ice` cells, where
@@ -264,27 +265,7 @@ pub(crate) mod tests {
                 x
             })
             .collect();
-        let mut reward = vec![-0.01; n];
-        reward[0] = -1.0;
-        reward[n - 1] = 1.0;
-        let mut terminal = vec![false; n];
-        terminal[0] = true;
-        terminal[n - 1] = true;
-        CmdpStructure::new(
-            n,
-            2,
-            3,
-            4,
-            |s, e| match e {
-                0 => s.saturating_sub(1),
-                1 => (s + 1).min(n - 1),
-                _ => s,
-            },
-            reward,
-            terminal,
-            |s| &feats[s],
-        )
-        .unwrap()
+        corridor_with(feats, 4)
     }
 
     /// On ice (feature 3) the move is reversed w.p. 0.8; elsewhere it succeeds w.p. 0.9, else
@@ -392,19 +373,7 @@ pub(crate) mod tests {
     fn bad_steps_and_settings_are_refused() {
         let c = Arc::new(corridor(5, &[]));
         let mut agent = RlDt::new(c.clone(), RlDtParams::default(), 1).unwrap();
-        assert!(matches!(
-            agent.observe(9, 0, 0),
-            Err(AgentError::UnknownState { .. })
-        ));
-        assert!(matches!(
-            agent.observe(1, 2, 0),
-            Err(AgentError::UnknownAction { .. })
-        ));
-        assert!(matches!(
-            agent.observe(1, 0, 3),
-            Err(AgentError::UnknownEffect { .. })
-        ));
-        assert!(agent.act(5).is_err());
+        assert_refuses_bad_steps(&mut agent);
         assert_eq!(agent.n_rebuilds(), 0);
         assert!(agent.counts.iter().all(|&n| n == 0));
         let ok = RlDtParams::default();
