@@ -18,10 +18,28 @@
 //! The paper gives the shape (15 tasks, 20×20 to 30×30, the surfaces, walls, 200 irrelevant
 //! features, 4 moves and 5 effects, three sets of logistic dynamics, the rewards, zeroed
 //! through-wall moves, random starts) but not the weights, layouts or exits. Those are our
-//! reconstruction: surfaces come in clustered patches (nearest of a few random seed points),
-//! walls are random interior segments, fire covers a few percent of cells, 1–3 exits; every
-//! non-terminal cell can reach an exit (checked by search and repaired). The three dynamics
-//! sets ([`DYNAMICS_SETS`]) differ in which surfaces are fast, slippery or sticky.
+//! reconstruction: surfaces come in clustered patches (each cell takes the surface of the
+//! nearest of 8–20 random patch centres, drawn from a task-specific surface mix), walls are
+//! random interior edges (6–14 % of them), fire covers a few percent of cells, 1–3 exits; every
+//! non-terminal cell can reach an exit without crossing fire (checked by breadth-first search
+//! and repaired by opening walls). The three dynamics sets ([`DYNAMICS_SETS`]) are hand-chosen
+//! logistic weights that differ in which surfaces are fast, slippery or sticky and in how
+//! walls beside or ahead of the mover shift the odds; the intended move is usually the most
+//! likely effect. The step cap ([`GridTask::step_cap`]) is ours too.
+//!
+//! # Mapping to the paper's §5.1
+//!
+//! | paper | here |
+//! |---|---|
+//! | 15 tasks, 20×20 to 30×30 | [`GridSuite::paper`]; task 0 is the 900-state world of Fig. 3 |
+//! | sand, soil, water, brick, fire; walls between cells | [`Surface`], [`GridTask::has_wall`] |
+//! | 4 moves, 5 effects | actions and effects 0..4 = N, E, S, W ([`Dir`]); effect 4 = [`STAY`] |
+//! | three sets of multinomial logistic models | [`DYNAMICS_SETS`], [`DynamicsSet::weights`] (`W_a`, 5×10) |
+//! | through-wall probability 0, mass spread evenly | [`GridTask::true_effect_probs`] |
+//! | −0.01 per action, −1 fire, +1 exit (terminal) | [`GridTask::reward`], [`GridTask::is_terminal`] |
+//! | random start each episode | [`GridTask::random_start`] |
+//! | 200 irrelevant binary features (210 in all) | [`GridTask::features`], `n_irrelevant` |
+//! | oracle DBN structure for factored Rmax | [`GridTask::oracle_context`], [`GridTask::relevant_features`] |
 //!
 //! ```
 //! use rand::SeedableRng;
@@ -66,15 +84,15 @@ pub const EXIT_REWARD: f64 = 1.0;
 /// A cell's surface.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Surface {
-    /// Firm and fast.
+    /// Sand (fast in sets 0 and 2, sticky in set 1; see [`DYNAMICS_SETS`]).
     Sand,
-    /// Mildly noisy.
+    /// Soil (fast in sets 1 and 2, mildly noisy in set 0).
     Soil,
-    /// Slippery.
+    /// Water (slippery in sets 0 and 1, drifts backwards in set 2).
     Water,
-    /// Sticky.
+    /// Brick (sticky in set 0, fast in set 1, drifts backwards and sticks in set 2).
     Brick,
-    /// Deadly: −1 and the episode ends.
+    /// Fire: entering it costs −1 and ends the episode.
     Fire,
 }
 
@@ -161,6 +179,11 @@ pub struct SurfaceDynamics {
 }
 
 /// One of the three sets of true dynamics: weights per surface and the effect of walls.
+///
+/// A set is a compact way of writing, for each action `a`, the 5×10 weight matrix `W_a` of a
+/// multinomial logistic model over the relevant features φ = (bias, surface one-hot, wall
+/// bits N/E/S/W): see [`DynamicsSet::weights`]. The weights are written relative to the
+/// action's direction so that the four moves behave alike up to rotation.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DynamicsSet {
     /// Per surface, in [`Surface::ALL`] order.
@@ -169,6 +192,33 @@ pub struct DynamicsSet {
     pub wall_beside_stay: f64,
     /// Added to "sideways" towards an open side when a wall is straight ahead.
     pub wall_ahead_sideways: f64,
+}
+
+impl DynamicsSet {
+    /// The weight matrix `W_a` of `action` (< 4): row `e` holds the logit weights of effect
+    /// `e` over the relevant features (column `j` = feature `j`, see [`GridTask::features`]),
+    /// so the unmasked true dynamics are `softmax(W_a · φ)`. The bias and fire columns are 0
+    /// (fire is terminal, so its dynamics never matter).
+    pub fn weights(&self, action: usize) -> [[f64; N_RELEVANT_FEATURES]; N_EFFECTS] {
+        let mut w = [[0.0; N_RELEVANT_FEATURES]; N_EFFECTS];
+        let a = action % N_ACTIONS;
+        let (left, right, back) = ((a + 3) % 4, (a + 1) % 4, (a + 2) % 4);
+        for (k, sd) in self.surfaces.iter().enumerate() {
+            let col = 1 + k;
+            w[a][col] = sd.intended;
+            w[left][col] = sd.sideways;
+            w[right][col] = sd.sideways;
+            w[back][col] = sd.backwards;
+            w[STAY][col] = sd.stay;
+        }
+        // Walls beside the mover (perpendicular to the move) make it stay more often.
+        w[STAY][6 + left] += self.wall_beside_stay;
+        w[STAY][6 + right] += self.wall_beside_stay;
+        // A wall straight ahead deflects the mover sideways.
+        w[left][6 + a] += self.wall_ahead_sideways;
+        w[right][6 + a] += self.wall_ahead_sideways;
+        w
+    }
 }
 
 const fn sd(intended: f64, sideways: f64, backwards: f64, stay: f64) -> SurfaceDynamics {
@@ -181,38 +231,49 @@ const fn sd(intended: f64, sideways: f64, backwards: f64, stay: f64) -> SurfaceD
 }
 
 /// The three dynamics sets. Scores are logits relative to each other (softmax over effects).
+///
+/// On an open cell (no walls) they give, as P(intended, each side, backwards, stay):
+///
+/// | set | sand | soil | water | brick |
+/// |---|---|---|---|---|
+/// | 0 | .81 .05 .01 .07 | .49 .15 .07 .15 | .36 .25 .08 .06 | .45 .07 .03 .39 |
+/// | 1 | .44 .09 .03 .35 | .83 .05 .02 .05 | .22 .31 .10 .05 | .70 .09 .02 .09 |
+/// | 2 | .49 .15 .07 .15 | .81 .05 .01 .07 | .35 .14 .26 .11 | .36 .12 .18 .22 |
+///
+/// The intended move is the most likely effect everywhere but on water in set 1, where the
+/// agent slides sideways more often than it goes where it meant to.
 pub const DYNAMICS_SETS: [DynamicsSet; 3] = [
-    // Set 0: sand fast, soil noisy, water slippery, brick sticky.
+    // Set 0: sand fast, soil noisy, water slippery, brick sticky; walls beside slow you.
     DynamicsSet {
         surfaces: [
             sd(3.0, 0.3, -1.0, 0.5),
             sd(2.0, 0.8, 0.0, 0.8),
-            sd(0.8, 1.4, 0.2, -0.5),
-            sd(1.2, -0.5, -1.0, 1.8),
+            sd(1.5, 1.15, 0.0, -0.3),
+            sd(1.6, -0.3, -1.0, 1.45),
             sd(0.0, 0.0, 0.0, 0.0),
         ],
         wall_beside_stay: 0.4,
         wall_ahead_sideways: 0.0,
     },
-    // Set 1: sand sticky, soil fast, water very slippery, brick fast.
+    // Set 1: sand sticky, soil fast, water very slippery, brick fast; walls ahead deflect.
     DynamicsSet {
         surfaces: [
-            sd(1.0, 0.0, -1.0, 2.0),
+            sd(1.6, 0.0, -1.0, 1.35),
             sd(3.0, 0.2, -1.0, 0.2),
-            sd(0.2, 1.8, 0.5, -1.0),
+            sd(1.0, 1.35, 0.2, -0.5),
             sd(2.5, 0.5, -1.0, 0.5),
             sd(0.0, 0.0, 0.0, 0.0),
         ],
         wall_beside_stay: 0.0,
         wall_ahead_sideways: 0.8,
     },
-    // Set 2: everything drifts backwards on water and brick; sand and soil swap.
+    // Set 2: sand noisy, soil fast, water and brick drift backwards; both wall effects.
     DynamicsSet {
         surfaces: [
             sd(2.0, 0.8, 0.0, 0.8),
             sd(3.0, 0.3, -1.0, 0.5),
-            sd(0.5, 0.5, 1.5, 0.0),
-            sd(0.8, 0.0, 1.2, 0.8),
+            sd(1.5, 0.6, 1.2, 0.3),
+            sd(1.6, 0.5, 0.9, 1.1),
             sd(0.0, 0.0, 0.0, 0.0),
         ],
         wall_beside_stay: 0.8,
@@ -239,6 +300,9 @@ pub struct GridParams {
     pub exits: usize,
     /// Surface patches (≥ 1): more makes a finer mosaic.
     pub patches: usize,
+    /// Relative frequency of sand, soil, water and brick among the patches (finite, ≥ 0,
+    /// positive sum): how tasks differ in their surface distribution.
+    pub surface_weights: [f64; 4],
 }
 
 impl Default for GridParams {
@@ -253,6 +317,7 @@ impl Default for GridParams {
             fire_fraction: 0.03,
             exits: 2,
             patches: 12,
+            surface_weights: [1.0; 4],
         }
     }
 }
@@ -288,6 +353,9 @@ pub enum GridError {
     /// No patches.
     #[error("a grid needs at least one surface patch")]
     NoPatches,
+    /// Surface weights negative, not finite, or all zero.
+    #[error("surface weights must be finite, non-negative and not all zero, got {0:?}")]
+    BadSurfaceWeights([f64; 4]),
     /// A hand-drawn map is malformed.
     #[error("map: {0}")]
     BadMap(String),
@@ -361,12 +429,27 @@ impl GridTask {
         if params.patches == 0 {
             return Err(GridError::NoPatches);
         }
+        let sw = params.surface_weights;
+        let sw_total: f64 = sw.iter().sum();
+        if sw.iter().any(|&v| !v.is_finite() || v < 0.0) || sw_total <= 0.0 || !sw_total.is_finite()
+        {
+            return Err(GridError::BadSurfaceWeights(sw));
+        }
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
 
         // Surfaces: each cell takes the surface of its nearest patch centre.
         let centres: Vec<(usize, usize, Surface)> = (0..params.patches)
             .map(|_| {
-                let s = Surface::ALL[rng.random_range(0..4)];
+                let mut u = rng.random::<f64>() * sw_total;
+                let mut k = sw.iter().rposition(|&v| v > 0.0).unwrap_or(0);
+                for (i, &v) in sw.iter().enumerate() {
+                    if v > 0.0 && u < v {
+                        k = i;
+                        break;
+                    }
+                    u -= v;
+                }
+                let s = Surface::ALL[k];
                 (rng.random_range(0..w), rng.random_range(0..h), s)
             })
             .collect();
@@ -438,9 +521,43 @@ impl GridTask {
 
     /// Builds a small task from an ASCII map, for tests and examples: one line per row, one
     /// character per cell — `.` sand, `:` soil, `~` water, `#` brick, `F` fire, `E` an exit
-    /// (on sand). Only border walls. Irrelevant features are drawn from `seed`.
+    /// (on sand). Only border walls (see [`GridTask::from_map_with_walls`] for more).
+    /// Irrelevant features are drawn from `seed`. At least one exit is required; unlike
+    /// [`GridTask::generate`], reachability is not enforced, so a test can build a trap.
+    ///
+    /// ```
+    /// use tes_perception_sim::grid::{GridTask, Surface};
+    ///
+    /// let task = GridTask::from_map("..F\n.~.\nE..", 0, 0, 1)?;
+    /// assert_eq!(task.surface(4), Surface::Water);
+    /// assert!(task.is_exit(6) && task.is_terminal(2));
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
     pub fn from_map(
         map: &str,
+        dynamics_set: usize,
+        n_irrelevant: usize,
+        seed: u64,
+    ) -> Result<Self, GridError> {
+        Self::from_map_with_walls(map, &[], dynamics_set, n_irrelevant, seed)
+    }
+
+    /// Like [`GridTask::from_map`], plus interior walls: each `(state, dir)` puts a wall on
+    /// side `dir` of cell `state` (and the matching side of its neighbour). A wall on the
+    /// border is already there; a state outside the map is an error.
+    ///
+    /// ```
+    /// use tes_perception_sim::grid::{Dir, GridTask};
+    ///
+    /// let task = GridTask::from_map_with_walls("...\n...\n..E", &[(0, Dir::East)], 0, 0, 1)?;
+    /// assert!(task.has_wall(0, Dir::East) && task.has_wall(1, Dir::West));
+    /// assert_eq!(task.apply_effect(0, Dir::East as usize), 0);
+    /// assert_eq!(task.true_effect_probs(0, 1)[Dir::East as usize], 0.0);
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    pub fn from_map_with_walls(
+        map: &str,
+        interior_walls: &[(usize, Dir)],
         dynamics_set: usize,
         n_irrelevant: usize,
         seed: u64,
@@ -500,6 +617,17 @@ impl GridTask {
                 if neighbour(w, h, s, d).is_none() {
                     *wall |= d.bit();
                 }
+            }
+        }
+        for &(s, d) in interior_walls {
+            if s >= w * h {
+                return Err(GridError::BadMap(format!(
+                    "wall at state {s}, outside the {w}x{h} map"
+                )));
+            }
+            walls[s] |= d.bit();
+            if let Some(t) = neighbour(w, h, s, d) {
+                walls[t] |= d.opposite().bit();
             }
         }
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -571,30 +699,21 @@ impl GridTask {
         task
     }
 
-    /// The true `P(effect | state, action)`: softmax of the dynamics set's scores, with blocked
-    /// moves zeroed and their mass spread evenly over the effects still possible.
+    /// The true `P(effect | state, action)`: `softmax(W_a · φ(s))` over the relevant
+    /// features, with blocked moves zeroed and their mass spread evenly over the effects
+    /// still possible.
     fn compute_probs(&self, s: usize, a: usize) -> [f64; N_EFFECTS] {
-        let set = &DYNAMICS_SETS[self.dynamics_set];
-        let sd = set.surfaces[self.surfaces[s].index()];
-        let d = Dir::ALL[a];
+        let w = DYNAMICS_SETS[self.dynamics_set].weights(a);
         let walls = self.walls[s];
-        let left = Dir::ALL[(a + 3) % 4];
-        let right = Dir::ALL[(a + 1) % 4];
         let mut scores = [0.0; N_EFFECTS];
-        for e in Dir::ALL {
-            scores[e as usize] = if e == d {
-                sd.intended
-            } else if e == d.opposite() {
-                sd.backwards
-            } else {
-                sd.sideways
-            };
-        }
-        let beside = u8::from(walls & left.bit() != 0) + u8::from(walls & right.bit() != 0);
-        scores[STAY] = sd.stay + set.wall_beside_stay * f64::from(beside);
-        if walls & d.bit() != 0 {
-            scores[left as usize] += set.wall_ahead_sideways;
-            scores[right as usize] += set.wall_ahead_sideways;
+        for &j in self.features(s) {
+            let j = j as usize;
+            if j >= N_RELEVANT_FEATURES {
+                break; // sorted: the rest are irrelevant
+            }
+            for (score, row) in scores.iter_mut().zip(&w) {
+                *score += row[j];
+            }
         }
         let max = scores.iter().copied().fold(f64::NEG_INFINITY, f64::max);
         let mut p = scores.map(|v| (v - max).exp());
@@ -760,6 +879,13 @@ impl GridTask {
         }
     }
 
+    /// The weight matrix `W_a` of the true dynamics for `action` (see
+    /// [`DynamicsSet::weights`]); before wall masking, `P(e | s, a) = softmax(W_a · φ(s))`
+    /// with φ the relevant features of `s`.
+    pub fn true_weights(&self, action: usize) -> [[f64; N_RELEVANT_FEATURES]; N_EFFECTS] {
+        DYNAMICS_SETS[self.dynamics_set].weights(action)
+    }
+
     /// The features the true dynamics depend on (bias, surfaces, walls).
     pub fn relevant_features(&self) -> &'static [u32] {
         &[0, 1, 2, 3, 4, 5, 6, 7, 8, 9]
@@ -915,7 +1041,9 @@ impl GridSuite {
     pub const TASKS: usize = 15;
 
     /// The suite's settings for task `i` (< 15): sizes from 20×20 to 30×30 (task 0 is the
-    /// 900-cell world of Fig. 3), dynamics set `i % 3`, varied walls, fire and exits.
+    /// 900-cell world of Fig. 3), dynamics set `i % 3` (5 tasks each), wall density 6–14 %,
+    /// fire 2–5 % of cells, 1–3 exits, 8–20 surface patches with a task-specific mix of
+    /// surfaces (one dominant, one rare).
     pub fn params(i: usize, n_irrelevant: usize) -> GridParams {
         const SIDES: [(usize, usize); 15] = [
             (30, 30),
@@ -935,6 +1063,10 @@ impl GridSuite {
             (24, 24),
         ];
         let (width, height) = SIDES[i % 15];
+        // One surface dominates, one is rare, so the tasks' surface mixes differ.
+        let mut surface_weights = [1.0; 4];
+        surface_weights[(i + 2) % 4] = 0.3;
+        surface_weights[(i + i / 4) % 4] = 3.0;
         GridParams {
             width,
             height,
@@ -944,6 +1076,7 @@ impl GridSuite {
             fire_fraction: 0.02 + 0.01 * (i % 4) as f64,
             exits: 1 + i % 3,
             patches: 8 + (i * 5) % 13,
+            surface_weights,
         }
     }
 

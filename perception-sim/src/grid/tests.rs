@@ -186,6 +186,18 @@ fn invalid_settings_and_maps_are_refused() {
         },
         GridParams { exits: 0, ..ok },
         GridParams { patches: 0, ..ok },
+        GridParams {
+            surface_weights: [0.0; 4],
+            ..ok
+        },
+        GridParams {
+            surface_weights: [1.0, -1.0, 1.0, 1.0],
+            ..ok
+        },
+        GridParams {
+            surface_weights: [1.0, f64::NAN, 1.0, 1.0],
+            ..ok
+        },
     ];
     for p in bad {
         assert!(GridTask::generate(p, 1).is_err(), "{p:?}");
@@ -203,6 +215,14 @@ fn invalid_settings_and_maps_are_refused() {
         GridTask::from_map("...\n.E", 0, 0, 0),
         Err(GridError::BadMap(_))
     ));
+    assert!(matches!(
+        GridTask::from_map_with_walls("..\n.E", &[(4, Dir::North)], 0, 0, 0),
+        Err(GridError::BadMap(_))
+    ));
+    assert!(matches!(
+        GridTask::from_map("..\n.E", 3, 0, 0),
+        Err(GridError::BadDynamicsSet(3))
+    ));
 }
 
 proptest! {
@@ -214,10 +234,12 @@ proptest! {
     fn generated_tasks_are_well_formed(
         w in 2usize..14, h in 2usize..14, set in 0usize..3, density in 0.0..0.5f64,
         fire in 0.0..0.3f64, seed in any::<u64>(),
+        mix in proptest::array::uniform4(0.0..2.0f64),
     ) {
         let exits = 1.max((w * h) / 30);
+        let surface_weights = [mix[0] + 0.01, mix[1], mix[2], mix[3]];
         let p = GridParams { width: w, height: h, dynamics_set: set, n_irrelevant: 3,
-            wall_density: density, fire_fraction: fire, exits, patches: 3 };
+            wall_density: density, fire_fraction: fire, exits, patches: 3, surface_weights };
         let t = GridTask::generate(p, seed).unwrap();
         let reached = reaching_cells(w, h, &t.surfaces, &t.walls, &t.exit);
         for s in 0..t.n_states() {
@@ -228,4 +250,131 @@ proptest! {
             }
         }
     }
+}
+
+#[test]
+fn the_dynamics_table_in_the_docs_holds() {
+    // P(intended, each side, backwards, stay) on an open cell, as documented on DYNAMICS_SETS.
+    let table: [[[f64; 4]; 4]; 3] = [
+        [
+            [0.81, 0.05, 0.01, 0.07],
+            [0.49, 0.15, 0.07, 0.15],
+            [0.36, 0.25, 0.08, 0.06],
+            [0.45, 0.07, 0.03, 0.39],
+        ],
+        [
+            [0.44, 0.09, 0.03, 0.35],
+            [0.83, 0.05, 0.02, 0.05],
+            [0.22, 0.31, 0.10, 0.05],
+            [0.70, 0.09, 0.02, 0.09],
+        ],
+        [
+            [0.49, 0.15, 0.07, 0.15],
+            [0.81, 0.05, 0.01, 0.07],
+            [0.35, 0.14, 0.26, 0.11],
+            [0.36, 0.12, 0.18, 0.22],
+        ],
+    ];
+    for (set, rows) in table.iter().enumerate() {
+        for (k, row) in rows.iter().enumerate() {
+            let map = format!("...\n.{}.\n..E", Surface::ALL[k].letter());
+            let t = GridTask::from_map(&map, set, 0, 1).unwrap();
+            for a in 0..4 {
+                let p = t.true_effect_probs(4, a);
+                let got = [p[a], p[(a + 1) % 4], p[(a + 2) % 4], p[STAY]];
+                assert!(
+                    (p[(a + 1) % 4] - p[(a + 3) % 4]).abs() < 1e-12,
+                    "sides differ"
+                );
+                for (g, want) in got.iter().zip(row) {
+                    assert!((g - want).abs() < 0.006, "set {set} surface {k}: {got:?}");
+                }
+                let intended_wins = p.iter().all(|&v| v <= p[a]);
+                let exception = set == 1 && Surface::ALL[k] == Surface::Water;
+                assert_eq!(intended_wins, !exception, "set {set} surface {k}: {p:?}");
+            }
+        }
+    }
+}
+
+#[test]
+fn true_dynamics_are_a_masked_softmax_of_the_relevant_features() {
+    use std::collections::HashMap;
+    for t in suite() {
+        let mut by_context: HashMap<(usize, usize), [f64; 5]> = HashMap::new();
+        for s in 0..t.n_states() {
+            for a in 0..4 {
+                let w = t.true_weights(a);
+                let mut z = [0.0; 5];
+                for &j in t.features(s).iter().filter(|&&j| j < 10) {
+                    for e in 0..5 {
+                        z[e] += w[e][j as usize];
+                    }
+                }
+                let total: f64 = z.iter().map(|v| v.exp()).sum();
+                let mut p = z.map(|v| v.exp() / total);
+                let blocked: Vec<usize> = (0..4).filter(|&d| t.has_wall(s, Dir::ALL[d])).collect();
+                let freed: f64 = blocked.iter().map(|&d| p[d]).sum();
+                for e in 0..5 {
+                    p[e] = if blocked.contains(&e) {
+                        0.0
+                    } else {
+                        p[e] + freed / (5 - blocked.len()) as f64
+                    };
+                }
+                let got = t.true_effect_probs(s, a);
+                for e in 0..5 {
+                    assert!((got[e] - p[e]).abs() < 1e-12, "state {s} action {a}");
+                }
+                // The oracle DBN structure is exact: same context, same dynamics.
+                let seen = by_context.entry((t.oracle_context(s), a)).or_insert(got);
+                assert_eq!(*seen, got, "state {s} action {a}");
+            }
+        }
+    }
+}
+
+#[test]
+fn suite_tasks_mix_surfaces_differently() {
+    let tasks = suite();
+    let mut dominant = Vec::new();
+    for t in &tasks {
+        let mut counts = [0usize; 5];
+        for s in 0..t.n_states() {
+            counts[t.surface(s).index()] += 1;
+        }
+        let fire = counts[Surface::Fire.index()] as f64 / t.n_states() as f64;
+        assert!(fire > 0.0 && fire < 0.08, "fire fraction {fire}");
+        let top = (0..4).max_by_key(|&k| counts[k]).unwrap();
+        if !dominant.contains(&top) {
+            dominant.push(top);
+        }
+    }
+    assert!(dominant.len() >= 3, "most common surfaces: {dominant:?}");
+}
+
+#[test]
+fn interior_walls_block_and_show() {
+    let t = GridTask::from_map_with_walls(
+        "...\n...\n..E",
+        &[(4, Dir::North), (4, Dir::East), (0, Dir::West)],
+        2,
+        4,
+        3,
+    )
+    .unwrap();
+    assert!(t.has_wall(1, Dir::South) && t.has_wall(5, Dir::West));
+    let f = t.features(4);
+    assert!(f.contains(&6) && f.contains(&7) && !f.contains(&8) && !f.contains(&9));
+    for a in 0..4 {
+        let p = t.true_effect_probs(4, a);
+        assert_eq!(p[Dir::North as usize], 0.0);
+        assert_eq!(p[Dir::East as usize], 0.0);
+        assert!((p.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+    }
+    assert_eq!(t.apply_effect(4, Dir::North as usize), 4);
+    assert_eq!(t.apply_effect(4, Dir::West as usize), 3);
+    let map = t.to_string();
+    assert_eq!(map.lines().nth(2), Some(". .|."), "{map}");
+    assert_eq!(map.lines().nth(1), Some("  -"), "{map}");
 }
