@@ -247,6 +247,8 @@ pub struct EffectTable {
     n_effects: usize,
     /// `probs[(a * S + s) * E + e]`.
     probs: Vec<f64>,
+    /// One action's rows, where [`EffectTable::refresh`] builds the new ones before comparing.
+    scratch: Vec<f64>,
 }
 
 impl EffectTable {
@@ -261,6 +263,7 @@ impl EffectTable {
             n_states: s,
             n_effects: e,
             probs: vec![1.0 / e as f64; a * s * e],
+            scratch: vec![0.0; s * e],
         }
     }
 
@@ -271,7 +274,9 @@ impl EffectTable {
         &self.probs[start..start + self.n_effects]
     }
 
-    /// Recomputes action `a`'s rows from its view, for every state. Allocation-free.
+    /// Recomputes action `a`'s rows from its view, for every state, and returns how far the
+    /// model moved: the largest L1 distance between a state's old and new effect distribution.
+    /// Allocation-free.
     ///
     /// Equal to calling [`Mdagl::predict_into`] on every state, but it visits only the
     /// features the view uses (a sparse view over hundreds of features touches a handful),
@@ -282,7 +287,7 @@ impl EffectTable {
         a: usize,
         view: &Mdagl,
         structure: &CmdpStructure,
-    ) -> Result<(), MdaglError> {
+    ) -> Result<f64, MdaglError> {
         let e = self.n_effects;
         if view.n_classes() != e {
             return Err(MdaglError::WrongOutputLen {
@@ -296,11 +301,11 @@ impl EffectTable {
                 got: structure.n_features(),
             });
         }
-        let rows = &mut self.probs[a * self.n_states * e..(a + 1) * self.n_states * e];
-        rows.fill(0.0);
+        let fresh = &mut self.scratch;
+        fresh.fill(0.0);
         view.for_each_weight_column(|col, scale, sums| {
             let mut add = |s: usize| {
-                for (score, &g) in rows[s * e..(s + 1) * e].iter_mut().zip(sums) {
+                for (score, &g) in fresh[s * e..(s + 1) * e].iter_mut().zip(sums) {
                     *score += scale * g;
                 }
             };
@@ -314,7 +319,7 @@ impl EffectTable {
                 (0..structure.n_states()).for_each(add);
             }
         });
-        for row in rows.chunks_exact_mut(e) {
+        for row in fresh.chunks_exact_mut(e) {
             let max = row.iter().copied().fold(f64::NEG_INFINITY, f64::max);
             if !max.is_finite() {
                 return Err(MdaglError::Overflow);
@@ -326,16 +331,32 @@ impl EffectTable {
             }
             row.iter_mut().for_each(|p| *p /= sum);
         }
-        Ok(())
+        let rows = &mut self.probs[a * self.n_states * e..(a + 1) * self.n_states * e];
+        let moved = rows
+            .chunks_exact(e)
+            .zip(fresh.chunks_exact(e))
+            .map(|(old, new)| l1_distance(old, new))
+            .fold(0.0, f64::max);
+        rows.copy_from_slice(fresh);
+        Ok(moved)
     }
 
     /// Overwrites `P(· | s, a)` directly (for models that are not mDAGL views).
     ///
-    /// `probs` must hold one value per effect.
-    pub fn set(&mut self, a: usize, s: usize, probs: &[f64]) {
+    /// `probs` must hold one value per effect. Returns the L1 distance between the old and
+    /// the new distribution.
+    pub fn set(&mut self, a: usize, s: usize, probs: &[f64]) -> f64 {
         let start = (a * self.n_states + s) * self.n_effects;
-        self.probs[start..start + self.n_effects].copy_from_slice(probs);
+        let row = &mut self.probs[start..start + self.n_effects];
+        let moved = l1_distance(row, probs);
+        row.copy_from_slice(probs);
+        moved
     }
+}
+
+/// `Σ |p_i − q_i|`.
+fn l1_distance(p: &[f64], q: &[f64]) -> f64 {
+    p.iter().zip(q).map(|(a, b)| (a - b).abs()).sum()
 }
 
 #[cfg(test)]

@@ -8,10 +8,20 @@
 //! few sweeps, not a solve from scratch. A plan stops when the largest change of any value in a
 //! sweep is at most [`PlannerParams::tolerance`] or after [`PlannerParams::max_sweeps`] sweeps;
 //! with γ < 1 the values are then within `tolerance·γ/(1−γ)` of the fixed point.
+//!
+//! **Anytime.** The default sweep cap is small (10): an agent re-plans before every greedy
+//! action, so a plan that has not converged simply continues, warm-started, at the next step
+//! ([`PlannedModel`] re-plans until it converges even if the model stops changing). Planning
+//! work per action is therefore bounded — as the real-time controller needs, and as it was in
+//! the paper's Table 1, where every ε-greedy agent pays about the same planning cost per step.
+//! For a one-off solve to convergence raise `max_sweeps`.
+
+use std::sync::Arc;
 
 use thiserror::Error;
 
 use crate::cmdp::{CmdpStructure, EffectTable};
+use crate::mdagl::{Mdagl, MdaglError};
 
 /// Planner settings, validated by [`ValueIteration::new`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -20,18 +30,20 @@ pub struct PlannerParams {
     pub gamma: f64,
     /// Stop when no value changes by more than this in a sweep (> 0).
     pub tolerance: f64,
-    /// Stop after this many sweeps even if not converged (≥ 1).
+    /// Stop after this many sweeps even if not converged (≥ 1); the next plan continues from
+    /// where this one stopped.
     pub max_sweeps: usize,
 }
 
 impl Default for PlannerParams {
     /// γ = 0.95, tolerance 1e-4 (values within 2·10⁻³ of the fixed point, far below the
-    /// −0.01 step reward that separates plans), at most 10 000 sweeps.
+    /// −0.01 step reward that separates plans), at most 10 sweeps per plan (anytime: see the
+    /// module docs).
     fn default() -> Self {
         Self {
             gamma: 0.95,
             tolerance: 1e-4,
-            max_sweeps: 10_000,
+            max_sweeps: 10,
         }
     }
 }
@@ -76,6 +88,8 @@ pub struct ValueIteration {
     params: PlannerParams,
     values: Vec<f64>,
     policy: Vec<u32>,
+    /// Scratch: `R(s'_e) + γ V(s'_e)` for each effect of the state being backed up.
+    backup: Vec<f64>,
 }
 
 impl ValueIteration {
@@ -94,6 +108,7 @@ impl ValueIteration {
             params,
             values: vec![0.0; structure.n_states()],
             policy: vec![0; structure.n_states()],
+            backup: vec![0.0; structure.n_effects()],
         })
     }
 
@@ -138,19 +153,39 @@ impl ValueIteration {
     }
 
     /// The best action in `s` and its value (lowest action id on ties).
+    ///
+    /// Every action's Q-value in `s` reads the same successors (effects, not actions, decide
+    /// where the agent lands), so each successor's `R + γV` is computed once into `backup` and
+    /// shared by all actions: `E` lookups per state instead of `A × E`.
     #[inline]
     fn best(
-        &self,
+        values: &[f64],
+        backup: &mut [f64],
+        gamma: f64,
         structure: &CmdpStructure,
         table: &EffectTable,
         optimism: Option<Optimism<'_>>,
         s: usize,
     ) -> (usize, f64) {
+        for (e, b) in backup.iter_mut().enumerate() {
+            let next = structure.next_state(s, e);
+            let future = if structure.is_terminal(next) {
+                0.0
+            } else {
+                gamma * values[next]
+            };
+            *b = structure.reward(next) + future;
+        }
         let mut best = (0, f64::NEG_INFINITY);
         for a in 0..structure.n_actions() {
             let q = match optimism {
                 Some(o) if o.unknown[a * structure.n_states() + s] => o.value,
-                _ => self.q_value(structure, table, s, a),
+                _ => table
+                    .probs(a, s)
+                    .iter()
+                    .zip(backup.iter())
+                    .map(|(&p, &b)| p * b)
+                    .sum(),
             };
             if q > best.1 {
                 best = (a, q);
@@ -194,7 +229,15 @@ impl ValueIteration {
                 if structure.is_terminal(s) {
                     continue;
                 }
-                let (a, v) = self.best(structure, table, optimism, s);
+                let (a, v) = Self::best(
+                    &self.values,
+                    &mut self.backup,
+                    self.params.gamma,
+                    structure,
+                    table,
+                    optimism,
+                    s,
+                );
                 residual = residual.max((v - self.values[s]).abs());
                 self.values[s] = v;
                 self.policy[s] = a as u32;
@@ -227,6 +270,161 @@ impl ValueIteration {
     }
 }
 
+/// An agent's learned model and the plan on it: the CMDP structure, the effect table its
+/// predictors fill, and a warm-started planner that re-plans only when the model has moved
+/// enough to matter.
+///
+/// **When it re-plans.** A change of state `s`'s effect distribution by L1 distance `δ` moves
+/// that state's backup `Σ_e P(e) (R + γV)` by at most `δ/2 · span`, where `span` is the spread
+/// of `R + γV` over all states under the current values. The model accumulates that bound over
+/// every change since the last plan and re-plans when it exceeds the planner's tolerance; so
+/// the policy acted on always comes from values whose Bellman residual on the *current* model
+/// is at most twice the tolerance. Online learners move their model a little after every
+/// step — an mDAGL view's intercept shifts every state's row — and most of those moves are far
+/// below what could change a decision. [`PlannedModel::invalidate`] forces the next re-plan.
+///
+/// ```
+/// use std::sync::Arc;
+/// use tes_controller::cmdp::CmdpStructure;
+/// use tes_controller::plan::{PlannedModel, PlannerParams};
+///
+/// // Two states; effect 0 moves to the rewarding terminal state 1, effect 1 stays.
+/// let features: [&[u32]; 2] = [&[0], &[0]];
+/// let structure = CmdpStructure::new(
+///     2, 2, 2, 1,
+///     |s, e| if e == 0 { 1 } else { s },
+///     vec![0.0, 1.0],
+///     vec![false, true],
+///     |s| features[s],
+/// )?;
+/// let mut model = PlannedModel::new(Arc::new(structure), PlannerParams::default())?;
+/// model.set(0, 0, &[0.1, 0.9]); // action 0 rarely works
+/// model.set(1, 0, &[0.8, 0.2]); // action 1 mostly does
+/// model.replan();
+/// assert_eq!(model.action(0), 1);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+#[derive(Debug, Clone)]
+pub struct PlannedModel {
+    structure: Arc<CmdpStructure>,
+    table: EffectTable,
+    planner: ValueIteration,
+    /// Upper bound on how far the model changes since the last plan moved any backup.
+    drift: f64,
+    /// `max − min` of `R(s') + γ V(s')` over all states, under the last plan's values.
+    backup_span: f64,
+    /// Re-plan at the next chance whatever the drift (set at start and by `invalidate`).
+    forced: bool,
+    /// Whether the last plan reached the tolerance (if not, the next re-plan continues it).
+    converged: bool,
+}
+
+impl PlannedModel {
+    /// A model with every effect equally likely everywhere and no plan yet.
+    pub fn new(structure: Arc<CmdpStructure>, params: PlannerParams) -> Result<Self, PlanError> {
+        let planner = ValueIteration::new(&structure, params)?;
+        Ok(Self {
+            table: EffectTable::uniform(&structure),
+            structure,
+            planner,
+            drift: 0.0,
+            backup_span: 0.0,
+            forced: true,
+            converged: false,
+        })
+    }
+
+    /// The CMDP structure.
+    pub fn structure(&self) -> &Arc<CmdpStructure> {
+        &self.structure
+    }
+
+    /// The learned `P(e | x(s), a)` for every state and action.
+    pub fn table(&self) -> &EffectTable {
+        &self.table
+    }
+
+    /// The planner, with the values and policy of the last plan.
+    pub fn planner(&self) -> &ValueIteration {
+        &self.planner
+    }
+
+    /// Recomputes action `a`'s rows from `view` (see [`EffectTable::refresh`]).
+    pub fn refresh(&mut self, a: usize, view: &Mdagl) -> Result<(), MdaglError> {
+        let moved = self.table.refresh(a, view, &self.structure)?;
+        self.note_change(moved);
+        Ok(())
+    }
+
+    /// Overwrites `P(· | s, a)` (for predictors that are not mDAGL views).
+    pub fn set(&mut self, a: usize, s: usize, probs: &[f64]) {
+        let moved = self.table.set(a, s, probs);
+        self.note_change(moved);
+    }
+
+    /// Makes the next [`replan`](Self::replan) plan whatever the model's drift (for changes
+    /// the drift cannot see, such as R-max's unknown pairs becoming known).
+    pub fn invalidate(&mut self) {
+        self.forced = true;
+    }
+
+    fn note_change(&mut self, l1: f64) {
+        self.drift += 0.5 * l1 * self.backup_span;
+    }
+
+    fn needs_plan(&self) -> bool {
+        self.forced || !self.converged || self.drift > self.planner.params().tolerance
+    }
+
+    /// Re-plans if the model moved enough since the last plan; returns the plan's statistics
+    /// if it did. Allocation-free.
+    pub fn replan(&mut self) -> Option<PlanStats> {
+        if !self.needs_plan() {
+            return None;
+        }
+        let stats = self.planner.plan(&self.structure, &self.table);
+        self.planned(stats);
+        Some(stats)
+    }
+
+    /// [`replan`](Self::replan) with R-max optimism (see [`ValueIteration::plan_optimistic`]).
+    pub fn replan_optimistic(&mut self, optimism: Optimism<'_>) -> Option<PlanStats> {
+        if !self.needs_plan() {
+            return None;
+        }
+        let stats = self
+            .planner
+            .plan_optimistic(&self.structure, &self.table, optimism);
+        self.planned(stats);
+        Some(stats)
+    }
+
+    fn planned(&mut self, stats: PlanStats) {
+        self.converged = stats.converged;
+        let gamma = self.planner.params().gamma;
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for s in 0..self.structure.n_states() {
+            let future = if self.structure.is_terminal(s) {
+                0.0
+            } else {
+                gamma * self.planner.value(s)
+            };
+            let b = self.structure.reward(s) + future;
+            lo = lo.min(b);
+            hi = hi.max(b);
+        }
+        self.backup_span = hi - lo;
+        self.drift = 0.0;
+        self.forced = false;
+    }
+
+    /// The greedy action in `s` under the last plan.
+    #[inline]
+    pub fn action(&self, s: usize) -> usize {
+        self.planner.action(s)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -235,6 +433,7 @@ mod tests {
     fn tight() -> PlannerParams {
         PlannerParams {
             tolerance: 1e-9,
+            max_sweeps: 100_000,
             ..PlannerParams::default()
         }
     }
@@ -328,5 +527,44 @@ mod tests {
         ] {
             assert!(ValueIteration::new(&c, bad).is_err());
         }
+    }
+
+    #[test]
+    fn planned_model_replans_only_when_the_model_moved_enough() {
+        let c = Arc::new(corridor(6, &[]));
+        let params = PlannerParams {
+            max_sweeps: 3,
+            ..PlannerParams::default()
+        };
+        let mut model = PlannedModel::new(c.clone(), params).unwrap();
+        for s in 0..6 {
+            model.set(0, s, &[0.9, 0.05, 0.05]);
+            model.set(1, s, &[0.05, 0.9, 0.05]);
+        }
+        // Not converged after 3 sweeps: re-plans continue, warm-started, until it is.
+        let mut plans = 0;
+        while model.replan().is_some() {
+            plans += 1;
+            assert!(plans < 1000);
+        }
+        assert!(
+            plans > 1,
+            "the sweep cap split the solve into {plans} plans"
+        );
+        let mut full = ValueIteration::new(&c, tight()).unwrap();
+        full.plan(&c, model.table());
+        for s in 0..6 {
+            assert!((model.planner().value(s) - full.value(s)).abs() < 1e-3);
+        }
+        assert_eq!(model.action(3), 1);
+        // A change far below the tolerance leaves the plan alone…
+        model.set(1, 3, &[0.05 + 1e-6, 0.9 - 1e-6, 0.05]);
+        assert!(model.replan().is_none());
+        // …a real one re-plans, and so does an explicit invalidation.
+        model.set(1, 3, &[0.5, 0.45, 0.05]);
+        assert!(model.replan().is_some());
+        while model.replan().is_some() {}
+        model.invalidate();
+        assert!(model.replan().is_some());
     }
 }

@@ -22,8 +22,8 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::{Agent, AgentError, check_step};
-use crate::cmdp::{CmdpStructure, EffectTable};
-use crate::plan::{Optimism, PlannerParams, ValueIteration};
+use crate::cmdp::CmdpStructure;
+use crate::plan::{Optimism, PlannedModel, PlannerParams, ValueIteration};
 
 /// How a counting agent explores.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -105,14 +105,12 @@ pub struct CountingAgent {
     counts: Vec<u32>,
     /// `totals[a * C + c]`.
     totals: Vec<u32>,
-    table: EffectTable,
     /// R-max only: `unknown[a * S + s]`.
     unknown: Vec<bool>,
     optimistic_value: f64,
-    planner: ValueIteration,
+    model: PlannedModel,
     rng: ChaCha8Rng,
     scratch: Vec<f64>,
-    stale: bool,
 }
 
 impl CountingAgent {
@@ -190,14 +188,13 @@ impl CountingAgent {
             structure.n_effects(),
             contexts.n_contexts(),
         );
-        let planner = ValueIteration::new(&structure, planner)?;
+        let model = PlannedModel::new(structure.clone(), planner)?;
         let r_max = (0..s).map(|i| structure.reward(i)).fold(0.0, f64::max);
         Ok(Self {
             name,
-            table: EffectTable::uniform(&structure),
             unknown: vec![matches!(exploration, Exploration::Rmax { .. }); a * s],
-            optimistic_value: r_max / (1.0 - planner.params().gamma),
-            planner,
+            optimistic_value: r_max / (1.0 - planner.gamma),
+            model,
             structure,
             contexts,
             exploration,
@@ -205,32 +202,26 @@ impl CountingAgent {
             totals: vec![0; a * c],
             rng: ChaCha8Rng::seed_from_u64(seed),
             scratch: vec![0.0; e],
-            stale: true,
         })
     }
 
     /// The planner, with the values and policy of the last plan.
     pub fn planner(&self) -> &ValueIteration {
-        &self.planner
+        self.model.planner()
     }
 
-    /// Re-plans if the model changed since the last plan.
+    /// Re-plans if the model moved enough since the last plan (see [`PlannedModel`]).
     pub fn replan(&mut self) {
-        if !self.stale {
-            return;
-        }
         match self.exploration {
             Exploration::Rmax { .. } => {
                 let optimism = Optimism {
                     unknown: &self.unknown,
                     value: self.optimistic_value,
                 };
-                self.planner
-                    .plan_optimistic(&self.structure, &self.table, optimism)
+                self.model.replan_optimistic(optimism)
             }
-            Exploration::EpsilonGreedy { .. } => self.planner.plan(&self.structure, &self.table),
+            Exploration::EpsilonGreedy { .. } => self.model.replan(),
         };
-        self.stale = false;
     }
 }
 
@@ -248,7 +239,7 @@ impl Agent for CountingAgent {
             return Ok(self.rng.random_range(0..self.structure.n_actions()));
         }
         self.replan();
-        Ok(self.planner.action(state))
+        Ok(self.model.action(state))
     }
 
     fn observe(&mut self, state: usize, action: usize, effect: usize) -> Result<(), AgentError> {
@@ -284,10 +275,13 @@ impl Agent for CountingAgent {
             *p = f64::from(n) / f64::from(total);
         }
         for &s in self.contexts.members(c) {
-            self.table.set(action, s as usize, &self.scratch);
+            self.model.set(action, s as usize, &self.scratch);
             self.unknown[action * n_s + s as usize] = false;
         }
-        self.stale = true;
+        if let Exploration::Rmax { .. } = self.exploration {
+            // The pair just became known: its optimism is gone, which drift cannot see.
+            self.model.invalidate();
+        }
         Ok(())
     }
 }

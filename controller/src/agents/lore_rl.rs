@@ -11,9 +11,9 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::{Agent, AgentError, check_step};
-use crate::cmdp::{CmdpStructure, EffectTable};
+use crate::cmdp::CmdpStructure;
 use crate::mdagl::{Features, Mdagl, MdaglParams};
-use crate::plan::{PlannerParams, ValueIteration};
+use crate::plan::{PlannedModel, PlannerParams, ValueIteration};
 
 /// loreRL's settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -50,14 +50,10 @@ impl LoreRlParams {
 #[derive(Debug, Clone)]
 pub struct LoreRl {
     name: &'static str,
-    structure: Arc<CmdpStructure>,
     views: Vec<Mdagl>,
-    table: EffectTable,
-    planner: ValueIteration,
+    model: PlannedModel,
     epsilon: f64,
     rng: ChaCha8Rng,
-    /// The views changed since the last plan.
-    stale: bool,
 }
 
 impl LoreRl {
@@ -73,20 +69,16 @@ impl LoreRl {
         let views = (0..structure.n_actions())
             .map(|_| Mdagl::new(structure.n_effects(), structure.n_features(), params.mdagl))
             .collect::<Result<Vec<_>, _>>()?;
-        let planner = ValueIteration::new(&structure, params.planner)?;
         Ok(Self {
             name: if params.mdagl.lambda == 0.0 {
                 "bloreRL"
             } else {
                 "loreRL"
             },
-            table: EffectTable::uniform(&structure),
-            structure,
+            model: PlannedModel::new(structure, params.planner)?,
             views,
-            planner,
             epsilon: params.epsilon,
             rng: ChaCha8Rng::seed_from_u64(seed),
-            stale: true,
         })
     }
 
@@ -97,15 +89,13 @@ impl LoreRl {
 
     /// The planner, with the values and policy of the last plan.
     pub fn planner(&self) -> &ValueIteration {
-        &self.planner
+        self.model.planner()
     }
 
-    /// Re-plans if any view changed since the last plan.
+    /// Re-plans if the views moved the model enough since the last plan (see
+    /// [`PlannedModel`]).
     pub fn replan(&mut self) {
-        if self.stale {
-            self.planner.plan(&self.structure, &self.table);
-            self.stale = false;
-        }
+        self.model.replan();
     }
 }
 
@@ -115,22 +105,20 @@ impl Agent for LoreRl {
     }
 
     fn act(&mut self, state: usize) -> Result<usize, AgentError> {
-        check_step(&self.structure, state, 0, None)?;
+        check_step(self.model.structure(), state, 0, None)?;
         if self.epsilon > 0.0 && self.rng.random::<f64>() < self.epsilon {
-            return Ok(self.rng.random_range(0..self.structure.n_actions()));
+            return Ok(self.rng.random_range(0..self.views.len()));
         }
-        self.replan();
-        Ok(self.planner.action(state))
+        self.model.replan();
+        Ok(self.model.action(state))
     }
 
     fn observe(&mut self, state: usize, action: usize, effect: usize) -> Result<(), AgentError> {
-        check_step(&self.structure, state, action, Some(effect))?;
-        let x = Features::SparseBinary(self.structure.features(state));
+        check_step(self.model.structure(), state, action, Some(effect))?;
+        let x = Features::SparseBinary(self.model.structure().features(state));
         self.views[action].update(x, effect)?;
         // Only the updated action's rows of the model change.
-        self.table
-            .refresh(action, &self.views[action], &self.structure)?;
-        self.stale = true;
+        self.model.refresh(action, &self.views[action])?;
         Ok(())
     }
 }

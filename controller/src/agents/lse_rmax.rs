@@ -43,7 +43,7 @@ use std::sync::Arc;
 
 use super::{Agent, AgentError, check_step};
 use crate::cmdp::{CmdpStructure, EffectTable};
-use crate::plan::{Optimism, PlannerParams, ValueIteration};
+use crate::plan::{Optimism, PlannedModel, PlannerParams, ValueIteration};
 
 /// The largest in-degree [`LseRmaxParams::max_in_degree`] may ask for.
 const MAX_IN_DEGREE: usize = 3;
@@ -103,13 +103,11 @@ pub struct LseRmax {
     z: Vec<f64>,
     /// Per action, the chosen parent set (a candidate index).
     chosen: Vec<usize>,
-    table: EffectTable,
     /// `unknown[a * S + s]`.
     unknown: Vec<bool>,
     optimistic_value: f64,
-    planner: ValueIteration,
+    model: PlannedModel,
     scratch: Vec<f64>,
-    stale: bool,
 }
 
 /// `n choose k`, saturating.
@@ -216,7 +214,7 @@ impl LseRmax {
                 requirement: "small enough for at most 2^24 counters at this feature count",
             });
         }
-        let planner = ValueIteration::new(&structure, params.planner)?;
+        let model = PlannedModel::new(structure.clone(), params.planner)?;
 
         let mut has = vec![false; n_s * n_f];
         for s in 0..n_s {
@@ -265,12 +263,10 @@ impl LseRmax {
             block,
             z,
             chosen: vec![0; n_a],
-            table: EffectTable::uniform(&structure),
             unknown: vec![true; n_a * n_s],
-            optimistic_value: r_max / (1.0 - planner.params().gamma),
-            planner,
+            optimistic_value: r_max / (1.0 - params.planner.gamma),
+            model,
             scratch: vec![0.0; n_e],
-            stale: true,
             structure,
             params,
         })
@@ -296,26 +292,22 @@ impl LseRmax {
 
     /// The planner, with the values and policy of the last plan.
     pub fn planner(&self) -> &ValueIteration {
-        &self.planner
+        self.model.planner()
     }
 
     /// The learned `P(e | x(s), a)` (rows of unknown pairs are not used by the planner).
     pub fn effect_table(&self) -> &EffectTable {
-        &self.table
+        self.model.table()
     }
 
     /// Re-plans, with R-max optimism for unknown pairs, if the model changed since the last
     /// plan.
     pub fn replan(&mut self) {
-        if self.stale {
-            let optimism = Optimism {
-                unknown: &self.unknown,
-                value: self.optimistic_value,
-            };
-            self.planner
-                .plan_optimistic(&self.structure, &self.table, optimism);
-            self.stale = false;
-        }
+        let optimism = Optimism {
+            unknown: &self.unknown,
+            value: self.optimistic_value,
+        };
+        self.model.replan_optimistic(optimism);
     }
 
     fn set(&self, i: usize) -> &[u32] {
@@ -430,9 +422,13 @@ impl LseRmax {
                 for (q, &c) in probs.iter_mut().zip(row) {
                     *q = f64::from(c) / total as f64;
                 }
-                self.table.set(action, s, &probs);
+                self.model.set(action, s, &probs);
             }
-            self.unknown[action * n_s + s] = !known;
+            if self.unknown[action * n_s + s] == known {
+                // Optimism appears or goes, which the model's drift cannot see.
+                self.unknown[action * n_s + s] = !known;
+                self.model.invalidate();
+            }
         }
         self.scratch = probs;
     }
@@ -446,7 +442,7 @@ impl Agent for LseRmax {
     fn act(&mut self, state: usize) -> Result<usize, AgentError> {
         check_step(&self.structure, state, 0, None)?;
         self.replan();
-        Ok(self.planner.action(state))
+        Ok(self.model.action(state))
     }
 
     fn observe(&mut self, state: usize, action: usize, effect: usize) -> Result<(), AgentError> {
@@ -459,7 +455,6 @@ impl Agent for LseRmax {
         }
         self.select_structure(action);
         self.refresh(action);
-        self.stale = true;
         Ok(())
     }
 }

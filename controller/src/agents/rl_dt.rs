@@ -13,16 +13,16 @@
 //!
 //! **Keeping all data and re-inducing.** Like Hester & Stone's implementation, the agent stores
 //! *every* observed example (as exact per-state effect counts, which induce the same tree as
-//! the raw list) and re-induces an action's tree from all of them. Re-induction is what makes
-//! RL-DT slow (the paper's Table 1); to keep that character without rebuilding on every step,
-//! a tree is rebuilt when
+//! the raw list) and, by default, re-induces the taken action's tree from all of them after
+//! every step ([`RlDtParams::rebuild_every`] = 1). With a larger `rebuild_every` a tree is
+//! re-induced only when
 //!
 //! * the new example *contradicts* its leaf — the leaf is empty or its most frequent effect is
 //!   not the observed one (Hester & Stone rebuild when a new instance is mis-predicted), or
-//! * [`RlDtParams::rebuild_every`] examples of the action have arrived since the last rebuild
-//!   (a periodic refit, since agreeing examples can still change the best split).
+//! * `rebuild_every` examples of the action have arrived since the last rebuild (a periodic
+//!   refit, since agreeing examples can still change the best split);
 //!
-//! Otherwise the example is only added to its leaf's counts, which keeps every leaf's
+//! otherwise the example is only added to its leaf's counts, which keeps every leaf's
 //! distribution equal to the frequencies of the examples in it. An action with no data
 //! predicts every effect equally.
 //!
@@ -39,7 +39,7 @@ use rand_chacha::ChaCha8Rng;
 use super::decision_tree::{DecisionTree, Example, TreeParams};
 use super::{Agent, AgentError, check_step};
 use crate::cmdp::{CmdpStructure, EffectTable};
-use crate::plan::{PlannerParams, ValueIteration};
+use crate::plan::{PlannedModel, PlannerParams, ValueIteration};
 
 /// RL-DT's settings, checked by [`RlDt::new`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -56,13 +56,13 @@ pub struct RlDtParams {
 }
 
 impl Default for RlDtParams {
-    /// γ = 0.95, ε = 0.1, default tree settings, a periodic refit every 50 examples.
+    /// γ = 0.95, ε = 0.1, default tree settings, the tree re-induced after every example.
     fn default() -> Self {
         Self {
             planner: PlannerParams::default(),
             epsilon: 0.1,
             tree: TreeParams::default(),
-            rebuild_every: 50,
+            rebuild_every: 1,
         }
     }
 }
@@ -83,11 +83,9 @@ pub struct RlDt {
     /// Per action, examples since its tree was last re-induced.
     since_rebuild: Vec<u32>,
     rebuilds: u64,
-    table: EffectTable,
-    planner: ValueIteration,
+    model: PlannedModel,
     rng: ChaCha8Rng,
     scratch: Vec<f64>,
-    stale: bool,
 }
 
 impl RlDt {
@@ -114,7 +112,7 @@ impl RlDt {
                 requirement: "min_leaf >= 1 and a finite min_gain >= 0",
             });
         }
-        let planner = ValueIteration::new(&structure, params.planner)?;
+        let model = PlannedModel::new(structure.clone(), params.planner)?;
         let (s, a, e, f) = (
             structure.n_states(),
             structure.n_actions(),
@@ -127,11 +125,9 @@ impl RlDt {
             visited: vec![Vec::new(); a],
             since_rebuild: vec![0; a],
             rebuilds: 0,
-            table: EffectTable::uniform(&structure),
-            planner,
+            model,
             rng: ChaCha8Rng::seed_from_u64(seed),
             scratch: vec![0.0; e],
-            stale: true,
             structure,
             params,
         })
@@ -154,20 +150,18 @@ impl RlDt {
 
     /// The planner, with the values and policy of the last plan.
     pub fn planner(&self) -> &ValueIteration {
-        &self.planner
+        self.model.planner()
     }
 
     /// The learned `P(e | x(s), a)` for every state and action.
     pub fn effect_table(&self) -> &EffectTable {
-        &self.table
+        self.model.table()
     }
 
-    /// Re-plans if a tree changed since the last plan.
+    /// Re-plans if the trees moved the model enough since the last plan (see
+    /// [`PlannedModel`]).
     pub fn replan(&mut self) {
-        if self.stale {
-            self.planner.plan(&self.structure, &self.table);
-            self.stale = false;
-        }
+        self.model.replan();
     }
 
     /// Re-induces `action`'s tree from all its stored examples.
@@ -210,7 +204,7 @@ impl Agent for RlDt {
             return Ok(self.rng.random_range(0..self.structure.n_actions()));
         }
         self.replan();
-        Ok(self.planner.action(state))
+        Ok(self.model.action(state))
     }
 
     fn observe(&mut self, state: usize, action: usize, effect: usize) -> Result<(), AgentError> {
@@ -233,9 +227,8 @@ impl Agent for RlDt {
         let tree = &self.trees[action];
         for s in 0..n_s {
             tree.predict_into(self.structure.features(s), &mut self.scratch);
-            self.table.set(action, s, &self.scratch);
+            self.model.set(action, s, &self.scratch);
         }
-        self.stale = true;
         Ok(())
     }
 }
