@@ -95,33 +95,8 @@ pub struct RunSummary {
     pub interrupted: bool,
 }
 
-/// An iceoryx2 failure; `context` says which step.
-#[derive(Debug, thiserror::Error)]
-#[error("iceoryx2: cannot {context}: {message}")]
-pub struct IpcError {
-    /// The step that failed.
-    pub context: &'static str,
-    /// iceoryx2's error.
-    pub message: String,
-}
-
-fn ipc_err<E: std::fmt::Debug>(context: &'static str) -> impl FnOnce(E) -> IpcError {
-    move |e| IpcError {
-        context,
-        message: format!("{e:?}"),
-    }
-}
-
-/// `CLOCK_MONOTONIC` in ns, the stamp every TES process uses.
-pub fn monotonic_ns() -> u64 {
-    nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC)
-        .map(|t| {
-            (t.tv_sec() as u64)
-                .saturating_mul(1_000_000_000)
-                .saturating_add(t.tv_nsec() as u64)
-        })
-        .unwrap_or(0)
-}
+use tes_topics::channel::ipc_err;
+pub use tes_topics::channel::{IpcError, monotonic_ns};
 
 /// Runs the bridge until a signal (if handled) or the stop flag; brakes any motion on exit.
 pub fn run<T: Transport, C: Clock>(

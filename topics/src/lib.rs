@@ -31,6 +31,8 @@
 
 use iceoryx2::prelude::ZeroCopySend;
 
+pub mod channel;
+
 /// Number of binary state features the robot arenas of the paper's §5.2.1 extract
 /// (100 green-mark, 100 blue-mark, 100 ball-distance, 8 orientation and 4 mark bits).
 pub const ARENA_FEATURES: usize = 312;

@@ -1,0 +1,352 @@
+//! One-way channels between the TES processes: an iceoryx2 publish–subscribe service for the
+//! payload plus an event service to wake the receiver, and the [`WaitStrategy`] the receiver
+//! waits by.
+//!
+//! * [`Outbox`] — publishes a payload (written straight into shared memory) and notifies.
+//! * [`Inbox`] — receives the next payload, waiting by its strategy:
+//!   * `block` (default) — sleep on the event listener until notified: no CPU burnt while idle;
+//!   * `spin` — busy-poll the subscriber: lowest latency, one core fully used;
+//!   * `spin-then-block` — busy-poll for a bounded time, then sleep.
+//!
+//! Ports of `ipc::Service` are not `Send`: keep each channel on the thread that made it.
+
+use std::fmt;
+use std::str::FromStr;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use iceoryx2::port::update_connections::UpdateConnections;
+use iceoryx2::prelude::*;
+
+/// How a process waits for its next input.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum WaitStrategy {
+    /// Sleep on the event until notified (no CPU while idle).
+    #[default]
+    Block,
+    /// Busy-poll the subscriber (for a dedicated core).
+    Spin,
+    /// Busy-poll for up to the given time, then sleep on the event.
+    SpinThenBlock(Duration),
+}
+
+impl WaitStrategy {
+    /// The spin time of `spin-then-block` when none is given: 200 µs.
+    pub const DEFAULT_SPIN: Duration = Duration::from_micros(200);
+}
+
+impl fmt::Display for WaitStrategy {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            WaitStrategy::Block => f.write_str("block"),
+            WaitStrategy::Spin => f.write_str("spin"),
+            WaitStrategy::SpinThenBlock(d) if *d == Self::DEFAULT_SPIN => {
+                f.write_str("spin-then-block")
+            }
+            WaitStrategy::SpinThenBlock(d) => write!(f, "spin-then-block:{}", d.as_micros()),
+        }
+    }
+}
+
+/// A wait strategy that is not `block`, `spin`, `spin-then-block` or `spin-then-block:<µs>`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "unknown wait strategy {0:?}: expected block, spin, spin-then-block or spin-then-block:<microseconds>"
+)]
+pub struct BadWaitStrategy(pub String);
+
+impl FromStr for WaitStrategy {
+    type Err = BadWaitStrategy;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "block" => Ok(Self::Block),
+            "spin" => Ok(Self::Spin),
+            "spin-then-block" => Ok(Self::SpinThenBlock(Self::DEFAULT_SPIN)),
+            other => other
+                .strip_prefix("spin-then-block:")
+                .and_then(|us| us.parse::<u64>().ok())
+                .filter(|&us| us > 0)
+                .map(|us| Self::SpinThenBlock(Duration::from_micros(us)))
+                .ok_or_else(|| BadWaitStrategy(s.to_owned())),
+        }
+    }
+}
+
+/// An iceoryx2 failure; `context` says which step.
+#[derive(Debug, thiserror::Error)]
+#[error("iceoryx2: cannot {context}: {message}")]
+pub struct IpcError {
+    /// The step that failed.
+    pub context: &'static str,
+    /// iceoryx2's error.
+    pub message: String,
+}
+
+/// Maps an iceoryx2 error to an [`IpcError`] naming the step.
+pub fn ipc_err<E: fmt::Debug>(context: &'static str) -> impl FnOnce(E) -> IpcError {
+    move |e| IpcError {
+        context,
+        message: format!("{e:?}"),
+    }
+}
+
+/// `CLOCK_MONOTONIC` in ns: the stamp every TES process uses, comparable across processes.
+pub fn monotonic_ns() -> u64 {
+    nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC)
+        .map(|t| {
+            (t.tv_sec() as u64)
+                .saturating_mul(1_000_000_000)
+                .saturating_add(t.tv_nsec() as u64)
+        })
+        .unwrap_or(0)
+}
+
+/// Creates a process's iceoryx2 node with an explicit default config (no "no config file"
+/// warning); `handle_signals` lets iceoryx2 turn SIGINT/SIGTERM into a termination request
+/// (a launcher that handles signals itself passes `false`).
+pub fn node(handle_signals: bool) -> Result<Node<ipc::Service>, IpcError> {
+    let mode = if handle_signals {
+        SignalHandlingMode::HandleTerminationRequests
+    } else {
+        SignalHandlingMode::Disabled
+    };
+    NodeBuilder::new()
+        .config(&Config::default())
+        .signal_handling_mode(mode)
+        .create::<ipc::Service>()
+        .map_err(ipc_err("create the node"))
+}
+
+fn service_name(name: &str) -> Result<ServiceName, IpcError> {
+    ServiceName::new(name).map_err(ipc_err("use the service name"))
+}
+
+/// The sending end: a publisher and a notifier.
+pub struct Outbox<T: ZeroCopySend + Copy + fmt::Debug + 'static> {
+    publisher: iceoryx2::port::publisher::Publisher<ipc::Service, T, ()>,
+    notifier: iceoryx2::port::notifier::Notifier<ipc::Service>,
+}
+
+impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Outbox<T> {
+    /// Opens (or creates) the payload service `name` and its event service `event`.
+    /// `history` samples are kept for subscribers that join later (0 for none).
+    pub fn open(
+        node: &Node<ipc::Service>,
+        name: &str,
+        event: &str,
+        history: usize,
+    ) -> Result<Self, IpcError> {
+        let service = node
+            .service_builder(&service_name(name)?)
+            .publish_subscribe::<T>()
+            .history_size(history)
+            .subscriber_max_buffer_size(history.max(BUFFER))
+            .open_or_create()
+            .map_err(ipc_err("open a publish-subscribe service"))?;
+        let publisher = service
+            .publisher_builder()
+            .create()
+            .map_err(ipc_err("create a publisher"))?;
+        let notifier = node
+            .service_builder(&service_name(event)?)
+            .event()
+            .open_or_create()
+            .map_err(ipc_err("open an event service"))?
+            .notifier_builder()
+            .create()
+            .map_err(ipc_err("create a notifier"))?;
+        publisher
+            .update_connections()
+            .map_err(ipc_err("connect a publisher"))?;
+        Ok(Self {
+            publisher,
+            notifier,
+        })
+    }
+
+    /// Publishes `value` and wakes the receivers. Allocation-free.
+    pub fn send(&self, value: T) -> Result<(), IpcError> {
+        let sample = self
+            .publisher
+            .loan_uninit()
+            .map_err(ipc_err("loan a sample"))?;
+        sample
+            .write_payload(value)
+            .send()
+            .map_err(ipc_err("publish a sample"))?;
+        self.notifier.notify().map_err(ipc_err("notify"))?;
+        Ok(())
+    }
+
+    /// Connects subscribers that appeared since the last call (call after peers start).
+    pub fn update_connections(&self) -> Result<(), IpcError> {
+        self.publisher
+            .update_connections()
+            .map_err(ipc_err("connect a publisher"))
+    }
+}
+
+/// Why [`Inbox::next`] returned without a sample.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Idle {
+    /// The timeout passed.
+    Timeout,
+    /// The stop flag was raised.
+    Stopped,
+}
+
+/// The receiving end: a subscriber, a listener, and the strategy to wait by.
+pub struct Inbox<T: ZeroCopySend + Copy + fmt::Debug + 'static> {
+    subscriber: iceoryx2::port::subscriber::Subscriber<ipc::Service, T, ()>,
+    listener: iceoryx2::port::listener::Listener<ipc::Service>,
+    strategy: WaitStrategy,
+}
+
+/// Samples a subscriber can hold before the oldest is dropped. The control loop has one sample
+/// in flight; the slack absorbs a receiver descheduled on a loaded machine, and receivers
+/// detect any loss by the payloads' sequence numbers.
+pub const BUFFER: usize = 16;
+
+/// How often a blocking wait looks at the stop flag.
+const STOP_POLL: Duration = Duration::from_millis(50);
+
+impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Inbox<T> {
+    /// Opens (or creates) the payload service `name` and its event service `event`.
+    pub fn open(
+        node: &Node<ipc::Service>,
+        name: &str,
+        event: &str,
+        history: usize,
+        strategy: WaitStrategy,
+    ) -> Result<Self, IpcError> {
+        let service = node
+            .service_builder(&service_name(name)?)
+            .publish_subscribe::<T>()
+            .history_size(history)
+            .subscriber_max_buffer_size(history.max(BUFFER))
+            .open_or_create()
+            .map_err(ipc_err("open a publish-subscribe service"))?;
+        let subscriber = service
+            .subscriber_builder()
+            .create()
+            .map_err(ipc_err("create a subscriber"))?;
+        let listener = node
+            .service_builder(&service_name(event)?)
+            .event()
+            .open_or_create()
+            .map_err(ipc_err("open an event service"))?
+            .listener_builder()
+            .create()
+            .map_err(ipc_err("create a listener"))?;
+        subscriber
+            .update_connections()
+            .map_err(ipc_err("connect a subscriber"))?;
+        Ok(Self {
+            subscriber,
+            listener,
+            strategy,
+        })
+    }
+
+    /// The strategy it waits by.
+    pub fn strategy(&self) -> WaitStrategy {
+        self.strategy
+    }
+
+    /// The next payload if one is waiting, without waiting.
+    pub fn try_next(&self) -> Result<Option<T>, IpcError> {
+        Ok(self
+            .subscriber
+            .receive()
+            .map_err(ipc_err("receive a sample"))?
+            .map(|sample| *sample))
+    }
+
+    /// Waits, by the inbox's strategy, for the next payload, at most `timeout`, and returns
+    /// early when `stop` is raised. Allocation-free in `spin`; `block` sleeps in the kernel.
+    pub fn next(&self, timeout: Duration, stop: &AtomicBool) -> Result<Result<T, Idle>, IpcError> {
+        let start = Instant::now();
+        let spin_for = match self.strategy {
+            WaitStrategy::Block => Duration::ZERO,
+            WaitStrategy::Spin => timeout,
+            WaitStrategy::SpinThenBlock(d) => d.min(timeout),
+        };
+        let mut polls: u32 = 0;
+        loop {
+            if let Some(v) = self.try_next()? {
+                return Ok(Ok(v));
+            }
+            let waited = start.elapsed();
+            if waited >= spin_for {
+                break;
+            }
+            polls = polls.wrapping_add(1);
+            if polls.is_multiple_of(1024) && stop.load(Ordering::Relaxed) {
+                return Ok(Err(Idle::Stopped));
+            }
+            std::hint::spin_loop();
+        }
+        loop {
+            if stop.load(Ordering::Relaxed) {
+                return Ok(Err(Idle::Stopped));
+            }
+            let left = timeout.saturating_sub(start.elapsed());
+            if left.is_zero() {
+                return Ok(Err(Idle::Timeout));
+            }
+            // Drain every pending notification, then look again: a sample published between
+            // the last look and the wait still wakes us, because its notification is pending.
+            self.listener
+                .timed_wait(|_| {}, left.min(STOP_POLL))
+                .map_err(ipc_err("wait on the listener"))?;
+            self.listener
+                .try_wait(|_| {})
+                .map_err(ipc_err("drain the listener"))?;
+            if let Some(v) = self.try_next()? {
+                return Ok(Ok(v));
+            }
+        }
+    }
+
+    /// Connects publishers that appeared since the last call.
+    pub fn update_connections(&self) -> Result<(), IpcError> {
+        self.subscriber
+            .update_connections()
+            .map_err(ipc_err("connect a subscriber"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wait_strategies_parse_and_print() {
+        for (text, strategy) in [
+            ("block", WaitStrategy::Block),
+            ("spin", WaitStrategy::Spin),
+            (
+                "spin-then-block",
+                WaitStrategy::SpinThenBlock(WaitStrategy::DEFAULT_SPIN),
+            ),
+            (
+                "spin-then-block:50",
+                WaitStrategy::SpinThenBlock(Duration::from_micros(50)),
+            ),
+        ] {
+            assert_eq!(text.parse::<WaitStrategy>(), Ok(strategy));
+            assert_eq!(strategy.to_string(), text);
+        }
+        for bad in [
+            "",
+            "Block",
+            "spin-then-block:",
+            "spin-then-block:0",
+            "sleep",
+        ] {
+            let err = bad.parse::<WaitStrategy>().unwrap_err();
+            assert!(err.to_string().contains("expected block, spin"), "{err}");
+        }
+    }
+}
