@@ -72,3 +72,40 @@ mod tests {
         assert_eq!(median(&[4.0, 1.0, 2.0, 3.0]), Some(2.5));
     }
 }
+
+/// Mean and 95 % interval of a per-run quantity, as the experiments report it.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Summary {
+    /// Mean over runs.
+    pub mean: f64,
+    /// Lower end of the 95 % interval.
+    pub lo: f64,
+    /// Upper end of the 95 % interval.
+    pub hi: f64,
+    /// Runs.
+    pub n: usize,
+}
+
+impl From<MeanCi> for Summary {
+    fn from(ci: MeanCi) -> Self {
+        Self {
+            mean: ci.mean,
+            lo: ci.mean - ci.half_width,
+            hi: ci.mean + ci.half_width,
+            n: ci.n,
+        }
+    }
+}
+
+/// [`Summary`] of `values`; all NaN with `n = 0` when there are none.
+pub fn summarise(values: &[f64]) -> Summary {
+    mean_ci(values).map_or(
+        Summary {
+            mean: f64::NAN,
+            lo: f64::NAN,
+            hi: f64::NAN,
+            n: 0,
+        },
+        Summary::from,
+    )
+}

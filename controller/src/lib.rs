@@ -6,9 +6,11 @@
 //! * [`cmdp`] — the situation-calculus MDP (§3.1): known effect semantics, rewards and
 //!   features, and the learned effect probabilities.
 //! * [`plan`] — warm-started value iteration on that model.
+//! * [`realtime`] — planning on its own thread, so acting never waits for a plan.
 //! * [`agents`] — agents that learn and act: loreRL (Algorithm 6), bloreRL, the count-based
 //!   baselines Rmax, factored Rmax and factored ε-greedy, and the structure learners RL-DT
 //!   (decision trees) and LSE-Rmax.
+//! * [`library`] — TES's view library: growing, pruning, and its file store.
 //! * [`labelled_csv`] — the labelled-row format `tes fit` reads.
 //!
 //! Everything here is a plain struct with no IPC, clock or I/O inside; the controller process
@@ -17,5 +19,7 @@
 pub mod agents;
 pub mod cmdp;
 pub mod labelled_csv;
+pub mod library;
 pub mod mdagl;
 pub mod plan;
+pub mod realtime;

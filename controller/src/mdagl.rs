@@ -544,6 +544,94 @@ impl Mdagl {
     }
 }
 
+/// Why a saved mDAGL learning state cannot be restored.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum MdaglStateError {
+    /// The shape or hyper-parameters are invalid.
+    #[error(transparent)]
+    Config(#[from] MdaglConfigError),
+    /// The gradient sums do not fit the shape.
+    #[error("{got} gradient sums, expected {expected} ({classes} classes × {columns} columns)")]
+    WrongLength {
+        /// Sums given.
+        got: usize,
+        /// Sums the shape needs.
+        expected: usize,
+        /// Classes.
+        classes: usize,
+        /// Columns (features, plus the intercept if any).
+        columns: usize,
+    },
+    /// A sum is NaN, infinite or beyond the range an update could have produced.
+    #[error("gradient sum {index} is {value}, not a finite number below 1e150 in magnitude")]
+    BadSum {
+        /// Position in the sums.
+        index: usize,
+        /// The value.
+        value: f64,
+    },
+    /// Sums without any update, or updates without sums, cannot come from learning.
+    #[error("{updates} updates but the sums are {}", if *all_zero { "all zero" } else { "not zero" })]
+    Inconsistent {
+        /// The update count.
+        updates: u64,
+        /// Whether every sum is zero.
+        all_zero: bool,
+    },
+}
+
+impl Mdagl {
+    /// The gradient sums `S = t·Ḡ`, column-major (`K` per column, the intercept last): with
+    /// [`n_updates`](Self::n_updates) and the shape, the model's whole learning state.
+    pub fn gradient_sums(&self) -> &[f64] {
+        &self.sums
+    }
+
+    /// Rebuilds a model from its learning state (as [`gradient_sums`](Self::gradient_sums)
+    /// and [`n_updates`](Self::n_updates) report it). The result equals the saved model
+    /// exactly: column norms are recomputed the way updates compute them.
+    pub fn from_state(
+        classes: usize,
+        features: usize,
+        params: MdaglParams,
+        updates: u64,
+        sums: Vec<f64>,
+    ) -> Result<Self, MdaglStateError> {
+        let mut model = Self::new(classes, features, params)?;
+        let columns = model.norms.len();
+        if sums.len() != columns * classes {
+            return Err(MdaglStateError::WrongLength {
+                got: sums.len(),
+                expected: columns * classes,
+                classes,
+                columns,
+            });
+        }
+        if let Some((index, &value)) = sums
+            .iter()
+            .enumerate()
+            .find(|(_, v)| !(v.is_finite() && v.abs() < SUM_LIMIT))
+        {
+            return Err(MdaglStateError::BadSum { index, value });
+        }
+        let all_zero = sums.iter().all(|&v| v == 0.0);
+        if updates == 0 && !all_zero {
+            return Err(MdaglStateError::Inconsistent { updates, all_zero });
+        }
+        for (norm, column) in model.norms.iter_mut().zip(sums.chunks_exact(classes)) {
+            // The same summation order as `update`, so the norms are bit-identical.
+            let mut sq = 0.0;
+            for s in column {
+                sq += s * s;
+            }
+            *norm = sq.sqrt();
+        }
+        model.sums = sums;
+        model.updates = updates;
+        Ok(model)
+    }
+}
+
 impl PartialEq for Mdagl {
     /// Two models are equal when they hold the same learning state (the scratch buffer is not
     /// part of it).

@@ -20,7 +20,7 @@ use std::sync::Arc;
 
 use thiserror::Error;
 
-use crate::cmdp::{CmdpStructure, EffectTable};
+use crate::cmdp::{CmdpError, CmdpStructure, EffectTable};
 use crate::mdagl::{Mdagl, MdaglError};
 
 /// Planner settings, validated by [`ValueIteration::new`].
@@ -60,6 +60,16 @@ pub enum PlanError {
     /// Zero sweeps allowed.
     #[error("max_sweeps must be at least 1")]
     NoSweeps,
+    /// A solution for another state space.
+    #[error("a solution with {values} values and {policy} actions for {expected} states")]
+    WrongSize {
+        /// States of this planner.
+        expected: usize,
+        /// Values given.
+        values: usize,
+        /// Policy entries given.
+        policy: usize,
+    },
 }
 
 /// How a plan went.
@@ -268,6 +278,26 @@ impl ValueIteration {
     pub fn values(&self) -> &[f64] {
         &self.values
     }
+
+    /// The greedy action of every state, from the last plan.
+    pub fn policy(&self) -> &[u32] {
+        &self.policy
+    }
+
+    /// Adopts a solution computed elsewhere (a planner thread's): its values become the warm
+    /// start, its policy the greedy policy. Both must have one entry per state.
+    pub fn adopt(&mut self, values: &[f64], policy: &[u32]) -> Result<(), PlanError> {
+        if values.len() != self.values.len() || policy.len() != self.policy.len() {
+            return Err(PlanError::WrongSize {
+                expected: self.values.len(),
+                values: values.len(),
+                policy: policy.len(),
+            });
+        }
+        self.values.copy_from_slice(values);
+        self.policy.copy_from_slice(policy);
+        Ok(())
+    }
 }
 
 /// An agent's learned model and the plan on it: the CMDP structure, the effect table its
@@ -317,6 +347,9 @@ pub struct PlannedModel {
     forced: bool,
     /// Whether the last plan reached the tolerance (if not, the next re-plan continues it).
     converged: bool,
+    /// Whether [`PlannedModel::replan`] plans on the calling thread (else a planner thread
+    /// does, through [`PlannedModel::snapshot_into`] and [`PlannedModel::adopt`]).
+    inline: bool,
 }
 
 impl PlannedModel {
@@ -331,6 +364,7 @@ impl PlannedModel {
             backup_span: 0.0,
             forced: true,
             converged: false,
+            inline: true,
         })
     }
 
@@ -372,14 +406,49 @@ impl PlannedModel {
         self.drift += 0.5 * l1 * self.backup_span;
     }
 
-    fn needs_plan(&self) -> bool {
+    /// Whether the model moved enough since the last plan to need another (or the last plan
+    /// stopped before converging).
+    pub fn needs_plan(&self) -> bool {
         self.forced || !self.converged || self.drift > self.planner.params().tolerance
+    }
+
+    /// Chooses who plans: `true` (the default) plans inside [`replan`](Self::replan) on the
+    /// calling thread; `false` makes `replan` a no-op, for an acting loop that hands the model
+    /// to a planner thread ([`crate::realtime::PlannerThread`]) and adopts its plans.
+    pub fn set_inline_planning(&mut self, inline: bool) {
+        self.inline = inline;
+    }
+
+    /// Copies the effect table into `table` for a planner elsewhere and counts the model as
+    /// planned from here on (its drift restarts). Allocation-free.
+    pub fn snapshot_into(&mut self, table: &mut EffectTable) -> Result<(), CmdpError> {
+        table.copy_from(&self.table)?;
+        self.drift = 0.0;
+        self.forced = false;
+        // Until the plan comes back, a further change must be measured against this one.
+        self.converged = true;
+        Ok(())
+    }
+
+    /// Adopts a plan made elsewhere on a snapshot of this model.
+    pub fn adopt(
+        &mut self,
+        values: &[f64],
+        policy: &[u32],
+        stats: PlanStats,
+    ) -> Result<(), PlanError> {
+        self.planner.adopt(values, policy)?;
+        let drift = self.drift;
+        self.planned(stats);
+        // Changes since the snapshot still count.
+        self.drift = drift;
+        Ok(())
     }
 
     /// Re-plans if the model moved enough since the last plan; returns the plan's statistics
     /// if it did. Allocation-free.
     pub fn replan(&mut self) -> Option<PlanStats> {
-        if !self.needs_plan() {
+        if !self.inline || !self.needs_plan() {
             return None;
         }
         let stats = self.planner.plan(&self.structure, &self.table);
@@ -389,7 +458,7 @@ impl PlannedModel {
 
     /// [`replan`](Self::replan) with R-max optimism (see [`ValueIteration::plan_optimistic`]).
     pub fn replan_optimistic(&mut self, optimism: Optimism<'_>) -> Option<PlanStats> {
-        if !self.needs_plan() {
+        if !self.inline || !self.needs_plan() {
             return None;
         }
         let stats = self

@@ -7,6 +7,7 @@ use anyhow::{Result, bail};
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use tes_bench::experiment::grid::{self, GridConfig};
+use tes_bench::experiment::transfer::{self, TransferConfig};
 
 /// Arguments of `tes experiment`.
 #[derive(Debug, Args)]
@@ -19,6 +20,40 @@ pub struct ExperimentArgs {
 enum Which {
     /// §5.1 grid tasks: Fig. 3a–c and Table 1 (loreRL against its baselines).
     Grid(GridArgs),
+    /// §5.1.2–5.1.3 transfer: leave-one-out over the 15 grid tasks, Table 2 and Fig. 4b
+    /// (TES against LWT, random view combinations, loreRL and fEpsG).
+    Transfer(TransferArgs),
+}
+
+#[derive(Debug, Args)]
+struct TransferArgs {
+    /// Independent runs per test task [default: 20; --quick: 2].
+    #[arg(long)]
+    runs: Option<usize>,
+    /// Directory for summary.json, episodes.csv and the SVG plots.
+    #[arg(long, default_value = "results/transfer")]
+    out: PathBuf,
+    /// Small settings for a first look (and CI): finishes in under two minutes on two cores.
+    #[arg(long)]
+    quick: bool,
+    /// Held-out test tasks, comma-separated suite indices [default: all 15; --quick: 1,2,10].
+    #[arg(long, value_delimiter = ',')]
+    tasks: Option<Vec<usize>>,
+    /// Episodes on each training task [default: 100; --quick: 25].
+    #[arg(long)]
+    train_episodes: Option<usize>,
+    /// Episodes on the test task [default: 50; --quick: 12].
+    #[arg(long)]
+    test_episodes: Option<usize>,
+    /// Base seed; the job of (task t, run r) uses seed + 1000 r + t.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Seed of the grid suite (layouts, dynamics, irrelevant features).
+    #[arg(long, default_value_t = 2017)]
+    world_seed: u64,
+    /// Worker threads [default: all cores].
+    #[arg(long)]
+    threads: Option<usize>,
 }
 
 #[derive(Debug, Args)]
@@ -50,7 +85,101 @@ struct GridArgs {
 pub fn run(args: &ExperimentArgs) -> Result<()> {
     match &args.which {
         Which::Grid(g) => run_grid(g),
+        Which::Transfer(t) => run_transfer(t),
     }
+}
+
+fn set_threads(threads: Option<usize>) -> Result<()> {
+    if let Some(threads) = threads {
+        if threads == 0 {
+            bail!("--threads must be at least 1");
+        }
+        // Only the first call in a process can size the global pool; a failure means it was
+        // already built, which is harmless.
+        let _ = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build_global();
+    }
+    Ok(())
+}
+
+fn run_transfer(args: &TransferArgs) -> Result<()> {
+    let mut config = if args.quick {
+        TransferConfig::quick()
+    } else {
+        TransferConfig::paper()
+    };
+    if let Some(runs) = args.runs {
+        config.runs = runs;
+    }
+    if let Some(tasks) = &args.tasks {
+        config.test_tasks.clone_from(tasks);
+    }
+    if let Some(n) = args.train_episodes {
+        config.train_episodes = n;
+    }
+    if let Some(n) = args.test_episodes {
+        config.test_episodes = n;
+    }
+    config.seed = args.seed;
+    config.world_seed = args.world_seed;
+    set_threads(args.threads)?;
+    eprintln!(
+        "transfer experiment: test tasks {:?}, {} runs, training on {} tasks x {} episodes, {} test episodes, seed {}, world seed {} -> {}",
+        config.test_tasks,
+        config.runs,
+        config.training_tasks,
+        config.train_episodes,
+        config.test_episodes,
+        config.seed,
+        config.world_seed,
+        args.out.display()
+    );
+    let bar = progress_bar("transfer");
+    let report = transfer::run(&config, &args.out, &|done, total| {
+        bar.set_length(total);
+        bar.set_position(done);
+    })?;
+    bar.finish_and_clear();
+
+    println!(
+        "{:.1} s wall clock. Table 2: reward of the first test episode (mean over {} runs)",
+        report.wall_seconds, config.runs
+    );
+    let shown = ["TES", "LWT", "loreRL", "fEpsG"];
+    println!(
+        "  task  size    {}",
+        shown.map(|m| format!("{m:>8}")).join("")
+    );
+    for t in &report.tasks {
+        let cells: String = shown
+            .iter()
+            .map(|m| {
+                t.jumpstart
+                    .get(*m)
+                    .map_or("       -".into(), |s| format!("{:>8.3}", s.mean))
+            })
+            .collect();
+        println!("  {:>4}  {:<6}{cells}", t.task, t.size);
+    }
+    let n = report.tasks.len();
+    println!(
+        "TES's jumpstart beats loreRL's on {}/{n} tasks (target >= 12/15), LWT's on {}/{n} (target >= 10/15)",
+        report.tes_beats_lore_rl, report.tes_beats_lwt
+    );
+    println!(
+        "TES's accumulated reward beats every random view combination on {}/{n} tasks",
+        report.tes_beats_all_rands
+    );
+    println!("agent seconds per test episode:");
+    for (m, s) in &report.seconds_per_episode {
+        println!("  {m:<8} {:>9.4} s", s.mean);
+    }
+    println!(
+        "wrote summary.json, episodes.csv, table2.svg, fig4b-task*.svg to {}",
+        args.out.display()
+    );
+    Ok(())
 }
 
 fn progress_bar(total_hint: &str) -> ProgressBar {
@@ -84,16 +213,7 @@ fn run_grid(args: &GridArgs) -> Result<()> {
     }
     config.seed = args.seed;
     config.world_seed = args.world_seed;
-    if let Some(threads) = args.threads {
-        if threads == 0 {
-            bail!("--threads must be at least 1");
-        }
-        // Only the first call in a process can size the global pool; a failure means it was
-        // already built, which is harmless.
-        let _ = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build_global();
-    }
+    set_threads(args.threads)?;
     eprintln!(
         "grid experiment: {} runs x {} episodes, irrelevant features {:?}, seeds {}.., world seed {} -> {}",
         config.runs,

@@ -32,6 +32,9 @@
 use iceoryx2::prelude::ZeroCopySend;
 
 pub mod channel;
+mod world_map;
+
+pub use world_map::{MAX_ACTIONS, MAX_EFFECTS, MAX_STATES, WorldMap};
 
 /// Number of binary state features the robot arenas of the paper's §5.2.1 extract
 /// (100 green-mark, 100 blue-mark, 100 ball-distance, 8 orientation and 4 mark bits).
@@ -57,6 +60,11 @@ pub mod service {
     pub const MOTOR_STATE: &str = "tes/motor-state";
     /// Event service the bridge notifies after publishing a motor state.
     pub const MOTOR_STATE_EVENT: &str = "tes/motor-state/event";
+    /// Publish–subscribe service (with history) carrying the [`crate::WorldMap`] from
+    /// perception to the controller.
+    pub const WORLD_MAP: &str = "tes/world-map";
+    /// Event service perception notifies after publishing a world map.
+    pub const WORLD_MAP_EVENT: &str = "tes/world-map/event";
 }
 
 /// A fixed-capacity set of binary features, stored as a little bitset.

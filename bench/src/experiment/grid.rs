@@ -28,8 +28,9 @@ use tes_controller::agents::Contexts;
 use tes_controller::cmdp::CmdpStructure;
 use tes_perception_sim::grid::{GridSuite, GridTask};
 
-use super::{Algorithm, Episode, EpisodicTask, run_agent};
-use crate::stats::{MeanCi, mean_ci};
+use super::{Algorithm, Episode, EpisodicTask, run_agent, write_file};
+pub use crate::stats::Summary;
+use crate::stats::summarise;
 use crate::svg::{BandPoint, LineChart, Series};
 
 /// A grid task as an experiment sees it.
@@ -152,42 +153,6 @@ struct RunResult {
     run: usize,
     seed: u64,
     episodes: Vec<Episode>,
-}
-
-/// Mean ± 95 % CI of a per-run quantity.
-#[derive(Debug, Clone, Copy, Serialize)]
-pub struct Summary {
-    /// Mean over runs.
-    pub mean: f64,
-    /// Lower end of the 95 % interval.
-    pub lo: f64,
-    /// Upper end of the 95 % interval.
-    pub hi: f64,
-    /// Runs.
-    pub n: usize,
-}
-
-impl From<MeanCi> for Summary {
-    fn from(ci: MeanCi) -> Self {
-        Self {
-            mean: ci.mean,
-            lo: ci.mean - ci.half_width,
-            hi: ci.mean + ci.half_width,
-            n: ci.n,
-        }
-    }
-}
-
-fn summarise(values: &[f64]) -> Summary {
-    mean_ci(values).map_or(
-        Summary {
-            mean: f64::NAN,
-            lo: f64::NAN,
-            hi: f64::NAN,
-            n: 0,
-        },
-        Summary::from,
-    )
 }
 
 /// The jobs of the whole experiment.
@@ -501,10 +466,6 @@ fn accumulated_curve(runs: &[RunResult]) -> Vec<BandPoint> {
         });
     }
     points
-}
-
-fn write_file(path: &Path, text: &str) -> Result<()> {
-    fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
 }
 
 fn write_episode_csv(path: &PathBuf, by_cell: &BTreeMap<Cell, Vec<RunResult>>) -> Result<()> {

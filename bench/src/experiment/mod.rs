@@ -6,6 +6,7 @@
 //! reward collected, the number of actions and the time the agent spent.
 
 pub mod grid;
+pub mod transfer;
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -179,4 +180,10 @@ pub fn run_agent(
         out.push(e);
     }
     Ok(out)
+}
+
+/// Writes `text` to `path`, naming the file on failure.
+pub(crate) fn write_file(path: &std::path::Path, text: &str) -> anyhow::Result<()> {
+    use anyhow::Context;
+    std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
 }

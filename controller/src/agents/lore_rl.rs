@@ -92,6 +92,12 @@ impl LoreRl {
         self.model.planner()
     }
 
+    /// The learned model and its plan (for an acting loop that plans on another thread:
+    /// [`crate::realtime::PlannerThread`]).
+    pub fn model_mut(&mut self) -> &mut PlannedModel {
+        &mut self.model
+    }
+
     /// Re-plans if the views moved the model enough since the last plan (see
     /// [`PlannedModel`]).
     pub fn replan(&mut self) {

@@ -14,12 +14,14 @@ mod decision_tree;
 mod lore_rl;
 mod lse_rmax;
 mod rl_dt;
+mod tes;
 
 pub use counting::{Contexts, CountingAgent, Exploration};
 pub use decision_tree::{DecisionTree, Example, LeafId, TreeError, TreeParams};
 pub use lore_rl::{LoreRl, LoreRlParams};
 pub use lse_rmax::{LseRmax, LseRmaxParams};
 pub use rl_dt::{RlDt, RlDtParams};
+pub use tes::{Origin, Tes, TesParams, ViewPolicy, WorkingView};
 
 /// Why an agent could not be built or could not learn from a step. On a step error the agent
 /// is unchanged.
@@ -66,6 +68,19 @@ pub enum AgentError {
     /// The planner settings are invalid.
     #[error("planner settings: {0}")]
     Planner(#[from] PlanError),
+    /// The view library does not fit the task.
+    #[error(
+        "the view library holds views of {actions} actions, {effects} effects and {features} \
+         features, which does not fit this task"
+    )]
+    LibraryShape {
+        /// The library's actions.
+        actions: usize,
+        /// Its effects.
+        effects: usize,
+        /// Its features.
+        features: usize,
+    },
     /// A view refused the step.
     #[error("view update: {0}")]
     Update(#[from] MdaglError),

@@ -395,3 +395,55 @@ fn reset_forgets() {
     m.reset();
     assert_eq!(m, fresh);
 }
+
+#[test]
+fn learning_state_round_trips_exactly_and_bad_states_are_refused() {
+    let params = MdaglParams {
+        intercept: true,
+        ..MdaglParams::default()
+    };
+    let mut model = Mdagl::new(4, 30, params).unwrap();
+    for t in 0..500u32 {
+        let x = [t % 30, (t * 7 + 3) % 30];
+        let x = if x[0] < x[1] { x } else { [x[1], x[0]] };
+        if x[0] == x[1] {
+            continue;
+        }
+        model
+            .update(Features::SparseBinary(&x), (t % 4) as usize)
+            .unwrap();
+    }
+    let restored = Mdagl::from_state(
+        4,
+        30,
+        params,
+        model.n_updates(),
+        model.gradient_sums().to_vec(),
+    )
+    .unwrap();
+    assert_eq!(restored, model);
+    let mut a = model.clone();
+    let mut b = restored;
+    let x = Features::SparseBinary(&[2, 5]);
+    assert_eq!(a.predict(x).unwrap(), b.predict(x).unwrap());
+
+    let sums = model.gradient_sums().to_vec();
+    assert!(matches!(
+        Mdagl::from_state(4, 29, params, 1, sums.clone()),
+        Err(MdaglStateError::WrongLength { .. })
+    ));
+    let mut nan = sums.clone();
+    nan[7] = f64::NAN;
+    assert!(matches!(
+        Mdagl::from_state(4, 30, params, 1, nan),
+        Err(MdaglStateError::BadSum { index: 7, .. })
+    ));
+    assert!(matches!(
+        Mdagl::from_state(4, 30, params, 0, sums),
+        Err(MdaglStateError::Inconsistent { .. })
+    ));
+    assert!(matches!(
+        Mdagl::from_state(1, 30, params, 0, vec![0.0; 31]),
+        Err(MdaglStateError::Config(_))
+    ));
+}
