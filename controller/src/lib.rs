@@ -11,10 +11,11 @@
 //!   baselines Rmax, factored Rmax and factored ε-greedy, and the structure learners RL-DT
 //!   (decision trees) and LSE-Rmax.
 //! * [`library`] — TES's view library: growing, pruning, and its file store.
+//! * [`process`] — the controller process's loop over iceoryx2 (the one module with IPC).
 //! * [`labelled_csv`] — the labelled-row format `tes fit` reads.
 //!
-//! Everything here is a plain struct with no IPC, clock or I/O inside; the controller process
-//! wraps it.
+//! Everything but [`process`] (and the library's file [`library::store`]) is a plain struct
+//! with no IPC, clock or I/O inside; the controller process wraps it.
 
 pub mod agents;
 pub mod cmdp;
@@ -22,4 +23,5 @@ pub mod labelled_csv;
 pub mod library;
 pub mod mdagl;
 pub mod plan;
+pub mod process;
 pub mod realtime;

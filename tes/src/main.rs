@@ -7,6 +7,7 @@ use clap::{Parser, Subcommand};
 
 mod experiment;
 mod fit;
+mod library;
 
 /// TES: online sparse view learning (mDAGL), model-based RL and transfer for a real-time robot.
 #[derive(Debug, Parser)]
@@ -22,13 +23,26 @@ enum Command {
     Fit(fit::FitArgs),
     /// Rerun the paper's experiments: summary.json, per-episode CSV and SVG plots.
     Experiment(experiment::ExperimentArgs),
+    /// Inspect a saved view library.
+    Library(library::LibraryArgs),
 }
 
 fn main() -> ExitCode {
+    // Die quietly on a closed pipe (`tes library show … | head`), as command-line tools do,
+    // instead of panicking on the next print.
+    // SAFETY: called first thing in `main`, before any other thread exists; SIG_DFL for
+    // SIGPIPE installs no handler code.
+    unsafe {
+        let _ = nix::sys::signal::signal(
+            nix::sys::signal::Signal::SIGPIPE,
+            nix::sys::signal::SigHandler::SigDfl,
+        );
+    }
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Fit(args) => fit::run(&args),
         Command::Experiment(args) => experiment::run(&args),
+        Command::Library(args) => library::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

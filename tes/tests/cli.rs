@@ -159,3 +159,104 @@ fn experiment_rejects_zero_runs() {
     assert!(!run.status.success());
     assert!(String::from_utf8_lossy(&run.stderr).contains("--runs"));
 }
+
+/// A library grown by this test process over two tasks, saved with names.
+fn saved_library(dir: &tempfile::TempDir) -> PathBuf {
+    use tes_controller::library::store::{self, StoredLibrary};
+    use tes_controller::library::{ActionOutcome, LibraryParams, ViewLibrary, Winner};
+    use tes_controller::mdagl::Features;
+
+    let mut lib = ViewLibrary::new(2, 3, 6, LibraryParams::default()).expect("valid settings");
+    for task in 0..2 {
+        let outcomes = (0..2)
+            .map(|action| {
+                let mut model = lib.fresh_model();
+                // Feature 4 decides the effect; the others are noise.
+                for i in 0..400u32 {
+                    let on = i % 2 == 0;
+                    let x: Vec<u32> = if on { vec![0, 4] } else { vec![0, 1 + i % 3] };
+                    let effect = if on { 2 } else { (action + task) % 2 };
+                    model
+                        .update(Features::SparseBinary(&x), effect)
+                        .expect("valid rows");
+                }
+                ActionOutcome {
+                    action,
+                    observations: 400,
+                    winner: Winner::Fresh,
+                    model,
+                    score: -100.0 - action as f64,
+                    library_scores: vec![],
+                }
+            })
+            .collect();
+        lib.end_task(outcomes).expect("valid outcomes");
+    }
+    let path = dir.path().join("lib.tesl");
+    store::save(
+        &path,
+        &StoredLibrary {
+            library: lib,
+            world: "a test world".into(),
+            action_names: vec!["push".into(), "pull".into()],
+            feature_names: ["bias", "red", "green", "blue", "wet", "dry"]
+                .map(String::from)
+                .to_vec(),
+        },
+    )
+    .expect("saved");
+    path
+}
+
+#[test]
+fn a_library_written_by_one_process_is_read_by_another() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = saved_library(&dir);
+    let path = path.to_str().expect("utf-8 path");
+
+    let out = tes(&["library", "export", path, "--json"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("one JSON object");
+    assert_eq!(json["world"], "a test world");
+    assert_eq!(json["tasks_seen"], 2);
+    let views = json["views"].as_array().expect("views");
+    assert_eq!(views.len(), 4);
+    assert_eq!(views[0]["action_name"], "push");
+    assert_eq!(views[1]["action_name"], "pull");
+    assert_eq!(views[2]["tasks_won"], serde_json::json!([1]));
+    for v in views {
+        let names = v["selected_feature_names"]
+            .as_array()
+            .expect("named features");
+        assert!(names.contains(&serde_json::json!("wet")), "{v}");
+        assert_eq!(v["scores"][0]["won"], true);
+    }
+
+    let out = tes(&["library", "show", path]);
+    assert!(out.status.success());
+    let text = String::from_utf8(out.stdout).expect("utf-8");
+    assert!(text.contains("4 views"), "{text}");
+    assert!(text.contains("action 1 (pull)"), "{text}");
+    assert!(text.contains("wet"), "{text}");
+}
+
+#[test]
+fn a_corrupt_library_is_refused_naming_the_file() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let path = saved_library(&dir);
+    let mut bytes = std::fs::read(&path).expect("read");
+    let n = bytes.len();
+    bytes[n - 3] ^= 0xFF;
+    std::fs::write(&path, &bytes).expect("write");
+    let out = tes(&["library", "show", path.to_str().expect("utf-8 path")]);
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("lib.tesl") && stderr.contains("corrupt"),
+        "{stderr}"
+    );
+}

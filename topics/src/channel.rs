@@ -118,6 +118,30 @@ pub fn node(handle_signals: bool) -> Result<Node<ipc::Service>, IpcError> {
         .map_err(ipc_err("create the node"))
 }
 
+/// Removes the iceoryx2 resources (shared memory, event and service files) left behind by
+/// nodes whose process died without cleaning up; returns how many dead nodes were cleaned.
+pub fn clean_stale_resources() -> Result<usize, IpcError> {
+    let mut cleaned = 0;
+    let mut failures = Vec::new();
+    Node::<ipc::Service>::list(&Config::default(), |state| {
+        if let NodeState::<ipc::Service>::Dead(view) = state {
+            match view.try_remove_stale_resources() {
+                Ok(()) => cleaned += 1,
+                Err(e) => failures.push(format!("{e:?}")),
+            }
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(ipc_err("list the nodes"))?;
+    if let Some(first) = failures.first() {
+        return Err(IpcError {
+            context: "remove a dead node's stale resources",
+            message: format!("{first} ({} failures)", failures.len()),
+        });
+    }
+    Ok(cleaned)
+}
+
 fn service_name(name: &str) -> Result<ServiceName, IpcError> {
     ServiceName::new(name).map_err(ipc_err("use the service name"))
 }

@@ -30,6 +30,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
 use tes_controller::agents::{Agent, Tes, TesParams, ViewPolicy};
+use tes_controller::library::store::{self, StoredLibrary};
 use tes_controller::library::{LibraryParams, ViewLibrary};
 use tes_perception_sim::grid::GridSuite;
 
@@ -264,7 +265,7 @@ pub fn run(
     let tick = || progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
     let mut results: Vec<JobResult> = jobs
         .par_iter()
-        .map(|&(task, run)| run_job(config, &envs, &methods, task, run, &tick))
+        .map(|&(task, run)| run_job(config, &envs, &methods, task, run, out, &tick))
         .collect::<Result<_>>()?;
     results.sort_by_key(|r| (r.task, r.run));
 
@@ -328,6 +329,7 @@ fn run_job(
     methods: &[Method],
     task: usize,
     run: usize,
+    out: &Path,
     tick: &(dyn Fn() + Sync),
 ) -> Result<JobResult> {
     let seed = job_seed(config, task, run);
@@ -363,6 +365,24 @@ fn run_job(
             .0;
     }
 
+    if run == 0 {
+        // Run 0's trained library, for `tes library show`.
+        let path = out.join(format!("library-task{task}.tesl"));
+        let stored = StoredLibrary {
+            library: library.clone(),
+            world: format!(
+                "grid suite (world seed {}), trained for test task {task}",
+                config.world_seed
+            ),
+            action_names: ["north", "east", "south", "west"]
+                .map(String::from)
+                .to_vec(),
+            feature_names: (0..structure.n_features())
+                .map(|i| test.task().feature_name(i))
+                .collect(),
+        };
+        store::save(&path, &stored)?;
+    }
     let mut episodes = BTreeMap::new();
     for &m in methods {
         let agent_seed = seed

@@ -1,2 +1,510 @@
-//! Saving and loading a [`ViewLibrary`](super::ViewLibrary): a versioned, checksummed file
-//! written atomically. (Being written.)
+//! Saving and loading a [`ViewLibrary`]: the agent's lifelong memory on disk.
+//!
+//! A library file is versioned, checksummed and written atomically: the whole file goes to a
+//! temporary file in the same directory, is flushed to disk (`fsync`), and is renamed over the
+//! old one, whose directory is then flushed too. A reader therefore sees either the previous
+//! complete file or the new complete file, never a mix; a failed save leaves the previous
+//! file untouched.
+//!
+//! # Format, version 1
+//!
+//! All integers little-endian; `f64` as IEEE-754 bits.
+//!
+//! | bytes | field |
+//! |---|---|
+//! | 8 | magic `TESVLIB\0` |
+//! | 4 | format version `u32` (= [`FORMAT_VERSION`]) |
+//! | 8 | body length `u64` |
+//! | 4 | CRC-32 (IEEE) of the body `u32` |
+//! | body | see below |
+//!
+//! Body: `n_actions u32, n_effects u32, n_features u32`; the parameters `max_views u32,
+//! growth_threshold f64, recency f64, lambda f64, alpha f64, intercept u8`; `tasks_seen u32,
+//! next_id u64`; the world name (`u32` length + UTF-8); the action names and the feature names
+//! (each a `u32` count, then `u32` length + UTF-8 per name; count 0 = unnamed); `u32` view
+//! count, then per view: `id u64, action u32, updates u64`, the gradient sums (`u32` count +
+//! `f64` each), the tasks won (`u32` count + `u32` each), and the score history (`u32` count,
+//! then `task u32, score f64, observations u64, won u8` each).
+//!
+//! Loading checks everything: magic, version, length, checksum, then that the body is
+//! consistent (shapes, parameters, ids, histories) before anything is built. Every count is
+//! checked against the bytes left before memory is reserved for it.
+
+use std::fs::{self, File};
+use std::io::{self, Write};
+use std::path::{Path, PathBuf};
+
+use thiserror::Error;
+
+use super::{LibraryParams, TaskScore, View, ViewLibrary};
+use crate::mdagl::{Mdagl, MdaglParams, MdaglStateError};
+
+/// The file's magic bytes.
+pub const MAGIC: [u8; 8] = *b"TESVLIB\0";
+/// The format version this build writes and reads.
+pub const FORMAT_VERSION: u32 = 1;
+const HEADER_LEN: usize = 8 + 4 + 8 + 4;
+
+/// A library with what names its actions and features, as stored.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StoredLibrary {
+    /// The views.
+    pub library: ViewLibrary,
+    /// Which world trained it (free text, e.g. "grid suite 2017" or "arena 3").
+    pub world: String,
+    /// One name per action, or empty.
+    pub action_names: Vec<String>,
+    /// One name per feature, or empty.
+    pub feature_names: Vec<String>,
+}
+
+/// What is wrong with a library file (or its save).
+#[derive(Debug, Error)]
+pub enum StoreProblem {
+    /// Reading or writing failed.
+    #[error("{0}")]
+    Io(#[from] io::Error),
+    /// Not a TES view library.
+    #[error("not a TES view library (bad magic bytes)")]
+    NotALibrary,
+    /// Written by a newer format.
+    #[error("written by a newer TES: format v{0}, this build reads v{FORMAT_VERSION}")]
+    FutureVersion(u32),
+    /// Shorter than its header says.
+    #[error("truncated: {needed} bytes needed, {got} present")]
+    Truncated {
+        /// Bytes the header or a count requires.
+        needed: usize,
+        /// Bytes there.
+        got: usize,
+    },
+    /// Bytes after the body.
+    #[error("{0} unexpected bytes after the library")]
+    TrailingBytes(usize),
+    /// The checksum does not match.
+    #[error("corrupt: checksum {stored:08x} stored, {computed:08x} computed")]
+    Corrupt {
+        /// In the header.
+        stored: u32,
+        /// Of the body.
+        computed: u32,
+    },
+    /// The body decodes but does not make a valid library.
+    #[error("inconsistent: {0}")]
+    Inconsistent(String),
+    /// A view's model cannot be restored.
+    #[error("view {id}: {source}")]
+    BadView {
+        /// The view's id.
+        id: u64,
+        /// Why.
+        source: MdaglStateError,
+    },
+    /// The library is for another shape of world.
+    #[error(
+        "views of {found_actions} actions, {found_effects} effects and {found_features} \
+         features; this world has {actions}, {effects} and {features}"
+    )]
+    WrongShape {
+        /// The file's actions.
+        found_actions: usize,
+        /// The file's effects.
+        found_effects: usize,
+        /// The file's features.
+        found_features: usize,
+        /// The world's actions.
+        actions: usize,
+        /// The world's effects.
+        effects: usize,
+        /// The world's features.
+        features: usize,
+    },
+}
+
+/// A library file could not be loaded or saved; names the file.
+#[derive(Debug, Error)]
+#[error("view library {}: {problem}", path.display())]
+pub struct StoreError {
+    /// The file.
+    pub path: PathBuf,
+    /// What went wrong.
+    pub problem: StoreProblem,
+}
+
+impl StoreError {
+    fn new(path: &Path, problem: impl Into<StoreProblem>) -> Self {
+        Self {
+            path: path.to_owned(),
+            problem: problem.into(),
+        }
+    }
+}
+
+/// Saves `stored` to `path` atomically (see the module docs). On error the previous file at
+/// `path`, if any, is untouched, and no temporary file is left behind.
+pub fn save(path: &Path, stored: &StoredLibrary) -> Result<(), StoreError> {
+    check_names(stored).map_err(|p| StoreError::new(path, p))?;
+    let bytes = encode(stored);
+    save_bytes(path, &bytes, |file, bytes| file.write_all(bytes))
+}
+
+/// The atomic write, with the byte writer injectable so tests can make it fail.
+fn save_bytes(
+    path: &Path,
+    bytes: &[u8],
+    write: impl FnOnce(&mut File, &[u8]) -> io::Result<()>,
+) -> Result<(), StoreError> {
+    let err = |e: io::Error| StoreError::new(path, e);
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_owned(),
+        _ => PathBuf::from("."),
+    };
+    let name = path
+        .file_name()
+        .ok_or_else(|| err(io::Error::other("the path names no file")))?;
+    let tmp = dir.join(format!(
+        ".{}.tmp-{}",
+        name.to_string_lossy(),
+        std::process::id()
+    ));
+    let result = (|| {
+        let mut file = File::create(&tmp)?;
+        write(&mut file, bytes)?;
+        file.sync_all()?;
+        drop(file);
+        fs::rename(&tmp, path)?;
+        // The rename is durable once the directory is.
+        File::open(&dir)?.sync_all()
+    })();
+    if result.is_err() {
+        let _ = fs::remove_file(&tmp);
+    }
+    result.map_err(err)
+}
+
+/// Loads the library at `path`.
+pub fn load(path: &Path) -> Result<StoredLibrary, StoreError> {
+    let bytes = fs::read(path).map_err(|e| StoreError::new(path, e))?;
+    decode(&bytes).map_err(|p| StoreError::new(path, p))
+}
+
+/// Loads the library at `path` and checks it holds views for a world of this shape.
+pub fn load_for(
+    path: &Path,
+    actions: usize,
+    effects: usize,
+    features: usize,
+) -> Result<StoredLibrary, StoreError> {
+    let stored = load(path)?;
+    let l = &stored.library;
+    if (l.n_actions, l.n_effects, l.n_features) != (actions, effects, features) {
+        return Err(StoreError::new(
+            path,
+            StoreProblem::WrongShape {
+                found_actions: l.n_actions,
+                found_effects: l.n_effects,
+                found_features: l.n_features,
+                actions,
+                effects,
+                features,
+            },
+        ));
+    }
+    Ok(stored)
+}
+
+fn check_names(stored: &StoredLibrary) -> Result<(), StoreProblem> {
+    let l = &stored.library;
+    for (what, names, n) in [
+        ("action", &stored.action_names, l.n_actions),
+        ("feature", &stored.feature_names, l.n_features),
+    ] {
+        if !names.is_empty() && names.len() != n {
+            return Err(StoreProblem::Inconsistent(format!(
+                "{} {what} names for {n} {what}s",
+                names.len()
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// The whole file's bytes.
+pub fn encode(stored: &StoredLibrary) -> Vec<u8> {
+    let mut body = Writer(Vec::new());
+    let l = &stored.library;
+    body.u32(l.n_actions as u32);
+    body.u32(l.n_effects as u32);
+    body.u32(l.n_features as u32);
+    body.u32(l.params.max_views as u32);
+    body.f64(l.params.growth_threshold);
+    body.f64(l.params.recency);
+    body.f64(l.params.mdagl.lambda);
+    body.f64(l.params.mdagl.alpha);
+    body.0.push(u8::from(l.params.mdagl.intercept));
+    body.u32(l.tasks_seen);
+    body.u64(l.next_id);
+    body.str(&stored.world);
+    for names in [&stored.action_names, &stored.feature_names] {
+        body.u32(names.len() as u32);
+        names.iter().for_each(|n| body.str(n));
+    }
+    body.u32(l.views.len() as u32);
+    for v in &l.views {
+        body.u64(v.id);
+        body.u32(v.action as u32);
+        body.u64(v.model.n_updates());
+        let sums = v.model.gradient_sums();
+        body.u32(sums.len() as u32);
+        sums.iter().for_each(|&s| body.f64(s));
+        body.u32(v.wins.len() as u32);
+        v.wins.iter().for_each(|&t| body.u32(t));
+        body.u32(v.history.len() as u32);
+        for h in &v.history {
+            body.u32(h.task);
+            body.f64(h.score);
+            body.u64(h.observations);
+            body.0.push(u8::from(h.won));
+        }
+    }
+    let body = body.0;
+    let mut out = Vec::with_capacity(HEADER_LEN + body.len());
+    out.extend_from_slice(&MAGIC);
+    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    out.extend_from_slice(&(body.len() as u64).to_le_bytes());
+    out.extend_from_slice(&crc32fast::hash(&body).to_le_bytes());
+    out.extend_from_slice(&body);
+    out
+}
+
+/// Decodes and checks a whole file's bytes.
+pub fn decode(bytes: &[u8]) -> Result<StoredLibrary, StoreProblem> {
+    if bytes.len() < 8 || bytes[..8] != MAGIC {
+        if bytes.len() < 8 && MAGIC.starts_with(bytes) {
+            return Err(StoreProblem::Truncated {
+                needed: HEADER_LEN,
+                got: bytes.len(),
+            });
+        }
+        return Err(StoreProblem::NotALibrary);
+    }
+    if bytes.len() < HEADER_LEN {
+        return Err(StoreProblem::Truncated {
+            needed: HEADER_LEN,
+            got: bytes.len(),
+        });
+    }
+    let mut header = Reader(&bytes[8..HEADER_LEN]);
+    let version = header.u32()?;
+    if version > FORMAT_VERSION {
+        return Err(StoreProblem::FutureVersion(version));
+    }
+    if version == 0 {
+        return Err(StoreProblem::Inconsistent("format version 0".into()));
+    }
+    let len = header.u64()?;
+    let stored_crc = header.u32()?;
+    let body = &bytes[HEADER_LEN..];
+    let len = usize::try_from(len).unwrap_or(usize::MAX);
+    if body.len() < len {
+        return Err(StoreProblem::Truncated {
+            needed: HEADER_LEN.saturating_add(len),
+            got: bytes.len(),
+        });
+    }
+    if body.len() > len {
+        return Err(StoreProblem::TrailingBytes(body.len() - len));
+    }
+    let computed = crc32fast::hash(body);
+    if computed != stored_crc {
+        return Err(StoreProblem::Corrupt {
+            stored: stored_crc,
+            computed,
+        });
+    }
+    decode_body(&mut Reader(body))
+}
+
+fn decode_body(r: &mut Reader<'_>) -> Result<StoredLibrary, StoreProblem> {
+    let bad = |m: String| StoreProblem::Inconsistent(m);
+    let n_actions = r.u32()? as usize;
+    let n_effects = r.u32()? as usize;
+    let n_features = r.u32()? as usize;
+    let params = LibraryParams {
+        max_views: r.u32()? as usize,
+        growth_threshold: r.f64()?,
+        recency: r.f64()?,
+        mdagl: MdaglParams {
+            lambda: r.f64()?,
+            alpha: r.f64()?,
+            intercept: match r.u8()? {
+                0 => false,
+                1 => true,
+                b => return Err(bad(format!("intercept flag {b}"))),
+            },
+        },
+    };
+    let mut library = ViewLibrary::new(n_actions, n_effects, n_features, params)
+        .map_err(|e| bad(e.to_string()))?;
+    library.tasks_seen = r.u32()?;
+    library.next_id = r.u64()?;
+    let world = r.str()?;
+    let mut names = [Vec::new(), Vec::new()];
+    for list in &mut names {
+        let n = r.count(4)?;
+        for _ in 0..n {
+            list.push(r.str()?);
+        }
+    }
+    let [action_names, feature_names] = names;
+    let n_views = r.count(8 + 4 + 8 + 4 + 4 + 4)?;
+    if n_views > library.params.max_views {
+        return Err(bad(format!(
+            "{n_views} views, more than the library's limit of {}",
+            library.params.max_views
+        )));
+    }
+    for _ in 0..n_views {
+        let id = r.u64()?;
+        let action = r.u32()? as usize;
+        let updates = r.u64()?;
+        let n_sums = r.count(8)?;
+        let mut sums = Vec::with_capacity(n_sums);
+        for _ in 0..n_sums {
+            sums.push(r.f64()?);
+        }
+        let n_wins = r.count(4)?;
+        let mut wins = Vec::with_capacity(n_wins);
+        for _ in 0..n_wins {
+            wins.push(r.u32()?);
+        }
+        let n_history = r.count(4 + 8 + 8 + 1)?;
+        let mut history = Vec::with_capacity(n_history);
+        for _ in 0..n_history {
+            history.push(TaskScore {
+                task: r.u32()?,
+                score: r.f64()?,
+                observations: r.u64()?,
+                won: match r.u8()? {
+                    0 => false,
+                    1 => true,
+                    b => return Err(bad(format!("view {id}: won flag {b}"))),
+                },
+            });
+        }
+        if action >= n_actions {
+            return Err(bad(format!(
+                "view {id} is for action {action} of {n_actions}"
+            )));
+        }
+        if id >= library.next_id {
+            return Err(bad(format!(
+                "view id {id} is not below the next id {}",
+                library.next_id
+            )));
+        }
+        if library.views.iter().any(|v| v.id == id) {
+            return Err(bad(format!("two views with id {id}")));
+        }
+        if let Some(t) = wins
+            .iter()
+            .chain(history.iter().map(|h| &h.task))
+            .find(|&&t| t >= library.tasks_seen)
+        {
+            return Err(bad(format!(
+                "view {id} records task {t}, but only {} tasks were seen",
+                library.tasks_seen
+            )));
+        }
+        let model = Mdagl::from_state(n_effects, n_features, params.mdagl, updates, sums)
+            .map_err(|source| StoreProblem::BadView { id, source })?;
+        library.views.push(View {
+            id,
+            action,
+            model,
+            wins,
+            history,
+        });
+    }
+    if !r.0.is_empty() {
+        return Err(bad(format!("{} bytes left after the last view", r.0.len())));
+    }
+    let stored = StoredLibrary {
+        library,
+        world,
+        action_names,
+        feature_names,
+    };
+    check_names(&stored)?;
+    Ok(stored)
+}
+
+struct Writer(Vec<u8>);
+
+impl Writer {
+    fn u32(&mut self, v: u32) {
+        self.0.extend_from_slice(&v.to_le_bytes());
+    }
+    fn u64(&mut self, v: u64) {
+        self.0.extend_from_slice(&v.to_le_bytes());
+    }
+    fn f64(&mut self, v: f64) {
+        self.0.extend_from_slice(&v.to_bits().to_le_bytes());
+    }
+    fn str(&mut self, s: &str) {
+        self.u32(s.len() as u32);
+        self.0.extend_from_slice(s.as_bytes());
+    }
+}
+
+struct Reader<'a>(&'a [u8]);
+
+impl Reader<'_> {
+    fn take<const N: usize>(&mut self) -> Result<[u8; N], StoreProblem> {
+        if self.0.len() < N {
+            return Err(StoreProblem::Inconsistent(format!(
+                "the body ends {} bytes early",
+                N - self.0.len()
+            )));
+        }
+        let (head, rest) = self.0.split_at(N);
+        self.0 = rest;
+        let mut out = [0; N];
+        out.copy_from_slice(head);
+        Ok(out)
+    }
+    fn u8(&mut self) -> Result<u8, StoreProblem> {
+        Ok(self.take::<1>()?[0])
+    }
+    fn u32(&mut self) -> Result<u32, StoreProblem> {
+        Ok(u32::from_le_bytes(self.take()?))
+    }
+    fn u64(&mut self) -> Result<u64, StoreProblem> {
+        Ok(u64::from_le_bytes(self.take()?))
+    }
+    fn f64(&mut self) -> Result<f64, StoreProblem> {
+        Ok(f64::from_bits(self.u64()?))
+    }
+    /// A `u32` count of items of at least `item_len` bytes each, refused if the bytes left
+    /// cannot hold that many (so a corrupt count never reserves memory).
+    fn count(&mut self, item_len: usize) -> Result<usize, StoreProblem> {
+        let n = self.u32()? as usize;
+        if n.saturating_mul(item_len) > self.0.len() {
+            return Err(StoreProblem::Inconsistent(format!(
+                "a count of {n} items does not fit the {} bytes left",
+                self.0.len()
+            )));
+        }
+        Ok(n)
+    }
+    fn str(&mut self) -> Result<String, StoreProblem> {
+        let n = self.count(1)?;
+        let (s, rest) = self.0.split_at(n);
+        self.0 = rest;
+        String::from_utf8(s.to_vec())
+            .map_err(|_| StoreProblem::Inconsistent("a name is not UTF-8".into()))
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,677 @@
+//! The controller process: the central processor of the paper's Fig. 7.
+//!
+//! It receives the world's structure once ([`WorldMap`], from perception), loads the view
+//! library, and then, for every [`Observation`] perception publishes when the robot comes to
+//! rest:
+//!
+//! 1. derives the effect the last action had (the map's effect whose known outcome matches
+//!    the state change; the nearest one when the robot moved further than any effect says);
+//! 2. scores and updates the views of that action (TES — with an empty library this is
+//!    loreRL);
+//! 3. adopts the planner thread's latest policy and hands it the updated model;
+//! 4. picks the next action (ε-greedy) and publishes the [`Command`].
+//!
+//! Steps 1–4 allocate nothing after warm-up and are timed from the observation's stamp to
+//! the command's publication against a budget (default 1 ms); misses are counted. At each
+//! episode's end the library — as it would be if the task ended now — is saved atomically, and
+//! again on shutdown. One line per episode goes to stdout; diagnostics go to `tracing`.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use hdrhistogram::Histogram;
+use serde::Deserialize;
+use tes_topics::channel::{self, Idle, Inbox, IpcError, Outbox, WaitStrategy, monotonic_ns};
+use tes_topics::{Command, Observation, WorldMap, observation_flags, service};
+use thiserror::Error;
+
+use crate::agents::{Agent, AgentError, Tes, TesParams};
+use crate::cmdp::{CmdpError, CmdpStructure};
+use crate::library::store::{self, StoreError, StoredLibrary};
+use crate::library::{LibraryError, LibraryParams, ViewLibrary};
+use crate::mdagl::MdaglParams;
+use crate::plan::PlannerParams;
+use crate::realtime::{PlannerThread, PlannerThreadError};
+
+/// Settings of the controller process (TOML: the `[controller]` table of a launch file, or a
+/// file of its own). Every key is optional.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ControllerConfig {
+    /// `library`: the view library file (default: [`default_library_path`]). Created on the
+    /// first save if missing; a file that exists but cannot be read stops the controller.
+    pub library: Option<PathBuf>,
+    /// `budget_us`: the per-action latency budget, µs (default 1000).
+    pub budget_us: u64,
+    /// `wait`: `block` (default), `spin`, `spin-then-block` or `spin-then-block:<µs>`.
+    pub wait: String,
+    /// `seed`: exploration seed (default 1).
+    pub seed: u64,
+    /// `epsilon`: probability of a random action (paper §5.2: 0.05).
+    pub epsilon: f64,
+    /// `lambda`: mDAGL's group-lasso strength for fresh views (paper: 0.05).
+    pub lambda: f64,
+    /// `alpha`: mDAGL's step scale for fresh views (paper §5.2: 0.5).
+    pub alpha: f64,
+    /// `max_views`: the library's size limit M (paper: 20).
+    pub max_views: usize,
+    /// `service_prefix`: prefixed to every iceoryx2 service name (to run groups side by side).
+    pub service_prefix: String,
+    /// `map_timeout_s`: how long to wait for perception's world map (default 30 s).
+    pub map_timeout_s: f64,
+}
+
+impl Default for ControllerConfig {
+    fn default() -> Self {
+        Self {
+            library: None,
+            budget_us: 1000,
+            wait: "block".into(),
+            seed: 1,
+            epsilon: 0.05,
+            lambda: 0.05,
+            alpha: 0.5,
+            max_views: 20,
+            service_prefix: String::new(),
+            map_timeout_s: 30.0,
+        }
+    }
+}
+
+/// A setting that is out of range, named by its key.
+#[derive(Debug, Clone, PartialEq, Error)]
+#[error("controller setting `{key}`: {reason}")]
+pub struct ConfigError {
+    /// The TOML key.
+    pub key: &'static str,
+    /// What is wrong.
+    pub reason: String,
+}
+
+impl ControllerConfig {
+    /// Parses a TOML document holding these keys (unknown keys are refused).
+    pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
+        let cfg: Self = toml::from_str(text).map_err(|e| ConfigError {
+            key: "(file)",
+            reason: e.to_string(),
+        })?;
+        cfg.check()?;
+        Ok(cfg)
+    }
+
+    /// Checks every key; the first bad one is reported.
+    pub fn check(&self) -> Result<WaitStrategy, ConfigError> {
+        let bad = |key, reason: &str| {
+            Err(ConfigError {
+                key,
+                reason: reason.to_owned(),
+            })
+        };
+        if self.budget_us == 0 {
+            return bad("budget_us", "must be at least 1");
+        }
+        if !(0.0..=1.0).contains(&self.epsilon) {
+            return bad("epsilon", "must be in [0, 1]");
+        }
+        if !(self.lambda.is_finite() && self.lambda >= 0.0) {
+            return bad("lambda", "must be a finite number >= 0");
+        }
+        if !(self.alpha.is_finite() && self.alpha > 0.0) {
+            return bad("alpha", "must be a finite number > 0");
+        }
+        if self.max_views == 0 {
+            return bad("max_views", "must be at least 1");
+        }
+        if !(self.map_timeout_s.is_finite() && self.map_timeout_s > 0.0) {
+            return bad("map_timeout_s", "must be a finite number of seconds > 0");
+        }
+        self.wait.parse::<WaitStrategy>().map_err(|e| ConfigError {
+            key: "wait",
+            reason: e.to_string(),
+        })
+    }
+
+    /// The library file: the configured one or [`default_library_path`].
+    pub fn library_path(&self) -> PathBuf {
+        self.library.clone().unwrap_or_else(default_library_path)
+    }
+}
+
+/// The default data directory: `$TES_DATA_DIR`, else `$XDG_DATA_HOME/tes`, else
+/// `$HOME/.local/share/tes`, else `./tes-data`.
+pub fn default_data_dir() -> PathBuf {
+    let env = |k: &str| {
+        std::env::var_os(k)
+            .filter(|v| !v.is_empty())
+            .map(PathBuf::from)
+    };
+    env("TES_DATA_DIR")
+        .or_else(|| env("XDG_DATA_HOME").map(|d| d.join("tes")))
+        .or_else(|| env("HOME").map(|h| h.join(".local/share/tes")))
+        .unwrap_or_else(|| PathBuf::from("tes-data"))
+}
+
+/// The default view library file: `library.tesl` in [`default_data_dir`].
+pub fn default_library_path() -> PathBuf {
+    default_data_dir().join("library.tesl")
+}
+
+/// Why the controller stopped with an error.
+#[derive(Debug, Error)]
+pub enum ControllerError {
+    /// A bad setting.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// An iceoryx2 failure.
+    #[error(transparent)]
+    Ipc(#[from] IpcError),
+    /// No world map arrived in time.
+    #[error("no world map from perception within {0:?} (is perception-sim running?)")]
+    NoMap(Duration),
+    /// The world map is malformed.
+    #[error("the world map is malformed: {0}")]
+    BadMap(String),
+    /// The map does not form a CMDP.
+    #[error("the world map does not form a CMDP: {0}")]
+    Cmdp(#[from] CmdpError),
+    /// The library file cannot be used.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    /// The library's directory cannot be created.
+    #[error("cannot create the data directory {}: {error}", path.display())]
+    DataDir {
+        /// The directory.
+        path: PathBuf,
+        /// Why.
+        error: std::io::Error,
+    },
+    /// The library cannot be built or updated.
+    #[error("view library: {0}")]
+    Library(#[from] LibraryError),
+    /// The agent refused its settings or a step.
+    #[error("agent: {0}")]
+    Agent(#[from] AgentError),
+    /// The planner thread failed.
+    #[error(transparent)]
+    Planner(#[from] PlannerThreadError),
+}
+
+/// What a controller run did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ControllerSummary {
+    /// Episodes that ended.
+    pub episodes: u64,
+    /// Commands published.
+    pub actions: u64,
+    /// Decisions over the latency budget.
+    pub misses: u64,
+    /// Decision latency percentiles over the run, µs: p50, p90, p99, p99.9, max.
+    pub latency_us: [u64; 5],
+    /// Observations refused (stale or duplicate sequence number, unknown state, bad reward).
+    pub refused: u64,
+    /// Library saves that failed (each is also logged).
+    pub failed_saves: u64,
+    /// Plans adopted from the planner thread.
+    pub plans: u64,
+}
+
+/// One finished episode, as printed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EpisodeLine {
+    /// Episode index (from perception).
+    pub episode: u32,
+    /// Reward collected.
+    pub reward: f64,
+    /// Actions taken.
+    pub steps: u32,
+    /// Decision latency p50 / p99, µs.
+    pub p50_us: u64,
+    /// 99th percentile.
+    pub p99_us: u64,
+    /// Decisions over budget in the episode.
+    pub misses: u64,
+}
+
+impl std::fmt::Display for EpisodeLine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "episode {}: reward {:.2}, {} steps, decision latency p50 {} us p99 {} us, {} over budget",
+            self.episode, self.reward, self.steps, self.p50_us, self.p99_us, self.misses
+        )
+    }
+}
+
+/// The service names, with the configured prefix.
+fn names(prefix: &str) -> [String; 6] {
+    [
+        service::WORLD_MAP,
+        service::WORLD_MAP_EVENT,
+        service::OBSERVATION,
+        service::OBSERVATION_EVENT,
+        service::COMMAND,
+        service::COMMAND_EVENT,
+    ]
+    .map(|n| format!("{prefix}{n}"))
+}
+
+/// Builds the agent-known CMDP from a world map.
+pub fn structure_from_map(map: &WorldMap) -> Result<CmdpStructure, ControllerError> {
+    map.check().map_err(ControllerError::BadMap)?;
+    let n = map.n_states as usize;
+    let features: Vec<Vec<u32>> = map.features[..n]
+        .iter()
+        .map(|f| f.iter_ones().map(|i| i as u32).collect())
+        .collect();
+    Ok(CmdpStructure::new(
+        n,
+        map.n_actions as usize,
+        map.n_effects as usize,
+        map.n_features as usize,
+        |s, e| usize::from(map.next_state[s][e]),
+        map.reward[..n].iter().map(|&r| f64::from(r)).collect(),
+        map.terminal[..n].iter().map(|&t| t != 0).collect(),
+        |s| &features[s],
+    )?)
+}
+
+/// The effect that took the robot from `from` to `to`: the lowest effect whose known outcome
+/// is `to`; if none (the robot moved further than any effect says), the one whose outcome is
+/// nearest — fewest cells away (Chebyshev), then least turned. Allocation-free.
+pub fn derive_effect(map: &WorldMap, from: usize, to: usize) -> usize {
+    let e = map.n_effects as usize;
+    if let Some(exact) = (0..e).find(|&k| usize::from(map.next_state[from][k]) == to) {
+        return exact;
+    }
+    let target = map.attributes(to);
+    let o = i32::from(map.orientations.max(1));
+    let distance = |k: usize| {
+        let a = map.attributes(usize::from(map.next_state[from][k]));
+        if a.x == u16::MAX || target.x == u16::MAX {
+            // One of the two is "out of the area": as far as it gets.
+            let same = (a.x == u16::MAX) == (target.x == u16::MAX);
+            return (if same { 0 } else { i32::MAX }, 0);
+        }
+        let cells = (i32::from(a.x) - i32::from(target.x))
+            .abs()
+            .max((i32::from(a.y) - i32::from(target.y)).abs());
+        let turn = (i32::from(a.orientation) - i32::from(target.orientation)).rem_euclid(o);
+        (cells, turn.min(o - turn))
+    };
+    (0..e).min_by_key(|&k| distance(k)).unwrap_or(0)
+}
+
+/// Decision latencies, µs, in a histogram that never allocates when recording.
+struct Latencies {
+    histogram: Histogram<u64>,
+}
+
+impl Latencies {
+    /// 1 µs to 60 s at 3 significant digits.
+    fn new() -> Self {
+        Self {
+            histogram: Histogram::new_with_bounds(1, 60_000_000, 3)
+                .expect("the bounds are valid constants"),
+        }
+    }
+
+    fn record(&mut self, us: u64) {
+        // Clamped into range, so recording cannot fail or grow the histogram.
+        let _ = self.histogram.record(us.clamp(1, 60_000_000));
+    }
+
+    fn quantile(&self, q: f64) -> u64 {
+        if self.histogram.is_empty() {
+            0
+        } else {
+            self.histogram.value_at_quantile(q)
+        }
+    }
+
+    fn percentiles(&self) -> [u64; 5] {
+        [
+            self.quantile(0.5),
+            self.quantile(0.9),
+            self.quantile(0.99),
+            self.quantile(0.999),
+            self.histogram.max(),
+        ]
+    }
+}
+
+/// The library as it would be if the task ended now, saved atomically.
+fn save_library(agent: &Tes, path: &Path, world: u32) -> Result<(), ControllerError> {
+    let (library, _) = agent.clone().finish_task()?;
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|error| ControllerError::DataDir {
+            path: dir.to_owned(),
+            error,
+        })?;
+    }
+    store::save(
+        path,
+        &StoredLibrary {
+            library,
+            world: format!("arena {world}"),
+            action_names: Vec::new(),
+            feature_names: Vec::new(),
+        },
+    )?;
+    Ok(())
+}
+
+/// Runs the controller until `stop` is raised. `on_episode` receives each finished episode.
+pub fn run(
+    config: &ControllerConfig,
+    stop: &AtomicBool,
+    mut on_episode: impl FnMut(&EpisodeLine),
+) -> Result<ControllerSummary, ControllerError> {
+    let strategy = config.check()?;
+    let [
+        map_name,
+        map_event,
+        obs_name,
+        obs_event,
+        cmd_name,
+        cmd_event,
+    ] = names(&config.service_prefix);
+    let node = channel::node(false)?;
+    let maps: Inbox<WorldMap> = Inbox::open(&node, &map_name, &map_event, 1, WaitStrategy::Block)?;
+    let observations: Inbox<Observation> = Inbox::open(&node, &obs_name, &obs_event, 0, strategy)?;
+    let commands: Outbox<Command> = Outbox::open(&node, &cmd_name, &cmd_event, 0)?;
+
+    tracing::info!(service = %map_name, "waiting for the world map");
+    let map_timeout = Duration::from_secs_f64(config.map_timeout_s);
+    // A boxed map: it is ~90 kB, too big to pass around on the stack comfortably.
+    let map: Box<WorldMap> = match maps.next(map_timeout, stop)? {
+        Ok(m) => Box::new(m),
+        Err(Idle::Timeout) => return Err(ControllerError::NoMap(map_timeout)),
+        Err(Idle::Stopped) => return Ok(empty_summary()),
+    };
+    let structure = Arc::new(structure_from_map(&map)?);
+    let library_path = config.library_path();
+    let library = if library_path.exists() {
+        store::load_for(
+            &library_path,
+            structure.n_actions(),
+            structure.n_effects(),
+            structure.n_features(),
+        )?
+        .library
+    } else {
+        let params = LibraryParams {
+            max_views: config.max_views,
+            mdagl: MdaglParams {
+                lambda: config.lambda,
+                alpha: config.alpha,
+                intercept: false,
+            },
+            ..LibraryParams::default()
+        };
+        ViewLibrary::new(
+            structure.n_actions(),
+            structure.n_effects(),
+            structure.n_features(),
+            params,
+        )?
+    };
+    tracing::info!(
+        library = %library_path.display(),
+        views = library.len(),
+        states = structure.n_states(),
+        "controller ready"
+    );
+    let params = TesParams {
+        epsilon: config.epsilon,
+        ..TesParams::default()
+    };
+    let mut agent = Tes::new(structure.clone(), library, params, config.seed)?;
+    agent.model_mut().set_inline_planning(false);
+    let planner_params = PlannerParams {
+        max_sweeps: 500,
+        ..PlannerParams::default()
+    };
+    let mut planner = PlannerThread::spawn(structure.clone(), planner_params)?;
+    // The first policy before the first action.
+    planner.offer(agent.model_mut())?;
+    planner.wait(agent.model_mut(), Duration::from_secs(10))?;
+
+    let budget_ns = config.budget_us.saturating_mul(1000);
+    let mut all = Latencies::new();
+    let mut episode_latency = Latencies::new();
+    let mut summary = empty_summary();
+    let mut last_seq = 0u64;
+    let mut command_seq = 0u64;
+    // (state, action) of the command in flight, and the episode's running totals.
+    let mut pending: Option<(usize, usize)> = None;
+    let (mut reward, mut steps, mut episode_misses) = (0.0f64, 0u32, 0u64);
+    loop {
+        let obs = match observations.next(Duration::from_millis(100), stop)? {
+            Ok(o) => o,
+            Err(Idle::Stopped) => break,
+            Err(Idle::Timeout) => continue,
+        };
+        let Some(state) = map
+            .state_index(obs.state)
+            .filter(|&s| s < structure.n_states())
+        else {
+            summary.refused += 1;
+            tracing::warn!(seq = obs.seq, state = ?obs.state, "observation of an unknown state refused");
+            continue;
+        };
+        if obs.seq <= last_seq || !obs.reward.is_finite() {
+            summary.refused += 1;
+            tracing::warn!(
+                seq = obs.seq,
+                last_seq,
+                "stale, duplicate or non-finite observation refused"
+            );
+            continue;
+        }
+        last_seq = obs.seq;
+        if obs.flags & observation_flags::EPISODE_START != 0 {
+            pending = None;
+            (reward, steps, episode_misses) = (0.0, 0, 0);
+        } else if let Some((from, action)) = pending.take() {
+            let effect = derive_effect(&map, from, state);
+            agent.observe(from, action, effect)?;
+            reward += f64::from(obs.reward);
+        }
+        planner.collect(agent.model_mut())?;
+        planner.offer(agent.model_mut())?;
+        if obs.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0 {
+            summary.episodes += 1;
+            let line = EpisodeLine {
+                episode: obs.episode,
+                reward,
+                steps,
+                p50_us: episode_latency.quantile(0.5),
+                p99_us: episode_latency.quantile(0.99),
+                misses: episode_misses,
+            };
+            on_episode(&line);
+            episode_latency.histogram.reset();
+            if let Err(e) = save_library(&agent, &library_path, map.world) {
+                summary.failed_saves += 1;
+                tracing::error!(error = %e, "the library was not saved; the previous file is intact");
+            }
+            continue;
+        }
+        let action = agent.act(state)?;
+        let [left_deg, right_deg] = map.action_wheels[action];
+        command_seq += 1;
+        let now = monotonic_ns();
+        commands.send(Command {
+            seq: command_seq,
+            answers: obs.seq,
+            stamp_ns: now,
+            action: action as u32,
+            left_deg,
+            right_deg,
+            reserved: 0,
+        })?;
+        pending = Some((state, action));
+        steps += 1;
+        summary.actions += 1;
+        let latency_ns = now.saturating_sub(obs.stamp_ns);
+        if latency_ns > budget_ns {
+            summary.misses += 1;
+            episode_misses += 1;
+        }
+        all.record(latency_ns / 1000);
+        episode_latency.record(latency_ns / 1000);
+    }
+    summary.latency_us = all.percentiles();
+    summary.plans = planner.plans();
+    if let Err(e) = save_library(&agent, &library_path, map.world) {
+        summary.failed_saves += 1;
+        tracing::error!(error = %e, "the library was not saved at shutdown; the previous file is intact");
+    }
+    Ok(summary)
+}
+
+fn empty_summary() -> ControllerSummary {
+    ControllerSummary {
+        episodes: 0,
+        actions: 0,
+        misses: 0,
+        latency_us: [0; 5],
+        refused: 0,
+        failed_saves: 0,
+        plans: 0,
+    }
+}
+
+/// Raises the returned flag on SIGINT or SIGTERM (for the process binaries).
+pub fn stop_on_signals() -> std::io::Result<Arc<AtomicBool>> {
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, stop.clone())?;
+    }
+    Ok(stop)
+}
+
+/// Whether `stop` was raised (a convenience for loops that poll it).
+pub fn stopped(stop: &AtomicBool) -> bool {
+    stop.load(Ordering::Relaxed)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tes_topics::StateAttributes;
+
+    /// A 3×3 arena-like map: 4 orientations, effects 0 = forward (east when o = 0), 1 = stay,
+    /// 2 = turn left.
+    fn map() -> WorldMap {
+        let mut m = WorldMap::EMPTY;
+        (m.width, m.height, m.orientations) = (3, 3, 4);
+        m.n_states = 3 * 3 * 4 + 1;
+        (m.n_actions, m.n_effects, m.n_features) = (2, 3, 4);
+        let out = m.out_state();
+        for s in 0..out {
+            let a = m.attributes(s);
+            let (dx, dy) = [(1i32, 0i32), (0, 1), (-1, 0), (0, -1)][a.orientation as usize];
+            let (x, y) = (i32::from(a.x) + dx, i32::from(a.y) + dy);
+            let forward = if (0..3).contains(&x) && (0..3).contains(&y) {
+                m.state_index(StateAttributes {
+                    x: x as u16,
+                    y: y as u16,
+                    ..a
+                })
+                .unwrap()
+            } else {
+                out
+            };
+            let left = m
+                .state_index(StateAttributes {
+                    orientation: (a.orientation + 1) % 4,
+                    ..a
+                })
+                .unwrap();
+            m.next_state[s][..3].copy_from_slice(&[forward as u16, s as u16, left as u16]);
+            m.reward[s] = -0.05;
+            m.features[s].set(a.orientation as usize);
+        }
+        m.next_state[out][..3].copy_from_slice(&[out as u16; 3]);
+        m.terminal[out] = 1;
+        m.reward[out] = -1.0;
+        m
+    }
+
+    fn at(m: &WorldMap, x: u16, y: u16, o: u16) -> usize {
+        m.state_index(StateAttributes {
+            x,
+            y,
+            orientation: o,
+            reserved: 0,
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn effects_are_derived_exactly_or_by_the_nearest_outcome() {
+        let m = map();
+        let s = at(&m, 0, 1, 0);
+        assert_eq!(derive_effect(&m, s, at(&m, 1, 1, 0)), 0, "forward");
+        assert_eq!(derive_effect(&m, s, s), 1, "stayed");
+        assert_eq!(derive_effect(&m, s, at(&m, 0, 1, 1)), 2, "turned left");
+        // Two cells forward: nearest to "forward".
+        assert_eq!(derive_effect(&m, s, at(&m, 2, 1, 0)), 0);
+        // Turned right (no such effect): "stay" and "turn left" are both one cell away (0),
+        // then one turn each way; the lowest such effect wins.
+        assert_eq!(derive_effect(&m, s, at(&m, 0, 1, 3)), 1);
+        // Out of the area from the east edge going east.
+        let edge = at(&m, 2, 1, 0);
+        assert_eq!(derive_effect(&m, edge, m.out_state()), 0);
+    }
+
+    #[test]
+    fn the_map_becomes_a_cmdp() {
+        let m = map();
+        let c = structure_from_map(&m).unwrap();
+        assert_eq!((c.n_states(), c.n_actions(), c.n_effects()), (37, 2, 3));
+        let s = at(&m, 1, 1, 2);
+        assert_eq!(c.features(s), &[2]);
+        assert!(c.is_terminal(m.out_state()));
+        let mut bad = map();
+        bad.next_state[3][1] = 99;
+        assert!(matches!(
+            structure_from_map(&bad),
+            Err(ControllerError::BadMap(_))
+        ));
+    }
+
+    #[test]
+    fn settings_are_checked_by_key() {
+        assert!(ControllerConfig::default().check().is_ok());
+        let cfg = ControllerConfig::from_toml("budget_us = 500\nwait = \"spin\"\n").unwrap();
+        assert_eq!(cfg.budget_us, 500);
+        assert_eq!(cfg.check(), Ok(WaitStrategy::Spin));
+        for (text, key) in [
+            ("budget_us = 0", "budget_us"),
+            ("epsilon = 2.0", "epsilon"),
+            ("alpha = 0.0", "alpha"),
+            ("wait = \"nap\"", "wait"),
+            ("max_views = 0", "max_views"),
+        ] {
+            let err = ControllerConfig::from_toml(text).unwrap_err();
+            assert_eq!(err.key, key, "{text}");
+        }
+        let err = ControllerConfig::from_toml("budjet_us = 5").unwrap_err();
+        assert!(err.reason.contains("budjet_us"), "{err}");
+    }
+
+    #[test]
+    fn latencies_record_without_growing() {
+        let mut l = Latencies::new();
+        for us in [1, 5, 5, 10, 1_000_000_000] {
+            l.record(us);
+        }
+        let [p50, _, _, _, max] = l.percentiles();
+        assert_eq!(p50, 5);
+        assert!(max >= 60_000_000 - 60_000, "clamped, not refused");
+    }
+}

@@ -1,0 +1,202 @@
+//! `tes library show|export PATH`: what a saved view library holds.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::{Args, Subcommand};
+use serde::Serialize;
+use tes_controller::library::store::{self, FORMAT_VERSION, StoredLibrary};
+
+/// Arguments of `tes library`.
+#[derive(Debug, Args)]
+pub struct LibraryArgs {
+    #[command(subcommand)]
+    which: Which,
+}
+
+#[derive(Debug, Subcommand)]
+enum Which {
+    /// Print each view: its action, selected features, track record, tasks won, scores.
+    Show {
+        /// The library file.
+        path: PathBuf,
+    },
+    /// The same as one JSON object on stdout.
+    Export {
+        /// The library file.
+        path: PathBuf,
+        /// Emit JSON (the only format; the flag keeps the command explicit).
+        #[arg(long, required = true)]
+        json: bool,
+    },
+}
+
+/// The report `show` prints and `export --json` emits.
+#[derive(Debug, Serialize)]
+struct Report {
+    file: String,
+    format_version: u32,
+    world: String,
+    actions: usize,
+    effects: usize,
+    features: usize,
+    tasks_seen: u32,
+    max_views: usize,
+    growth_threshold: f64,
+    recency: f64,
+    lambda: f64,
+    alpha: f64,
+    views: Vec<ViewReport>,
+}
+
+#[derive(Debug, Serialize)]
+struct ViewReport {
+    id: u64,
+    action: usize,
+    action_name: Option<String>,
+    updates: u64,
+    selected_features: Vec<usize>,
+    selected_feature_names: Option<Vec<String>>,
+    /// Φ for the next task.
+    track_record: f64,
+    tasks_won: Vec<u32>,
+    scores: Vec<ScoreReport>,
+}
+
+#[derive(Debug, Serialize)]
+struct ScoreReport {
+    task: u32,
+    score: f64,
+    observations: u64,
+    won: bool,
+}
+
+fn report(path: &std::path::Path, stored: &StoredLibrary) -> Report {
+    let l = &stored.library;
+    let p = l.params();
+    let name = |names: &[String], i: usize| names.get(i).cloned();
+    Report {
+        file: path.display().to_string(),
+        format_version: FORMAT_VERSION,
+        world: stored.world.clone(),
+        actions: l.n_actions(),
+        effects: l.n_effects(),
+        features: l.n_features(),
+        tasks_seen: l.tasks_seen(),
+        max_views: p.max_views,
+        growth_threshold: p.growth_threshold,
+        recency: p.recency,
+        lambda: p.mdagl.lambda,
+        alpha: p.mdagl.alpha,
+        views: l
+            .views()
+            .iter()
+            .map(|v| {
+                let selected: Vec<usize> = v.model().selected_features().collect();
+                ViewReport {
+                    id: v.id(),
+                    action: v.action(),
+                    action_name: name(&stored.action_names, v.action()),
+                    updates: v.model().n_updates(),
+                    selected_feature_names: (!stored.feature_names.is_empty()).then(|| {
+                        selected
+                            .iter()
+                            .map(|&i| name(&stored.feature_names, i).unwrap_or_default())
+                            .collect()
+                    }),
+                    selected_features: selected,
+                    track_record: l.track_record(v),
+                    tasks_won: v.wins().to_vec(),
+                    scores: v
+                        .history()
+                        .iter()
+                        .map(|h| ScoreReport {
+                            task: h.task,
+                            score: h.score,
+                            observations: h.observations,
+                            won: h.won,
+                        })
+                        .collect(),
+                }
+            })
+            .collect(),
+    }
+}
+
+/// Runs `tes library`.
+pub fn run(args: &LibraryArgs) -> Result<()> {
+    match &args.which {
+        Which::Show { path } => {
+            let r = report(path, &store::load(path)?);
+            print_report(&r);
+        }
+        Which::Export { path, .. } => {
+            let r = report(path, &store::load(path)?);
+            println!("{}", serde_json::to_string_pretty(&r)?);
+        }
+    }
+    Ok(())
+}
+
+fn print_report(r: &Report) {
+    println!("view library {} (format v{})", r.file, r.format_version);
+    println!(
+        "  world: {}; {} actions, {} effects, {} features",
+        r.world, r.actions, r.effects, r.features
+    );
+    println!(
+        "  {} tasks seen; M = {}, c = {:.3}, mu = {}; fresh views: lambda = {}, alpha = {}",
+        r.tasks_seen, r.max_views, r.growth_threshold, r.recency, r.lambda, r.alpha
+    );
+    println!("  {} views", r.views.len());
+    for v in &r.views {
+        let action = v
+            .action_name
+            .as_ref()
+            .map_or_else(|| v.action.to_string(), |n| format!("{} ({n})", v.action));
+        println!(
+            "view {}: action {action}, {} updates, track record {:.3}",
+            v.id, v.updates, v.track_record
+        );
+        let features = match &v.selected_feature_names {
+            Some(names) => names.join(", "),
+            None => v
+                .selected_features
+                .iter()
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+                .join(", "),
+        };
+        println!(
+            "  selected features ({}): {}",
+            v.selected_features.len(),
+            if features.is_empty() {
+                "none"
+            } else {
+                &features
+            }
+        );
+        println!(
+            "  tasks won: {}",
+            v.tasks_won
+                .iter()
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+        let scores: Vec<String> = v
+            .scores
+            .iter()
+            .map(|s| {
+                format!(
+                    "task {}: {:.2} over {} obs{}",
+                    s.task,
+                    s.score,
+                    s.observations,
+                    if s.won { " (won)" } else { "" }
+                )
+            })
+            .collect();
+        println!("  scores: {}", scores.join("; "));
+    }
+}
