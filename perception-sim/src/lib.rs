@@ -2,6 +2,8 @@
 //!
 //! * [`grid`] — the paper's §5.1 grid tasks: surfaces, walls, hundreds of irrelevant binary
 //!   features, logistic true dynamics, and the 15-task suite the transfer experiments use.
+//! * [`arena`] — the paper's §5.2 robot arenas (Env 1–3): a differential-drive robot with
+//!   surface-dependent wheel slip, 8 orientations, 20 effects and the 312 camera features.
 //!
 //! Every world is seeded and reproducible; per-step methods allocate nothing.
 //!
@@ -18,4 +20,5 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+pub mod arena;
 pub mod grid;

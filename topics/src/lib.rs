@@ -171,6 +171,9 @@ pub mod observation_flags {
     pub const EPISODE_START: u32 = 1 << 1;
     /// The episode was ended by the world (stuck, step cap) rather than a terminal state.
     pub const TRUNCATED: u32 = 1 << 2;
+    /// The outcome of the last command is unknown (it was lost or never answered): nothing to
+    /// learn from it; act from this state. The episode goes on.
+    pub const RESYNC: u32 = 1 << 3;
 }
 
 /// What perception publishes each time the robot comes to rest: the state and its features.

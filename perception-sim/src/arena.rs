@@ -1,0 +1,1599 @@
+//! The robot arenas of the paper's §5.2: a LEGO NXT robot on hand-made surfaces, seen from above.
+//!
+//! A three-wheeled differential-drive robot (wheel diameter 8.16 cm, track width 11.2 cm) moves
+//! in a square arena. The floor is plain carpet except under some of the coloured marks, where
+//! the surface (loose beans, a hay-covered slope) makes the wheels slip. The robot's pose is
+//! continuous ([`Pose`]: position in cm, heading in rad); the agent sees it discretised into a
+//! cell `(x, y)` and one of 8 orientations, and each state through the paper's 312 binary
+//! features (§5.2.1, see [`feature_name`]): distance rings to the green marks, to the blue marks
+//! and to the blue ball, the orientation, and whether the cell holds a green or blue mark.
+//!
+//! Three arenas ([`ArenaId`]): Env 1 and Env 3 are 6×6 ft discretised to 10×10 cells, Env 2
+//! is 5×5 ft discretised to 8×8 cells; all have 8 orientations and one more, absorbing, "out of
+//! the area" state. In Env 1 and Env 3 the **blue** marks sit on loose beans (both wheels
+//! lose traction) and the green marks are decoys; in Env 2 the **green** marks sit on a hay
+//! slope (the right wheel drags and the robot slides downhill) and the blue marks are decoys.
+//! Env 1 and Env 3 share their surfaces; their ball, death spots and green marks differ.
+//!
+//! # Coordinates and numbering
+//!
+//! * Positions are in cm from the arena's south-west corner, `x` east, `y` north; the area is
+//!   `[0, side) × [0, side)`. Cell `(x, y)` covers `[x·c, (x+1)·c) × [y·c, (y+1)·c)` with
+//!   `c = side / cells`.
+//! * Headings are in radians, counter-clockwise from east. Orientation `k` (0..8) covers the
+//!   headings within ±22.5° of `k·45°`; so 0 faces east, 2 north, 4 west, 6 south.
+//! * State `(y·cells + x)·8 + orientation`; the out state is `cells·cells·8`, the last one
+//!   (the numbering of `tes_topics::WorldMap`; its attributes are `x = y = u16::MAX`).
+//! * Effect `move·5 + turn` ([`Effect`]): moves forward, diagonally forward-left, diagonally
+//!   forward-right, did not move; turns none, 1 left, 2 left, 1 right, 2 right — all relative
+//!   to the orientation. "Forward" from orientation `k` is the neighbouring cell in direction
+//!   `k·45°` (diagonals included); forward-left is the neighbour at `(k+1)·45°`.
+//! * Actions ([`ACTIONS`]): 0 both wheels +246°, 1 left +90° and right −90°, 2 left +90°.
+//!
+//! # Physics and slip
+//!
+//! [`Arena::move_robot`] turns a pair of wheel rotations (the tacho deltas the brick reports)
+//! into a new pose. The surface of the cell the robot starts in scales each wheel's effective
+//! rotation (its *traction*) and adds seeded noise; the robot then follows the exact
+//! differential-drive arc. The surfaces ([`Surface`]):
+//!
+//! * **carpet** — grip: traction `1 ± 3 %` per wheel, heading noise σ = 1.5°;
+//! * **beans** (under Env 1 and Env 3's blue marks) — both wheels lose traction: in the
+//!   cell's inner 60 % square (deep beans) the wheels spin almost freely (traction < 0.1)
+//!   40 % of the time, near the cell's edges 12 % of the time; otherwise a common traction
+//!   `0.6 ± 0.1` (clamped to [0.3, 0.9]) times `1 ± 12 %` per wheel; heading noise σ = 4°;
+//! * **slope** (under Env 2's green marks) — hay on a ramp falling to the south drags the right
+//!   wheel (traction `0.5 ± 0.08` against `0.95 ± 0.04` on the left, so the robot veers right),
+//!   when facing uphill (heading within 30°–150°) both wheels lose another 40 %, and every
+//!   move slides the robot 2.5 cm downhill (per 246° of mean wheel rotation); σ = 3°.
+//!
+//! The effect distribution that results is far from a logistic model of the features: it
+//! depends on thresholds of the continuous pose inside the cell and on the exact heading
+//! inside its 45° sector. Ideal motion: action 0 drives 17.5 cm (≈ one cell in Env 1),
+//! action 1 spins clockwise by 65.6° in place, action 2 pivots clockwise by 32.8° about the
+//! right wheel. (The paper calls actions 1 and 2 "turn left" and "turn right"; with the left
+//! wheel driven forward both turn the robot clockwise — the agent learns their effects anyway.)
+//!
+//! # Mapping to the paper's §5.2
+//!
+//! | paper | here |
+//! |---|---|
+//! | Env 1, 2, 3; 6×6 ft and 5×5 ft; 10×10×8 and 8×8×8 states | [`ArenaId`], [`Arena::new`], [`ArenaLayout::paper`] |
+//! | three-wheel NXT robot, track width 11.2 cm | [`WHEEL_DIAMETER_CM`], [`TRACK_WIDTH_CM`], [`Arena::move_robot`] |
+//! | actions: 246°/246°, 90°/−90°, 90°/0° | [`ACTIONS`], [`Arena::step`] |
+//! | 4 moves × 5 turns = 20 effects | [`Effect`], [`Arena::apply_effect`], [`Arena::effect_between`] |
+//! | 312 features: 3 × 100 rings, 8 orientations, 4 mark bits | [`Arena::features`], [`feature_name`] |
+//! | +2 ball, −1 death spot or out of the area, −0.05 otherwise | [`Arena::reward`], [`Arena::is_terminal`] |
+//! | episode ends when terminal or stuck 4 actions | [`Episode`] |
+//! | random start | [`Arena::random_start`] |
+//! | man-loreRL's 12 features | [`MAN_FEATURES`], [`Arena::man_features`] |
+//! | the factors fRmax/fEpsG are told | [`Arena::oracle_features`], [`Arena::oracle_context`] |
+//!
+//! # Building the agent's CMDP
+//!
+//! Everything `tes_controller::cmdp::CmdpStructure::new` needs is here:
+//!
+//! ```text
+//! let arena = Arena::new(ArenaId::Env3);
+//! let cmdp = CmdpStructure::new(
+//!     arena.n_states(), arena.n_actions(), arena.n_effects(), arena.n_features(),
+//!     |s, e| arena.apply_effect(s, e),
+//!     arena.rewards().to_vec(), arena.terminals().to_vec(),
+//!     |s| arena.features(s),
+//! )?;
+//! // man-loreRL: n_features = MAN_FEATURES.len() (12) and |s| arena.man_features(s).
+//! ```
+//!
+//! The episode also ends when the robot is stuck; [`Episode`] applies that rule.
+//!
+//! # What the paper fixes and what is ours
+//!
+//! The paper gives the sizes, discretisation, robot, actions, effects, features, rewards, the
+//! stuck rule and which colour governs the dynamics in which arena. It does not give the
+//! layouts or the physics of its surfaces (beans, soil, hay, leaves, slopes, ...). The layouts
+//! ([`ArenaLayout::paper`]), the three surface models above, the mark positions inside their
+//! cells, the rule that the start cell's surface governs a whole move, the motor noise of
+//! [`Arena::step`] and the start jitter are our reconstruction.
+//!
+//! ```
+//! use rand::SeedableRng;
+//! use tes_perception_sim::arena::{ACTIONS, ARENA_FEATURES, Arena, ArenaId};
+//!
+//! let arena = Arena::new(ArenaId::Env1);
+//! assert_eq!(arena.n_states(), 10 * 10 * 8 + 1);
+//! assert_eq!(arena.n_features(), ARENA_FEATURES);
+//! let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+//! let start = arena.random_start(&mut rng);
+//! let s = arena.discretise(start);
+//! assert!(!arena.is_terminal(s));
+//! let (left, right) = ACTIONS[0];
+//! let pose = arena.move_robot(start, left, right, &mut rng);
+//! let next = arena.discretise(pose);
+//! let effect = arena.effect_between(s, next);
+//! assert!(effect < arena.n_effects());
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+use std::f64::consts::{FRAC_PI_4, PI, TAU};
+use std::fmt;
+
+pub use glam::DVec2;
+use rand::{Rng, RngExt};
+use thiserror::Error;
+
+/// One foot in cm.
+pub const FOOT_CM: f64 = 30.48;
+/// Orientations per cell (45° sectors).
+pub const N_ORIENTATIONS: usize = 8;
+/// Actions: both wheels 246°; left 90° and right −90°; left 90°.
+pub const N_ACTIONS: usize = 3;
+/// Relative moves an effect can have (forward, forward-left, forward-right, did not move).
+pub const N_MOVES: usize = 4;
+/// Turns an effect can have (none, 1 left, 2 left, 1 right, 2 right).
+pub const N_TURNS: usize = 5;
+/// Effects: [`N_MOVES`] × [`N_TURNS`].
+pub const N_EFFECTS: usize = N_MOVES * N_TURNS;
+/// Distance rings per kind of object (green marks, blue marks, the ball).
+pub const RINGS: usize = 100;
+/// Binary features per state (the paper's 312; `tes_topics::ARENA_FEATURES`).
+pub const ARENA_FEATURES: usize = 312;
+/// First green-ring feature: `GREEN_RINGS + i` is on iff a green mark is `i` to `i + 1`
+/// units from the cell's centre.
+pub const GREEN_RINGS: usize = 0;
+/// First blue-ring feature.
+pub const BLUE_RINGS: usize = GREEN_RINGS + RINGS;
+/// First ball-ring feature.
+pub const BALL_RINGS: usize = BLUE_RINGS + RINGS;
+/// First orientation indicator: `ORIENTATION_FEATURES + k` is on iff the orientation is `k`.
+pub const ORIENTATION_FEATURES: usize = BALL_RINGS + RINGS;
+/// On iff the cell holds a green mark.
+pub const GREEN_IN_CELL: usize = ORIENTATION_FEATURES + N_ORIENTATIONS;
+/// On iff the cell holds no green mark.
+pub const NO_GREEN_IN_CELL: usize = GREEN_IN_CELL + 1;
+/// On iff the cell holds a blue mark.
+pub const BLUE_IN_CELL: usize = GREEN_IN_CELL + 2;
+/// On iff the cell holds no blue mark.
+pub const NO_BLUE_IN_CELL: usize = GREEN_IN_CELL + 3;
+/// The 12 features man-loreRL is given (8 orientation indicators, then the 4 mark bits), as
+/// indices into the 312; [`Arena::man_features`] numbers them 0..12 in this order.
+pub const MAN_FEATURES: [u32; 12] = [
+    ORIENTATION_FEATURES as u32,
+    ORIENTATION_FEATURES as u32 + 1,
+    ORIENTATION_FEATURES as u32 + 2,
+    ORIENTATION_FEATURES as u32 + 3,
+    ORIENTATION_FEATURES as u32 + 4,
+    ORIENTATION_FEATURES as u32 + 5,
+    ORIENTATION_FEATURES as u32 + 6,
+    ORIENTATION_FEATURES as u32 + 7,
+    GREEN_IN_CELL as u32,
+    NO_GREEN_IN_CELL as u32,
+    BLUE_IN_CELL as u32,
+    NO_BLUE_IN_CELL as u32,
+];
+/// Reward for reaching the blue ball (terminal).
+pub const BALL_REWARD: f64 = 2.0;
+/// Reward for entering a death spot (terminal).
+pub const DEATH_REWARD: f64 = -1.0;
+/// Reward for leaving the area (terminal).
+pub const OUT_REWARD: f64 = -1.0;
+/// Reward for entering any other state.
+pub const STEP_REWARD: f64 = -0.05;
+/// An episode ends after this many consecutive actions that left the state unchanged.
+pub const STUCK_ACTIONS: usize = 4;
+/// Wheel diameter of the NXT robot, cm.
+pub const WHEEL_DIAMETER_CM: f64 = 8.16;
+/// Distance between the two driven wheels, cm.
+pub const TRACK_WIDTH_CM: f64 = 11.2;
+/// Wheel targets (left, right), degrees, of each action.
+pub const ACTIONS: [(f64, f64); N_ACTIONS] = [(246.0, 246.0), (90.0, -90.0), (90.0, 0.0)];
+/// Short names of the actions.
+pub const ACTION_NAMES: [&str; N_ACTIONS] = ["forward", "spin", "pivot"];
+/// Largest wheel rotation [`Arena::move_robot`] accepts per call; larger ones are clamped.
+pub const MAX_WHEEL_DEG: f64 = 3600.0;
+/// Half-width of the uniform position jitter of a random start, cm.
+pub const START_JITTER_CM: f64 = 1.0;
+/// Half-width of the uniform heading jitter of a random start, degrees.
+pub const START_JITTER_DEG: f64 = 5.0;
+
+/// Cell steps of the 8 orientations (counter-clockwise from east, `y` north).
+const DIRS: [(i32, i32); N_ORIENTATIONS] = [
+    (1, 0),
+    (1, 1),
+    (0, 1),
+    (-1, 1),
+    (-1, 0),
+    (-1, -1),
+    (0, -1),
+    (1, -1),
+];
+
+/// Where a mark sits inside its cell, in cells from the centre, by `(x + 2y) % 4`.
+const MARK_OFFSETS: [(f64, f64); 4] = [(0.0, 0.0), (0.2, -0.15), (-0.2, 0.1), (0.15, 0.2)];
+
+const FLAG_GREEN: u8 = 1;
+const FLAG_BLUE: u8 = 2;
+const FLAG_DEATH: u8 = 4;
+const FLAG_BALL: u8 = 8;
+
+/// One of the paper's three arenas.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ArenaId {
+    /// Environment 1: 6×6 ft, 10×10 cells, blue marks on beans.
+    Env1,
+    /// Environment 2: 5×5 ft, 8×8 cells, green marks on a slope.
+    Env2,
+    /// Environment 3: like Env 1's surfaces, with the ball, death spots and green marks moved.
+    Env3,
+}
+
+impl ArenaId {
+    /// All three, in order.
+    pub const ALL: [ArenaId; 3] = [ArenaId::Env1, ArenaId::Env2, ArenaId::Env3];
+
+    /// The paper's number, 1–3.
+    pub fn number(self) -> u32 {
+        match self {
+            ArenaId::Env1 => 1,
+            ArenaId::Env2 => 2,
+            ArenaId::Env3 => 3,
+        }
+    }
+
+    /// The arena with the paper's number `n` (1–3).
+    pub fn from_number(n: u32) -> Result<Self, ArenaError> {
+        match n {
+            1 => Ok(ArenaId::Env1),
+            2 => Ok(ArenaId::Env2),
+            3 => Ok(ArenaId::Env3),
+            other => Err(ArenaError::UnknownArena(other)),
+        }
+    }
+}
+
+impl fmt::Display for ArenaId {
+    /// "Env 1", "Env 2" or "Env 3".
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "Env {}", self.number())
+    }
+}
+
+/// The colour of a mark drawn on the floor.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum MarkColour {
+    /// Green.
+    Green,
+    /// Blue.
+    Blue,
+}
+
+impl MarkColour {
+    /// The other colour.
+    pub fn other(self) -> MarkColour {
+        match self {
+            MarkColour::Green => MarkColour::Blue,
+            MarkColour::Blue => MarkColour::Green,
+        }
+    }
+
+    /// The feature "a mark of this colour is in the cell".
+    pub fn in_cell_feature(self) -> usize {
+        match self {
+            MarkColour::Green => GREEN_IN_CELL,
+            MarkColour::Blue => BLUE_IN_CELL,
+        }
+    }
+
+    /// The feature "no mark of this colour is in the cell".
+    pub fn not_in_cell_feature(self) -> usize {
+        self.in_cell_feature() + 1
+    }
+
+    fn flag(self) -> u8 {
+        match self {
+            MarkColour::Green => FLAG_GREEN,
+            MarkColour::Blue => FLAG_BLUE,
+        }
+    }
+}
+
+/// What the floor of a cell is made of; it sets how the wheels slip (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Surface {
+    /// Plain carpet: firm grip, little noise.
+    Carpet,
+    /// Loose beans: both wheels lose traction, and in the deep middle of the cell they often
+    /// spin in place.
+    Beans,
+    /// Hay on a ramp falling to the south: the right wheel drags, climbing is harder, and the
+    /// robot slides downhill.
+    Slope,
+}
+
+impl Surface {
+    /// Lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Surface::Carpet => "carpet",
+            Surface::Beans => "beans",
+            Surface::Slope => "slope",
+        }
+    }
+
+    /// Draws this surface's slip for one move that starts at `offset` (cells from the cell's
+    /// centre, each coordinate in [−0.5, 0.5)) with `heading`, and wheel rotations of
+    /// `left_deg`, `right_deg`.
+    fn slip<R: Rng + ?Sized>(
+        self,
+        offset: DVec2,
+        heading: f64,
+        left_deg: f64,
+        right_deg: f64,
+        rng: &mut R,
+    ) -> Slip {
+        match self {
+            Surface::Carpet => Slip {
+                left: (1.0 + 0.03 * normal(rng)).clamp(0.85, 1.15),
+                right: (1.0 + 0.03 * normal(rng)).clamp(0.85, 1.15),
+                slide: DVec2::ZERO,
+                heading_noise: 1.5_f64.to_radians() * normal(rng),
+            },
+            Surface::Beans => {
+                let deep = offset.x.abs() < 0.3 && offset.y.abs() < 0.3;
+                let spin_probability = if deep { 0.4 } else { 0.12 };
+                let common = if rng.random::<f64>() < spin_probability {
+                    0.1 * rng.random::<f64>()
+                } else {
+                    (0.6 + 0.1 * normal(rng)).clamp(0.3, 0.9)
+                };
+                Slip {
+                    left: common * (1.0 + 0.12 * normal(rng)).clamp(0.6, 1.4),
+                    right: common * (1.0 + 0.12 * normal(rng)).clamp(0.6, 1.4),
+                    slide: DVec2::ZERO,
+                    heading_noise: 4.0_f64.to_radians() * normal(rng),
+                }
+            }
+            Surface::Slope => {
+                let uphill = if heading.sin() > 0.5 { 0.6 } else { 1.0 };
+                let activity = ((left_deg.abs() + right_deg.abs()) / (2.0 * ACTIONS[0].0)).min(1.5);
+                Slip {
+                    left: uphill * (0.95 + 0.04 * normal(rng)).clamp(0.8, 1.1),
+                    right: uphill * (0.5 + 0.08 * normal(rng)).clamp(0.25, 0.75),
+                    slide: DVec2::new(0.0, -2.5 * activity),
+                    heading_noise: 3.0_f64.to_radians() * normal(rng),
+                }
+            }
+        }
+    }
+}
+
+/// How one move slips: traction per wheel, a slide (cm, world frame) and extra heading (rad).
+struct Slip {
+    left: f64,
+    right: f64,
+    slide: DVec2,
+    heading_noise: f64,
+}
+
+/// A standard normal draw (Box–Muller).
+fn normal<R: Rng + ?Sized>(rng: &mut R) -> f64 {
+    let u1 = 1.0 - rng.random::<f64>(); // (0, 1]: ln is finite
+    let u2 = rng.random::<f64>();
+    (-2.0 * u1.ln()).sqrt() * (TAU * u2).cos()
+}
+
+/// `sin(x) / x`, 1 at 0.
+fn sinc(x: f64) -> f64 {
+    if x.abs() < 1e-9 { 1.0 } else { x.sin() / x }
+}
+
+/// The robot's continuous pose.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    /// Position of the point between the two driven wheels, cm from the south-west corner
+    /// (`x` east, `y` north).
+    pub position: DVec2,
+    /// Heading, rad, counter-clockwise from east; [`Arena::move_robot`] keeps it in [0, 2π].
+    pub heading: f64,
+}
+
+impl Pose {
+    /// A pose from coordinates in cm and a heading in rad.
+    pub fn new(x: f64, y: f64, heading: f64) -> Self {
+        Self {
+            position: DVec2::new(x, y),
+            heading,
+        }
+    }
+}
+
+/// The attributes of a state: the discretised pose (the fields of `tes_topics::StateAttributes`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct StateAttributes {
+    /// Column of the cell, from the west (`u16::MAX` for the out state).
+    pub x: u16,
+    /// Row of the cell, from the south (`u16::MAX` for the out state).
+    pub y: u16,
+    /// Heading sector 0..8, counter-clockwise from east (0 for the out state).
+    pub orientation: u16,
+}
+
+impl StateAttributes {
+    /// The attributes of the "out of the area" state.
+    pub const OUT: StateAttributes = StateAttributes {
+        x: u16::MAX,
+        y: u16::MAX,
+        orientation: 0,
+    };
+
+    /// Whether these are the out state's attributes.
+    pub fn is_out(self) -> bool {
+        self.x == u16::MAX && self.y == u16::MAX
+    }
+}
+
+/// How an effect moves the robot, relative to its orientation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Move {
+    /// To the neighbouring cell straight ahead.
+    Forward = 0,
+    /// To the neighbouring cell 45° to the left of ahead.
+    ForwardLeft = 1,
+    /// To the neighbouring cell 45° to the right of ahead.
+    ForwardRight = 2,
+    /// Stays in the cell.
+    Stay = 3,
+}
+
+impl Move {
+    /// All moves, in effect order.
+    pub const ALL: [Move; N_MOVES] = [
+        Move::Forward,
+        Move::ForwardLeft,
+        Move::ForwardRight,
+        Move::Stay,
+    ];
+
+    /// The orientation change (in 45° steps, left positive) of the direction moved, if any.
+    fn direction(self) -> Option<i32> {
+        match self {
+            Move::Forward => Some(0),
+            Move::ForwardLeft => Some(1),
+            Move::ForwardRight => Some(-1),
+            Move::Stay => None,
+        }
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            Move::Forward => "forward",
+            Move::ForwardLeft => "forward-left",
+            Move::ForwardRight => "forward-right",
+            Move::Stay => "no move",
+        }
+    }
+}
+
+/// How an effect turns the robot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Turn {
+    /// Keeps its orientation.
+    None = 0,
+    /// To the next orientation on the left (+45°).
+    Left = 1,
+    /// Two orientations to the left (+90°).
+    Left2 = 2,
+    /// To the next orientation on the right (−45°).
+    Right = 3,
+    /// Two orientations to the right (−90°).
+    Right2 = 4,
+}
+
+impl Turn {
+    /// All turns, in effect order.
+    pub const ALL: [Turn; N_TURNS] = [
+        Turn::None,
+        Turn::Left,
+        Turn::Left2,
+        Turn::Right,
+        Turn::Right2,
+    ];
+
+    /// The orientation change in 45° steps, counter-clockwise (left) positive.
+    pub fn delta(self) -> i32 {
+        match self {
+            Turn::None => 0,
+            Turn::Left => 1,
+            Turn::Left2 => 2,
+            Turn::Right => -1,
+            Turn::Right2 => -2,
+        }
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            Turn::None => "no turn",
+            Turn::Left => "1 left",
+            Turn::Left2 => "2 left",
+            Turn::Right => "1 right",
+            Turn::Right2 => "2 right",
+        }
+    }
+}
+
+/// One of the 20 effects: a move and a turn, both relative to the robot's orientation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Effect {
+    /// Where the robot went.
+    pub movement: Move,
+    /// How it turned.
+    pub turn: Turn,
+}
+
+impl Effect {
+    /// The effect with index `i` (< 20): move `i / 5`, turn `i % 5`.
+    pub fn from_index(i: usize) -> Option<Effect> {
+        Some(Effect {
+            movement: *Move::ALL.get(i / N_TURNS)?,
+            turn: Turn::ALL[i % N_TURNS],
+        })
+    }
+
+    /// The effect's index, `move · 5 + turn`.
+    pub fn index(self) -> usize {
+        self.movement as usize * N_TURNS + self.turn as usize
+    }
+}
+
+impl fmt::Display for Effect {
+    /// E.g. "forward-left, 1 right".
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}, {}", self.movement.name(), self.turn.name())
+    }
+}
+
+/// A readable name for feature `i` (< 312): "green ring 12", "blue ring 0", "ball ring 99",
+/// "orientation 3", "green mark in cell", "no green mark in cell", "blue mark in cell",
+/// "no blue mark in cell".
+pub fn feature_name(i: usize) -> Option<String> {
+    Some(match i {
+        _ if i < BLUE_RINGS => format!("green ring {}", i - GREEN_RINGS),
+        _ if i < BALL_RINGS => format!("blue ring {}", i - BLUE_RINGS),
+        _ if i < ORIENTATION_FEATURES => format!("ball ring {}", i - BALL_RINGS),
+        _ if i < GREEN_IN_CELL => format!("orientation {}", i - ORIENTATION_FEATURES),
+        GREEN_IN_CELL => "green mark in cell".to_owned(),
+        NO_GREEN_IN_CELL => "no green mark in cell".to_owned(),
+        BLUE_IN_CELL => "blue mark in cell".to_owned(),
+        NO_BLUE_IN_CELL => "no blue mark in cell".to_owned(),
+        _ => return None,
+    })
+}
+
+/// Why an arena (or a request to one) is invalid.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum ArenaError {
+    /// No arena has this number.
+    #[error("arena {0} does not exist (1, 2 or 3)")]
+    UnknownArena(u32),
+    /// No such action.
+    #[error("action {0} does not exist (0, 1 or 2)")]
+    BadAction(usize),
+    /// No such state.
+    #[error("state {state} does not exist ({states} states)")]
+    BadState {
+        /// The state given.
+        state: usize,
+        /// Number of states.
+        states: usize,
+    },
+    /// The episode already ended.
+    #[error("the episode is over")]
+    EpisodeOver,
+    /// Cells per side outside 2..=32.
+    #[error("{0} cells per side is outside 2..=32")]
+    BadSize(usize),
+    /// The side length is not a positive finite number of cm.
+    #[error("side length {0} cm is not positive and finite")]
+    BadSide(f64),
+    /// A mark or the ball lies outside the area (or is not finite).
+    #[error("{what} at ({x}, {y}) cm lies outside the area")]
+    OutsideArea {
+        /// "green mark", "blue mark" or "ball".
+        what: &'static str,
+        /// East coordinate, cm.
+        x: f64,
+        /// North coordinate, cm.
+        y: f64,
+    },
+    /// A death spot lies outside the grid.
+    #[error("death spot ({x}, {y}) lies outside the grid")]
+    DeathOutside {
+        /// Column.
+        x: usize,
+        /// Row.
+        y: usize,
+    },
+    /// The ball is on a death spot.
+    #[error("the ball lies on a death spot")]
+    BallOnDeath,
+    /// Every cell is terminal: nowhere to start.
+    #[error("every cell is a death spot or the ball: nowhere to start")]
+    NoStartCell,
+    /// A hand-drawn map is malformed.
+    #[error("map: {0}")]
+    BadMap(String),
+}
+
+/// The full description of an arena, from which [`Arena::from_layout`] derives everything.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ArenaLayout {
+    /// Cells per side (the grid is square), 2..=32.
+    pub cells: usize,
+    /// Side length, cm.
+    pub side_cm: f64,
+    /// The colour of the marks on the surface that changes the dynamics.
+    pub governing: MarkColour,
+    /// The surface under every governing-colour mark; everything else is carpet.
+    pub governing_surface: Surface,
+    /// Green mark positions, cm.
+    pub green_marks: Vec<DVec2>,
+    /// Blue mark positions, cm.
+    pub blue_marks: Vec<DVec2>,
+    /// Ball position, cm; its cell is the goal.
+    pub ball: DVec2,
+    /// Death spot cells `(x, y)`.
+    pub death_cells: Vec<(usize, usize)>,
+}
+
+/// Env 1 (north row first): `b` blue mark, `g` green mark, `+` both, `O` ball, `X` death.
+const ENV1_MAP: &str = "
+    . . . . . . . . . .
+    . . . g . . . . O .
+    . X . . . b b . . .
+    . . . . b b b . X .
+    . g . b b + . . . .
+    . . . b b . . g . .
+    . . . . . . X . . .
+    . . g . . . . . . .
+    . X . . . . . . g .
+    . . . . . . . . . .
+";
+
+/// Env 2: the green marks lie on the slope, the blue ones are decoys.
+const ENV2_MAP: &str = "
+    . . . . . . . .
+    . b . . X . O .
+    . . . g g g . .
+    . X . g + g b .
+    . . . g g . . .
+    . b . . . . X .
+    . . . . b . . .
+    X . . . . . . .
+";
+
+/// Env 3: Env 1's blue marks (and beans); ball, deaths and green marks elsewhere.
+const ENV3_MAP: &str = "
+    . . . . . . . . . .
+    . O . . . . g . . .
+    . . . . . b b . X .
+    . . X . b b b . . .
+    . . . b b b . g . .
+    g . . b b . . . . .
+    . . . . . . . . X .
+    . . . . g . X . . .
+    . . . . . . . . . .
+    . . . g . . . . . g
+";
+
+impl ArenaLayout {
+    /// The paper's arena `id`, as reconstructed here (the maps, north row first; `b` blue,
+    /// `g` green, `+` both, `O` ball, `X` death spot):
+    ///
+    /// ```text
+    ///  Env 1 (6 ft, beans)    Env 2 (5 ft, slope)    Env 3 (6 ft, beans)
+    ///  . . . . . . . . . .    . . . . . . . .        . . . . . . . . . .
+    ///  . . . g . . . . O .    . b . . X . O .        . O . . . . g . . .
+    ///  . X . . . b b . . .    . . . g g g . .        . . . . . b b . X .
+    ///  . . . . b b b . X .    . X . g + g b .        . . X . b b b . . .
+    ///  . g . b b + . . . .    . . . g g . . .        . . . b b b . g . .
+    ///  . . . b b . . g . .    . b . . . . X .        g . . b b . . . . .
+    ///  . . . . . . X . . .    . . . . b . . .        . . . . . . . . X .
+    ///  . . g . . . . . . .    X . . . . . . .        . . . . g . X . . .
+    ///  . X . . . . . . g .                           . . . . . . . . . .
+    ///  . . . . . . . . . .                           . . . g . . . . . g
+    /// ```
+    ///
+    /// The blue cells of Env 1 and Env 3 coincide (the same bean patch); green marks, ball and
+    /// death spots differ. Marks sit at fixed offsets from their cell's centre (see
+    /// [`ArenaLayout::from_map`]); the ball sits at its cell's centre.
+    pub fn paper(id: ArenaId) -> Self {
+        let (map, feet, governing, surface) = match id {
+            ArenaId::Env1 => (ENV1_MAP, 6.0, MarkColour::Blue, Surface::Beans),
+            ArenaId::Env2 => (ENV2_MAP, 5.0, MarkColour::Green, Surface::Slope),
+            ArenaId::Env3 => (ENV3_MAP, 6.0, MarkColour::Blue, Surface::Beans),
+        };
+        Self::from_map(map, feet * FOOT_CM, governing, surface)
+            .expect("the paper's maps are well-formed")
+    }
+
+    /// Parses a square map, north row first, one character per cell (whitespace ignored):
+    /// `.` plain, `g` green mark, `b` blue mark, `+` both, `O` the ball (exactly one), `X` a
+    /// death spot. A mark in cell `(x, y)` sits at the cell's centre shifted by a fixed
+    /// offset, `(0, 0)`, `(0.2, −0.15)`, `(−0.2, 0.1)` or `(0.15, 0.2)` cells for
+    /// `(x + 2y) % 4` = 0, 1, 2, 3; the ball at its cell's centre.
+    pub fn from_map(
+        map: &str,
+        side_cm: f64,
+        governing: MarkColour,
+        governing_surface: Surface,
+    ) -> Result<Self, ArenaError> {
+        let rows: Vec<Vec<char>> = map
+            .lines()
+            .map(|l| {
+                l.chars()
+                    .filter(|c| !c.is_whitespace())
+                    .collect::<Vec<char>>()
+            })
+            .filter(|r| !r.is_empty())
+            .collect();
+        let cells = rows.len();
+        if !(2..=32).contains(&cells) {
+            return Err(ArenaError::BadSize(cells));
+        }
+        if !(side_cm.is_finite() && side_cm > 0.0) {
+            return Err(ArenaError::BadSide(side_cm));
+        }
+        let cell_cm = side_cm / cells as f64;
+        let mut layout = Self {
+            cells,
+            side_cm,
+            governing,
+            governing_surface,
+            green_marks: Vec::new(),
+            blue_marks: Vec::new(),
+            ball: DVec2::ZERO,
+            death_cells: Vec::new(),
+        };
+        let mut balls = 0;
+        for (row, line) in rows.iter().enumerate() {
+            if line.len() != cells {
+                return Err(ArenaError::BadMap(format!(
+                    "row {row} has {} cells, the map has {cells} rows",
+                    line.len()
+                )));
+            }
+            let y = cells - 1 - row;
+            for (x, &c) in line.iter().enumerate() {
+                let centre = DVec2::new((x as f64 + 0.5) * cell_cm, (y as f64 + 0.5) * cell_cm);
+                let (ox, oy) = MARK_OFFSETS[(x + 2 * y) % 4];
+                let mark = centre + DVec2::new(ox, oy) * cell_cm;
+                match c {
+                    '.' => {}
+                    'g' => layout.green_marks.push(mark),
+                    'b' => layout.blue_marks.push(mark),
+                    '+' => {
+                        layout.green_marks.push(mark);
+                        layout.blue_marks.push(mark);
+                    }
+                    'O' => {
+                        layout.ball = centre;
+                        balls += 1;
+                    }
+                    'X' => layout.death_cells.push((x, y)),
+                    other => {
+                        return Err(ArenaError::BadMap(format!(
+                            "unknown cell {other:?} in row {row}"
+                        )));
+                    }
+                }
+            }
+        }
+        if balls != 1 {
+            return Err(ArenaError::BadMap(format!("{balls} balls, expected one")));
+        }
+        Ok(layout)
+    }
+}
+
+/// What one action did (see [`Arena::step`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepOutcome {
+    /// The wheel rotations (left, right; degrees) the motors actually made — the tacho deltas.
+    pub wheels_deg: (f64, f64),
+    /// The robot's new pose.
+    pub pose: Pose,
+    /// The state it is in.
+    pub state: usize,
+    /// The reward for entering `state`.
+    pub reward: f64,
+    /// Whether `state` ends the episode.
+    pub terminal: bool,
+}
+
+/// One arena: layout, physics, discretisation, effects, rewards and features.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Arena {
+    id: Option<ArenaId>,
+    layout: ArenaLayout,
+    cell_cm: f64,
+    /// [`FLAG_GREEN`] etc. per cell `y · cells + x`.
+    cell_flags: Vec<u8>,
+    /// Non-terminal cells.
+    starts: Vec<u32>,
+    /// Reward for entering each state.
+    reward: Vec<f64>,
+    terminal: Vec<bool>,
+    /// Sparse features, CSR.
+    offsets: Vec<usize>,
+    indices: Vec<u32>,
+    /// Per in-area state: orientation indicator and the governing colour's mark bit.
+    oracle: Vec<[u32; 2]>,
+    /// Per in-area state: man-loreRL's features, numbered 0..12.
+    man: Vec<[u32; 3]>,
+}
+
+impl Arena {
+    /// The paper's arena `id` ([`ArenaLayout::paper`]).
+    pub fn new(id: ArenaId) -> Self {
+        let mut arena =
+            Self::from_layout(ArenaLayout::paper(id)).expect("the paper's layouts are valid");
+        arena.id = Some(id);
+        arena
+    }
+
+    /// Builds and checks an arena from a layout: marks and ball inside the area, death spots
+    /// inside the grid and not under the ball, at least one cell to start in.
+    pub fn from_layout(layout: ArenaLayout) -> Result<Self, ArenaError> {
+        let cells = layout.cells;
+        if !(2..=32).contains(&cells) {
+            return Err(ArenaError::BadSize(cells));
+        }
+        let side = layout.side_cm;
+        if !(side.is_finite() && side > 0.0) {
+            return Err(ArenaError::BadSide(side));
+        }
+        let cell_cm = side / cells as f64;
+        let cell_of = |p: DVec2| -> Option<usize> {
+            let inside = (0.0..side).contains(&p.x) && (0.0..side).contains(&p.y);
+            inside.then(|| {
+                let x = ((p.x / cell_cm) as usize).min(cells - 1);
+                let y = ((p.y / cell_cm) as usize).min(cells - 1);
+                y * cells + x
+            })
+        };
+        let mut cell_flags = vec![0u8; cells * cells];
+        for (what, colour, marks) in [
+            ("green mark", MarkColour::Green, &layout.green_marks),
+            ("blue mark", MarkColour::Blue, &layout.blue_marks),
+        ] {
+            for &m in marks {
+                let c = cell_of(m).ok_or(ArenaError::OutsideArea {
+                    what,
+                    x: m.x,
+                    y: m.y,
+                })?;
+                cell_flags[c] |= colour.flag();
+            }
+        }
+        let ball_cell = cell_of(layout.ball).ok_or(ArenaError::OutsideArea {
+            what: "ball",
+            x: layout.ball.x,
+            y: layout.ball.y,
+        })?;
+        cell_flags[ball_cell] |= FLAG_BALL;
+        for &(x, y) in &layout.death_cells {
+            if x >= cells || y >= cells {
+                return Err(ArenaError::DeathOutside { x, y });
+            }
+            cell_flags[y * cells + x] |= FLAG_DEATH;
+        }
+        if cell_flags[ball_cell] & FLAG_DEATH != 0 {
+            return Err(ArenaError::BallOnDeath);
+        }
+        let starts: Vec<u32> = (0..cells * cells)
+            .filter(|&c| cell_flags[c] & (FLAG_BALL | FLAG_DEATH) == 0)
+            .map(|c| c as u32)
+            .collect();
+        if starts.is_empty() {
+            return Err(ArenaError::NoStartCell);
+        }
+
+        let n_in = cells * cells * N_ORIENTATIONS;
+        let mut reward = Vec::with_capacity(n_in + 1);
+        let mut terminal = Vec::with_capacity(n_in + 1);
+        let mut offsets = Vec::with_capacity(n_in + 2);
+        let mut indices = Vec::new();
+        let mut oracle = Vec::with_capacity(n_in);
+        let mut man = Vec::with_capacity(n_in);
+        offsets.push(0);
+        let unit = side / RINGS as f64;
+        let mut rings = Vec::new();
+        for c in 0..cells * cells {
+            let flags = cell_flags[c];
+            let centre = DVec2::new(
+                ((c % cells) as f64 + 0.5) * cell_cm,
+                ((c / cells) as f64 + 0.5) * cell_cm,
+            );
+            rings.clear();
+            for (base, points) in [
+                (GREEN_RINGS, layout.green_marks.as_slice()),
+                (BLUE_RINGS, layout.blue_marks.as_slice()),
+                (BALL_RINGS, std::slice::from_ref(&layout.ball)),
+            ] {
+                for &p in points {
+                    let d = p.distance(centre) / unit;
+                    if d < RINGS as f64 {
+                        rings.push((base + d.floor() as usize) as u32);
+                    }
+                }
+            }
+            rings.sort_unstable();
+            rings.dedup();
+            let green = flags & FLAG_GREEN != 0;
+            let blue = flags & FLAG_BLUE != 0;
+            let governing = flags & layout.governing.flag() != 0;
+            let (r, t) = if flags & FLAG_BALL != 0 {
+                (BALL_REWARD, true)
+            } else if flags & FLAG_DEATH != 0 {
+                (DEATH_REWARD, true)
+            } else {
+                (STEP_REWARD, false)
+            };
+            for o in 0..N_ORIENTATIONS {
+                reward.push(r);
+                terminal.push(t);
+                indices.extend_from_slice(&rings);
+                indices.push((ORIENTATION_FEATURES + o) as u32);
+                indices.push(if green {
+                    GREEN_IN_CELL
+                } else {
+                    NO_GREEN_IN_CELL
+                } as u32);
+                indices.push(if blue { BLUE_IN_CELL } else { NO_BLUE_IN_CELL } as u32);
+                offsets.push(indices.len());
+                let g = layout.governing;
+                let bit = if governing {
+                    g.in_cell_feature()
+                } else {
+                    g.not_in_cell_feature()
+                };
+                oracle.push([(ORIENTATION_FEATURES + o) as u32, bit as u32]);
+                man.push([o as u32, 8 + u32::from(!green), 10 + u32::from(!blue)]);
+            }
+        }
+        // The out state: −1, terminal, no features.
+        reward.push(OUT_REWARD);
+        terminal.push(true);
+        offsets.push(indices.len());
+        Ok(Self {
+            id: None,
+            layout,
+            cell_cm,
+            cell_flags,
+            starts,
+            reward,
+            terminal,
+            offsets,
+            indices,
+            oracle,
+            man,
+        })
+    }
+
+    /// Which of the paper's arenas this is (`None` for one built with [`Arena::from_layout`]).
+    pub fn id(&self) -> Option<ArenaId> {
+        self.id
+    }
+
+    /// The layout it was built from.
+    pub fn layout(&self) -> &ArenaLayout {
+        &self.layout
+    }
+
+    /// Cells per side (the grid is square).
+    pub fn cells(&self) -> usize {
+        self.layout.cells
+    }
+
+    /// Side length of the area, cm.
+    pub fn side_cm(&self) -> f64 {
+        self.layout.side_cm
+    }
+
+    /// Side length of a cell, cm.
+    pub fn cell_cm(&self) -> f64 {
+        self.cell_cm
+    }
+
+    /// The feature distance unit: the arena's width / 100, cm.
+    pub fn unit_cm(&self) -> f64 {
+        self.layout.side_cm / RINGS as f64
+    }
+
+    /// The colour whose marks lie on the dynamics-changing surface.
+    pub fn governing_colour(&self) -> MarkColour {
+        self.layout.governing
+    }
+
+    /// Number of states: `cells² · 8` in the area plus the out state.
+    pub fn n_states(&self) -> usize {
+        self.out_state() + 1
+    }
+
+    /// The absorbing "out of the area" state, the last one.
+    pub fn out_state(&self) -> usize {
+        self.layout.cells * self.layout.cells * N_ORIENTATIONS
+    }
+
+    /// Number of actions (3).
+    pub fn n_actions(&self) -> usize {
+        N_ACTIONS
+    }
+
+    /// Number of effects (20).
+    pub fn n_effects(&self) -> usize {
+        N_EFFECTS
+    }
+
+    /// Number of binary features (312).
+    pub fn n_features(&self) -> usize {
+        ARENA_FEATURES
+    }
+
+    /// The state with these attributes, if it exists ([`StateAttributes::OUT`] gives the out
+    /// state).
+    pub fn state_index(&self, a: StateAttributes) -> Option<usize> {
+        if a.is_out() {
+            return Some(self.out_state());
+        }
+        let (x, y, o) = (
+            usize::from(a.x),
+            usize::from(a.y),
+            usize::from(a.orientation),
+        );
+        let n = self.layout.cells;
+        (x < n && y < n && o < N_ORIENTATIONS).then_some((y * n + x) * N_ORIENTATIONS + o)
+    }
+
+    /// The attributes of `state` ([`StateAttributes::OUT`] for the out state), if it exists.
+    pub fn attributes(&self, state: usize) -> Option<StateAttributes> {
+        let out = self.out_state();
+        if state >= out {
+            return (state == out).then_some(StateAttributes::OUT);
+        }
+        let cell = state / N_ORIENTATIONS;
+        let n = self.layout.cells;
+        Some(StateAttributes {
+            x: (cell % n) as u16,
+            y: (cell / n) as u16,
+            orientation: (state % N_ORIENTATIONS) as u16,
+        })
+    }
+
+    /// The cell `(x, y)` a position lies in, or `None` outside the area (or not finite).
+    pub fn cell_of(&self, position: DVec2) -> Option<(usize, usize)> {
+        let side = self.layout.side_cm;
+        if !((0.0..side).contains(&position.x) && (0.0..side).contains(&position.y)) {
+            return None;
+        }
+        let n = self.layout.cells;
+        let x = ((position.x / self.cell_cm) as usize).min(n - 1);
+        let y = ((position.y / self.cell_cm) as usize).min(n - 1);
+        Some((x, y))
+    }
+
+    /// The centre of cell `(x, y)`, cm.
+    pub fn cell_centre(&self, x: usize, y: usize) -> DVec2 {
+        DVec2::new(
+            (x as f64 + 0.5) * self.cell_cm,
+            (y as f64 + 0.5) * self.cell_cm,
+        )
+    }
+
+    /// The orientation sector 0..8 of a heading: the nearest multiple of 45°.
+    /// A non-finite heading counts as 0.
+    pub fn orientation_of(heading: f64) -> u16 {
+        if !heading.is_finite() {
+            return 0;
+        }
+        ((heading.rem_euclid(TAU) / FRAC_PI_4).round() as i64).rem_euclid(N_ORIENTATIONS as i64)
+            as u16
+    }
+
+    /// The discretised pose's attributes ([`StateAttributes::OUT`] outside the area).
+    pub fn discretise_attributes(&self, pose: Pose) -> StateAttributes {
+        match self.cell_of(pose.position) {
+            Some((x, y)) => StateAttributes {
+                x: x as u16,
+                y: y as u16,
+                orientation: Self::orientation_of(pose.heading),
+            },
+            None => StateAttributes::OUT,
+        }
+    }
+
+    /// The state a pose is in: its cell and heading sector, or the out state outside the
+    /// area (including a non-finite position).
+    pub fn discretise(&self, pose: Pose) -> usize {
+        match self.cell_of(pose.position) {
+            Some((x, y)) => {
+                (y * self.layout.cells + x) * N_ORIENTATIONS
+                    + usize::from(Self::orientation_of(pose.heading))
+            }
+            None => self.out_state(),
+        }
+    }
+
+    /// The ideal pose of a state: its cell's centre, heading `orientation · 45°`; `None` for
+    /// the out state or a state that does not exist.
+    pub fn state_pose(&self, state: usize) -> Option<Pose> {
+        let a = self.attributes(state).filter(|a| !a.is_out())?;
+        Some(Pose {
+            position: self.cell_centre(usize::from(a.x), usize::from(a.y)),
+            heading: f64::from(a.orientation) * FRAC_PI_4,
+        })
+    }
+
+    /// Whether cell `(x, y)` holds a mark of `colour` (false outside the grid).
+    pub fn has_mark(&self, colour: MarkColour, x: usize, y: usize) -> bool {
+        self.flags(x, y) & colour.flag() != 0
+    }
+
+    /// Whether cell `(x, y)` is a death spot.
+    pub fn is_death_cell(&self, x: usize, y: usize) -> bool {
+        self.flags(x, y) & FLAG_DEATH != 0
+    }
+
+    /// Whether cell `(x, y)` holds the ball.
+    pub fn is_ball_cell(&self, x: usize, y: usize) -> bool {
+        self.flags(x, y) & FLAG_BALL != 0
+    }
+
+    fn flags(&self, x: usize, y: usize) -> u8 {
+        let n = self.layout.cells;
+        if x < n && y < n {
+            self.cell_flags[y * n + x]
+        } else {
+            0
+        }
+    }
+
+    /// The positions of the marks of `colour`, cm.
+    pub fn marks(&self, colour: MarkColour) -> &[DVec2] {
+        match colour {
+            MarkColour::Green => &self.layout.green_marks,
+            MarkColour::Blue => &self.layout.blue_marks,
+        }
+    }
+
+    /// The ball's position, cm.
+    pub fn ball(&self) -> DVec2 {
+        self.layout.ball
+    }
+
+    /// The floor of cell `(x, y)`: the governing surface under a governing-colour mark,
+    /// carpet elsewhere (and outside the grid).
+    pub fn surface(&self, x: usize, y: usize) -> Surface {
+        if self.has_mark(self.layout.governing, x, y) {
+            self.layout.governing_surface
+        } else {
+            Surface::Carpet
+        }
+    }
+
+    /// Moves the robot from `pose` by the wheel rotations `left_deg` and `right_deg` (degrees,
+    /// forward positive: the tacho deltas the brick reports), with the slip of the surface of
+    /// the cell it starts in (see the module docs), drawn from `rng`.
+    ///
+    /// A pose outside the area (including a non-finite position) is returned unchanged: the
+    /// robot has left and the out state is absorbing. A non-finite rotation counts as 0 and
+    /// rotations are clamped to ±[`MAX_WHEEL_DEG`]; a non-finite heading counts as 0. The
+    /// heading of the result is in [0, 2π].
+    pub fn move_robot<R: Rng + ?Sized>(
+        &self,
+        pose: Pose,
+        left_deg: f64,
+        right_deg: f64,
+        rng: &mut R,
+    ) -> Pose {
+        let Some((x, y)) = self.cell_of(pose.position) else {
+            return pose;
+        };
+        let clean = |d: f64| {
+            if d.is_finite() {
+                d.clamp(-MAX_WHEEL_DEG, MAX_WHEEL_DEG)
+            } else {
+                0.0
+            }
+        };
+        let (left_deg, right_deg) = (clean(left_deg), clean(right_deg));
+        let heading = if pose.heading.is_finite() {
+            pose.heading.rem_euclid(TAU)
+        } else {
+            0.0
+        };
+        let offset = (pose.position - self.cell_centre(x, y)) / self.cell_cm;
+        let slip = self
+            .surface(x, y)
+            .slip(offset, heading, left_deg, right_deg, rng);
+        let cm_per_deg = PI * WHEEL_DIAMETER_CM / 360.0;
+        let left = left_deg * cm_per_deg * slip.left;
+        let right = right_deg * cm_per_deg * slip.right;
+        // Exact differential-drive arc: the chord has length ds·sinc(dθ/2) along θ + dθ/2.
+        let d_theta = (right - left) / TRACK_WIDTH_CM;
+        let ds = 0.5 * (left + right);
+        let mid = heading + 0.5 * d_theta;
+        let chord = ds * sinc(0.5 * d_theta);
+        Pose {
+            position: pose.position + DVec2::new(mid.cos(), mid.sin()) * chord + slip.slide,
+            heading: (heading + d_theta + slip.heading_noise).rem_euclid(TAU),
+        }
+    }
+
+    /// Takes `action` from `pose`: the motors turn the wheels to the action's targets
+    /// ([`ACTIONS`]) with ±2 % motor noise (a wheel with target 0 stays still), then
+    /// [`Arena::move_robot`] moves the robot; the result is discretised.
+    pub fn step<R: Rng + ?Sized>(
+        &self,
+        pose: Pose,
+        action: usize,
+        rng: &mut R,
+    ) -> Result<StepOutcome, ArenaError> {
+        let &(l, r) = ACTIONS.get(action).ok_or(ArenaError::BadAction(action))?;
+        let mut motor = |target: f64| target * (1.0 + 0.02 * normal(rng));
+        let wheels_deg = (motor(l), motor(r));
+        let next = self.move_robot(pose, wheels_deg.0, wheels_deg.1, rng);
+        let state = self.discretise(next);
+        Ok(StepOutcome {
+            wheels_deg,
+            pose: next,
+            state,
+            reward: self.reward[state],
+            terminal: self.terminal[state],
+        })
+    }
+
+    /// A random start: a uniformly random non-terminal cell and orientation; the pose at the
+    /// cell's centre ± [`START_JITTER_CM`] on each axis, heading `orientation · 45°` ±
+    /// [`START_JITTER_DEG`] (uniform).
+    pub fn random_start<R: Rng + ?Sized>(&self, rng: &mut R) -> Pose {
+        let cell = self.starts[rng.random_range(0..self.starts.len())] as usize;
+        let n = self.layout.cells;
+        let o = rng.random_range(0..N_ORIENTATIONS);
+        let jitter = |rng: &mut R, half: f64| (2.0 * rng.random::<f64>() - 1.0) * half;
+        let dx = jitter(rng, START_JITTER_CM);
+        let dy = jitter(rng, START_JITTER_CM);
+        let dh = jitter(rng, START_JITTER_DEG.to_radians());
+        Pose {
+            position: self.cell_centre(cell % n, cell / n) + DVec2::new(dx, dy),
+            heading: (o as f64 * FRAC_PI_4 + dh).rem_euclid(TAU),
+        }
+    }
+
+    /// Where `effect` takes the robot from `state` (the effects' known meaning): the move's
+    /// neighbour cell and the turned orientation; the out state if the move leaves the grid;
+    /// the out state stays out.
+    ///
+    /// # Panics
+    ///
+    /// If `state ≥ n_states()` or `effect ≥ 20`.
+    pub fn apply_effect(&self, state: usize, effect: usize) -> usize {
+        let out = self.out_state();
+        assert!(state <= out, "state {state} does not exist");
+        let Some(e) = Effect::from_index(effect) else {
+            panic!("effect {effect} does not exist");
+        };
+        if state == out {
+            return out;
+        }
+        let n = self.layout.cells as i32;
+        let cell = (state / N_ORIENTATIONS) as i32;
+        let o = (state % N_ORIENTATIONS) as i32;
+        let (mut x, mut y) = (cell % n, cell / n);
+        if let Some(d) = e.movement.direction() {
+            let (dx, dy) = DIRS[(o + d).rem_euclid(N_ORIENTATIONS as i32) as usize];
+            (x, y) = (x + dx, y + dy);
+            if !(0..n).contains(&x) || !(0..n).contains(&y) {
+                return out;
+            }
+        }
+        let o2 = (o + e.turn.delta()).rem_euclid(N_ORIENTATIONS as i32);
+        ((y * n + x) * N_ORIENTATIONS as i32 + o2) as usize
+    }
+
+    /// The effect that explains a transition from `prev` to `next`.
+    ///
+    /// The rule (the controller's `derive_effect` uses the same): the lowest-numbered effect
+    /// `e` with `apply_effect(prev, e) == next` if there is one; otherwise the effect whose
+    /// destination is nearest to `next` — fewest cells away (Chebyshev distance), then least
+    /// turned (circular distance between orientations), then lowest-numbered. A destination
+    /// out of the area counts as infinitely far from a state inside it and vice versa, so
+    /// reaching the out state where no effect leads out gives effect 0 (forward, no turn).
+    /// Real motion can skip cells, hence the rule.
+    ///
+    /// # Panics
+    ///
+    /// If either state is `≥ n_states()`.
+    pub fn effect_between(&self, prev: usize, next: usize) -> usize {
+        let out = self.out_state();
+        assert!(next <= out, "state {next} does not exist");
+        let mut best = (0, (i64::MAX, i64::MAX));
+        let target = self.attributes(next).unwrap_or(StateAttributes::OUT);
+        for e in 0..N_EFFECTS {
+            let to = self.apply_effect(prev, e);
+            if to == next {
+                return e;
+            }
+            let a = self.attributes(to).unwrap_or(StateAttributes::OUT);
+            let distance = if a.is_out() || target.is_out() {
+                (i64::MAX, 0)
+            } else {
+                let cells = (i64::from(a.x) - i64::from(target.x))
+                    .abs()
+                    .max((i64::from(a.y) - i64::from(target.y)).abs());
+                let turn = (i64::from(a.orientation) - i64::from(target.orientation))
+                    .rem_euclid(N_ORIENTATIONS as i64);
+                (cells, turn.min(N_ORIENTATIONS as i64 - turn))
+            };
+            if distance < best.1 {
+                best = (e, distance);
+            }
+        }
+        best.0
+    }
+
+    /// The reward for entering `state`: +2 the ball's cell, −1 a death spot or the out state,
+    /// −0.05 otherwise.
+    ///
+    /// # Panics
+    ///
+    /// If `state ≥ n_states()`.
+    pub fn reward(&self, state: usize) -> f64 {
+        self.reward[state]
+    }
+
+    /// Whether entering `state` ends the episode (the ball, a death spot, the out state).
+    ///
+    /// # Panics
+    ///
+    /// If `state ≥ n_states()`.
+    pub fn is_terminal(&self, state: usize) -> bool {
+        self.terminal[state]
+    }
+
+    /// The reward for entering each state, by state.
+    pub fn rewards(&self) -> &[f64] {
+        &self.reward
+    }
+
+    /// Whether each state is terminal, by state.
+    pub fn terminals(&self) -> &[bool] {
+        &self.terminal
+    }
+
+    /// The features on in `state`, sorted: the green, blue and ball rings that hold a mark
+    /// (or the ball), the orientation indicator, and one of each pair of mark bits — the same
+    /// for all 8 orientations of a cell but for the orientation. The out state has none.
+    ///
+    /// # Panics
+    ///
+    /// If `state ≥ n_states()`.
+    pub fn features(&self, state: usize) -> &[u32] {
+        &self.indices[self.offsets[state]..self.offsets[state + 1]]
+    }
+
+    /// The features the true dynamics depend on, over all states: the 8 orientation
+    /// indicators and the governing colour's two mark bits (the dynamics also depend on the
+    /// continuous pose inside the state, which no feature shows).
+    pub fn dynamics_features(&self) -> [u32; 10] {
+        let g = self.layout.governing;
+        let mut f = [0u32; 10];
+        for (k, v) in f.iter_mut().take(N_ORIENTATIONS).enumerate() {
+            *v = (ORIENTATION_FEATURES + k) as u32;
+        }
+        f[8] = g.in_cell_feature() as u32;
+        f[9] = g.not_in_cell_feature() as u32;
+        f
+    }
+
+    /// The features of `state` the true dynamics depend on, sorted (the oracle factors the
+    /// fRmax and fEpsG baselines are told): its orientation indicator and its governing-colour
+    /// mark bit. Empty for the out state.
+    ///
+    /// # Panics
+    ///
+    /// If `state ≥ n_states()`.
+    pub fn oracle_features(&self, state: usize) -> &[u32] {
+        assert!(state < self.n_states(), "state {state} does not exist");
+        self.oracle.get(state).map_or(&[], |f| f.as_slice())
+    }
+
+    /// The true dynamics context of `state`: `8 · (governing mark in the cell) + orientation`,
+    /// in 0..[`Arena::n_oracle_contexts`]; `None` for the out state or a state that does not
+    /// exist.
+    pub fn oracle_context(&self, state: usize) -> Option<usize> {
+        if state >= self.out_state() {
+            return None;
+        }
+        let cell = state / N_ORIENTATIONS;
+        let governing = self.cell_flags[cell] & self.layout.governing.flag() != 0;
+        Some(usize::from(governing) * N_ORIENTATIONS + state % N_ORIENTATIONS)
+    }
+
+    /// Number of oracle contexts (2 × 8).
+    pub fn n_oracle_contexts(&self) -> usize {
+        2 * N_ORIENTATIONS
+    }
+
+    /// man-loreRL's features of `state`, numbered 0..12 as in [`MAN_FEATURES`] (0..8
+    /// orientation, 8 green mark in cell, 9 no green mark, 10 blue mark in cell, 11 no blue
+    /// mark), sorted: three per state, none for the out state.
+    ///
+    /// # Panics
+    ///
+    /// If `state ≥ n_states()`.
+    pub fn man_features(&self, state: usize) -> &[u32] {
+        assert!(state < self.n_states(), "state {state} does not exist");
+        self.man.get(state).map_or(&[], |f| f.as_slice())
+    }
+}
+
+impl fmt::Display for Arena {
+    /// The map, north row first: `.` plain, `g` green mark, `b` blue mark, `+` both, `O` the
+    /// ball, `X` a death spot.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let n = self.layout.cells;
+        for y in (0..n).rev() {
+            let row: Vec<String> = (0..n)
+                .map(|x| {
+                    let c = match self.flags(x, y) {
+                        fl if fl & FLAG_BALL != 0 => 'O',
+                        fl if fl & FLAG_DEATH != 0 => 'X',
+                        fl if fl & (FLAG_GREEN | FLAG_BLUE) == FLAG_GREEN | FLAG_BLUE => '+',
+                        fl if fl & FLAG_GREEN != 0 => 'g',
+                        fl if fl & FLAG_BLUE != 0 => 'b',
+                        _ => '.',
+                    };
+                    c.to_string()
+                })
+                .collect();
+            writeln!(f, "{}", row.join(" "))?;
+        }
+        Ok(())
+    }
+}
+
+/// How an episode stands after an action.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EpisodeStatus {
+    /// The episode goes on.
+    Continuing,
+    /// A terminal state was entered (the ball, a death spot or the out state).
+    Terminal,
+    /// The state did not change for [`STUCK_ACTIONS`] consecutive actions.
+    Stuck,
+}
+
+/// What one action meant for the episode.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EpisodeStep {
+    /// The reward for entering the new state.
+    pub reward: f64,
+    /// Whether the episode goes on.
+    pub status: EpisodeStatus,
+}
+
+/// Tracks one episode's states: rewards, terminal states and the stuck rule (the episode also
+/// ends after [`STUCK_ACTIONS`] consecutive actions that did not change the state).
+///
+/// ```
+/// use tes_perception_sim::arena::{Arena, ArenaId, Episode, EpisodeStatus, StateAttributes};
+///
+/// let arena = Arena::new(ArenaId::Env2);
+/// let start = arena
+///     .state_index(StateAttributes { x: 0, y: 3, orientation: 0 })
+///     .ok_or("no such state")?;
+/// let mut episode = Episode::new(&arena, start)?;
+/// for _ in 0..3 {
+///     assert_eq!(episode.observe(&arena, start)?.status, EpisodeStatus::Continuing);
+/// }
+/// assert_eq!(episode.observe(&arena, start)?.status, EpisodeStatus::Stuck);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+#[derive(Debug, Clone, PartialEq)]
+pub struct Episode {
+    state: usize,
+    unchanged: usize,
+    actions: usize,
+    total_reward: f64,
+    status: EpisodeStatus,
+}
+
+impl Episode {
+    /// Starts an episode in `start` (an episode started in a terminal state is over at once).
+    pub fn new(arena: &Arena, start: usize) -> Result<Self, ArenaError> {
+        if start >= arena.n_states() {
+            return Err(ArenaError::BadState {
+                state: start,
+                states: arena.n_states(),
+            });
+        }
+        Ok(Self {
+            state: start,
+            unchanged: 0,
+            actions: 0,
+            total_reward: 0.0,
+            status: if arena.is_terminal(start) {
+                EpisodeStatus::Terminal
+            } else {
+                EpisodeStatus::Continuing
+            },
+        })
+    }
+
+    /// Records that the last action led to `next`: its reward and whether the episode ends
+    /// (a terminal state wins over being stuck).
+    pub fn observe(&mut self, arena: &Arena, next: usize) -> Result<EpisodeStep, ArenaError> {
+        if next >= arena.n_states() {
+            return Err(ArenaError::BadState {
+                state: next,
+                states: arena.n_states(),
+            });
+        }
+        if self.status != EpisodeStatus::Continuing {
+            return Err(ArenaError::EpisodeOver);
+        }
+        let reward = arena.reward(next);
+        self.unchanged = if next == self.state {
+            self.unchanged + 1
+        } else {
+            0
+        };
+        self.state = next;
+        self.actions += 1;
+        self.total_reward += reward;
+        self.status = if arena.is_terminal(next) {
+            EpisodeStatus::Terminal
+        } else if self.unchanged >= STUCK_ACTIONS {
+            EpisodeStatus::Stuck
+        } else {
+            EpisodeStatus::Continuing
+        };
+        Ok(EpisodeStep {
+            reward,
+            status: self.status,
+        })
+    }
+
+    /// The current state.
+    pub fn state(&self) -> usize {
+        self.state
+    }
+
+    /// Actions observed so far.
+    pub fn actions(&self) -> usize {
+        self.actions
+    }
+
+    /// Sum of the rewards so far.
+    pub fn total_reward(&self) -> f64 {
+        self.total_reward
+    }
+
+    /// Consecutive actions, up to now, that left the state unchanged.
+    pub fn unchanged_streak(&self) -> usize {
+        self.unchanged
+    }
+
+    /// How the episode stands.
+    pub fn status(&self) -> EpisodeStatus {
+        self.status
+    }
+
+    /// Whether the episode has ended (terminal or stuck).
+    pub fn is_over(&self) -> bool {
+        self.status != EpisodeStatus::Continuing
+    }
+}
+
+#[cfg(test)]
+mod tests;
