@@ -476,7 +476,10 @@ pub fn run(
             (reward, steps, episode_misses) = (0.0, 0, 0);
         } else if obs.flags & observation_flags::RESYNC != 0 {
             if pending.take().is_some() {
-                tracing::warn!(seq = obs.seq, "the last command's outcome was lost; not learning from it");
+                tracing::warn!(
+                    seq = obs.seq,
+                    "the last command's outcome was lost; not learning from it"
+                );
             }
         } else if let Some((from, action)) = pending.take() {
             let effect = derive_effect(&map, from, state);
