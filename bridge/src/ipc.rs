@@ -116,11 +116,7 @@ pub fn run<T: Transport, C: Clock>(
         .signal_handling_mode(signals)
         .create::<ipc::Service>()
         .map_err(ipc_err("create the node"))?;
-    let commands = node
-        .service_builder(&name(&names.command)?)
-        .publish_subscribe::<Command>()
-        .open_or_create()
-        .map_err(ipc_err("open the command service"))?;
+    let commands = tes_topics::channel::pubsub::<Command>(&node, &names.command, 0)?;
     let subscriber = commands
         .subscriber_builder()
         .create()
@@ -134,11 +130,7 @@ pub fn run<T: Transport, C: Clock>(
         .listener_builder()
         .create()
         .map_err(ipc_err("create the command listener"))?;
-    let states = node
-        .service_builder(&name(&names.motor_state)?)
-        .publish_subscribe::<MotorState>()
-        .open_or_create()
-        .map_err(ipc_err("open the motor state service"))?;
+    let states = tes_topics::channel::pubsub::<MotorState>(&node, &names.motor_state, 0)?;
     let publisher = states
         .publisher_builder()
         .create()

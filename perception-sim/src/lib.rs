@@ -4,6 +4,7 @@
 //!   features, logistic true dynamics, and the 15-task suite the transfer experiments use.
 //! * [`arena`] — the paper's §5.2 robot arenas (Env 1–3): a differential-drive robot with
 //!   surface-dependent wheel slip, 8 orientations, 20 effects and the 312 camera features.
+//! * [`process`] — the perception-sim process: an arena and its camera over iceoryx2.
 //!
 //! Every world is seeded and reproducible; per-step methods allocate nothing.
 //!
@@ -22,3 +23,4 @@
 
 pub mod arena;
 pub mod grid;
+pub mod process;

@@ -102,6 +102,16 @@ pub fn monotonic_ns() -> u64 {
         .unwrap_or(0)
 }
 
+/// Raises the returned flag on SIGINT or SIGTERM: every TES process stops its loop cleanly on
+/// either (saving what it must) instead of dying mid-write.
+pub fn stop_on_signals() -> std::io::Result<std::sync::Arc<AtomicBool>> {
+    let stop = std::sync::Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, stop.clone())?;
+    }
+    Ok(stop)
+}
+
 /// Creates a process's iceoryx2 node with an explicit default config (no "no config file"
 /// warning); `handle_signals` lets iceoryx2 turn SIGINT/SIGTERM into a termination request
 /// (a launcher that handles signals itself passes `false`).
@@ -142,6 +152,25 @@ pub fn clean_stale_resources() -> Result<usize, IpcError> {
     Ok(cleaned)
 }
 
+/// Opens (or creates) a publish–subscribe service with the settings every TES process uses
+/// (subscriber buffer [`BUFFER`], `history` samples for late subscribers). Every opener of a
+/// service must use these, since iceoryx2 refuses to open a service with other settings.
+pub fn pubsub<T: ZeroCopySend + Copy + fmt::Debug + 'static>(
+    node: &Node<ipc::Service>,
+    name: &str,
+    history: usize,
+) -> Result<
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>,
+    IpcError,
+> {
+    node.service_builder(&service_name(name)?)
+        .publish_subscribe::<T>()
+        .history_size(history)
+        .subscriber_max_buffer_size(history.max(BUFFER))
+        .open_or_create()
+        .map_err(ipc_err("open a publish-subscribe service"))
+}
+
 fn service_name(name: &str) -> Result<ServiceName, IpcError> {
     ServiceName::new(name).map_err(ipc_err("use the service name"))
 }
@@ -161,13 +190,7 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Outbox<T> {
         event: &str,
         history: usize,
     ) -> Result<Self, IpcError> {
-        let service = node
-            .service_builder(&service_name(name)?)
-            .publish_subscribe::<T>()
-            .history_size(history)
-            .subscriber_max_buffer_size(history.max(BUFFER))
-            .open_or_create()
-            .map_err(ipc_err("open a publish-subscribe service"))?;
+        let service = pubsub::<T>(node, name, history)?;
         let publisher = service
             .publisher_builder()
             .create()
@@ -244,13 +267,7 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Inbox<T> {
         history: usize,
         strategy: WaitStrategy,
     ) -> Result<Self, IpcError> {
-        let service = node
-            .service_builder(&service_name(name)?)
-            .publish_subscribe::<T>()
-            .history_size(history)
-            .subscriber_max_buffer_size(history.max(BUFFER))
-            .open_or_create()
-            .map_err(ipc_err("open a publish-subscribe service"))?;
+        let service = pubsub::<T>(node, name, history)?;
         let subscriber = service
             .subscriber_builder()
             .create()
@@ -321,9 +338,13 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Inbox<T> {
             }
             // Drain every pending notification, then look again: a sample published between
             // the last look and the wait still wakes us, because its notification is pending.
-            self.listener
-                .timed_wait(|_| {}, left.min(STOP_POLL))
-                .map_err(ipc_err("wait on the listener"))?;
+            match self.listener.timed_wait(|_| {}, left.min(STOP_POLL)) {
+                Ok(_) => {}
+                // A signal (SIGINT/SIGTERM to stop us) interrupted the wait: look at the stop
+                // flag again rather than fail.
+                Err(iceoryx2::port::listener::ListenerWaitError::InterruptSignal) => continue,
+                Err(e) => return Err(ipc_err("wait on the listener")(e)),
+            }
             self.listener
                 .try_wait(|_| {})
                 .map_err(ipc_err("drain the listener"))?;

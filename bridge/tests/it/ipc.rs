@@ -94,11 +94,8 @@ fn bridge_loop_turns_commands_into_motor_states() {
         .create::<ipc::Service>()
         .expect("node");
     let sn = |s: &str| ServiceName::new(s).expect("valid name");
-    let cmd_service = retry(|| {
-        node.service_builder(&sn(&names.command))
-            .publish_subscribe::<Command>()
-            .open_or_create()
-    });
+    // The shared settings every TES process opens its publish-subscribe services with.
+    let cmd_service = retry(|| tes_topics::channel::pubsub::<Command>(&node, &names.command, 0));
     let publisher = cmd_service.publisher_builder().create().expect("publisher");
     let cmd_event = retry(|| {
         node.service_builder(&sn(&names.command_event))
@@ -106,11 +103,8 @@ fn bridge_loop_turns_commands_into_motor_states() {
             .open_or_create()
     });
     let notifier = cmd_event.notifier_builder().create().expect("notifier");
-    let state_service = retry(|| {
-        node.service_builder(&sn(&names.motor_state))
-            .publish_subscribe::<MotorState>()
-            .open_or_create()
-    });
+    let state_service =
+        retry(|| tes_topics::channel::pubsub::<MotorState>(&node, &names.motor_state, 0));
     let subscriber = state_service
         .subscriber_builder()
         .create()

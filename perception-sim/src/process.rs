@@ -1,0 +1,413 @@
+//! The perception-sim process: the simulated arena and the overhead camera of the paper's
+//! Fig. 7 (the observatory system).
+//!
+//! At start it publishes the arena's [`WorldMap`] (kept as history, so a controller that starts
+//! later still gets it). Then, per episode: it places the robot at a random start and
+//! publishes an [`Observation`]; every time the bridge reports that a commanded motion has
+//! finished (a [`MotorState`] flagged `SETTLED` after a new command), it turns the wheel
+//! rotations the brick measured into a new pose — with the arena's surface-dependent slip —
+//! waits the settle time (the paper's 200 ms, scaled by the real-time factor), discretises the
+//! pose and publishes the next observation with its reward. An episode ends at a terminal
+//! state, when the robot is stuck for four actions, or at the step cap.
+//!
+//! If no motion report arrives within `motor_timeout_ms` of an observation, the observation
+//! is published again, flagged `RESYNC` (the controller then re-decides without learning from
+//! a command whose outcome is unknown).
+
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::Deserialize;
+use tes_topics::channel::{self, Idle, Inbox, IpcError, Outbox, WaitStrategy, monotonic_ns};
+use tes_topics::{
+    FeatureBits, MAX_STATES, MotorState, Observation, StateAttributes, WorldMap, motor_flags,
+    observation_flags, service,
+};
+use thiserror::Error;
+
+use crate::arena::{Arena, ArenaError, ArenaId, Episode, EpisodeStatus};
+
+/// Settings of the perception-sim process (TOML; every key optional).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PerceptionConfig {
+    /// `arena`: 1, 2 or 3 (default 3).
+    pub arena: u32,
+    /// `episodes`: how many to run before exiting (default 20).
+    pub episodes: u32,
+    /// `seed`: start poses and slip (default 1).
+    pub seed: u64,
+    /// `real_time_factor`: 1.0 = the paper's physical 200 ms settle; 0 = none (default).
+    pub real_time_factor: f64,
+    /// `settle_ms`: the idle time after a motion at real-time factor 1 (default 200).
+    pub settle_ms: u64,
+    /// `step_cap`: actions after which an episode is cut off (default 100).
+    pub step_cap: u32,
+    /// `wait`: block (default), spin, spin-then-block[:µs].
+    pub wait: String,
+    /// `service_prefix`: prefixed to every iceoryx2 service name.
+    pub service_prefix: String,
+    /// `motor_timeout_ms`: re-publish an observation (flagged RESYNC) when no motion report
+    /// follows it within this time (default 5000).
+    pub motor_timeout_ms: u64,
+    /// `left_port`, `right_port`: which NXT output ports (0 = A, 1 = B, 2 = C) drive the left
+    /// and right wheels (defaults 1 and 2, as the bridge's).
+    pub left_port: usize,
+    /// See `left_port`.
+    pub right_port: usize,
+}
+
+impl Default for PerceptionConfig {
+    fn default() -> Self {
+        Self {
+            arena: 3,
+            episodes: 20,
+            seed: 1,
+            real_time_factor: 0.0,
+            settle_ms: 200,
+            step_cap: 100,
+            wait: "block".into(),
+            service_prefix: String::new(),
+            motor_timeout_ms: 5000,
+            left_port: 1,
+            right_port: 2,
+        }
+    }
+}
+
+/// A setting that is out of range, named by its key.
+#[derive(Debug, Clone, PartialEq, Error)]
+#[error("perception setting `{key}`: {reason}")]
+pub struct ConfigError {
+    /// The TOML key.
+    pub key: &'static str,
+    /// What is wrong.
+    pub reason: String,
+}
+
+impl PerceptionConfig {
+    /// Parses a TOML document with these keys (unknown keys are refused) and checks it.
+    pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
+        let cfg: Self = toml::from_str(text).map_err(|e| ConfigError {
+            key: "(file)",
+            reason: e.to_string(),
+        })?;
+        cfg.check()?;
+        Ok(cfg)
+    }
+
+    /// Checks every key; returns the wait strategy.
+    pub fn check(&self) -> Result<WaitStrategy, ConfigError> {
+        let bad = |key, reason: &str| {
+            Err(ConfigError {
+                key,
+                reason: reason.to_owned(),
+            })
+        };
+        if ArenaId::from_number(self.arena).is_err() {
+            return bad("arena", "must be 1, 2 or 3");
+        }
+        if self.episodes == 0 {
+            return bad("episodes", "must be at least 1");
+        }
+        if !(self.real_time_factor.is_finite() && self.real_time_factor >= 0.0) {
+            return bad("real_time_factor", "must be a finite number >= 0");
+        }
+        if self.step_cap == 0 {
+            return bad("step_cap", "must be at least 1");
+        }
+        if self.motor_timeout_ms == 0 {
+            return bad("motor_timeout_ms", "must be at least 1");
+        }
+        if self.left_port > 2 || self.right_port > 2 || self.left_port == self.right_port {
+            return bad(
+                "left_port",
+                "left_port and right_port must be different ports 0-2",
+            );
+        }
+        self.wait.parse::<WaitStrategy>().map_err(|e| ConfigError {
+            key: "wait",
+            reason: e.to_string(),
+        })
+    }
+}
+
+/// Why perception stopped with an error.
+#[derive(Debug, Error)]
+pub enum PerceptionError {
+    /// A bad setting.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// An iceoryx2 failure.
+    #[error(transparent)]
+    Ipc(#[from] IpcError),
+    /// The arena refused a state (a bug).
+    #[error("arena: {0}")]
+    Arena(#[from] ArenaError),
+    /// The arena does not fit a world map.
+    #[error("the arena has {0} states, more than a world map holds ({MAX_STATES})")]
+    TooBig(usize),
+}
+
+/// What a perception run did.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct PerceptionSummary {
+    /// Episodes finished.
+    pub episodes: u32,
+    /// Observations published.
+    pub observations: u64,
+    /// Observations re-published because no motion report came.
+    pub resyncs: u64,
+    /// Total reward over all episodes.
+    pub reward: f64,
+}
+
+/// The arena's structure as a [`WorldMap`].
+pub fn world_map(arena: &Arena) -> Result<Box<WorldMap>, PerceptionError> {
+    let n = arena.n_states();
+    if n > MAX_STATES {
+        return Err(PerceptionError::TooBig(n));
+    }
+    let mut map = Box::new(WorldMap::EMPTY);
+    map.seq = 1;
+    map.world = arena.id().map_or(0, ArenaId::number);
+    map.n_states = n as u32;
+    map.n_actions = arena.n_actions() as u32;
+    map.n_effects = arena.n_effects() as u32;
+    map.n_features = arena.n_features() as u32;
+    map.width = arena.cells() as u16;
+    map.height = arena.cells() as u16;
+    map.orientations = crate::arena::N_ORIENTATIONS as u16;
+    for (a, &(l, r)) in crate::arena::ACTIONS.iter().enumerate() {
+        map.action_wheels[a] = [l.round() as i32, r.round() as i32];
+    }
+    for s in 0..n {
+        for e in 0..arena.n_effects() {
+            map.next_state[s][e] = arena.apply_effect(s, e) as u16;
+        }
+        map.reward[s] = arena.reward(s) as f32;
+        map.terminal[s] = u8::from(arena.is_terminal(s));
+        map.features[s] = bits(arena.features(s));
+    }
+    Ok(map)
+}
+
+fn bits(features: &[u32]) -> FeatureBits {
+    let mut b = FeatureBits::EMPTY;
+    for &i in features {
+        b.set(i as usize);
+    }
+    b
+}
+
+fn attributes(arena: &Arena, state: usize) -> StateAttributes {
+    arena.attributes(state).map_or(
+        StateAttributes {
+            x: u16::MAX,
+            y: u16::MAX,
+            orientation: 0,
+            reserved: 0,
+        },
+        |a| {
+            if a.is_out() {
+                StateAttributes {
+                    x: u16::MAX,
+                    y: u16::MAX,
+                    orientation: 0,
+                    reserved: 0,
+                }
+            } else {
+                StateAttributes {
+                    x: a.x,
+                    y: a.y,
+                    orientation: a.orientation,
+                    reserved: 0,
+                }
+            }
+        },
+    )
+}
+
+/// Runs perception for the configured episodes, or until `stop` is raised.
+pub fn run(
+    config: &PerceptionConfig,
+    stop: &AtomicBool,
+) -> Result<PerceptionSummary, PerceptionError> {
+    let strategy = config.check()?;
+    let arena = Arena::new(ArenaId::from_number(config.arena).map_err(PerceptionError::Arena)?);
+    let p = &config.service_prefix;
+    let node = channel::node(false)?;
+    let maps: Outbox<WorldMap> = Outbox::open(
+        &node,
+        &format!("{p}{}", service::WORLD_MAP),
+        &format!("{p}{}", service::WORLD_MAP_EVENT),
+        1,
+    )?;
+    let observations: Outbox<Observation> = Outbox::open(
+        &node,
+        &format!("{p}{}", service::OBSERVATION),
+        &format!("{p}{}", service::OBSERVATION_EVENT),
+        0,
+    )?;
+    let motors: Inbox<MotorState> = Inbox::open(
+        &node,
+        &format!("{p}{}", service::MOTOR_STATE),
+        &format!("{p}{}", service::MOTOR_STATE_EVENT),
+        0,
+        strategy,
+    )?;
+    let map = world_map(&arena)?;
+    maps.send(*map)?;
+    tracing::info!(arena = %arena.id().map_or("custom".into(), |a| a.to_string()), states = arena.n_states(), "world map published");
+
+    let settle = Duration::from_millis(config.settle_ms).mul_f64(config.real_time_factor);
+    let motor_timeout = Duration::from_millis(config.motor_timeout_ms);
+    let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
+    let mut summary = PerceptionSummary::default();
+    let mut seq = 0u64;
+    // Tacho counts at the last settled motion, and the last command whose motion we used.
+    let mut counts: Option<[i32; 2]> = None;
+    let mut last_command = 0u64;
+    let ports = [config.left_port, config.right_port];
+    for episode in 0..config.episodes {
+        let mut pose = arena.random_start(&mut rng);
+        let mut state = arena.discretise(pose);
+        let mut tracker = Episode::new(&arena, state)?;
+        let mut flags = observation_flags::EPISODE_START;
+        let mut reward = 0.0f64;
+        let mut after_command = 0;
+        let mut step = 0u32;
+        loop {
+            seq += 1;
+            observations.send(Observation {
+                seq,
+                stamp_ns: monotonic_ns(),
+                after_command,
+                episode,
+                step,
+                state: attributes(&arena, state),
+                n_features: arena.n_features() as u32,
+                features: bits(arena.features(state)),
+                reward: reward as f32,
+                flags,
+            })?;
+            summary.observations += 1;
+            if flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0 {
+                break;
+            }
+            // Wait for the motion a new command caused to finish.
+            let motion = loop {
+                match motors.next(motor_timeout, stop)? {
+                    Err(Idle::Stopped) => return Ok(summary),
+                    Err(Idle::Timeout) => break None,
+                    Ok(m) => {
+                        let now = [m.tacho_count[ports[0]], m.tacho_count[ports[1]]];
+                        let settled = m.flags & motor_flags::SETTLED != 0;
+                        if m.after_command > last_command && settled {
+                            let before = counts.unwrap_or([0, 0]);
+                            counts = Some(now);
+                            last_command = m.after_command;
+                            break Some((m.after_command, now[0] - before[0], now[1] - before[1]));
+                        }
+                        if m.after_command <= last_command && settled {
+                            // A heartbeat at rest: the baseline for the next motion.
+                            counts = Some(now);
+                        }
+                    }
+                }
+            };
+            let Some((command, left, right)) = motion else {
+                summary.resyncs += 1;
+                tracing::warn!(
+                    seq,
+                    "no motion report within {motor_timeout:?}; re-publishing the observation"
+                );
+                flags = observation_flags::RESYNC;
+                reward = 0.0;
+                continue;
+            };
+            pose = arena.move_robot(pose, f64::from(left), f64::from(right), &mut rng);
+            if !settle.is_zero() {
+                std::thread::sleep(settle);
+            }
+            state = arena.discretise(pose);
+            let outcome = tracker.observe(&arena, state)?;
+            reward = outcome.reward;
+            summary.reward += reward;
+            step += 1;
+            after_command = command;
+            flags = match outcome.status {
+                EpisodeStatus::Terminal => observation_flags::TERMINAL,
+                EpisodeStatus::Stuck => observation_flags::TRUNCATED,
+                EpisodeStatus::Continuing if step >= config.step_cap => {
+                    observation_flags::TRUNCATED
+                }
+                EpisodeStatus::Continuing => 0,
+            };
+        }
+        summary.episodes += 1;
+        tracing::info!(
+            episode,
+            reward = tracker.total_reward(),
+            actions = step,
+            "episode over"
+        );
+    }
+    Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_world_map_matches_the_arena() {
+        for id in ArenaId::ALL {
+            let arena = Arena::new(id);
+            let map = world_map(&arena).unwrap();
+            map.check().unwrap();
+            assert_eq!(map.n_states as usize, arena.n_states());
+            assert_eq!(map.out_state(), arena.out_state());
+            for s in (0..arena.n_states()).step_by(7) {
+                let a = attributes(&arena, s);
+                assert_eq!(map.state_index(a), Some(s), "state {s}");
+                assert_eq!(
+                    map.features[s]
+                        .iter_ones()
+                        .map(|i| i as u32)
+                        .collect::<Vec<_>>(),
+                    arena.features(s)
+                );
+                assert_eq!(map.terminal[s] != 0, arena.is_terminal(s));
+            }
+            assert_eq!(map.action_wheels[0], [246, 246]);
+        }
+    }
+
+    #[test]
+    fn settings_are_checked_by_key() {
+        assert!(PerceptionConfig::default().check().is_ok());
+        for (text, key) in [
+            ("arena = 4", "arena"),
+            ("episodes = 0", "episodes"),
+            ("real_time_factor = -1.0", "real_time_factor"),
+            ("step_cap = 0", "step_cap"),
+            ("wait = \"doze\"", "wait"),
+            ("left_port = 2", "left_port"),
+        ] {
+            assert_eq!(
+                PerceptionConfig::from_toml(text).unwrap_err().key,
+                key,
+                "{text}"
+            );
+        }
+        assert!(
+            PerceptionConfig::from_toml("arenna = 1")
+                .unwrap_err()
+                .reason
+                .contains("arenna")
+        );
+    }
+}
