@@ -45,7 +45,7 @@ pub struct PerceptionConfig {
     pub settle_ms: u64,
     /// `step_cap`: actions after which an episode is cut off (default 100).
     pub step_cap: u32,
-    /// `wait`: block (default), spin, spin-then-block[:µs].
+    /// `wait`: `block` (default), `spin`, `spin-then-block` or `spin-then-block:<µs>`.
     pub wait: String,
     /// `service_prefix`: prefixed to every iceoryx2 service name.
     pub service_prefix: String,
