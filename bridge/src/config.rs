@@ -259,7 +259,8 @@ pub struct BridgeConfig {
     pub poll: PollConfig,
     /// `[ipc]`.
     pub ipc: IpcConfig,
-    /// `[brick]`: the simulated brick's physics.
+    /// `[brick]`: the simulated brick's physics, and `time_scale`, how many times faster than
+    /// the wall clock it runs (default 1; see [`with_time_scale`](Self::with_time_scale)).
     pub brick: SimBrickConfig,
     /// `[motors]` and `[[actions]]`.
     pub actions: ActionMap,
@@ -392,6 +393,43 @@ impl BridgeConfig {
         })
     }
 
+    /// Sets `seed` (the simulated brick's and the link delay's).
+    pub fn with_seed(mut self, seed: u64) -> Self {
+        self.seed = seed;
+        self
+    }
+
+    /// Sets `[ipc] service_prefix`; refused (key `ipc.service_prefix`) beyond 64 bytes.
+    pub fn with_service_prefix(mut self, prefix: impl Into<String>) -> Result<Self, ConfigError> {
+        let prefix = prefix.into();
+        if prefix.len() > 64 {
+            return Err(invalid("ipc.service_prefix", "must be at most 64 bytes"));
+        }
+        self.ipc.service_prefix = prefix;
+        Ok(self)
+    }
+
+    /// Sets `[brick] time_scale`: the simulated brick runs `k` times faster than the wall
+    /// clock, and with it every period and deadline of the bridge (they are brick time).
+    /// Refused (key `brick.time_scale`) unless finite and > 0; ignored by serial transports.
+    ///
+    /// ```
+    /// use tes_bridge::config::BridgeConfig;
+    ///
+    /// let cfg = BridgeConfig::default().with_seed(3).with_time_scale(200.0)?;
+    /// assert_eq!(cfg.brick.time_scale, 200.0);
+    /// let err = BridgeConfig::default().with_time_scale(0.0).unwrap_err();
+    /// assert!(err.to_string().contains("brick.time_scale"));
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    pub fn with_time_scale(mut self, k: f64) -> Result<Self, ConfigError> {
+        self.brick.time_scale = k;
+        self.brick
+            .check()
+            .map_err(|e| invalid(&format!("brick.{}", e.key), e.reason))?;
+        Ok(self)
+    }
+
     /// The serial settings for `path`.
     pub fn serial_config(&self, path: &Path) -> SerialConfig {
         SerialConfig {
@@ -485,5 +523,56 @@ mod tests {
         // Unknown keys are refused, with the key in the parser's message.
         assert!(msg("[watchdog]\ndeadline = 10").contains("deadline"));
         assert!(msg("bogus = 1").contains("bogus"));
+    }
+
+    #[test]
+    fn time_scale_is_a_positive_finite_brick_key() {
+        assert_eq!(BridgeConfig::default().brick.time_scale, 1.0);
+        let cfg = BridgeConfig::from_toml_str("[brick]\ntime_scale = 200.0").expect("valid");
+        assert_eq!(cfg.brick.time_scale, 200.0);
+        let cfg = BridgeConfig::from_toml_str("[brick]\ntime_scale = 0.5").expect("valid");
+        assert_eq!(cfg.brick.time_scale, 0.5);
+        for bad in ["0.0", "-1.0", "inf", "nan"] {
+            let err = BridgeConfig::from_toml_str(&format!("[brick]\ntime_scale = {bad}"))
+                .expect_err(bad)
+                .to_string();
+            assert!(err.contains("brick.time_scale"), "{bad}: {err}");
+            assert!(err.contains("finite and > 0"), "{bad}: {err}");
+        }
+        // A serial transport accepts it (and ignores it when running).
+        let cfg = BridgeConfig::from_toml_str(
+            "transport = \"serial:/dev/rfcomm0\"\n[brick]\ntime_scale = 4.0",
+        )
+        .expect("valid");
+        assert_eq!(cfg.brick.time_scale, 4.0);
+    }
+
+    #[test]
+    fn launcher_overrides_without_a_file() {
+        let cfg = BridgeConfig::default()
+            .with_seed(11)
+            .with_service_prefix("launch/7/")
+            .expect("short prefix")
+            .with_time_scale(50.0)
+            .expect("valid scale");
+        assert_eq!(cfg.seed, 11);
+        assert_eq!(cfg.ipc.service_prefix, "launch/7/");
+        assert_eq!(cfg.brick.time_scale, 50.0);
+        let same = BridgeConfig::from_toml_str(
+            "seed = 11\n[ipc]\nservice_prefix = \"launch/7/\"\n[brick]\ntime_scale = 50.0",
+        )
+        .expect("valid");
+        assert_eq!(cfg, same);
+        let long = "x".repeat(65);
+        let err = BridgeConfig::default()
+            .with_service_prefix(long)
+            .expect_err("too long");
+        assert!(err.to_string().contains("ipc.service_prefix"), "{err}");
+        for bad in [0.0, -2.0, f64::NAN, f64::INFINITY] {
+            let err = BridgeConfig::default()
+                .with_time_scale(bad)
+                .expect_err("bad scale");
+            assert!(err.to_string().contains("brick.time_scale"), "{bad}: {err}");
+        }
     }
 }

@@ -5,6 +5,14 @@
 //! [`Bridge`], and publishes each [`MotorState`] it produces, notifying the motor-state event
 //! after each. Ports stay on the calling thread (`ipc::Service` ports are not `Send`).
 //!
+//! The bridge runs on the clock passed in, and so do its poll periods, settling and watchdog
+//! deadline; only the waits are wall time. Each wait is the clock time until
+//! [`Bridge::next_wakeup`] converted by [`Clock::real_duration`], and the listener's deadline
+//! is the watchdog deadline converted the same way, so with a
+//! [`ScaledClock`](crate::clock::ScaledClock) at `k` everything happens `k` times sooner in
+//! wall time. [`process::run`](crate::process::run) builds the bridge and its clock from a
+//! config.
+//!
 //! ```no_run
 //! use tes_bridge::{brick::SimBrick, bridge::Bridge, clock::MonotonicClock, config::BridgeConfig};
 //! use tes_bridge::ipc::{self, RunOptions, ServiceNames};
@@ -155,8 +163,10 @@ pub fn run<T: Transport, C: Clock>(
         .signal_handling_mode(signals)
         .create::<ipc::Service>()
         .map_err(ipc_err("create the wait set"))?;
+    // The watchdog deadline is clock time, like everything the bridge decides; the wait set
+    // only needs it in wall time to wake the loop when the controller falls silent.
     let _guard = waitset
-        .attach_deadline(&listener, bridge.watchdog().deadline())
+        .attach_deadline(&listener, clock.real_duration(bridge.watchdog().deadline()))
         .map_err(ipc_err("attach the listener"))?;
     tracing::info!(command = %names.command, motor_state = %names.motor_state, "bridge loop running");
 
@@ -180,9 +190,10 @@ pub fn run<T: Transport, C: Clock>(
         if opts.stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst)) {
             break;
         }
-        let mut timeout = bridge
-            .next_wakeup(clock.now())
-            .max(Duration::from_micros(100));
+        // Brick time to wall time (the simulated brick may run faster than the wall clock).
+        let mut timeout = clock
+            .real_duration(bridge.next_wakeup(clock.now()))
+            .max(Duration::from_micros(20));
         if opts.stop.is_some() {
             timeout = timeout.min(Duration::from_millis(100));
         }

@@ -13,7 +13,8 @@
 //! - [`actions`]: the config-driven action → SETOUTPUTSTATE mapping (the paper's three
 //!   actions by default).
 //! - [`watchdog`]: brakes the motors when commands stop arriving while a motor runs.
-//! - [`bridge`]: the logic tying these together, free of IPC; [`ipc`] runs it over iceoryx2.
+//! - [`bridge`]: the logic tying these together, free of IPC; [`ipc`] runs it over iceoryx2;
+//!   [`process`] builds it all from a config (the `bridge run` binary and `tes launch`).
 //! - [`pty`]: serves the simulated brick on a pseudo-terminal for any NXT client.
 //! - [`config`]: the TOML configuration; `transport = "serial:/dev/rfcomm0"` swaps in a real NXT.
 //!
@@ -46,6 +47,7 @@ pub mod clock;
 pub mod config;
 pub mod ipc;
 pub mod nxt;
+pub mod process;
 pub mod pty;
 pub mod transport;
 pub mod watchdog;

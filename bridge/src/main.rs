@@ -1,7 +1,7 @@
 //! `bridge`: the TES actuation process, and a simulated NXT brick server.
 //!
 //! ```text
-//! bridge run [--config FILE]                       commands in over iceoryx2, NXT telegrams out
+//! bridge run [--config FILE] [--time-scale K]      commands in over iceoryx2, NXT telegrams out
 //! bridge brick --pty PATH [--seed N] [--config FILE] [--link-delay]
 //!                                                   serve the simulated brick on a pseudo-terminal
 //! ```
@@ -14,14 +14,11 @@ use std::time::Duration;
 use anyhow::Context as _;
 use clap::{Parser, Subcommand};
 use tes_bridge::brick::SimBrick;
-use tes_bridge::bridge::Bridge;
-use tes_bridge::clock::MonotonicClock;
-use tes_bridge::config::{BridgeConfig, TransportKind};
-use tes_bridge::ipc::{self, RunOptions, ServiceNames};
+use tes_bridge::clock::{Clock, ScaledClock};
+use tes_bridge::config::BridgeConfig;
+use tes_bridge::ipc::RunOptions;
 use tes_bridge::pty::PtyServer;
-use tes_bridge::transport::{
-    DelayedTransport, LinkDelay, SerialTransport, SimTransport, Transport,
-};
+use tes_bridge::transport::LinkDelay;
 
 #[derive(Debug, Parser)]
 #[command(
@@ -41,6 +38,10 @@ enum Cmd {
         /// Bridge configuration (TOML); defaults to the simulated brick and the paper's actions.
         #[arg(long)]
         config: Option<PathBuf>,
+        /// Run the simulated brick K times faster than the wall clock (overrides the config's
+        /// `[brick] time_scale`; ignored by serial transports).
+        #[arg(long, value_name = "K")]
+        time_scale: Option<f64>,
     },
     /// Serve the simulated brick on a new pseudo-terminal linked at PATH, until SIGINT/SIGTERM.
     Brick {
@@ -75,7 +76,13 @@ fn main() -> anyhow::Result<()> {
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
-        Cmd::Run { config } => run(load(config.as_deref())?),
+        Cmd::Run { config, time_scale } => {
+            let mut cfg = load(config.as_deref())?;
+            if let Some(k) = time_scale {
+                cfg = cfg.with_time_scale(k).context("--time-scale")?;
+            }
+            run(cfg)
+        }
         Cmd::Brick {
             pty,
             seed,
@@ -99,35 +106,7 @@ fn main() -> anyhow::Result<()> {
 }
 
 fn run(cfg: BridgeConfig) -> anyhow::Result<()> {
-    let clock = MonotonicClock::new();
-    let transport: Box<dyn Transport> = match &cfg.transport {
-        TransportKind::Sim => {
-            let brick = SimBrick::new(cfg.brick.clone(), cfg.seed)
-                .context("building the simulated brick")?;
-            let sim = SimTransport::new(brick, clock);
-            match cfg.link_delay {
-                Some((mean, jitter)) => Box::new(DelayedTransport::new(
-                    sim,
-                    LinkDelay::new(mean, jitter, cfg.seed),
-                )),
-                None => Box::new(sim),
-            }
-        }
-        TransportKind::Serial(path) => {
-            if cfg.link_delay.is_some() {
-                tracing::warn!(
-                    "link_delay is for the simulated brick; ignored with a serial transport"
-                );
-            }
-            Box::new(SerialTransport::new(cfg.serial_config(path)))
-        }
-    };
-    tracing::info!(transport = %transport.describe(), seed = cfg.seed, "bridge starting");
-    let mut bridge = Bridge::new(transport, &cfg);
-    let names = ServiceNames::with_prefix(&cfg.ipc.service_prefix);
-    let summary = ipc::run(&mut bridge, &clock, &names, &RunOptions::process())
-        .context("running the bridge loop")?;
-    tracing::info!(?summary, stats = ?bridge.stats(), "bridge stopped");
+    tes_bridge::process::run(&cfg, &RunOptions::process()).context("running the bridge")?;
     Ok(())
 }
 
@@ -141,17 +120,23 @@ fn brick(link: &Path, cfg: &BridgeConfig) -> anyhow::Result<()> {
         SimBrick::new(cfg.brick.clone(), cfg.seed).context("building the simulated brick")?;
     let server = PtyServer::open(link)
         .with_context(|| format!("serving the brick at {}", link.display()))?;
-    let delay = cfg
-        .link_delay
-        .map(|(mean, jitter)| LinkDelay::new(mean, jitter, cfg.seed));
+    // The brick (and its simulated link) run at `[brick] time_scale`, like under `bridge run`.
+    let clock = ScaledClock::new(cfg.brick.time_scale);
+    let delay = cfg.link_delay.map(|(mean, jitter)| {
+        LinkDelay::new(
+            clock.real_duration(mean),
+            clock.real_duration(jitter),
+            cfg.seed,
+        )
+    });
     tracing::info!(
         link = %link.display(),
         device = %server.slave_path().display(),
         seed = cfg.seed,
         link_delay = ?cfg.link_delay,
+        time_scale = clock.scale(),
         "simulated NXT brick serving; stop with SIGINT or SIGTERM"
     );
-    let clock = MonotonicClock::new();
     let stats = server
         .serve(&mut brick, &clock, delay, &stop)
         .context("serving the brick")?;

@@ -7,6 +7,7 @@ use clap::{Parser, Subcommand};
 
 mod experiment;
 mod fit;
+mod launch;
 mod library;
 
 /// TES: online sparse view learning (mDAGL), model-based RL and transfer for a real-time robot.
@@ -25,6 +26,29 @@ enum Command {
     Experiment(experiment::ExperimentArgs),
     /// Inspect a saved view library.
     Library(library::LibraryArgs),
+    /// Start perception-sim, controller and bridge as one process group.
+    Launch(launch::LaunchArgs),
+    /// Run one process of the group (used by `tes launch`).
+    #[command(hide = true)]
+    Child {
+        /// bridge, controller or perception-sim.
+        role: String,
+        /// The role's settings (TOML).
+        #[arg(long)]
+        config: std::path::PathBuf,
+    },
+}
+
+/// Children log to stderr (the launcher's terminal), level from `RUST_LOG` (default: warnings
+/// and errors only; the launcher prints the per-episode lines).
+fn init_child_logging() {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
 }
 
 fn main() -> ExitCode {
@@ -43,6 +67,11 @@ fn main() -> ExitCode {
         Command::Fit(args) => fit::run(&args),
         Command::Experiment(args) => experiment::run(&args),
         Command::Library(args) => library::run(&args),
+        Command::Launch(args) => launch::run(&args),
+        Command::Child { role, config } => {
+            init_child_logging();
+            launch::run_child(&role, &config)
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

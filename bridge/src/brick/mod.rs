@@ -79,6 +79,11 @@ pub struct SimBrickConfig {
     pub address: [u8; 6],
     /// Free user flash GETDEVICEINFO reports, bytes.
     pub free_flash: u32,
+    /// How many times faster than the wall clock the simulated physics runs (1 = physical
+    /// time). The bridge process drives the brick by a [`ScaledClock`](crate::clock::ScaledClock)
+    /// of this scale and converts its waits back to wall time; the watchdog deadline and poll
+    /// periods are in brick time, so they scale with it. Ignored by serial transports.
+    pub time_scale: f64,
 }
 
 impl Default for SimBrickConfig {
@@ -98,6 +103,7 @@ impl Default for SimBrickConfig {
             name: "NXT".to_owned(),
             address: [0x00, 0x16, 0x53, 0x0E, 0x5B, 0x01],
             free_flash: 98_304,
+            time_scale: 1.0,
         }
     }
 }
@@ -122,6 +128,7 @@ impl SimBrickConfig {
             ("coast_time_constant_s", self.coast_time_constant_s),
             ("brake_time_constant_s", self.brake_time_constant_s),
             ("stop_speed_dps", self.stop_speed_dps),
+            ("time_scale", self.time_scale),
         ];
         for (key, v) in positive {
             if !(v.is_finite() && v > 0.0) {

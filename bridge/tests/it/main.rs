@@ -5,4 +5,5 @@
 mod ipc;
 mod nxt_python;
 mod serial;
+mod time_scale;
 mod util;

@@ -1,0 +1,102 @@
+//! The bridge process's entry point, for the `bridge run` binary and for launchers: builds
+//! the transport the config names — the simulated brick (running at `[brick] time_scale`) or a
+//! serial link — and runs the iceoryx2 loop until a signal or the stop flag.
+//!
+//! Time: the [`Bridge`] (poll periods, settling, watchdog, keep-alive) runs on one clock, a
+//! [`ScaledClock`] at `time_scale` for the simulated brick and the wall clock (scale 1) for a
+//! serial link. So at `time_scale = k` every period and deadline of the config is *brick*
+//! time and lasts 1/k of it in wall time; the simulated link delay is brick time too.
+//!
+//! ```no_run
+//! use std::sync::Arc;
+//! use std::sync::atomic::AtomicBool;
+//! use tes_bridge::config::BridgeConfig;
+//! use tes_bridge::ipc::RunOptions;
+//!
+//! // What a launcher does: settings without a file, its own stop flag.
+//! let cfg = BridgeConfig::default()
+//!     .with_seed(7)
+//!     .with_service_prefix("run-42/")?
+//!     .with_time_scale(200.0)?;
+//! let stop = Arc::new(AtomicBool::new(false));
+//! let opts = RunOptions { handle_signals: false, stop: Some(Arc::clone(&stop)) };
+//! let summary = tes_bridge::process::run(&cfg, &opts)?;
+//! println!("{} commands", summary.commands);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+use thiserror::Error;
+
+use crate::brick::{BrickConfigError, SimBrick};
+use crate::bridge::Bridge;
+use crate::clock::{Clock, ScaledClock};
+use crate::config::{BridgeConfig, TransportKind};
+use crate::ipc::{self, IpcError, RunOptions, RunSummary, ServiceNames};
+use crate::transport::{DelayedTransport, LinkDelay, SerialTransport, SimTransport, Transport};
+
+/// Why the bridge process could not run.
+#[derive(Debug, Error)]
+pub enum ProcessError {
+    /// The simulated brick's settings are invalid.
+    #[error("the simulated brick: {0}")]
+    Brick(#[from] BrickConfigError),
+    /// The iceoryx2 loop failed.
+    #[error(transparent)]
+    Ipc(#[from] IpcError),
+}
+
+/// Runs the bridge with `cfg` until a signal (if `opts` handles them) or `opts.stop`; brakes
+/// the motors on the way out.
+///
+/// With `transport = "sim"` the brick runs at `cfg.brick.time_scale`; with a serial transport
+/// the time scale is ignored (with a warning) and everything runs in wall time. Fails if the
+/// simulated brick's settings are invalid (a `time_scale` that is not finite and > 0 set in
+/// code included) or iceoryx2 fails; a serial device that cannot be opened is retried, not
+/// an error.
+pub fn run(cfg: &BridgeConfig, opts: &RunOptions) -> Result<RunSummary, ProcessError> {
+    let sim = matches!(cfg.transport, TransportKind::Sim);
+    let clock = ScaledClock::new(if sim { cfg.brick.time_scale } else { 1.0 });
+    if !sim && cfg.brick.time_scale != 1.0 {
+        tracing::warn!(
+            time_scale = cfg.brick.time_scale,
+            "brick.time_scale is for the simulated brick; ignored with a serial transport"
+        );
+    }
+    let transport: Box<dyn Transport> = match &cfg.transport {
+        TransportKind::Sim => {
+            let brick = SimBrick::new(cfg.brick.clone(), cfg.seed)?;
+            let sim = SimTransport::new(brick, clock);
+            match cfg.link_delay {
+                // The simulated link belongs to the simulated world: its delay is brick time.
+                Some((mean, jitter)) => Box::new(DelayedTransport::new(
+                    sim,
+                    LinkDelay::new(
+                        clock.real_duration(mean),
+                        clock.real_duration(jitter),
+                        cfg.seed,
+                    ),
+                )),
+                None => Box::new(sim),
+            }
+        }
+        TransportKind::Serial(path) => {
+            if cfg.link_delay.is_some() {
+                tracing::warn!(
+                    "link_delay is for the simulated brick; ignored with a serial transport"
+                );
+            }
+            Box::new(SerialTransport::new(cfg.serial_config(path)))
+        }
+    };
+    tracing::info!(
+        transport = %transport.describe(),
+        seed = cfg.seed,
+        time_scale = clock.scale(),
+        "bridge starting"
+    );
+    let mut bridge = Bridge::new(transport, cfg);
+    let names = ServiceNames::with_prefix(&cfg.ipc.service_prefix);
+    let summary = ipc::run(&mut bridge, &clock, &names, opts)?;
+    tracing::info!(?summary, stats = ?bridge.stats(), "bridge stopped");
+    Ok(summary)
+}

@@ -1,0 +1,527 @@
+//! `tes launch`: perception-sim, controller and bridge as one process group.
+//!
+//! The three are separate OS processes (this executable re-run in each role, so one build
+//! serves all) sharing fixed-size buffers through iceoryx2. The launcher:
+//!
+//! * reads an optional TOML file (`[launch]`, `[perception]`, `[controller]`, `[bridge]`),
+//!   checks every child's settings *before* starting anything (a bad key is reported with its
+//!   name and the reason), and writes each child's settings to the run directory;
+//! * removes iceoryx2 resources left by crashed runs, then starts the children with a
+//!   parent-death signal (SIGTERM), so they die with the launcher even if it is killed;
+//! * relays the controller's per-episode lines and final summary;
+//! * when a child dies, says which and why, and either stops the others
+//!   (`restart = "never"`, the default) or respawns it (`restart = "on-failure"`, at most
+//!   `max_restarts` times, cleaning its stale resources first);
+//! * on Ctrl-C or SIGTERM — or when perception has run its episodes — stops the children as
+//!   ROS 2 launch does: SIGINT, then SIGTERM after `grace_ms`, then SIGKILL after another
+//!   `grace_ms`. The controller saves the library on the way out.
+//!
+//! It exits non-zero if a child failed.
+
+use std::io::{BufRead, BufReader};
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdout, Command, ExitStatus, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+use serde::Deserialize;
+use tes_bridge::config::BridgeConfig;
+use tes_controller::process::{ControllerConfig, default_data_dir};
+use tes_perception_sim::process::PerceptionConfig;
+use tes_topics::channel::{self, WaitStrategy};
+
+/// Arguments of `tes launch`.
+#[derive(Debug, Args)]
+pub struct LaunchArgs {
+    /// Launch file (TOML with `[launch]`, `[perception]`, `[controller]`, `[bridge]` tables);
+    /// without one, embedded defaults: arena Env 3, simulated brick, fastest real-time factor,
+    /// library in the default data directory.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Episodes to run (overrides `[launch] episodes`).
+    #[arg(long)]
+    episodes: Option<u32>,
+}
+
+/// What to do when a child dies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum Restart {
+    /// Stop the others and exit non-zero.
+    #[default]
+    Never,
+    /// Respawn it (up to `max_restarts` times).
+    OnFailure,
+}
+
+/// The `[launch]` table.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LaunchSection {
+    /// Episodes perception runs before the group stops (default 20).
+    pub episodes: u32,
+    /// The arena: 1, 2 or 3 (default 3, the paper's test arena).
+    pub arena: u8,
+    /// Real-time factor: 1.0 = physical time (the paper's 200 ms settle), 0 = as fast as
+    /// possible (default).
+    pub real_time_factor: f64,
+    /// How every process waits: `block` (default), `spin`, `spin-then-block[:<µs>]`.
+    pub wait: String,
+    /// `never` (default) or `on-failure`.
+    pub restart: Restart,
+    /// Respawns allowed per child with `on-failure` (default 3).
+    pub max_restarts: u32,
+    /// Grace period of each shutdown step, ms (default 3000).
+    pub grace_ms: u64,
+    /// Prefix of every iceoryx2 service (default none; set one per group to run several
+    /// groups side by side).
+    pub service_prefix: String,
+    /// Where each child's settings are written (default: `run` in the data directory).
+    pub run_dir: Option<PathBuf>,
+    /// Seed of the world and the agent (default 1).
+    pub seed: u64,
+}
+
+impl Default for LaunchSection {
+    fn default() -> Self {
+        Self {
+            episodes: 20,
+            arena: 3,
+            real_time_factor: 0.0,
+            wait: "block".into(),
+            restart: Restart::Never,
+            max_restarts: 3,
+            grace_ms: 3000,
+            service_prefix: String::new(),
+            run_dir: None,
+            seed: 1,
+        }
+    }
+}
+
+/// A whole launch file.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct LaunchFile {
+    launch: LaunchSection,
+    perception: toml::Table,
+    controller: toml::Table,
+    bridge: toml::Table,
+}
+
+/// The simulated brick's speed-up at real-time factor 0 ("as fast as possible"): motor
+/// motion runs this many times faster than physical time.
+const FASTEST_TIME_SCALE: f64 = 200.0;
+
+/// The roles this executable plays as a child.
+pub const ROLES: [&str; 3] = ["bridge", "controller", "perception-sim"];
+
+/// One child's launch recipe.
+struct ChildSpec {
+    role: &'static str,
+    config: PathBuf,
+}
+
+/// A running (or finished) child.
+struct Running {
+    spec: ChildSpec,
+    child: Child,
+    restarts: u32,
+    status: Option<ExitStatus>,
+}
+
+/// Runs `tes launch`.
+pub fn run(args: &LaunchArgs) -> Result<()> {
+    let mut file = match &args.config {
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .with_context(|| format!("cannot read {}", path.display()))?;
+            toml::from_str::<LaunchFile>(&text).with_context(|| format!("in {}", path.display()))?
+        }
+        None => LaunchFile::default(),
+    };
+    if let Some(n) = args.episodes {
+        file.launch.episodes = n;
+    }
+    let specs = prepare(&file).context("the launch settings are invalid; nothing was started")?;
+    let launch = &file.launch;
+
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, stop.clone())
+            .context("cannot install the signal handlers")?;
+    }
+    match channel::clean_stale_resources() {
+        Ok(0) => {}
+        Ok(n) => eprintln!("launch: removed the stale iceoryx2 resources of {n} dead processes"),
+        Err(e) => eprintln!("launch: warning: {e}"),
+    }
+    eprintln!(
+        "launch: arena Env {}, {} episodes, real-time factor {}, wait {}, restart {:?}",
+        launch.arena, launch.episodes, launch.real_time_factor, launch.wait, launch.restart
+    );
+    let (lines_tx, lines) = mpsc::channel::<String>();
+    let mut children = Vec::new();
+    for spec in specs {
+        let child = spawn(&spec, &lines_tx)?;
+        children.push(Running {
+            spec,
+            child,
+            restarts: 0,
+            status: None,
+        });
+    }
+    let grace = Duration::from_millis(launch.grace_ms);
+    let mut failure: Option<String> = None;
+    let mut episodes = 0u32;
+    'supervise: loop {
+        for line in lines.try_iter() {
+            if line.starts_with("episode ") {
+                episodes += 1;
+            }
+            println!("{line}");
+        }
+        if stop.load(Ordering::Relaxed) {
+            eprintln!("launch: stop requested; stopping the group");
+            break;
+        }
+        for i in 0..children.len() {
+            let Some(status) = children[i]
+                .child
+                .try_wait()
+                .context("cannot poll a child")?
+            else {
+                continue;
+            };
+            let role = children[i].spec.role;
+            if role == "perception-sim" && status.success() {
+                eprintln!("launch: perception-sim finished its episodes; stopping the group");
+                children[i].status = Some(status);
+                break 'supervise;
+            }
+            let why = describe(status);
+            let may_restart = launch.restart == Restart::OnFailure
+                && !status.success()
+                && children[i].restarts < launch.max_restarts;
+            if !may_restart {
+                eprintln!("launch: {role} {why}; stopping the others");
+                children[i].status = Some(status);
+                failure = Some(format!("{role} {why}"));
+                break 'supervise;
+            }
+            children[i].restarts += 1;
+            eprintln!(
+                "launch: {role} {why}; respawning it (restart {}/{})",
+                children[i].restarts, launch.max_restarts
+            );
+            if let Err(e) = channel::clean_stale_resources() {
+                eprintln!("launch: warning: {e}");
+            }
+            children[i].child = spawn(&children[i].spec, &lines_tx)?;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    shutdown(&mut children, grace);
+    for line in lines.try_iter() {
+        if line.starts_with("episode ") {
+            episodes += 1;
+        }
+        println!("{line}");
+    }
+    let mut failed: Vec<String> = failure.into_iter().collect();
+    for c in &children {
+        match c.status {
+            Some(s) if !s.success() && !stopped_by_us(s) => {
+                failed.push(format!("{} {}", c.spec.role, describe(s)));
+            }
+            _ => {}
+        }
+    }
+    failed.dedup();
+    println!(
+        "launch: {episodes} episodes; {}",
+        if failed.is_empty() {
+            "all processes stopped cleanly".to_owned()
+        } else {
+            format!("failed: {}", failed.join("; "))
+        }
+    );
+    if !failed.is_empty() {
+        bail!("a process failed: {}", failed.join("; "));
+    }
+    Ok(())
+}
+
+/// Checks every child's settings and writes them to the run directory.
+fn prepare(file: &LaunchFile) -> Result<Vec<ChildSpec>> {
+    let l = &file.launch;
+    let wait: WaitStrategy = l
+        .wait
+        .parse()
+        .map_err(|e| anyhow::anyhow!("[launch] wait: {e}"))?;
+    if !(1..=3).contains(&l.arena) {
+        bail!("[launch] arena: must be 1, 2 or 3, got {}", l.arena);
+    }
+    if !(l.real_time_factor.is_finite() && l.real_time_factor >= 0.0) {
+        bail!("[launch] real_time_factor: must be a finite number >= 0");
+    }
+    if l.episodes == 0 {
+        bail!("[launch] episodes: must be at least 1");
+    }
+    let prefix = l.service_prefix.clone();
+    let run_dir = l
+        .run_dir
+        .clone()
+        .unwrap_or_else(|| default_data_dir().join("run"));
+    std::fs::create_dir_all(&run_dir)
+        .with_context(|| format!("cannot create the run directory {}", run_dir.display()))?;
+
+    // Launch-wide settings go into each table unless the table sets them itself.
+    let with = |table: &toml::Table, extra: &[(&str, toml::Value)]| {
+        let mut t = table.clone();
+        for (k, v) in extra {
+            t.entry((*k).to_owned()).or_insert_with(|| v.clone());
+        }
+        t
+    };
+    let s = |v: &str| toml::Value::String(v.to_owned());
+    let seed = toml::Value::Integer(i64::try_from(l.seed).unwrap_or(i64::MAX));
+    let perception = with(
+        &file.perception,
+        &[
+            ("arena", toml::Value::Integer(i64::from(l.arena))),
+            ("episodes", toml::Value::Integer(i64::from(l.episodes))),
+            ("real_time_factor", toml::Value::Float(l.real_time_factor)),
+            ("wait", s(&wait.to_string())),
+            ("service_prefix", s(&prefix)),
+            ("seed", seed.clone()),
+        ],
+    );
+    let controller = with(
+        &file.controller,
+        &[
+            ("wait", s(&wait.to_string())),
+            ("service_prefix", s(&prefix)),
+            ("seed", seed.clone()),
+        ],
+    );
+    let mut bridge = file.bridge.clone();
+    bridge
+        .entry("seed".to_owned())
+        .or_insert_with(|| seed.clone());
+    bridge
+        .entry("use_command_degrees".to_owned())
+        .or_insert(toml::Value::Boolean(true));
+    let ipc = bridge
+        .entry("ipc".to_owned())
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    if let Some(t) = ipc.as_table_mut() {
+        t.entry("service_prefix".to_owned())
+            .or_insert_with(|| s(&prefix));
+    }
+    let time_scale = if l.real_time_factor == 0.0 {
+        FASTEST_TIME_SCALE
+    } else {
+        1.0 / l.real_time_factor
+    };
+    let brick = bridge
+        .entry("brick".to_owned())
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    if let Some(t) = brick.as_table_mut() {
+        t.entry("time_scale".to_owned())
+            .or_insert(toml::Value::Float(time_scale));
+    }
+    // The watchdog deadline is in brick time: at a speed-up, give the wall clock the usual
+    // second, so a descheduled bridge on a busy machine does not brake a healthy run.
+    let watchdog = bridge
+        .entry("watchdog".to_owned())
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    if let Some(t) = watchdog.as_table_mut() {
+        let ms = (1000.0 * time_scale.max(1.0)).round() as i64;
+        t.entry("deadline_ms".to_owned())
+            .or_insert(toml::Value::Integer(ms));
+    }
+
+    let texts = [
+        ("bridge", toml::to_string(&bridge)?),
+        ("controller", toml::to_string(&controller)?),
+        ("perception-sim", toml::to_string(&perception)?),
+    ];
+    // Every child's settings are checked here, so a bad key stops the launch before any
+    // process starts.
+    BridgeConfig::from_toml_str(&texts[0].1).map_err(|e| anyhow::anyhow!("[bridge] {e}"))?;
+    ControllerConfig::from_toml(&texts[1].1).map_err(|e| anyhow::anyhow!("[controller] {e}"))?;
+    PerceptionConfig::from_toml(&texts[2].1).map_err(|e| anyhow::anyhow!("[perception] {e}"))?;
+    let mut specs = Vec::new();
+    for (role, text) in texts {
+        let path = run_dir.join(format!("{role}.toml"));
+        std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
+        let role = ROLES
+            .into_iter()
+            .find(|r| *r == role)
+            .unwrap_or("controller");
+        specs.push(ChildSpec { role, config: path });
+    }
+    Ok(specs)
+}
+
+/// Starts one child: this executable in the child's role, dying with the launcher.
+fn spawn(spec: &ChildSpec, lines: &mpsc::Sender<String>) -> Result<Child> {
+    let exe = std::env::current_exe().context("cannot find the tes executable")?;
+    let mut cmd = Command::new(exe);
+    cmd.arg("child")
+        .arg(spec.role)
+        .arg("--config")
+        .arg(&spec.config)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped());
+    // SAFETY: `pre_exec` runs in the forked child before exec; prctl(PR_SET_PDEATHSIG) is
+    // async-signal-safe and touches no memory of the parent.
+    unsafe {
+        cmd.pre_exec(|| {
+            nix::sys::prctl::set_pdeathsig(Signal::SIGTERM).map_err(std::io::Error::from)
+        });
+    }
+    let mut child = cmd
+        .spawn()
+        .with_context(|| format!("cannot start {}", spec.role))?;
+    if let Some(out) = child.stdout.take() {
+        relay(out, lines.clone());
+    }
+    Ok(child)
+}
+
+/// Forwards a child's stdout, line by line, to the launcher.
+fn relay(out: ChildStdout, lines: mpsc::Sender<String>) {
+    std::thread::spawn(move || {
+        for line in BufReader::new(out).lines() {
+            let Ok(line) = line else { break };
+            if lines.send(line).is_err() {
+                break;
+            }
+        }
+    });
+}
+
+/// SIGINT, then SIGTERM after `grace`, then SIGKILL after `grace`; waits for every child.
+fn shutdown(children: &mut [Running], grace: Duration) {
+    for signal in [Signal::SIGINT, Signal::SIGTERM, Signal::SIGKILL] {
+        let mut any = false;
+        for c in children.iter_mut() {
+            if c.status.is_none() {
+                if let Ok(Some(s)) = c.child.try_wait() {
+                    c.status = Some(s);
+                    continue;
+                }
+                let pid = Pid::from_raw(c.child.id() as i32);
+                if kill(pid, signal).is_ok() {
+                    any = true;
+                }
+            }
+        }
+        if !any {
+            break;
+        }
+        let deadline = Instant::now() + grace;
+        while Instant::now() < deadline {
+            let mut alive = false;
+            for c in children.iter_mut() {
+                if c.status.is_none() {
+                    match c.child.try_wait() {
+                        Ok(Some(s)) => c.status = Some(s),
+                        _ => alive = true,
+                    }
+                }
+            }
+            if !alive {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        for c in children.iter() {
+            if c.status.is_none() && signal != Signal::SIGKILL {
+                eprintln!(
+                    "launch: {} did not stop within {grace:?} of {signal}; escalating",
+                    c.spec.role
+                );
+            }
+        }
+    }
+    for c in children.iter_mut() {
+        if c.status.is_none() {
+            c.status = c.child.wait().ok();
+        }
+    }
+}
+
+/// Whether `status` is an exit the shutdown itself caused (SIGINT/SIGTERM handled by a
+/// child that then exited by that signal).
+fn stopped_by_us(status: ExitStatus) -> bool {
+    use std::os::unix::process::ExitStatusExt;
+    matches!(status.signal(), Some(s) if s == Signal::SIGINT as i32 || s == Signal::SIGTERM as i32)
+}
+
+/// "exited with status 3" / "was killed by SIGKILL".
+fn describe(status: ExitStatus) -> String {
+    use std::os::unix::process::ExitStatusExt;
+    match (status.code(), status.signal()) {
+        (Some(code), _) => format!("exited with status {code}"),
+        (None, Some(sig)) => match Signal::try_from(sig) {
+            Ok(s) => format!("was killed by {s}"),
+            Err(_) => format!("was killed by signal {sig}"),
+        },
+        _ => "ended".to_owned(),
+    }
+}
+
+/// The child roles' entry points (`tes child ROLE --config FILE`).
+pub fn run_child(role: &str, config: &Path) -> Result<()> {
+    let text = std::fs::read_to_string(config)
+        .with_context(|| format!("cannot read {}", config.display()))?;
+    match role {
+        "controller" => {
+            let cfg = ControllerConfig::from_toml(&text)?;
+            let stop = tes_controller::process::stop_on_signals()?;
+            let summary = tes_controller::process::run(&cfg, &stop, |line| println!("{line}"))?;
+            println!(
+                "controller: {} episodes, {} actions, decision latency p50 {} us p99 {} us max {} us, {} over the {} us budget, {} plans",
+                summary.episodes,
+                summary.actions,
+                summary.latency_us[0],
+                summary.latency_us[2],
+                summary.latency_us[4],
+                summary.misses,
+                cfg.budget_us,
+                summary.plans
+            );
+            if summary.failed_saves > 0 {
+                bail!("{} library saves failed", summary.failed_saves);
+            }
+            Ok(())
+        }
+        "perception-sim" => {
+            let cfg = PerceptionConfig::from_toml(&text)?;
+            let stop = tes_controller::process::stop_on_signals()?;
+            tes_perception_sim::process::run(&cfg, &stop)?;
+            Ok(())
+        }
+        "bridge" => {
+            let cfg = BridgeConfig::from_toml_str(&text)?;
+            let stop = tes_controller::process::stop_on_signals()?;
+            let opts = tes_bridge::ipc::RunOptions {
+                handle_signals: false,
+                stop: Some(stop),
+            };
+            tes_bridge::process::run(&cfg, &opts)?;
+            Ok(())
+        }
+        other => bail!("unknown role {other:?} (expected one of {ROLES:?})"),
+    }
+}

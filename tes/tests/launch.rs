@@ -1,0 +1,244 @@
+//! `tes launch` with its real child processes: a clean run, a child killed under
+//! `restart = "never"`, and a child killed and respawned under `restart = "on-failure"`.
+//!
+//! Every test runs its group under its own iceoryx2 service prefix and data directory, and a
+//! guard kills the launcher (whose children die with it by their parent-death signal) and
+//! removes dead processes' iceoryx2 resources even when the test fails.
+
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+
+/// A launched group, killed on drop.
+struct Group {
+    launcher: Child,
+    stdout: mpsc::Receiver<String>,
+    stderr: mpsc::Receiver<String>,
+}
+
+impl Group {
+    fn start(dir: &Path, launch_toml: &str, episodes: u32) -> Self {
+        let config = dir.join("launch.toml");
+        std::fs::write(&config, launch_toml).expect("launch file");
+        let mut launcher = Command::new(env!("CARGO_BIN_EXE_tes"))
+            .arg("launch")
+            .arg("--config")
+            .arg(&config)
+            .arg("--episodes")
+            .arg(episodes.to_string())
+            .env("TES_DATA_DIR", dir.join("data"))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("tes launch starts");
+        let lines = |r: Box<dyn std::io::Read + Send>| {
+            let (tx, rx) = mpsc::channel();
+            std::thread::spawn(move || {
+                for line in BufReader::new(r).lines().map_while(Result::ok) {
+                    if tx.send(line).is_err() {
+                        break;
+                    }
+                }
+            });
+            rx
+        };
+        let stdout = lines(Box::new(launcher.stdout.take().expect("stdout")));
+        let stderr = lines(Box::new(launcher.stderr.take().expect("stderr")));
+        Self {
+            launcher,
+            stdout,
+            stderr,
+        }
+    }
+
+    /// Waits for the launcher to exit (at most `limit`); returns its success and output.
+    fn finish(&mut self, limit: Duration) -> (bool, Vec<String>, Vec<String>) {
+        let deadline = Instant::now() + limit;
+        let status = loop {
+            if let Some(s) = self.launcher.try_wait().expect("poll") {
+                break s;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "tes launch did not finish in {limit:?}"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        std::thread::sleep(Duration::from_millis(100));
+        (
+            status.success(),
+            self.stdout.try_iter().collect(),
+            self.stderr.try_iter().collect(),
+        )
+    }
+
+    /// Waits until stdout shows `n` episode lines; returns the lines seen.
+    fn wait_for_episodes(&self, n: usize, limit: Duration) -> Vec<String> {
+        let deadline = Instant::now() + limit;
+        let mut seen = Vec::new();
+        while seen
+            .iter()
+            .filter(|l: &&String| l.starts_with("episode "))
+            .count()
+            < n
+        {
+            let left = deadline.saturating_duration_since(Instant::now());
+            assert!(
+                !left.is_zero(),
+                "fewer than {n} episodes in {limit:?}: {seen:?}"
+            );
+            if let Ok(line) = self
+                .stdout
+                .recv_timeout(left.min(Duration::from_millis(100)))
+            {
+                seen.push(line);
+            }
+        }
+        seen
+    }
+
+    /// The pid of the child playing `role`.
+    fn child(&self, role: &str) -> Pid {
+        let parent = self.launcher.id();
+        for entry in std::fs::read_dir("/proc").expect("procfs") {
+            let Ok(entry) = entry else { continue };
+            let Ok(pid) = entry.file_name().to_string_lossy().parse::<i32>() else {
+                continue;
+            };
+            let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
+                continue;
+            };
+            // `pid (comm) state ppid …`; comm may hold spaces, so split after the last ')'.
+            let ppid = stat
+                .rsplit_once(')')
+                .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+                .and_then(|p| p.parse::<u32>().ok());
+            let cmdline = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
+            let args: Vec<&[u8]> = cmdline.split(|&b| b == 0).collect();
+            if ppid == Some(parent)
+                && args.len() > 2
+                && args[1] == b"child"
+                && args[2] == role.as_bytes()
+            {
+                return Pid::from_raw(pid);
+            }
+        }
+        panic!("no {role} child of the launcher");
+    }
+
+    fn children_alive(&self) -> bool {
+        let parent = self.launcher.id();
+        std::fs::read_dir("/proc")
+            .expect("procfs")
+            .filter_map(Result::ok)
+            .filter_map(|e| e.file_name().to_string_lossy().parse::<i32>().ok())
+            .any(|pid| {
+                std::fs::read_to_string(format!("/proc/{pid}/stat"))
+                    .ok()
+                    .and_then(|s| {
+                        s.rsplit_once(')')
+                            .and_then(|(_, r)| r.split_whitespace().nth(1))
+                            .and_then(|p| p.parse::<u32>().ok())
+                    })
+                    == Some(parent)
+            })
+    }
+}
+
+impl Drop for Group {
+    fn drop(&mut self) {
+        if self.launcher.try_wait().ok().flatten().is_none() {
+            // The children follow by their parent-death signal.
+            let _ = self.launcher.kill();
+            let _ = self.launcher.wait();
+            std::thread::sleep(Duration::from_millis(300));
+        }
+        let _ = tes_topics::channel::clean_stale_resources();
+    }
+}
+
+fn launch_file(dir: &Path, extra: &str) -> String {
+    format!(
+        "[launch]\nservice_prefix = \"tes-test/{}/{}/\"\nrun_dir = \"{}\"\n{extra}",
+        std::process::id(),
+        dir.file_name().and_then(|n| n.to_str()).unwrap_or("x"),
+        dir.join("run").display()
+    )
+}
+
+#[test]
+fn a_launched_group_runs_its_episodes_and_saves_the_library() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut group = Group::start(dir.path(), &launch_file(dir.path(), ""), 4);
+    let (ok, out, err) = group.finish(Duration::from_secs(60));
+    assert!(ok, "stdout {out:?}\nstderr {err:?}");
+    let episodes: Vec<&String> = out.iter().filter(|l| l.starts_with("episode ")).collect();
+    assert_eq!(episodes.len(), 4, "{out:?}");
+    assert!(episodes[0].contains("decision latency p50"), "{out:?}");
+    assert!(
+        out.iter().any(|l| l.starts_with("controller: 4 episodes")),
+        "{out:?}"
+    );
+    assert!(
+        out.last()
+            .is_some_and(|l| l.contains("all processes stopped cleanly"))
+    );
+    // The library is on disk and loads, for the arena's shape.
+    let library = dir.path().join("data/library.tesl");
+    let stored = tes_controller::library::store::load_for(&library, 3, 20, 312)
+        .expect("the saved library loads");
+    assert!(!stored.library.is_empty());
+    assert!(!group.children_alive());
+}
+
+#[test]
+fn a_killed_child_stops_the_group_when_restarts_are_off() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut group = Group::start(
+        dir.path(),
+        &launch_file(dir.path(), "restart = \"never\"\nreal_time_factor = 0.01\n"),
+        10_000,
+    );
+    group.wait_for_episodes(1, Duration::from_secs(60));
+    kill(group.child("controller"), Signal::SIGKILL).expect("kill the controller");
+    let (ok, _, err) = group.finish(Duration::from_secs(30));
+    assert!(!ok, "the launcher must fail");
+    let err = err.join("\n");
+    assert!(
+        err.contains("controller was killed by SIGKILL; stopping the others"),
+        "{err}"
+    );
+    assert!(!group.children_alive(), "no child outlives the launcher");
+}
+
+#[test]
+fn a_killed_child_is_respawned_and_the_run_goes_on() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let mut group = Group::start(
+        dir.path(),
+        &launch_file(
+            dir.path(),
+            "restart = \"on-failure\"\nreal_time_factor = 0.01\n",
+        ),
+        6,
+    );
+    group.wait_for_episodes(1, Duration::from_secs(60));
+    kill(group.child("bridge"), Signal::SIGKILL).expect("kill the bridge");
+    let (ok, out, err) = group.finish(Duration::from_secs(120));
+    let err = err.join("\n");
+    assert!(
+        err.contains("bridge was killed by SIGKILL; respawning it (restart 1/3)"),
+        "{err}"
+    );
+    assert!(ok, "stdout {out:?}\nstderr {err}");
+    assert!(
+        out.iter()
+            .any(|l| l.contains("all processes stopped cleanly")),
+        "{out:?}"
+    );
+}
