@@ -7,6 +7,7 @@ use anyhow::{Result, bail};
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use tes_bench::experiment::grid::{self, GridConfig};
+use tes_bench::experiment::robot::{self, RobotConfig};
 use tes_bench::experiment::transfer::{self, TransferConfig};
 
 /// Arguments of `tes experiment`.
@@ -23,6 +24,33 @@ enum Which {
     /// §5.1.2–5.1.3 transfer: leave-one-out over the 15 grid tasks, Table 2 and Fig. 4b
     /// (TES against LWT, random view combinations, loreRL and fEpsG).
     Transfer(TransferArgs),
+    /// §5.2 robot study on the simulated arenas: Fig. 8, Fig. 9, Tables 5 and 6 (in-process).
+    Robot(RobotArgs),
+}
+
+#[derive(Debug, Args)]
+struct RobotArgs {
+    /// Independent repeats [default: 20; --quick: 3].
+    #[arg(long)]
+    runs: Option<usize>,
+    /// Episodes on Env 3 [default: 50; --quick: 15].
+    #[arg(long)]
+    episodes: Option<usize>,
+    /// Episodes in each arena experienced before Env 3 [default: 50; --quick: 15].
+    #[arg(long)]
+    train_episodes: Option<usize>,
+    /// Directory for summary.json, episodes.csv and the SVG plots.
+    #[arg(long, default_value = "results/robot")]
+    out: PathBuf,
+    /// Small settings for a first look: seconds.
+    #[arg(long)]
+    quick: bool,
+    /// Base seed; run r uses seed + r.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Worker threads [default: all cores].
+    #[arg(long)]
+    threads: Option<usize>,
 }
 
 #[derive(Debug, Args)]
@@ -86,6 +114,7 @@ pub fn run(args: &ExperimentArgs) -> Result<()> {
     match &args.which {
         Which::Grid(g) => run_grid(g),
         Which::Transfer(t) => run_transfer(t),
+        Which::Robot(r) => run_robot(r),
     }
 }
 
@@ -270,6 +299,70 @@ fn run_grid(args: &GridArgs) -> Result<()> {
     );
     println!(
         "wrote summary.json, episodes.csv, fig3a.svg, fig3b.svg, fig3c.svg to {}",
+        args.out.display()
+    );
+    Ok(())
+}
+
+fn run_robot(args: &RobotArgs) -> Result<()> {
+    let mut config = if args.quick {
+        RobotConfig::quick()
+    } else {
+        RobotConfig::paper()
+    };
+    if let Some(n) = args.runs {
+        config.runs = n;
+    }
+    if let Some(n) = args.episodes {
+        config.episodes = n;
+    }
+    if let Some(n) = args.train_episodes {
+        config.train_episodes = n;
+    }
+    config.seed = args.seed;
+    set_threads(args.threads)?;
+    eprintln!(
+        "robot experiment: {} runs, {} episodes on Env 3 after {} per earlier arena, seeds {}.. -> {}",
+        config.runs,
+        config.episodes,
+        config.train_episodes,
+        config.seed,
+        args.out.display()
+    );
+    let bar = progress_bar("robot");
+    let report = robot::run(&config, &args.out, &|done, total| {
+        bar.set_length(total);
+        bar.set_position(done);
+    })?;
+    bar.finish_and_clear();
+    println!(
+        "{:.1} s wall clock. Accumulated reward on Env 3 after {} episodes (95% CI), difference to TES, seconds per episode:",
+        report.wall_seconds, config.episodes
+    );
+    for (name, s) in &report.accumulated {
+        let diff = report
+            .difference_to_tes
+            .get(name)
+            .map_or("        ".to_owned(), |d| format!("{:>+8.2}", d.mean));
+        let secs = report
+            .seconds_per_episode
+            .get(name)
+            .map_or(f64::NAN, |t| t.mean);
+        println!(
+            "  {name:<10} {:>8.2} [{:.2}, {:.2}]  {diff}  {secs:.4} s",
+            s.mean, s.lo, s.hi
+        );
+    }
+    println!(
+        "TES >= TES-woRi >= loreRL > LWT: {}",
+        if report.ordering_holds {
+            "holds"
+        } else {
+            "does not hold"
+        }
+    );
+    println!(
+        "wrote summary.json, episodes.csv, fig8.svg, fig9.svg to {}",
         args.out.display()
     );
     Ok(())

@@ -6,6 +6,7 @@
 //! reward collected, the number of actions and the time the agent spent.
 
 pub mod grid;
+pub mod robot;
 pub mod transfer;
 
 use std::sync::Arc;
