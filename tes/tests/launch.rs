@@ -242,3 +242,40 @@ fn a_killed_child_is_respawned_and_the_run_goes_on() {
         "{out:?}"
     );
 }
+
+#[test]
+fn ctrl_c_stops_the_group_cleanly_leaving_no_child_or_service() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let toml = launch_file(dir.path(), "real_time_factor = 0.01\n");
+    let prefix = format!(
+        "tes-test/{}/{}/",
+        std::process::id(),
+        dir.path()
+            .file_name()
+            .and_then(|n| n.to_str())
+            .unwrap_or("x")
+    );
+    let mut group = Group::start(dir.path(), &toml, 10_000);
+    group.wait_for_episodes(2, Duration::from_secs(60));
+    assert!(
+        !tes_topics::channel::services_with_prefix(&prefix)
+            .expect("list")
+            .is_empty(),
+        "the group's services exist while it runs"
+    );
+    kill(Pid::from_raw(group.launcher.id() as i32), Signal::SIGINT).expect("Ctrl-C");
+    let (ok, out, err) = group.finish(Duration::from_secs(30));
+    assert!(ok, "stdout {out:?}\nstderr {err:?}");
+    assert!(err.iter().any(|l| l.contains("stop requested")), "{err:?}");
+    assert!(
+        out.iter()
+            .any(|l| l.contains("all processes stopped cleanly")),
+        "{out:?}"
+    );
+    assert!(!group.children_alive(), "no child outlives the launcher");
+    let left = tes_topics::channel::services_with_prefix(&prefix).expect("list");
+    assert!(left.is_empty(), "services left behind: {left:?}");
+    // The controller saved the library on its way out.
+    tes_controller::library::store::load_for(&dir.path().join("data/library.tesl"), 3, 20, 312)
+        .expect("the library loads");
+}

@@ -171,6 +171,22 @@ pub fn pubsub<T: ZeroCopySend + Copy + fmt::Debug + 'static>(
         .map_err(ipc_err("open a publish-subscribe service"))
 }
 
+/// The names of the iceoryx2 services that exist now and start with `prefix` (to check that a
+/// stopped group left nothing behind).
+pub fn services_with_prefix(prefix: &str) -> Result<Vec<String>, IpcError> {
+    use iceoryx2::service::Service as _;
+    let mut names = Vec::new();
+    ipc::Service::list(&Config::default(), |service| {
+        let name = service.static_details.name().to_string();
+        if name.starts_with(prefix) {
+            names.push(name);
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(ipc_err("list the services"))?;
+    Ok(names)
+}
+
 fn service_name(name: &str) -> Result<ServiceName, IpcError> {
     ServiceName::new(name).map_err(ipc_err("use the service name"))
 }
