@@ -15,8 +15,12 @@ use tes_topics::{Command, MotorState, motor_flags, service};
 /// motor state for it arrives, or `None` within `limit`.
 fn settle_time(time_scale: f64, tag: &str, limit: Duration) -> Option<Duration> {
     let prefix = format!("tes-it/{}/{tag}/", std::process::id());
+    // The watchdog deadline is brick time: scale it as `tes launch` does, so a bridge thread
+    // descheduled for a few ms on a busy machine is not taken for a dead controller.
+    let deadline_ms = (1000.0 * time_scale).round() as u64;
     let mut cfg = BridgeConfig::from_toml_str(&format!(
-        "[brick]\ntime_scale = {time_scale}\n[ipc]\nservice_prefix = \"{prefix}\"\n"
+        "[brick]\ntime_scale = {time_scale}\n[ipc]\nservice_prefix = \"{prefix}\"\n\
+         [watchdog]\ndeadline_ms = {deadline_ms}\n"
     ))
     .expect("valid config");
     cfg.seed = 3;
