@@ -81,34 +81,21 @@ impl Default for ControllerConfig {
 }
 
 /// A setting that is out of range, named by its key.
-#[derive(Debug, Clone, PartialEq, Error)]
-#[error("controller setting `{key}`: {reason}")]
-pub struct ConfigError {
-    /// The TOML key.
-    pub key: &'static str,
-    /// What is wrong.
-    pub reason: String,
-}
+pub type ConfigError = tes_topics::settings::SettingError;
+
+const PROCESS: &str = "controller";
 
 impl ControllerConfig {
     /// Parses a TOML document holding these keys (unknown keys are refused).
     pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
-        let cfg: Self = toml::from_str(text).map_err(|e| ConfigError {
-            key: "(file)",
-            reason: e.to_string(),
-        })?;
+        let cfg: Self = tes_topics::settings::parse(PROCESS, text)?;
         cfg.check()?;
         Ok(cfg)
     }
 
     /// Checks every key; the first bad one is reported.
     pub fn check(&self) -> Result<WaitStrategy, ConfigError> {
-        let bad = |key, reason: &str| {
-            Err(ConfigError {
-                key,
-                reason: reason.to_owned(),
-            })
-        };
+        let bad = |key, reason: &str| Err(ConfigError::new(PROCESS, key, reason));
         if self.budget_us == 0 {
             return bad("budget_us", "must be at least 1");
         }
@@ -127,10 +114,7 @@ impl ControllerConfig {
         if !(self.map_timeout_s.is_finite() && self.map_timeout_s > 0.0) {
             return bad("map_timeout_s", "must be a finite number of seconds > 0");
         }
-        self.wait.parse::<WaitStrategy>().map_err(|e| ConfigError {
-            key: "wait",
-            reason: e.to_string(),
-        })
+        tes_topics::settings::wait_strategy(PROCESS, &self.wait)
     }
 
     /// The library file: the configured one or [`default_library_path`].

@@ -78,34 +78,21 @@ impl Default for PerceptionConfig {
 }
 
 /// A setting that is out of range, named by its key.
-#[derive(Debug, Clone, PartialEq, Error)]
-#[error("perception setting `{key}`: {reason}")]
-pub struct ConfigError {
-    /// The TOML key.
-    pub key: &'static str,
-    /// What is wrong.
-    pub reason: String,
-}
+pub type ConfigError = tes_topics::settings::SettingError;
+
+const PROCESS: &str = "perception";
 
 impl PerceptionConfig {
     /// Parses a TOML document with these keys (unknown keys are refused) and checks it.
     pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
-        let cfg: Self = toml::from_str(text).map_err(|e| ConfigError {
-            key: "(file)",
-            reason: e.to_string(),
-        })?;
+        let cfg: Self = tes_topics::settings::parse(PROCESS, text)?;
         cfg.check()?;
         Ok(cfg)
     }
 
     /// Checks every key; returns the wait strategy.
     pub fn check(&self) -> Result<WaitStrategy, ConfigError> {
-        let bad = |key, reason: &str| {
-            Err(ConfigError {
-                key,
-                reason: reason.to_owned(),
-            })
-        };
+        let bad = |key, reason: &str| Err(ConfigError::new(PROCESS, key, reason));
         if ArenaId::from_number(self.arena).is_err() {
             return bad("arena", "must be 1, 2 or 3");
         }
@@ -127,10 +114,7 @@ impl PerceptionConfig {
                 "left_port and right_port must be different ports 0-2",
             );
         }
-        self.wait.parse::<WaitStrategy>().map_err(|e| ConfigError {
-            key: "wait",
-            reason: e.to_string(),
-        })
+        tes_topics::settings::wait_strategy(PROCESS, &self.wait)
     }
 }
 

@@ -32,6 +32,7 @@
 use iceoryx2::prelude::ZeroCopySend;
 
 pub mod channel;
+pub mod settings;
 mod world_map;
 
 pub use world_map::{MAX_ACTIONS, MAX_EFFECTS, MAX_STATES, WorldMap};
