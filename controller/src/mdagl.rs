@@ -245,8 +245,9 @@ pub struct Prequential {
 /// An mDAGL model: one multinomial logistic regression learned online with group lasso.
 ///
 /// In TES this is a *view*: one action's effect predictor. Cloning copies its whole learning
-/// state (used to make working copies of library views).
-#[derive(Debug, Clone)]
+/// state (used to make working copies of library views); `clone_from` onto a model of the same
+/// shape reuses its buffers, so a real-time loop can copy a view without allocating.
+#[derive(Debug)]
 pub struct Mdagl {
     classes: usize,
     features: usize,
@@ -262,6 +263,33 @@ pub struct Mdagl {
     norms: Vec<f64>,
     /// Per-step working buffer of length `K` (scores, then probabilities).
     scratch: Vec<f64>,
+}
+
+impl Clone for Mdagl {
+    fn clone(&self) -> Self {
+        Self {
+            classes: self.classes,
+            features: self.features,
+            params: self.params,
+            threshold: self.threshold,
+            updates: self.updates,
+            sums: self.sums.clone(),
+            norms: self.norms.clone(),
+            scratch: self.scratch.clone(),
+        }
+    }
+
+    fn clone_from(&mut self, source: &Self) {
+        self.classes = source.classes;
+        self.features = source.features;
+        self.params = source.params;
+        self.threshold = source.threshold;
+        self.updates = source.updates;
+        // `Vec::clone_from` keeps the allocation when it is large enough.
+        self.sums.clone_from(&source.sums);
+        self.norms.clone_from(&source.norms);
+        self.scratch.clone_from(&source.scratch);
+    }
 }
 
 impl Mdagl {

@@ -350,6 +350,68 @@ pub struct PlannedModel {
     /// Whether [`PlannedModel::replan`] plans on the calling thread (else a planner thread
     /// does, through [`PlannedModel::snapshot_into`] and [`PlannedModel::adopt`]).
     inline: bool,
+    /// Statistics of the last plan made or adopted.
+    last: PlanStats,
+    /// With planning elsewhere: the table has changes (from [`PlannedModel::set`]) the planner
+    /// has not seen.
+    table_unsent: bool,
+    /// With planning elsewhere: each action's latest view, not yet handed to the planner.
+    pending_views: Vec<Option<Mdagl>>,
+    /// Which of `pending_views` are newer than what the planner has.
+    pending: Vec<bool>,
+}
+
+/// What an acting loop hands a planner elsewhere: the whole effect table when it changed
+/// directly, and the latest view of each action whose view changed. The planner recomputes
+/// those actions' rows itself ([`PlannedModel::apply`]), so the acting loop neither refreshes
+/// the table nor copies it per step — it copies one view (a few kB to tens of kB).
+///
+/// Built once at full size; passing it back and forth allocates nothing once every action's
+/// view has been sent.
+#[derive(Debug, Clone)]
+pub struct ModelChanges {
+    table: EffectTable,
+    whole_table: bool,
+    force: bool,
+    views: Vec<Option<Mdagl>>,
+    changed: Vec<bool>,
+}
+
+impl ModelChanges {
+    /// Empty changes for a model of `structure`'s shape.
+    pub fn new(structure: &CmdpStructure) -> Self {
+        Self {
+            table: EffectTable::uniform(structure),
+            whole_table: false,
+            force: false,
+            views: vec![None; structure.n_actions()],
+            changed: vec![false; structure.n_actions()],
+        }
+    }
+
+    /// Whether these changes carry anything (or ask for a plan regardless).
+    pub fn is_empty(&self) -> bool {
+        !self.whole_table && !self.force && !self.changed.iter().any(|&c| c)
+    }
+}
+
+/// Why a planner could not apply [`ModelChanges`].
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum ChangeError {
+    /// The table has another shape.
+    #[error(transparent)]
+    Shape(#[from] CmdpError),
+    /// A view does not fit the model.
+    #[error(transparent)]
+    View(#[from] MdaglError),
+}
+
+/// `to = from`, reusing `to`'s buffers when it already holds a model.
+fn copy_view(to: &mut Option<Mdagl>, from: &Mdagl) {
+    match to {
+        Some(m) => m.clone_from(from),
+        None => *to = Some(from.clone()),
+    }
 }
 
 impl PlannedModel {
@@ -365,6 +427,14 @@ impl PlannedModel {
             forced: true,
             converged: false,
             inline: true,
+            last: PlanStats {
+                sweeps: 0,
+                residual: f64::INFINITY,
+                converged: false,
+            },
+            table_unsent: false,
+            pending_views: Vec::new(),
+            pending: Vec::new(),
         })
     }
 
@@ -384,9 +454,32 @@ impl PlannedModel {
     }
 
     /// Recomputes action `a`'s rows from `view` (see [`EffectTable::refresh`]).
+    ///
+    /// With planning elsewhere ([`set_inline_planning(false)`](Self::set_inline_planning))
+    /// this only keeps a copy of `view` for the planner, which recomputes the rows on its own
+    /// thread: [`table`](Self::table) then no longer follows the views.
     pub fn refresh(&mut self, a: usize, view: &Mdagl) -> Result<(), MdaglError> {
-        let moved = self.table.refresh(a, view, &self.structure)?;
-        self.note_change(moved);
+        if self.inline {
+            let moved = self.table.refresh(a, view, &self.structure)?;
+            self.note_change(moved);
+            return Ok(());
+        }
+        if view.n_classes() != self.structure.n_effects() {
+            return Err(MdaglError::WrongOutputLen {
+                expected: view.n_classes(),
+                got: self.structure.n_effects(),
+            });
+        }
+        if view.n_features() != self.structure.n_features() {
+            return Err(MdaglError::WrongFeatureCount {
+                expected: view.n_features(),
+                got: self.structure.n_features(),
+            });
+        }
+        if let (Some(slot), Some(flag)) = (self.pending_views.get_mut(a), self.pending.get_mut(a)) {
+            copy_view(slot, view);
+            *flag = true;
+        }
         Ok(())
     }
 
@@ -394,6 +487,7 @@ impl PlannedModel {
     pub fn set(&mut self, a: usize, s: usize, probs: &[f64]) {
         let moved = self.table.set(a, s, probs);
         self.note_change(moved);
+        self.table_unsent = !self.inline;
     }
 
     /// Makes the next [`replan`](Self::replan) plan whatever the model's drift (for changes
@@ -409,25 +503,80 @@ impl PlannedModel {
     /// Whether the model moved enough since the last plan to need another (or the last plan
     /// stopped before converging).
     pub fn needs_plan(&self) -> bool {
-        self.forced || !self.converged || self.drift > self.planner.params().tolerance
+        self.forced
+            || !self.converged
+            || self.drift > self.planner.params().tolerance
+            || self.table_unsent
+            || self.pending.iter().any(|&p| p)
     }
 
     /// Chooses who plans: `true` (the default) plans inside [`replan`](Self::replan) on the
-    /// calling thread; `false` makes `replan` a no-op, for an acting loop that hands the model
-    /// to a planner thread ([`crate::realtime::PlannerThread`]) and adopts its plans.
+    /// calling thread; `false` makes `replan` a no-op, for an acting loop that hands its
+    /// changes to a planner thread ([`crate::realtime::PlannerThread`]) and adopts its plans.
+    /// From then on [`refresh`](Self::refresh) defers the table's rows to that planner.
     pub fn set_inline_planning(&mut self, inline: bool) {
+        if self.inline && !inline {
+            // The planner starts from the table as it is now.
+            self.table_unsent = true;
+            let n = self.structure.n_actions();
+            self.pending_views.resize(n, None);
+            self.pending.resize(n, false);
+        }
         self.inline = inline;
     }
 
-    /// Copies the effect table into `table` for a planner elsewhere and counts the model as
-    /// planned from here on (its drift restarts). Allocation-free.
-    pub fn snapshot_into(&mut self, table: &mut EffectTable) -> Result<(), CmdpError> {
-        table.copy_from(&self.table)?;
+    /// Hands the changes since the last snapshot to `changes`, for a planner elsewhere, and
+    /// counts the model as planned from here on. Allocation-free once each action's view has
+    /// been handed over once.
+    pub fn snapshot_into(&mut self, changes: &mut ModelChanges) -> Result<(), CmdpError> {
+        changes.whole_table = self.table_unsent;
+        if self.table_unsent {
+            changes.table.copy_from(&self.table)?;
+            self.table_unsent = false;
+        }
+        changes.force = self.forced;
+        changes.changed.fill(false);
+        for (a, pending) in self.pending.iter_mut().enumerate() {
+            if let (true, Some(view), Some(slot)) = (
+                *pending,
+                self.pending_views[a].as_ref(),
+                changes.views.get_mut(a),
+            ) {
+                copy_view(slot, view);
+                changes.changed[a] = true;
+            }
+            *pending = false;
+        }
         self.drift = 0.0;
         self.forced = false;
         // Until the plan comes back, a further change must be measured against this one.
         self.converged = true;
         Ok(())
+    }
+
+    /// Applies changes made elsewhere (the planner side of
+    /// [`snapshot_into`](Self::snapshot_into)): copies the table if it was sent whole, then
+    /// recomputes the rows of every action whose view changed. The drift gate then decides
+    /// whether [`replan`](Self::replan) has work to do.
+    pub fn apply(&mut self, changes: &ModelChanges) -> Result<(), ChangeError> {
+        if changes.whole_table {
+            self.table.copy_from(&changes.table)?;
+            self.forced = true;
+        }
+        if changes.force {
+            self.forced = true;
+        }
+        for (a, view) in changes.views.iter().enumerate() {
+            if let (true, Some(view)) = (changes.changed[a], view) {
+                self.refresh(a, view)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Statistics of the last plan made here or adopted.
+    pub fn last_plan(&self) -> PlanStats {
+        self.last
     }
 
     /// Adopts a plan made elsewhere on a snapshot of this model.
@@ -469,6 +618,7 @@ impl PlannedModel {
     }
 
     fn planned(&mut self, stats: PlanStats) {
+        self.last = stats;
         self.converged = stats.converged;
         let gamma = self.planner.params().gamma;
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
