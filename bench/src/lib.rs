@@ -7,6 +7,9 @@
 //!   `tes fit` runs on in the README (`data/fit-demo.csv`).
 
 pub mod experiment;
+pub mod fixtures;
+pub mod relay;
+pub mod scaling;
 pub mod stats;
 pub mod svg;
 

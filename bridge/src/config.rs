@@ -189,11 +189,39 @@ impl PollConfig {
 }
 
 /// iceoryx2 settings (the `[ipc]` table).
-#[derive(Debug, Clone, PartialEq, Eq, Default, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct IpcConfig {
     /// Prefix for every service name (to run several systems side by side, or in tests).
     pub service_prefix: String,
+    /// How to wait for commands: `block` (default), `spin`, `spin-then-block[:<µs>]`.
+    pub wait: String,
+    /// The per-action budget the observation → command latency is held to, µs (default
+    /// 1000): overruns are counted in the latency report.
+    pub budget_us: u64,
+    /// Commands left out of the latency report (default 0).
+    pub warmup_commands: u64,
+    /// Where to write the latency report (JSON) at exit (default: nowhere).
+    pub latency_report: Option<std::path::PathBuf>,
+}
+
+impl Default for IpcConfig {
+    fn default() -> Self {
+        Self {
+            service_prefix: String::new(),
+            wait: "block".to_owned(),
+            budget_us: 1000,
+            warmup_commands: 0,
+            latency_report: None,
+        }
+    }
+}
+
+impl IpcConfig {
+    /// The wait strategy `wait` names (checked when the config is read).
+    pub fn wait_strategy(&self) -> tes_topics::channel::WaitStrategy {
+        self.wait.parse().unwrap_or_default()
+    }
 }
 
 #[derive(Debug, Deserialize)]
@@ -378,6 +406,12 @@ impl BridgeConfig {
         .map_err(|e| invalid(&e.key, e.reason))?;
         if raw.ipc.service_prefix.len() > 64 {
             return Err(invalid("ipc.service_prefix", "must be at most 64 bytes"));
+        }
+        if let Err(e) = raw.ipc.wait.parse::<tes_topics::channel::WaitStrategy>() {
+            return Err(invalid("ipc.wait", e.to_string()));
+        }
+        if raw.ipc.budget_us == 0 {
+            return Err(invalid("ipc.budget_us", "must be at least 1"));
         }
         Ok(Self {
             transport,

@@ -28,12 +28,11 @@
 //! ```
 
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
-use iceoryx2::port::update_connections::UpdateConnections;
-use iceoryx2::prelude::*;
-use iceoryx2::waitset::WaitSetRunResult;
+use tes_topics::channel::{Idle, Inbox, Outbox, WaitStrategy};
+use tes_topics::latency::{LatencyRecorder, LatencyReport};
 use tes_topics::{Command, MotorState, service};
 
 use crate::bridge::{Bridge, BridgeError};
@@ -101,141 +100,116 @@ pub struct RunSummary {
     pub refused: u64,
     /// Whether a signal ended the loop.
     pub interrupted: bool,
+    /// Observation → command latency of the commands received (keep-alives left out).
+    pub latency: LatencyReport,
 }
 
 use tes_topics::channel::ipc_err;
 pub use tes_topics::channel::{IpcError, monotonic_ns};
 
 /// Runs the bridge until a signal (if handled) or the stop flag; brakes any motion on exit.
+///
+/// Waits for commands by `wait` (see [`WaitStrategy`]) and at most until the bridge's next
+/// timed duty (poll, keep-alive, watchdog). Each command's observation → command latency is
+/// recorded into `latency` on arrival, before any work.
 pub fn run<T: Transport, C: Clock>(
     bridge: &mut Bridge<T>,
     clock: &C,
     names: &ServiceNames,
     opts: &RunOptions,
 ) -> Result<RunSummary, IpcError> {
-    let signals = if opts.handle_signals {
-        SignalHandlingMode::HandleTerminationRequests
-    } else {
-        SignalHandlingMode::Disabled
-    };
-    let name = |s: &str| ServiceName::new(s).map_err(ipc_err("use the service name"));
-    let node = NodeBuilder::new()
-        .config(&Config::default())
-        .signal_handling_mode(signals)
-        .create::<ipc::Service>()
-        .map_err(ipc_err("create the node"))?;
-    let commands = tes_topics::channel::pubsub::<Command>(&node, &names.command, 0)?;
-    let subscriber = commands
-        .subscriber_builder()
-        .create()
-        .map_err(ipc_err("create the command subscriber"))?;
-    let command_event = node
-        .service_builder(&name(&names.command_event)?)
-        .event()
-        .open_or_create()
-        .map_err(ipc_err("open the command event service"))?;
-    let listener = command_event
-        .listener_builder()
-        .create()
-        .map_err(ipc_err("create the command listener"))?;
-    let states = tes_topics::channel::pubsub::<MotorState>(&node, &names.motor_state, 0)?;
-    let publisher = states
-        .publisher_builder()
-        .create()
-        .map_err(ipc_err("create the motor state publisher"))?;
-    let state_event = node
-        .service_builder(&name(&names.motor_state_event)?)
-        .event()
-        .open_or_create()
-        .map_err(ipc_err("open the motor state event service"))?;
-    let notifier = state_event
-        .notifier_builder()
-        .create()
-        .map_err(ipc_err("create the motor state notifier"))?;
-    subscriber
-        .update_connections()
-        .map_err(ipc_err("connect the command subscriber"))?;
-    publisher
-        .update_connections()
-        .map_err(ipc_err("connect the motor state publisher"))?;
+    run_with(
+        bridge,
+        clock,
+        names,
+        opts,
+        WaitStrategy::Block,
+        &mut LatencyRecorder::new(1000, 0),
+    )
+}
 
-    let waitset = WaitSetBuilder::new()
-        .signal_handling_mode(signals)
-        .create::<ipc::Service>()
-        .map_err(ipc_err("create the wait set"))?;
-    // The watchdog deadline is clock time, like everything the bridge decides; the wait set
-    // only needs it in wall time to wake the loop when the controller falls silent.
-    let _guard = waitset
-        .attach_deadline(&listener, clock.real_duration(bridge.watchdog().deadline()))
-        .map_err(ipc_err("attach the listener"))?;
-    tracing::info!(command = %names.command, motor_state = %names.motor_state, "bridge loop running");
+/// [`run`] with a wait strategy, recording latencies into `latency`.
+pub fn run_with<T: Transport, C: Clock>(
+    bridge: &mut Bridge<T>,
+    clock: &C,
+    names: &ServiceNames,
+    opts: &RunOptions,
+    wait: WaitStrategy,
+    latency: &mut LatencyRecorder,
+) -> Result<RunSummary, IpcError> {
+    let stop: Arc<AtomicBool> = opts.stop.clone().unwrap_or_default();
+    if opts.handle_signals {
+        for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+            signal_hook::flag::register(signal, stop.clone()).map_err(ipc_err("handle signals"))?;
+        }
+    }
+    let node = tes_topics::channel::node(false)?;
+    let commands: Inbox<Command> =
+        Inbox::open(&node, &names.command, &names.command_event, 0, wait)?;
+    let states: Outbox<MotorState> =
+        Outbox::open(&node, &names.motor_state, &names.motor_state_event, 0)?;
+    tracing::info!(command = %names.command, motor_state = %names.motor_state, %wait, "bridge loop running");
 
     let mut summary = RunSummary::default();
-    let publish = |state: MotorState, summary: &mut RunSummary| -> Result<(), IpcError> {
-        let sample = publisher
-            .loan_uninit()
-            .map_err(ipc_err("loan a motor state sample"))?;
-        let sample = sample.write_payload(MotorState {
-            stamp_ns: monotonic_ns(),
-            ..state
-        });
-        sample.send().map_err(ipc_err("publish a motor state"))?;
-        notifier
-            .notify()
-            .map_err(ipc_err("notify the motor state event"))?;
-        summary.published += 1;
-        Ok(())
-    };
     loop {
-        if opts.stop.as_ref().is_some_and(|s| s.load(Ordering::SeqCst)) {
-            break;
-        }
-        // Brick time to wall time (the simulated brick may run faster than the wall clock).
-        let mut timeout = clock
+        // Brick time to wall time (the simulated brick may run faster than the wall clock);
+        // at most 100 ms, so the stop flag is seen.
+        let timeout = clock
             .real_duration(bridge.next_wakeup(clock.now()))
-            .max(Duration::from_micros(20));
-        if opts.stop.is_some() {
-            timeout = timeout.min(Duration::from_millis(100));
-        }
-        let result = waitset
-            .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, timeout)
-            .map_err(ipc_err("wait"))?;
-        if matches!(
-            result,
-            WaitSetRunResult::Interrupt | WaitSetRunResult::TerminationRequest
-        ) {
-            summary.interrupted = true;
-            break;
-        }
-        // Drain the event so the wait set does not spin, then take every pending command.
-        listener
-            .try_wait(|_| {})
-            .map_err(ipc_err("drain the command listener"))?;
-        while let Some(sample) = subscriber.receive().map_err(ipc_err("receive a command"))? {
-            let cmd = *sample;
-            drop(sample);
-            summary.commands += 1;
-            match bridge.on_command(&cmd, clock.now()) {
-                Ok(()) => tracing::debug!(
-                    seq = cmd.seq,
-                    action = cmd.action,
-                    "command sent to the brick"
-                ),
-                Err(e @ BridgeError::UnknownAction(_)) => {
-                    summary.refused += 1;
-                    tracing::warn!(seq = cmd.seq, error = %e, "command refused");
+            .clamp(Duration::from_micros(20), Duration::from_millis(100));
+        match commands.next(timeout, &stop)? {
+            Ok(cmd) => {
+                on_command(bridge, clock, latency, cmd, &mut summary);
+                // Take every other pending command too.
+                while let Some(cmd) = commands.try_next()? {
+                    on_command(bridge, clock, latency, cmd, &mut summary);
                 }
-                Err(e) => {
-                    summary.refused += 1;
-                    tracing::warn!(seq = cmd.seq, error = %e, "command not delivered to the brick");
-                }
+            }
+            Err(Idle::Timeout) => {}
+            Err(Idle::Stopped) => {
+                summary.interrupted = opts.handle_signals;
+                break;
             }
         }
         if let Some(state) = bridge.tick(clock.now()) {
-            publish(state, &mut summary)?;
+            states.send(MotorState {
+                stamp_ns: monotonic_ns(),
+                ..state
+            })?;
+            summary.published += 1;
         }
     }
     bridge.stop();
+    summary.latency = latency.report();
     tracing::info!(?summary, "bridge loop stopped");
     Ok(summary)
+}
+
+/// One received command: its latency recorded first, then handed to the brick.
+fn on_command<T: Transport, C: Clock>(
+    bridge: &mut Bridge<T>,
+    clock: &C,
+    latency: &mut LatencyRecorder,
+    cmd: Command,
+    summary: &mut RunSummary,
+) {
+    if cmd.observed_ns != 0 {
+        latency.record_ns(monotonic_ns().saturating_sub(cmd.observed_ns));
+    }
+    summary.commands += 1;
+    match bridge.on_command(&cmd, clock.now()) {
+        Ok(()) => tracing::debug!(
+            seq = cmd.seq,
+            action = cmd.action,
+            "command sent to the brick"
+        ),
+        Err(e @ BridgeError::UnknownAction(_)) => {
+            summary.refused += 1;
+            tracing::warn!(seq = cmd.seq, error = %e, "command refused");
+        }
+        Err(e) => {
+            summary.refused += 1;
+            tracing::warn!(seq = cmd.seq, error = %e, "command not delivered to the brick");
+        }
+    }
 }

@@ -25,6 +25,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+use tes_topics::latency::LatencyRecorder;
 use thiserror::Error;
 
 use crate::brick::{BrickConfigError, SimBrick};
@@ -43,6 +44,14 @@ pub enum ProcessError {
     /// The iceoryx2 loop failed.
     #[error(transparent)]
     Ipc(#[from] IpcError),
+    /// The latency report could not be written.
+    #[error("cannot write the latency report {}: {error}", path.display())]
+    Report {
+        /// The report file.
+        path: std::path::PathBuf,
+        /// Why.
+        error: std::io::Error,
+    },
 }
 
 /// Runs the bridge with `cfg` until a signal (if `opts` handles them) or `opts.stop`; brakes
@@ -96,7 +105,24 @@ pub fn run(cfg: &BridgeConfig, opts: &RunOptions) -> Result<RunSummary, ProcessE
     );
     let mut bridge = Bridge::new(transport, cfg);
     let names = ServiceNames::with_prefix(&cfg.ipc.service_prefix);
-    let summary = ipc::run(&mut bridge, &clock, &names, opts)?;
+    let mut latency = LatencyRecorder::new(cfg.ipc.budget_us, cfg.ipc.warmup_commands);
+    let summary = ipc::run_with(
+        &mut bridge,
+        &clock,
+        &names,
+        opts,
+        cfg.ipc.wait_strategy(),
+        &mut latency,
+    )?;
     tracing::info!(?summary, stats = ?bridge.stats(), "bridge stopped");
+    if let Some(path) = &cfg.ipc.latency_report {
+        summary
+            .latency
+            .save(path)
+            .map_err(|error| ProcessError::Report {
+                path: path.clone(),
+                error,
+            })?;
+    }
     Ok(summary)
 }

@@ -18,6 +18,7 @@
 //! with no IPC, clock or I/O inside; the controller process wraps it.
 
 pub mod agents;
+pub mod alloc_count;
 pub mod cmdp;
 pub mod labelled_csv;
 pub mod library;

@@ -80,6 +80,11 @@ fn config(args: &RunArgs) -> anyhow::Result<ControllerConfig> {
     Ok(cfg)
 }
 
+/// Counts the acting loop's allocations for the run's report.
+#[global_allocator]
+static ALLOCATOR: tes_controller::alloc_count::CountingAllocator =
+    tes_controller::alloc_count::CountingAllocator;
+
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -91,19 +96,7 @@ fn main() -> ExitCode {
     let Cmd::Run(args) = Cli::parse().command;
     let result = config(&args).and_then(|cfg| {
         let stop = process::stop_on_signals().context("cannot install signal handlers")?;
-        let summary = process::run(&cfg, &stop, |line| println!("{line}"))?;
-        println!(
-            "controller: {} episodes, {} actions, decision latency p50 {} us p99 {} us max {} us, {} over the {} us budget, {} observations refused, {} plans",
-            summary.episodes,
-            summary.actions,
-            summary.latency_us[0],
-            summary.latency_us[2],
-            summary.latency_us[4],
-            summary.misses,
-            cfg.budget_us,
-            summary.refused,
-            summary.plans
-        );
+        let summary = process::run_to_end(&cfg, &stop)?;
         if summary.failed_saves > 0 {
             anyhow::bail!("{} library saves failed", summary.failed_saves);
         }

@@ -384,7 +384,7 @@ impl ModelChanges {
             table: EffectTable::uniform(structure),
             whole_table: false,
             force: false,
-            views: vec![None; structure.n_actions()],
+            views: vec![placeholder_view(structure); structure.n_actions()],
             changed: vec![false; structure.n_actions()],
         }
     }
@@ -404,6 +404,17 @@ pub enum ChangeError {
     /// A view does not fit the model.
     #[error(transparent)]
     View(#[from] MdaglError),
+}
+
+/// A view of `structure`'s shape to copy real views into, so that the first copy of each
+/// action's view does not allocate in the acting loop (`None` if the shape has no view).
+fn placeholder_view(structure: &CmdpStructure) -> Option<Mdagl> {
+    Mdagl::new(
+        structure.n_effects(),
+        structure.n_features(),
+        crate::mdagl::MdaglParams::default(),
+    )
+    .ok()
 }
 
 /// `to = from`, reusing `to`'s buffers when it already holds a model.
@@ -519,7 +530,8 @@ impl PlannedModel {
             // The planner starts from the table as it is now.
             self.table_unsent = true;
             let n = self.structure.n_actions();
-            self.pending_views.resize(n, None);
+            self.pending_views
+                .resize(n, placeholder_view(&self.structure));
             self.pending.resize(n, false);
         }
         self.inline = inline;

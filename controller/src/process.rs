@@ -21,13 +21,14 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
-use hdrhistogram::Histogram;
 use serde::Deserialize;
 use tes_topics::channel::{self, Idle, Inbox, IpcError, Outbox, WaitStrategy, monotonic_ns};
+use tes_topics::latency::{LatencyRecorder, LatencyReport};
 use tes_topics::{Command, Observation, WorldMap, observation_flags, service};
 use thiserror::Error;
 
 use crate::agents::{Agent, AgentError, Tes, TesParams};
+use crate::alloc_count;
 use crate::cmdp::{CmdpError, CmdpStructure};
 use crate::library::store::{self, StoreError, StoredLibrary};
 use crate::library::{LibraryError, LibraryParams, ViewLibrary};
@@ -61,6 +62,10 @@ pub struct ControllerConfig {
     pub service_prefix: String,
     /// `map_timeout_s`: how long to wait for perception's world map (default 30 s).
     pub map_timeout_s: f64,
+    /// `warmup_actions`: actions left out of the latency and allocation figures (default 0).
+    pub warmup_actions: u64,
+    /// `report`: where to write the run's summary as JSON at exit (default: nowhere).
+    pub report: Option<PathBuf>,
 }
 
 impl Default for ControllerConfig {
@@ -76,6 +81,8 @@ impl Default for ControllerConfig {
             max_views: 20,
             service_prefix: String::new(),
             map_timeout_s: 30.0,
+            warmup_actions: 0,
+            report: None,
         }
     }
 }
@@ -180,25 +187,64 @@ pub enum ControllerError {
     /// The planner thread failed.
     #[error(transparent)]
     Planner(#[from] PlannerThreadError),
+    /// The run's report could not be written.
+    #[error("cannot write the report {}: {error}", path.display())]
+    Report {
+        /// The report file.
+        path: PathBuf,
+        /// Why.
+        error: std::io::Error,
+    },
 }
 
 /// What a controller run did.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ControllerSummary {
     /// Episodes that ended.
     pub episodes: u64,
     /// Commands published.
     pub actions: u64,
-    /// Decisions over the latency budget.
+    /// Decisions over the latency budget (after the warm-up).
     pub misses: u64,
-    /// Decision latency percentiles over the run, µs: p50, p90, p99, p99.9, max.
-    pub latency_us: [u64; 5],
+    /// Decision latency (observation stamped → command published), after the warm-up.
+    pub latency: LatencyReport,
+    /// Heap allocations on the acting path (observation received → command published) after
+    /// the warm-up; `None` if the process does not count them (no
+    /// [`CountingAllocator`](crate::alloc_count::CountingAllocator)).
+    pub allocations: Option<u64>,
+    /// Of `allocations`, those made inside iceoryx2 publishing the command (0.10 allocates
+    /// one small object per loaned sample).
+    pub ipc_allocations: Option<u64>,
     /// Observations refused (stale or duplicate sequence number, unknown state, bad reward).
     pub refused: u64,
     /// Library saves that failed (each is also logged).
     pub failed_saves: u64,
     /// Plans adopted from the planner thread.
     pub plans: u64,
+}
+
+impl std::fmt::Display for ControllerSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let l = &self.latency;
+        write!(
+            f,
+            "{} episodes, {} actions, decision latency p50 {} us p99 {} us max {} us, {} over the {} us budget, ",
+            self.episodes, self.actions, l.p50_us, l.p99_us, l.max_us, self.misses, l.budget_us
+        )?;
+        match self.allocations {
+            Some(n) => write!(
+                f,
+                "{n} allocations on the acting path ({} inside iceoryx2's publish), ",
+                self.ipc_allocations.unwrap_or(0)
+            )?,
+            None => f.write_str("allocations not counted, ")?,
+        }
+        write!(
+            f,
+            "{} observations refused, {} plans",
+            self.refused, self.plans
+        )
+    }
 }
 
 /// One finished episode, as printed.
@@ -285,44 +331,6 @@ pub fn derive_effect(map: &WorldMap, from: usize, to: usize) -> usize {
         (cells, turn.min(o - turn))
     };
     (0..e).min_by_key(|&k| distance(k)).unwrap_or(0)
-}
-
-/// Decision latencies, µs, in a histogram that never allocates when recording.
-struct Latencies {
-    histogram: Histogram<u64>,
-}
-
-impl Latencies {
-    /// 1 µs to 60 s at 3 significant digits.
-    fn new() -> Self {
-        Self {
-            histogram: Histogram::new_with_bounds(1, 60_000_000, 3)
-                .expect("the bounds are valid constants"),
-        }
-    }
-
-    fn record(&mut self, us: u64) {
-        // Clamped into range, so recording cannot fail or grow the histogram.
-        let _ = self.histogram.record(us.clamp(1, 60_000_000));
-    }
-
-    fn quantile(&self, q: f64) -> u64 {
-        if self.histogram.is_empty() {
-            0
-        } else {
-            self.histogram.value_at_quantile(q)
-        }
-    }
-
-    fn percentiles(&self) -> [u64; 5] {
-        [
-            self.quantile(0.5),
-            self.quantile(0.9),
-            self.quantile(0.99),
-            self.quantile(0.999),
-            self.histogram.max(),
-        ]
-    }
 }
 
 /// The library as it would be if the task ended now, saved atomically.
@@ -422,10 +430,12 @@ pub fn run(
     planner.offer(agent.model_mut())?;
     planner.wait(agent.model_mut(), Duration::from_secs(10))?;
 
-    let budget_ns = config.budget_us.saturating_mul(1000);
-    let mut all = Latencies::new();
-    let mut episode_latency = Latencies::new();
+    let mut all = LatencyRecorder::new(config.budget_us, config.warmup_actions);
+    let mut episode_latency = LatencyRecorder::new(config.budget_us, 0);
     let mut summary = empty_summary();
+    // Allocations on the acting path before the warm-up ended, to subtract.
+    let mut warmup_allocations = None;
+    let mut ipc_allocations = 0u64;
     let mut last_seq = 0u64;
     let mut command_seq = 0u64;
     // (state, action) of the command in flight, and the episode's running totals.
@@ -437,6 +447,11 @@ pub fn run(
             Err(Idle::Stopped) => break,
             Err(Idle::Timeout) => continue,
         };
+        // The acting path, from here to the command's publication.
+        let counting = alloc_count::count_here();
+        if warmup_allocations.is_none() && all.warmed_up() {
+            warmup_allocations = Some(alloc_count::counted());
+        }
         let Some(state) = map
             .state_index(obs.state)
             .filter(|&s| s < structure.n_states())
@@ -474,16 +489,18 @@ pub fn run(
         planner.offer(agent.model_mut())?;
         if obs.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0 {
             summary.episodes += 1;
+            // Reporting and saving are not on the acting path.
+            drop(counting);
             let line = EpisodeLine {
                 episode: obs.episode,
                 reward,
                 steps,
-                p50_us: episode_latency.quantile(0.5),
-                p99_us: episode_latency.quantile(0.99),
+                p50_us: episode_latency.quantile_us(0.5),
+                p99_us: episode_latency.quantile_us(0.99),
                 misses: episode_misses,
             };
             on_episode(&line);
-            episode_latency.histogram.reset();
+            episode_latency.reset();
             if let Err(e) = save_library(&agent, &library_path, map.world) {
                 summary.failed_saves += 1;
                 tracing::error!(error = %e, "the library was not saved; the previous file is intact");
@@ -494,31 +511,60 @@ pub fn run(
         let [left_deg, right_deg] = map.action_wheels[action];
         command_seq += 1;
         let now = monotonic_ns();
+        let before_send = alloc_count::counted();
         commands.send(Command {
             seq: command_seq,
             answers: obs.seq,
             stamp_ns: now,
+            observed_ns: obs.stamp_ns,
             action: action as u32,
             left_deg,
             right_deg,
             reserved: 0,
         })?;
+        if warmup_allocations.is_some() {
+            ipc_allocations += alloc_count::counted() - before_send;
+        }
+        drop(counting);
         pending = Some((state, action));
         steps += 1;
         summary.actions += 1;
         let latency_ns = now.saturating_sub(obs.stamp_ns);
-        if latency_ns > budget_ns {
-            summary.misses += 1;
-            episode_misses += 1;
-        }
-        all.record(latency_ns / 1000);
-        episode_latency.record(latency_ns / 1000);
+        let misses_before = episode_latency.misses();
+        all.record_ns(latency_ns);
+        episode_latency.record_ns(latency_ns);
+        episode_misses += episode_latency.misses() - misses_before;
     }
-    summary.latency_us = all.percentiles();
+    summary.latency = all.report();
+    summary.misses = summary.latency.misses;
+    summary.allocations = alloc_count::installed()
+        .then(|| alloc_count::counted() - warmup_allocations.unwrap_or(alloc_count::counted()));
+    summary.ipc_allocations = alloc_count::installed().then_some(ipc_allocations);
     summary.plans = planner.plans();
     if let Err(e) = save_library(&agent, &library_path, map.world) {
         summary.failed_saves += 1;
         tracing::error!(error = %e, "the library was not saved at shutdown; the previous file is intact");
+    }
+    Ok(summary)
+}
+
+/// [`run`] as a process runs it: episode lines and the final summary on stdout, the
+/// summary as JSON to `config.report` if set.
+pub fn run_to_end(
+    config: &ControllerConfig,
+    stop: &AtomicBool,
+) -> Result<ControllerSummary, ControllerError> {
+    let summary = run(config, stop, |line| println!("{line}"))?;
+    println!("controller: {summary}");
+    if let Some(path) = &config.report {
+        let write = || -> std::io::Result<()> {
+            let text = serde_json::to_string_pretty(&summary).map_err(std::io::Error::other)?;
+            std::fs::write(path, text + "\n")
+        };
+        write().map_err(|error| ControllerError::Report {
+            path: path.clone(),
+            error,
+        })?;
     }
     Ok(summary)
 }
@@ -528,7 +574,9 @@ fn empty_summary() -> ControllerSummary {
         episodes: 0,
         actions: 0,
         misses: 0,
-        latency_us: [0; 5],
+        latency: LatencyReport::default(),
+        allocations: None,
+        ipc_allocations: None,
         refused: 0,
         failed_saves: 0,
         plans: 0,
@@ -641,16 +689,5 @@ mod tests {
         }
         let err = ControllerConfig::from_toml("budjet_us = 5").unwrap_err();
         assert!(err.reason.contains("budjet_us"), "{err}");
-    }
-
-    #[test]
-    fn latencies_record_without_growing() {
-        let mut l = Latencies::new();
-        for us in [1, 5, 5, 10, 1_000_000_000] {
-            l.record(us);
-        }
-        let [p50, _, _, _, max] = l.percentiles();
-        assert_eq!(p50, 5);
-        assert!(max >= 60_000_000 - 60_000, "clamped, not refused");
     }
 }

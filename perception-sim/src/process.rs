@@ -37,6 +37,9 @@ pub struct PerceptionConfig {
     pub arena: u32,
     /// `episodes`: how many to run before exiting (default 20).
     pub episodes: u32,
+    /// `actions`: stop after this many actions in all, ending the episode then as truncated
+    /// (default 0: no limit; for benchmarks that run a fixed number of actions).
+    pub actions: u64,
     /// `seed`: start poses and slip (default 1).
     pub seed: u64,
     /// `real_time_factor`: 1.0 = the paper's physical 200 ms settle; 0 = none (default).
@@ -64,6 +67,7 @@ impl Default for PerceptionConfig {
         Self {
             arena: 3,
             episodes: 20,
+            actions: 0,
             seed: 1,
             real_time_factor: 0.0,
             settle_ms: 200,
@@ -255,6 +259,7 @@ pub fn run(
     let mut counts: Option<[i32; 2]> = None;
     let mut last_command = 0u64;
     let ports = [config.left_port, config.right_port];
+    let mut actions = 0u64;
     for episode in 0..config.episodes {
         let mut pose = arena.random_start(&mut rng);
         let mut state = arena.discretise(pose);
@@ -329,11 +334,13 @@ pub fn run(
             reward = outcome.reward;
             summary.reward += reward;
             step += 1;
+            actions += 1;
             after_command = command;
+            let out_of_actions = config.actions > 0 && actions >= config.actions;
             flags = match outcome.status {
                 EpisodeStatus::Terminal => observation_flags::TERMINAL,
                 EpisodeStatus::Stuck => observation_flags::TRUNCATED,
-                EpisodeStatus::Continuing if step >= config.step_cap => {
+                EpisodeStatus::Continuing if step >= config.step_cap || out_of_actions => {
                     observation_flags::TRUNCATED
                 }
                 EpisodeStatus::Continuing => 0,
@@ -346,6 +353,10 @@ pub fn run(
             actions = step,
             "episode over"
         );
+        if config.actions > 0 && actions >= config.actions {
+            tracing::info!(actions, "action limit reached");
+            break;
+        }
     }
     Ok(summary)
 }

@@ -109,11 +109,11 @@ impl Default for LaunchSection {
 /// A whole launch file.
 #[derive(Debug, Clone, Default, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-struct LaunchFile {
-    launch: LaunchSection,
-    perception: toml::Table,
-    controller: toml::Table,
-    bridge: toml::Table,
+pub(crate) struct LaunchFile {
+    pub(crate) launch: LaunchSection,
+    pub(crate) perception: toml::Table,
+    pub(crate) controller: toml::Table,
+    pub(crate) bridge: toml::Table,
 }
 
 /// The simulated brick's speed-up at real-time factor 0 ("as fast as possible"): motor
@@ -124,17 +124,24 @@ const FASTEST_TIME_SCALE: f64 = 200.0;
 pub const ROLES: [&str; 3] = ["bridge", "controller", "perception-sim"];
 
 /// One child's launch recipe.
-struct ChildSpec {
-    role: &'static str,
-    config: PathBuf,
+pub(crate) struct ChildSpec {
+    pub(crate) role: &'static str,
+    pub(crate) config: PathBuf,
 }
 
 /// A running (or finished) child.
-struct Running {
-    spec: ChildSpec,
-    child: Child,
-    restarts: u32,
-    status: Option<ExitStatus>,
+pub(crate) struct Running {
+    pub(crate) spec: ChildSpec,
+    pub(crate) child: Child,
+    pub(crate) restarts: u32,
+    pub(crate) status: Option<ExitStatus>,
+}
+
+/// How a group run went.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) struct GroupOutcome {
+    /// Episodes the controller reported.
+    pub(crate) episodes: u32,
 }
 
 /// Runs `tes launch`.
@@ -150,8 +157,19 @@ pub fn run(args: &LaunchArgs) -> Result<()> {
     if let Some(n) = args.episodes {
         file.launch.episodes = n;
     }
-    let specs = prepare(&file).context("the launch settings are invalid; nothing was started")?;
+    run_file(&file, true).map(|_| ())
+}
+
+/// Runs the group `file` describes until perception finishes, a child fails (or exhausts its
+/// restarts) or a signal; `echo` prints the controller's lines and the launcher's notes.
+pub(crate) fn run_file(file: &LaunchFile, echo: bool) -> Result<GroupOutcome> {
+    let specs = prepare(file).context("the launch settings are invalid; nothing was started")?;
     let launch = &file.launch;
+    let note = |text: String| {
+        if echo {
+            eprintln!("{text}");
+        }
+    };
 
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
@@ -160,13 +178,15 @@ pub fn run(args: &LaunchArgs) -> Result<()> {
     }
     match channel::clean_stale_resources() {
         Ok(0) => {}
-        Ok(n) => eprintln!("launch: removed the stale iceoryx2 resources of {n} dead processes"),
+        Ok(n) => note(format!(
+            "launch: removed the stale iceoryx2 resources of {n} dead processes"
+        )),
         Err(e) => eprintln!("launch: warning: {e}"),
     }
-    eprintln!(
+    note(format!(
         "launch: arena Env {}, {} episodes, real-time factor {}, wait {}, restart {:?}",
         launch.arena, launch.episodes, launch.real_time_factor, launch.wait, launch.restart
-    );
+    ));
     let (lines_tx, lines) = mpsc::channel::<String>();
     let mut children = Vec::new();
     for spec in specs {
@@ -186,7 +206,9 @@ pub fn run(args: &LaunchArgs) -> Result<()> {
             if line.starts_with("episode ") {
                 episodes += 1;
             }
-            println!("{line}");
+            if echo {
+                println!("{line}");
+            }
         }
         if stop.load(Ordering::Relaxed) {
             eprintln!("launch: stop requested; stopping the group");
@@ -202,7 +224,7 @@ pub fn run(args: &LaunchArgs) -> Result<()> {
             };
             let role = children[i].spec.role;
             if role == "perception-sim" && status.success() {
-                eprintln!("launch: perception-sim finished its episodes; stopping the group");
+                note("launch: perception-sim finished its episodes; stopping the group".into());
                 children[i].status = Some(status);
                 break 'supervise;
             }
@@ -233,7 +255,9 @@ pub fn run(args: &LaunchArgs) -> Result<()> {
         if line.starts_with("episode ") {
             episodes += 1;
         }
-        println!("{line}");
+        if echo {
+            println!("{line}");
+        }
     }
     let mut failed: Vec<String> = failure.into_iter().collect();
     for c in &children {
@@ -245,18 +269,20 @@ pub fn run(args: &LaunchArgs) -> Result<()> {
         }
     }
     failed.dedup();
-    println!(
-        "launch: {episodes} episodes; {}",
-        if failed.is_empty() {
-            "all processes stopped cleanly".to_owned()
-        } else {
-            format!("failed: {}", failed.join("; "))
-        }
-    );
+    if echo {
+        println!(
+            "launch: {episodes} episodes; {}",
+            if failed.is_empty() {
+                "all processes stopped cleanly".to_owned()
+            } else {
+                format!("failed: {}", failed.join("; "))
+            }
+        );
+    }
     if !failed.is_empty() {
         bail!("a process failed: {}", failed.join("; "));
     }
-    Ok(())
+    Ok(GroupOutcome { episodes })
 }
 
 /// Checks every child's settings and writes them to the run directory.
@@ -325,6 +351,8 @@ fn prepare(file: &LaunchFile) -> Result<Vec<ChildSpec>> {
     if let Some(t) = ipc.as_table_mut() {
         t.entry("service_prefix".to_owned())
             .or_insert_with(|| s(&prefix));
+        t.entry("wait".to_owned())
+            .or_insert_with(|| s(&wait.to_string()));
     }
     let time_scale = if l.real_time_factor == 0.0 {
         FASTEST_TIME_SCALE
@@ -373,7 +401,7 @@ fn prepare(file: &LaunchFile) -> Result<Vec<ChildSpec>> {
 }
 
 /// Starts one child: this executable in the child's role, dying with the launcher.
-fn spawn(spec: &ChildSpec, lines: &mpsc::Sender<String>) -> Result<Child> {
+pub(crate) fn spawn(spec: &ChildSpec, lines: &mpsc::Sender<String>) -> Result<Child> {
     let exe = std::env::current_exe().context("cannot find the tes executable")?;
     let mut cmd = Command::new(exe);
     cmd.arg("child")
@@ -411,7 +439,7 @@ fn relay(out: ChildStdout, lines: mpsc::Sender<String>) {
 }
 
 /// SIGINT, then SIGTERM after `grace`, then SIGKILL after `grace`; waits for every child.
-fn shutdown(children: &mut [Running], grace: Duration) {
+pub(crate) fn shutdown(children: &mut [Running], grace: Duration) {
     for signal in [Signal::SIGINT, Signal::SIGTERM, Signal::SIGKILL] {
         let mut any = false;
         for c in children.iter_mut() {
@@ -469,7 +497,7 @@ fn stopped_by_us(status: ExitStatus) -> bool {
 }
 
 /// "exited with status 3" / "was killed by SIGKILL".
-fn describe(status: ExitStatus) -> String {
+pub(crate) fn describe(status: ExitStatus) -> String {
     use std::os::unix::process::ExitStatusExt;
     match (status.code(), status.signal()) {
         (Some(code), _) => format!("exited with status {code}"),
@@ -489,18 +517,7 @@ pub fn run_child(role: &str, config: &Path) -> Result<()> {
         "controller" => {
             let cfg = ControllerConfig::from_toml(&text)?;
             let stop = tes_controller::process::stop_on_signals()?;
-            let summary = tes_controller::process::run(&cfg, &stop, |line| println!("{line}"))?;
-            println!(
-                "controller: {} episodes, {} actions, decision latency p50 {} us p99 {} us max {} us, {} over the {} us budget, {} plans",
-                summary.episodes,
-                summary.actions,
-                summary.latency_us[0],
-                summary.latency_us[2],
-                summary.latency_us[4],
-                summary.misses,
-                cfg.budget_us,
-                summary.plans
-            );
+            let summary = tes_controller::process::run_to_end(&cfg, &stop)?;
             if summary.failed_saves > 0 {
                 bail!("{} library saves failed", summary.failed_saves);
             }
@@ -520,6 +537,12 @@ pub fn run_child(role: &str, config: &Path) -> Result<()> {
                 stop: Some(stop),
             };
             tes_bridge::process::run(&cfg, &opts)?;
+            Ok(())
+        }
+        relay if tes_bench::relay::ROLES.contains(&relay) => {
+            let cfg = tes_bench::relay::RelayConfig::from_toml(&text)?;
+            let stop = tes_controller::process::stop_on_signals()?;
+            tes_bench::relay::run(relay, &cfg, &stop)?;
             Ok(())
         }
         other => bail!("unknown role {other:?} (expected one of {ROLES:?})"),

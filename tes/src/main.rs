@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod bench;
 mod experiment;
 mod fit;
 mod launch;
@@ -28,6 +29,8 @@ enum Command {
     Library(library::LibraryArgs),
     /// Start perception-sim, controller and bridge as one process group.
     Launch(launch::LaunchArgs),
+    /// Latency benchmarks: the real loop against the raw iceoryx2 floor, and scaling sweeps.
+    Bench(bench::BenchArgs),
     /// Run one process of the group (used by `tes launch`).
     #[command(hide = true)]
     Child {
@@ -51,6 +54,11 @@ fn init_child_logging() {
         .init();
 }
 
+/// Counts the controller child's acting-path allocations for its report.
+#[global_allocator]
+static ALLOCATOR: tes_controller::alloc_count::CountingAllocator =
+    tes_controller::alloc_count::CountingAllocator;
+
 fn main() -> ExitCode {
     // Die quietly on a closed pipe (`tes library show … | head`), as command-line tools do,
     // instead of panicking on the next print.
@@ -68,6 +76,7 @@ fn main() -> ExitCode {
         Command::Experiment(args) => experiment::run(&args),
         Command::Library(args) => library::run(&args),
         Command::Launch(args) => launch::run(&args),
+        Command::Bench(args) => bench::run(&args),
         Command::Child { role, config } => {
             init_child_logging();
             launch::run_child(&role, &config)

@@ -32,6 +32,7 @@
 use iceoryx2::prelude::ZeroCopySend;
 
 pub mod channel;
+pub mod latency;
 pub mod settings;
 mod world_map;
 
@@ -215,6 +216,9 @@ pub struct Command {
     pub answers: u64,
     /// Monotonic clock (ns) when the command was published.
     pub stamp_ns: u64,
+    /// The answered observation's `stamp_ns` (0 if none, e.g. a keep-alive): lets the
+    /// receiver measure the whole observation → command latency.
+    pub observed_ns: u64,
     /// Abstract action id (0..3 for the paper's robot).
     pub action: u32,
     /// Signed target rotation of the left wheel, degrees.
@@ -310,7 +314,7 @@ mod tests {
         // protocol change and must be deliberate.
         assert_eq!(core::mem::size_of::<FeatureBits>(), 8 * FEATURE_WORDS);
         assert_eq!(core::mem::size_of::<Observation>(), 96);
-        assert_eq!(core::mem::size_of::<Command>(), 40);
+        assert_eq!(core::mem::size_of::<Command>(), 48);
         assert_eq!(core::mem::size_of::<MotorState>(), 64);
         assert_eq!(FEATURE_CAPACITY, 320);
     }

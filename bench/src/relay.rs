@@ -1,0 +1,335 @@
+//! The latency floor: a raw iceoryx2 two-hop relay with the controller loop's payloads and
+//! wait strategy and no work, run as three processes in the roles of the real ones.
+//!
+//! * **source** (perception's place) stamps and publishes an [`Observation`], then waits for
+//!   the sink's [`MotorState`] before the next one — the same closed loop as the real group;
+//! * **hop** (the controller's place) answers each observation at once with a [`Command`]
+//!   carrying the observation's stamp;
+//! * **sink** (the bridge's place) records `now − stamp` for each command, exactly where the
+//!   real bridge records it, and acknowledges with a [`MotorState`].
+//!
+//! What the sink measures is therefore the cost of two iceoryx2 hops and two wake-ups by the
+//! chosen strategy on this machine: the floor any controller on this transport pays.
+
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::time::{Duration, Instant};
+
+use serde::{Deserialize, Serialize};
+use tes_topics::channel::{self, Idle, Inbox, IpcError, Outbox, WaitStrategy, monotonic_ns};
+use tes_topics::latency::{LatencyRecorder, LatencyReport};
+use tes_topics::settings::{self, SettingError};
+use tes_topics::{Command, FeatureBits, MotorState, Observation, observation_flags, service};
+
+/// The roles, as `tes child` names them.
+pub const ROLES: [&str; 3] = ["relay-source", "relay-hop", "relay-sink"];
+
+/// Settings shared by the three relay processes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RelayConfig {
+    /// Prefixed to the services (each run its own).
+    pub service_prefix: String,
+    /// `block`, `spin` or `spin-then-block[:µs]`.
+    pub wait: String,
+    /// Round trips in all, warm-up included.
+    pub messages: u64,
+    /// Round trips left out of the report.
+    pub warmup: u64,
+    /// The budget overruns are counted against, µs.
+    pub budget_us: u64,
+    /// Where the sink writes its [`LatencyReport`].
+    pub report: Option<PathBuf>,
+    /// Give up after this long without a message, ms.
+    pub idle_timeout_ms: u64,
+}
+
+impl Default for RelayConfig {
+    fn default() -> Self {
+        Self {
+            service_prefix: "relay/".into(),
+            wait: "block".into(),
+            messages: 10_000,
+            warmup: 1_000,
+            budget_us: 1000,
+            report: None,
+            idle_timeout_ms: 10_000,
+        }
+    }
+}
+
+const PROCESS: &str = "relay";
+
+impl RelayConfig {
+    /// Parses and checks a TOML document of these keys.
+    pub fn from_toml(text: &str) -> Result<Self, SettingError> {
+        let cfg: Self = settings::parse(PROCESS, text)?;
+        cfg.check()?;
+        Ok(cfg)
+    }
+
+    /// Checks every key; returns the wait strategy.
+    pub fn check(&self) -> Result<WaitStrategy, SettingError> {
+        if self.messages == 0 || self.warmup >= self.messages {
+            return Err(SettingError::new(
+                PROCESS,
+                "messages",
+                "must be more than warmup",
+            ));
+        }
+        if self.budget_us == 0 || self.idle_timeout_ms == 0 {
+            return Err(SettingError::new(
+                PROCESS,
+                "budget_us",
+                "budget_us and idle_timeout_ms must be at least 1",
+            ));
+        }
+        settings::wait_strategy(PROCESS, &self.wait)
+    }
+
+    fn name(&self, service: &str) -> String {
+        format!("{}{service}", self.service_prefix)
+    }
+}
+
+/// Why a relay process failed.
+#[derive(Debug, thiserror::Error)]
+pub enum RelayError {
+    /// Bad settings.
+    #[error(transparent)]
+    Setting(#[from] SettingError),
+    /// iceoryx2 failed.
+    #[error(transparent)]
+    Ipc(#[from] IpcError),
+    /// The partner fell silent.
+    #[error("{1}: nothing received for {0:?} (is the rest of the relay running?)")]
+    Silent(Duration, &'static str),
+    /// The report could not be written.
+    #[error("cannot write the report {}: {error}", path.display())]
+    Report {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        error: std::io::Error,
+    },
+    /// Not a relay role.
+    #[error("unknown relay role {0:?} (expected one of {ROLES:?})")]
+    Role(String),
+}
+
+/// Runs one relay role until its messages are done or `stop` is raised. The sink returns its
+/// report.
+pub fn run(
+    role: &str,
+    cfg: &RelayConfig,
+    stop: &AtomicBool,
+) -> Result<Option<LatencyReport>, RelayError> {
+    let wait = cfg.check()?;
+    let node = channel::node(false)?;
+    let idle = Duration::from_millis(cfg.idle_timeout_ms);
+    match role {
+        "relay-source" => source(cfg, &node, wait, idle, stop).map(|()| None),
+        "relay-hop" => hop(cfg, &node, wait, idle, stop).map(|()| None),
+        "relay-sink" => sink(cfg, &node, wait, idle, stop).map(Some),
+        other => Err(RelayError::Role(other.to_owned())),
+    }
+}
+
+type Node = iceoryx2::node::Node<iceoryx2::service::ipc::Service>;
+
+fn source(
+    cfg: &RelayConfig,
+    node: &Node,
+    wait: WaitStrategy,
+    idle: Duration,
+    stop: &AtomicBool,
+) -> Result<(), RelayError> {
+    let out: Outbox<Observation> = Outbox::open(
+        node,
+        &cfg.name(service::OBSERVATION),
+        &cfg.name(service::OBSERVATION_EVENT),
+        0,
+    )?;
+    let acks: Inbox<MotorState> = Inbox::open(
+        node,
+        &cfg.name(service::MOTOR_STATE),
+        &cfg.name(service::MOTOR_STATE_EVENT),
+        0,
+        wait,
+    )?;
+    // The arena's payload: a full feature vector's worth of bits.
+    let mut features = FeatureBits::EMPTY;
+    for i in (0..tes_topics::ARENA_FEATURES).step_by(21) {
+        features.set(i);
+    }
+    for seq in 1..=cfg.messages {
+        let last = seq == cfg.messages;
+        let started = Instant::now();
+        // Until the other two are up, an observation may reach nobody: send it again.
+        'resend: loop {
+            out.update_connections()?;
+            out.send(Observation {
+                seq,
+                stamp_ns: monotonic_ns(),
+                n_features: tes_topics::ARENA_FEATURES as u32,
+                features,
+                flags: if last { observation_flags::TERMINAL } else { 0 },
+                ..Observation::default()
+            })?;
+            loop {
+                match acks.next(Duration::from_millis(100), stop)? {
+                    Ok(ack) if ack.after_command == seq => break 'resend,
+                    Ok(_) => continue, // a late answer to a resent observation
+                    Err(Idle::Stopped) => return Ok(()),
+                    Err(Idle::Timeout) if started.elapsed() > idle => {
+                        return Err(RelayError::Silent(idle, "relay-source"));
+                    }
+                    Err(Idle::Timeout) => continue 'resend,
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+fn hop(
+    cfg: &RelayConfig,
+    node: &Node,
+    wait: WaitStrategy,
+    idle: Duration,
+    stop: &AtomicBool,
+) -> Result<(), RelayError> {
+    let observations: Inbox<Observation> = Inbox::open(
+        node,
+        &cfg.name(service::OBSERVATION),
+        &cfg.name(service::OBSERVATION_EVENT),
+        0,
+        wait,
+    )?;
+    let out: Outbox<Command> = Outbox::open(
+        node,
+        &cfg.name(service::COMMAND),
+        &cfg.name(service::COMMAND_EVENT),
+        0,
+    )?;
+    loop {
+        let obs = match observations.next(idle, stop)? {
+            Ok(o) => o,
+            Err(Idle::Stopped) => return Ok(()),
+            Err(Idle::Timeout) => return Err(RelayError::Silent(idle, "relay-hop")),
+        };
+        out.send(Command {
+            seq: obs.seq,
+            answers: obs.seq,
+            stamp_ns: monotonic_ns(),
+            observed_ns: obs.stamp_ns,
+            ..Command::default()
+        })?;
+        if obs.flags & observation_flags::TERMINAL != 0 {
+            return Ok(());
+        }
+    }
+}
+
+fn sink(
+    cfg: &RelayConfig,
+    node: &Node,
+    wait: WaitStrategy,
+    idle: Duration,
+    stop: &AtomicBool,
+) -> Result<LatencyReport, RelayError> {
+    let commands: Inbox<Command> = Inbox::open(
+        node,
+        &cfg.name(service::COMMAND),
+        &cfg.name(service::COMMAND_EVENT),
+        0,
+        wait,
+    )?;
+    let acks: Outbox<MotorState> = Outbox::open(
+        node,
+        &cfg.name(service::MOTOR_STATE),
+        &cfg.name(service::MOTOR_STATE_EVENT),
+        0,
+    )?;
+    let mut latency = LatencyRecorder::new(cfg.budget_us, cfg.warmup);
+    let mut last_seq = 0;
+    loop {
+        let cmd = match commands.next(idle, stop)? {
+            Ok(c) => c,
+            Err(Idle::Stopped) => break,
+            Err(Idle::Timeout) => return Err(RelayError::Silent(idle, "relay-sink")),
+        };
+        // Recorded on arrival, as the bridge does; a resent observation's second answer is
+        // not a new round trip.
+        if cmd.seq > last_seq {
+            latency.record_ns(monotonic_ns().saturating_sub(cmd.observed_ns));
+            last_seq = cmd.seq;
+        }
+        acks.send(MotorState {
+            seq: cmd.seq,
+            after_command: cmd.seq,
+            stamp_ns: monotonic_ns(),
+            ..MotorState::default()
+        })?;
+        if cmd.seq == cfg.messages {
+            break;
+        }
+    }
+    let report = latency.report();
+    if let Some(path) = &cfg.report {
+        report.save(path).map_err(|error| RelayError::Report {
+            path: path.clone(),
+            error,
+        })?;
+    }
+    Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settings_are_checked() {
+        assert!(RelayConfig::default().check().is_ok());
+        let err = RelayConfig::from_toml("messages = 5\nwarmup = 5").unwrap_err();
+        assert_eq!(err.key, "messages");
+        assert_eq!(
+            RelayConfig::from_toml("wait = \"nap\"").unwrap_err().key,
+            "wait"
+        );
+        assert_eq!(
+            RelayConfig::from_toml("mesages = 5").unwrap_err().key,
+            "(file)"
+        );
+    }
+
+    #[test]
+    fn three_threads_relay_every_message_and_report_it() {
+        // The roles as threads of one process (ports are per thread), on a private prefix.
+        let cfg = RelayConfig {
+            service_prefix: format!("relay-test-{}/", std::process::id()),
+            messages: 300,
+            warmup: 50,
+            idle_timeout_ms: 20_000,
+            ..RelayConfig::default()
+        };
+        let stop = AtomicBool::new(false);
+        let report = std::thread::scope(|s| {
+            let sink = s.spawn(|| run("relay-sink", &cfg, &stop));
+            let hop = s.spawn(|| run("relay-hop", &cfg, &stop));
+            let source = s.spawn(|| run("relay-source", &cfg, &stop));
+            source.join().unwrap().unwrap();
+            hop.join().unwrap().unwrap();
+            sink.join().unwrap().unwrap()
+        })
+        .expect("the sink reports");
+        assert_eq!(report.count, 250);
+        assert_eq!(report.warmup, 50);
+        assert!(report.p50_us >= 1 && report.p50_us <= report.p99_us);
+        assert!(matches!(
+            run("relay-nope", &cfg, &stop),
+            Err(RelayError::Role(_))
+        ));
+    }
+}

@@ -1,0 +1,421 @@
+//! `tes bench latency` and `tes bench scaling`: the controller's per-action latency measured
+//! against the raw iceoryx2 floor, and how a decision's cost grows with features and views.
+//!
+//! `latency` runs, one after the other in the same invocation:
+//!
+//! 1. **the floor** — [`tes_bench::relay`]: three processes relaying the loop's payloads
+//!    (Observation → Command → MotorState) with the same wait strategy and no work;
+//! 2. **ours** — the real group (`tes launch` machinery): perception-sim on arena Env 3 at the
+//!    fastest real-time factor, the controller with a view library trained in Env 1 and 2,
+//!    the bridge with the simulated brick; the bridge records each command's latency from
+//!    the observation's stamp, on arrival, like the floor's sink.
+//!
+//! Both leave out the same warm-up and count overruns of the same budget. The controller also
+//! reports its own decision latency and the heap allocations on its acting path.
+
+use std::path::{Path, PathBuf};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, Subcommand};
+use serde::Serialize;
+use tes_bench::relay::{self, RelayConfig};
+use tes_bench::{fixtures, scaling};
+use tes_controller::library::store::{self, StoredLibrary};
+use tes_controller::process::ControllerSummary;
+use tes_topics::channel::WaitStrategy;
+use tes_topics::latency::LatencyReport;
+
+use crate::launch::{self, ChildSpec, LaunchFile, LaunchSection, Running};
+
+/// Arguments of `tes bench`.
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    #[command(subcommand)]
+    what: BenchCommand,
+}
+
+#[derive(Debug, Subcommand)]
+enum BenchCommand {
+    /// End-to-end per-action latency (observation published → command at the bridge) of the
+    /// real process group, against a raw iceoryx2 relay measured in the same run.
+    Latency(LatencyArgs),
+    /// Decision time in process against feature count (52-5000) and library size (1-20).
+    Scaling(ScalingArgs),
+}
+
+/// Arguments of `tes bench latency`.
+#[derive(Debug, Args)]
+pub struct LatencyArgs {
+    /// Actions measured (after the warm-up).
+    #[arg(long, default_value_t = 10_000)]
+    actions: u64,
+    /// The per-action budget, µs.
+    #[arg(long, default_value_t = 1000)]
+    budget_us: u64,
+    /// How every process waits: block, spin, spin-then-block or spin-then-block:<µs>.
+    #[arg(long, default_value = "block")]
+    wait: String,
+    /// Views in the controller's library (trained in Env 1 and Env 2).
+    #[arg(long, default_value_t = 9)]
+    views: usize,
+    /// Actions run first and left out of every figure.
+    #[arg(long, default_value_t = 1000)]
+    warmup: u64,
+    /// Seed of the library's training, the world and the controller.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Keep the run's files (library, settings, raw reports) here instead of a temporary
+    /// directory.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Print one JSON object instead of the table.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Arguments of `tes bench scaling`.
+#[derive(Debug, Args)]
+pub struct ScalingArgs {
+    /// Decisions measured per point (after the warm-up).
+    #[arg(long, default_value_t = 5000)]
+    actions: u64,
+    /// Decisions run first at each point and left out.
+    #[arg(long, default_value_t = 500)]
+    warmup: u64,
+    /// Seed of the structures, libraries and steps.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Write scaling.json, scaling.csv and the two SVG charts here.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Print one JSON object instead of the table.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Runs `tes bench …`.
+pub fn run(args: &BenchArgs) -> Result<()> {
+    match &args.what {
+        BenchCommand::Latency(a) => latency(a),
+        BenchCommand::Scaling(a) => scaling_sweep(a),
+    }
+}
+
+/// What `tes bench latency --json` prints.
+#[derive(Debug, Serialize)]
+struct LatencyResult {
+    wait: String,
+    actions: u64,
+    budget_us: u64,
+    views: usize,
+    p50_us: u64,
+    p90_us: u64,
+    p99_us: u64,
+    p999_us: u64,
+    max_us: u64,
+    misses: u64,
+    /// Heap allocations on the controller's acting path (null if not counted).
+    allocations: Option<u64>,
+    /// Of those, the ones inside iceoryx2's publish (one per loaned sample in 0.10).
+    ipc_allocations: Option<u64>,
+    /// The controller's own decision latency (observation stamped → command published).
+    decision: LatencyReport,
+    floor_p50_us: u64,
+    floor_p90_us: u64,
+    floor_p99_us: u64,
+    floor_p999_us: u64,
+    floor_max_us: u64,
+    floor_misses: u64,
+    ratio_p50: f64,
+    ratio_p99: f64,
+    seed: u64,
+}
+
+fn ratio(ours: u64, floor: u64) -> f64 {
+    ours as f64 / floor.max(1) as f64
+}
+
+fn latency(args: &LatencyArgs) -> Result<()> {
+    let wait: WaitStrategy = args
+        .wait
+        .parse()
+        .map_err(|e| anyhow::anyhow!("--wait: {e}"))?;
+    if args.actions == 0 || args.budget_us == 0 || args.views == 0 {
+        bail!("--actions, --budget-us and --views must be at least 1");
+    }
+    let temp;
+    let dir: &Path = match &args.out {
+        Some(d) => {
+            std::fs::create_dir_all(d).with_context(|| format!("cannot create {}", d.display()))?;
+            d
+        }
+        None => {
+            temp = tempfile::tempdir().context("cannot create a temporary directory")?;
+            temp.path()
+        }
+    };
+    let total = args.actions + args.warmup;
+    let prefix = format!("tes-bench-{}/", std::process::id());
+
+    eprintln!("bench: the floor — a raw iceoryx2 two-hop relay, {total} round trips, wait {wait}");
+    let floor = run_floor(dir, &prefix, wait, args)?;
+
+    eprintln!(
+        "bench: training a {}-view library in Env 1 and Env 2",
+        args.views
+    );
+    let library = fixtures::arena_library(args.views, 3000, args.seed)?;
+    let library_path = dir.join("library.tesl");
+    store::save(
+        &library_path,
+        &StoredLibrary {
+            library,
+            world: "arena 1+2 (bench)".into(),
+            action_names: Vec::new(),
+            feature_names: Vec::new(),
+        },
+    )?;
+    eprintln!("bench: ours — perception-sim → controller → bridge on Env 3, {total} actions");
+    let controller_report = dir.join("controller.json");
+    let bridge_report = dir.join("bridge.json");
+    let file = group_file(
+        dir,
+        &prefix,
+        wait,
+        args,
+        &library_path,
+        &controller_report,
+        &bridge_report,
+    )?;
+    let started = Instant::now();
+    launch::run_file(&file, false).context("the process group failed")?;
+    let elapsed = started.elapsed();
+    let ours = LatencyReport::load(&bridge_report)
+        .with_context(|| format!("no bridge report at {}", bridge_report.display()))?;
+    let controller: ControllerSummary = serde_json::from_str(
+        &std::fs::read_to_string(&controller_report)
+            .with_context(|| format!("no controller report at {}", controller_report.display()))?,
+    )
+    .context("the controller's report is malformed")?;
+    if ours.count < args.actions {
+        bail!(
+            "the bridge saw {} measured commands, expected {} (see the run's files with --out)",
+            ours.count,
+            args.actions
+        );
+    }
+    let result = LatencyResult {
+        wait: wait.to_string(),
+        actions: ours.count,
+        budget_us: args.budget_us,
+        views: args.views,
+        p50_us: ours.p50_us,
+        p90_us: ours.p90_us,
+        p99_us: ours.p99_us,
+        p999_us: ours.p999_us,
+        max_us: ours.max_us,
+        misses: ours.misses,
+        allocations: controller.allocations,
+        ipc_allocations: controller.ipc_allocations,
+        decision: controller.latency,
+        floor_p50_us: floor.p50_us,
+        floor_p90_us: floor.p90_us,
+        floor_p99_us: floor.p99_us,
+        floor_p999_us: floor.p999_us,
+        floor_max_us: floor.max_us,
+        floor_misses: floor.misses,
+        ratio_p50: ratio(ours.p50_us, floor.p50_us),
+        ratio_p99: ratio(ours.p99_us, floor.p99_us),
+        seed: args.seed,
+    };
+    if args.json {
+        println!("{}", serde_json::to_string(&result)?);
+        return Ok(());
+    }
+    println!(
+        "tes bench latency: wait {}, {} actions measured (+{} warm-up), {} views, budget {} us ({:.1} s)",
+        result.wait,
+        result.actions,
+        args.warmup,
+        args.views,
+        args.budget_us,
+        elapsed.as_secs_f64()
+    );
+    println!(
+        "{:<34} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
+        "", "p50 us", "p90 us", "p99 us", "p99.9 us", "max us", "misses"
+    );
+    let row = |name: &str, r: &LatencyReport| {
+        println!(
+            "{:<34} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
+            name, r.p50_us, r.p90_us, r.p99_us, r.p999_us, r.max_us, r.misses
+        );
+    };
+    row("floor (raw two-hop relay)", &floor);
+    row("ours: observation -> bridge", &ours);
+    row("ours: controller decision only", &controller.latency);
+    println!(
+        "ratio ours/floor: p50 {:.2}, p99 {:.2}; allocations on the acting path: {}",
+        result.ratio_p50,
+        result.ratio_p99,
+        match (result.allocations, result.ipc_allocations) {
+            (Some(n), Some(ipc)) => format!("{n} ({ipc} inside iceoryx2's publish)"),
+            _ => "not counted".to_owned(),
+        }
+    );
+    Ok(())
+}
+
+/// The launch file of the measured group.
+fn group_file(
+    dir: &Path,
+    prefix: &str,
+    wait: WaitStrategy,
+    args: &LatencyArgs,
+    library: &Path,
+    controller_report: &Path,
+    bridge_report: &Path,
+) -> Result<LaunchFile> {
+    let path = |p: &Path| toml::Value::String(p.display().to_string());
+    let int = |n: u64| toml::Value::Integer(i64::try_from(n).unwrap_or(i64::MAX));
+    let total = args.actions + args.warmup;
+    let mut file = LaunchFile {
+        launch: LaunchSection {
+            episodes: u32::MAX,
+            arena: 3,
+            real_time_factor: 0.0,
+            wait: wait.to_string(),
+            service_prefix: prefix.to_owned(),
+            run_dir: Some(dir.join("run")),
+            seed: args.seed,
+            ..LaunchSection::default()
+        },
+        ..LaunchFile::default()
+    };
+    file.perception.insert("actions".into(), int(total));
+    file.controller.insert("library".into(), path(library));
+    file.controller
+        .insert("budget_us".into(), int(args.budget_us));
+    file.controller
+        .insert("warmup_actions".into(), int(args.warmup));
+    file.controller
+        .insert("report".into(), path(controller_report));
+    let mut ipc = toml::Table::new();
+    ipc.insert("budget_us".into(), int(args.budget_us));
+    ipc.insert("warmup_commands".into(), int(args.warmup));
+    ipc.insert("latency_report".into(), path(bridge_report));
+    file.bridge.insert("ipc".into(), toml::Value::Table(ipc));
+    Ok(file)
+}
+
+/// Runs the three relay processes and returns the sink's report.
+fn run_floor(
+    dir: &Path,
+    prefix: &str,
+    wait: WaitStrategy,
+    args: &LatencyArgs,
+) -> Result<LatencyReport> {
+    let report = dir.join("floor.json");
+    let cfg = RelayConfig {
+        service_prefix: format!("{prefix}floor/"),
+        wait: wait.to_string(),
+        messages: args.actions + args.warmup,
+        warmup: args.warmup,
+        budget_us: args.budget_us,
+        report: Some(report.clone()),
+        ..RelayConfig::default()
+    };
+    cfg.check()?;
+    let config = dir.join("relay.toml");
+    std::fs::write(&config, toml::to_string(&cfg)?)
+        .with_context(|| format!("cannot write {}", config.display()))?;
+    let (lines, _quiet) = mpsc::channel();
+    let mut children: Vec<Running> = Vec::new();
+    // The receivers first, so the source's first observations find them sooner.
+    for role in [relay::ROLES[2], relay::ROLES[1], relay::ROLES[0]] {
+        let spec = ChildSpec {
+            role,
+            config: config.clone(),
+        };
+        let child = launch::spawn(&spec, &lines)?;
+        children.push(Running {
+            spec,
+            child,
+            restarts: 0,
+            status: None,
+        });
+    }
+    let limit = Duration::from_millis(cfg.idle_timeout_ms)
+        + Duration::from_millis(50) * u32::try_from(cfg.messages / 100).unwrap_or(u32::MAX);
+    let started = Instant::now();
+    while children.iter().any(|c| c.status.is_none()) && started.elapsed() < limit {
+        for c in children.iter_mut().filter(|c| c.status.is_none()) {
+            c.status = c.child.try_wait().context("cannot poll a relay process")?;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    launch::shutdown(&mut children, Duration::from_secs(1));
+    for c in &children {
+        match c.status {
+            Some(s) if s.success() => {}
+            Some(s) => bail!("the floor's {} {}", c.spec.role, launch::describe(s)),
+            None => bail!("the floor's {} did not finish", c.spec.role),
+        }
+    }
+    LatencyReport::load(&report).with_context(|| format!("no floor report at {}", report.display()))
+}
+
+fn scaling_sweep(args: &ScalingArgs) -> Result<()> {
+    if args.actions == 0 {
+        bail!("--actions must be at least 1");
+    }
+    if !args.json {
+        println!(
+            "{:>9} {:>6} {:>8} {:>8} {:>8} {:>8} {:>8}",
+            "features", "views", "p50 us", "p90 us", "p99 us", "p99.9 us", "max us"
+        );
+    }
+    let points = scaling::sweep(args.actions, args.warmup, args.seed, |p| {
+        if !args.json {
+            let l = &p.latency;
+            println!(
+                "{:>9} {:>6} {:>8} {:>8} {:>8} {:>8} {:>8}",
+                p.features, p.views, l.p50_us, l.p90_us, l.p99_us, l.p999_us, l.max_us
+            );
+        }
+    })?;
+    if let Some(dir) = &args.out {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        let mut csv = String::from("features,views,count,p50_us,p90_us,p99_us,p999_us,max_us\n");
+        for p in &points {
+            let l = &p.latency;
+            csv.push_str(&format!(
+                "{},{},{},{},{},{},{},{}\n",
+                p.features, p.views, l.count, l.p50_us, l.p90_us, l.p99_us, l.p999_us, l.max_us
+            ));
+        }
+        let [by_features, by_views] = scaling::charts(&points);
+        for (name, text) in [
+            ("scaling.csv", csv),
+            (
+                "scaling.json",
+                serde_json::to_string_pretty(&points)? + "\n",
+            ),
+            ("scaling-features.svg", by_features.to_svg()),
+            ("scaling-views.svg", by_views.to_svg()),
+        ] {
+            let path = dir.join(name);
+            std::fs::write(&path, text)
+                .with_context(|| format!("cannot write {}", path.display()))?;
+        }
+        if !args.json {
+            println!("wrote {}", dir.display());
+        }
+    }
+    if args.json {
+        println!("{}", serde_json::to_string(&points)?);
+    }
+    Ok(())
+}
