@@ -2,14 +2,19 @@
 //! wait strategy and no work, run as three processes in the roles of the real ones.
 //!
 //! * **source** (perception's place) stamps and publishes an [`Observation`], then waits for
-//!   the sink's [`MotorState`] before the next one — the same closed loop as the real group;
+//!   the sink's [`MotorState`] and `gap_us` more (the real loop's robot motion) before the
+//!   next one — the same closed loop, at the same cadence, as the real group. The cadence
+//!   matters: a receiver woken after a long idle gap pays the CPU's (and, in a VM, the
+//!   hypervisor's) idle-exit latency, one woken back to back does not;
 //! * **hop** (the controller's place) answers each observation at once with a [`Command`]
 //!   carrying the observation's stamp;
 //! * **sink** (the bridge's place) records `now − stamp` for each command, exactly where the
 //!   real bridge records it, and acknowledges with a [`MotorState`].
 //!
 //! What the sink measures is therefore the cost of two iceoryx2 hops and two wake-ups by the
-//! chosen strategy on this machine: the floor any controller on this transport pays.
+//! chosen strategy on this machine: the floor any controller on this transport pays. The
+//! source always blocks for the acknowledgement (the return path is not measured, and on a
+//! 2-core machine three busy-polling processes starve each other).
 
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
@@ -42,6 +47,8 @@ pub struct RelayConfig {
     pub report: Option<PathBuf>,
     /// Give up after this long without a message, ms.
     pub idle_timeout_ms: u64,
+    /// Pause between an acknowledgement and the next observation, µs (the loop's cadence).
+    pub gap_us: u64,
 }
 
 impl Default for RelayConfig {
@@ -54,6 +61,7 @@ impl Default for RelayConfig {
             budget_us: 1000,
             report: None,
             idle_timeout_ms: 10_000,
+            gap_us: 0,
         }
     }
 }
@@ -128,7 +136,7 @@ pub fn run(
     let node = channel::node(false)?;
     let idle = Duration::from_millis(cfg.idle_timeout_ms);
     match role {
-        "relay-source" => source(cfg, &node, wait, idle, stop).map(|()| None),
+        "relay-source" => source(cfg, &node, idle, stop).map(|()| None),
         "relay-hop" => hop(cfg, &node, wait, idle, stop).map(|()| None),
         "relay-sink" => sink(cfg, &node, wait, idle, stop).map(Some),
         other => Err(RelayError::Role(other.to_owned())),
@@ -140,7 +148,6 @@ type Node = iceoryx2::node::Node<iceoryx2::service::ipc::Service>;
 fn source(
     cfg: &RelayConfig,
     node: &Node,
-    wait: WaitStrategy,
     idle: Duration,
     stop: &AtomicBool,
 ) -> Result<(), RelayError> {
@@ -155,14 +162,18 @@ fn source(
         &cfg.name(service::MOTOR_STATE),
         &cfg.name(service::MOTOR_STATE_EVENT),
         0,
-        wait,
+        WaitStrategy::Block,
     )?;
+    let gap = Duration::from_micros(cfg.gap_us);
     // The arena's payload: a full feature vector's worth of bits.
     let mut features = FeatureBits::EMPTY;
     for i in (0..tes_topics::ARENA_FEATURES).step_by(21) {
         features.set(i);
     }
     for seq in 1..=cfg.messages {
+        if !gap.is_zero() && seq > 1 {
+            std::thread::sleep(gap);
+        }
         let last = seq == cfg.messages;
         let started = Instant::now();
         // Until the other two are up, an observation may reach nobody: send it again.

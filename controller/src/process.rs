@@ -8,8 +8,9 @@
 //!    the state change; the nearest one when the robot moved further than any effect says);
 //! 2. scores and updates the views of that action (TES — with an empty library this is
 //!    loreRL);
-//! 3. adopts the planner thread's latest policy and hands it the updated model;
-//! 4. picks the next action (ε-greedy) and publishes the [`Command`].
+//! 3. adopts the planner thread's latest policy;
+//! 4. picks the next action (ε-greedy) and publishes the [`Command`];
+//! 5. hands the planner thread the updated model.
 //!
 //! Steps 1–4 allocate nothing after warm-up and are timed from the observation's stamp to
 //! the command's publication against a budget (default 1 ms); misses are counted. At each
@@ -187,6 +188,9 @@ pub enum ControllerError {
     /// The planner thread failed.
     #[error(transparent)]
     Planner(#[from] PlannerThreadError),
+    /// The library saver thread could not start.
+    #[error("cannot start the library saver thread: {0}")]
+    SaverThread(std::io::Error),
     /// The run's report could not be written.
     #[error("cannot write the report {}: {error}", path.display())]
     Report {
@@ -334,8 +338,8 @@ pub fn derive_effect(map: &WorldMap, from: usize, to: usize) -> usize {
 }
 
 /// The library as it would be if the task ended now, saved atomically.
-fn save_library(agent: &Tes, path: &Path, world: u32) -> Result<(), ControllerError> {
-    let (library, _) = agent.clone().finish_task()?;
+fn save_library(agent: Tes, path: &Path, world: u32) -> Result<(), ControllerError> {
+    let (library, _) = agent.finish_task()?;
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|error| ControllerError::DataDir {
             path: dir.to_owned(),
@@ -352,6 +356,56 @@ fn save_library(agent: &Tes, path: &Path, world: u32) -> Result<(), ControllerEr
         },
     )?;
     Ok(())
+}
+
+/// Saves libraries on a thread of its own, so that encoding and `fsync` never delay the
+/// acting loop (the next episode's first observation arrives right after the last one's).
+struct Saver {
+    jobs: Option<crossbeam::channel::Sender<Box<Tes>>>,
+    failures: Arc<std::sync::atomic::AtomicU64>,
+    handle: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Saver {
+    fn spawn(path: PathBuf, world: u32) -> Result<Self, ControllerError> {
+        let (jobs, queue) = crossbeam::channel::bounded::<Box<Tes>>(1);
+        let failures = Arc::new(std::sync::atomic::AtomicU64::new(0));
+        let failed = failures.clone();
+        let handle = std::thread::Builder::new()
+            .name("library-saver".into())
+            .spawn(move || {
+                crate::realtime::lower_this_threads_priority();
+                while let Ok(agent) = queue.recv() {
+                    if let Err(e) = save_library(*agent, &path, world) {
+                        failed.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        tracing::error!(error = %e, "the library was not saved; the previous file is intact");
+                    }
+                }
+            })
+            .map_err(ControllerError::SaverThread)?;
+        Ok(Self {
+            jobs: Some(jobs),
+            failures,
+            handle: Some(handle),
+        })
+    }
+
+    /// Queues a save of `agent`'s library as it would be if the task ended now, unless one
+    /// is already waiting (the next episode's save will carry this one's learning).
+    fn offer(&self, agent: &Tes) {
+        if let Some(jobs) = self.jobs.as_ref().filter(|j| j.is_empty()) {
+            let _ = jobs.try_send(Box::new(agent.clone()));
+        }
+    }
+
+    /// Waits for the queued saves; returns how many failed.
+    fn finish(mut self) -> u64 {
+        self.jobs = None;
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+        self.failures.load(std::sync::atomic::Ordering::Relaxed)
+    }
 }
 
 /// Runs the controller until `stop` is raised. `on_episode` receives each finished episode.
@@ -430,6 +484,7 @@ pub fn run(
     planner.offer(agent.model_mut())?;
     planner.wait(agent.model_mut(), Duration::from_secs(10))?;
 
+    let saver = Saver::spawn(library_path.clone(), map.world)?;
     let mut all = LatencyRecorder::new(config.budget_us, config.warmup_actions);
     let mut episode_latency = LatencyRecorder::new(config.budget_us, 0);
     let mut summary = empty_summary();
@@ -486,8 +541,8 @@ pub fn run(
             reward += f64::from(obs.reward);
         }
         planner.collect(agent.model_mut())?;
-        planner.offer(agent.model_mut())?;
         if obs.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0 {
+            planner.offer(agent.model_mut())?;
             summary.episodes += 1;
             // Reporting and saving are not on the acting path.
             drop(counting);
@@ -501,10 +556,7 @@ pub fn run(
             };
             on_episode(&line);
             episode_latency.reset();
-            if let Err(e) = save_library(&agent, &library_path, map.world) {
-                summary.failed_saves += 1;
-                tracing::error!(error = %e, "the library was not saved; the previous file is intact");
-            }
+            saver.offer(&agent);
             continue;
         }
         let action = agent.act(state)?;
@@ -525,6 +577,9 @@ pub fn run(
         if warmup_allocations.is_some() {
             ipc_allocations += alloc_count::counted() - before_send;
         }
+        // Only now wake the planner with the new model: on a busy machine its wake-up would
+        // otherwise compete with the command's way to the bridge.
+        planner.offer(agent.model_mut())?;
         drop(counting);
         pending = Some((state, action));
         steps += 1;
@@ -541,7 +596,8 @@ pub fn run(
         .then(|| alloc_count::counted() - warmup_allocations.unwrap_or(alloc_count::counted()));
     summary.ipc_allocations = alloc_count::installed().then_some(ipc_allocations);
     summary.plans = planner.plans();
-    if let Err(e) = save_library(&agent, &library_path, map.world) {
+    summary.failed_saves += saver.finish();
+    if let Err(e) = save_library(agent, &library_path, map.world) {
         summary.failed_saves += 1;
         tracing::error!(error = %e, "the library was not saved at shutdown; the previous file is intact");
     }

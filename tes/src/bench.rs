@@ -3,15 +3,20 @@
 //!
 //! `latency` runs, one after the other in the same invocation:
 //!
-//! 1. **the floor** — [`tes_bench::relay`]: three processes relaying the loop's payloads
-//!    (Observation → Command → MotorState) with the same wait strategy and no work;
-//! 2. **ours** — the real group (`tes launch` machinery): perception-sim on arena Env 3 at the
+//! 1. **ours** — the real group (`tes launch` machinery): perception-sim on arena Env 3 at the
 //!    fastest real-time factor, the controller with a view library trained in Env 1 and 2,
 //!    the bridge with the simulated brick; the bridge records each command's latency from
-//!    the observation's stamp, on arrival, like the floor's sink.
+//!    the observation's stamp, on arrival;
+//! 2. **the floor** — [`tes_bench::relay`]: three processes relaying the loop's payloads
+//!    (Observation → Command → MotorState) with the same wait strategy, no work, and the
+//!    same cadence (the mean time between our actions, mostly the simulated robot moving),
+//!    measured where the bridge measures.
 //!
-//! Both leave out the same warm-up and count overruns of the same budget. The controller also
-//! reports its own decision latency and the heap allocations on its acting path.
+//! Both leave out the same warm-up and count overruns of the same budget. `--wait` applies to
+//! the two measured receivers (controller and bridge, hop and sink); perception and the
+//! floor's source wait for the robot's motion by blocking, since on 2 cores three
+//! busy-polling processes starve each other. The controller also reports its own decision
+//! latency and the heap allocations on its acting path.
 
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
@@ -130,6 +135,8 @@ struct LatencyResult {
     floor_misses: u64,
     ratio_p50: f64,
     ratio_p99: f64,
+    /// Mean time between actions in our run, which the floor's source kept too, µs.
+    cycle_us: u64,
     seed: u64,
 }
 
@@ -158,9 +165,6 @@ fn latency(args: &LatencyArgs) -> Result<()> {
     };
     let total = args.actions + args.warmup;
     let prefix = format!("tes-bench-{}/", std::process::id());
-
-    eprintln!("bench: the floor — a raw iceoryx2 two-hop relay, {total} round trips, wait {wait}");
-    let floor = run_floor(dir, &prefix, wait, args)?;
 
     eprintln!(
         "bench: training a {}-view library in Env 1 and Env 2",
@@ -206,6 +210,11 @@ fn latency(args: &LatencyArgs) -> Result<()> {
             args.actions
         );
     }
+    let cycle_us = (elapsed.as_micros() / u128::from(total)) as u64;
+    eprintln!(
+        "bench: the floor — a raw iceoryx2 two-hop relay, {total} round trips, wait {wait}, one every {cycle_us} us"
+    );
+    let floor = run_floor(dir, &prefix, wait, cycle_us, args)?;
     let result = LatencyResult {
         wait: wait.to_string(),
         actions: ours.count,
@@ -228,6 +237,7 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         floor_misses: floor.misses,
         ratio_p50: ratio(ours.p50_us, floor.p50_us),
         ratio_p99: ratio(ours.p99_us, floor.p99_us),
+        cycle_us,
         seed: args.seed,
     };
     if args.json {
@@ -235,13 +245,8 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         return Ok(());
     }
     println!(
-        "tes bench latency: wait {}, {} actions measured (+{} warm-up), {} views, budget {} us ({:.1} s)",
-        result.wait,
-        result.actions,
-        args.warmup,
-        args.views,
-        args.budget_us,
-        elapsed.as_secs_f64()
+        "tes bench latency: wait {}, {} actions measured (+{} warm-up), {} views, budget {} us, one action every {} us",
+        result.wait, result.actions, args.warmup, args.views, args.budget_us, cycle_us
     );
     println!(
         "{:<34} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
@@ -295,6 +300,9 @@ fn group_file(
         ..LaunchFile::default()
     };
     file.perception.insert("actions".into(), int(total));
+    // The return path (robot motion) is not measured: block, as the floor's source does.
+    file.perception
+        .insert("wait".into(), toml::Value::String("block".into()));
     file.controller.insert("library".into(), path(library));
     file.controller
         .insert("budget_us".into(), int(args.budget_us));
@@ -315,6 +323,7 @@ fn run_floor(
     dir: &Path,
     prefix: &str,
     wait: WaitStrategy,
+    cycle_us: u64,
     args: &LatencyArgs,
 ) -> Result<LatencyReport> {
     let report = dir.join("floor.json");
@@ -325,6 +334,8 @@ fn run_floor(
         warmup: args.warmup,
         budget_us: args.budget_us,
         report: Some(report.clone()),
+        // The source's own round trip is part of the cycle.
+        gap_us: cycle_us.saturating_sub(50),
         ..RelayConfig::default()
     };
     cfg.check()?;
@@ -348,7 +359,8 @@ fn run_floor(
         });
     }
     let limit = Duration::from_millis(cfg.idle_timeout_ms)
-        + Duration::from_millis(50) * u32::try_from(cfg.messages / 100).unwrap_or(u32::MAX);
+        + Duration::from_micros(cfg.gap_us + 500)
+            .saturating_mul(u32::try_from(cfg.messages).unwrap_or(u32::MAX));
     let started = Instant::now();
     while children.iter().any(|c| c.status.is_none()) && started.elapsed() < limit {
         for c in children.iter_mut().filter(|c| c.status.is_none()) {

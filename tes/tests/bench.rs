@@ -1,0 +1,132 @@
+//! `tes bench latency` and `tes bench scaling` as a user runs them, on a small budget: the
+//! real processes and the floor's relay start, measure and stop, and the report holds the
+//! documented keys with consistent values. (Figures are for the benchmarks to judge, not
+//! for tests.) A guard kills the bench and its process group if the test fails.
+
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Kills the bench (its children die with it by their parent-death signal) on drop.
+struct Killed(Child);
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn run(args: &[&str], data: &std::path::Path, limit: Duration) -> (bool, String, String) {
+    let child = Command::new(env!("CARGO_BIN_EXE_tes"))
+        .args(args)
+        .env("TES_DATA_DIR", data)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("tes starts");
+    let mut guard = Killed(child);
+    let started = Instant::now();
+    loop {
+        if let Some(status) = guard.0.try_wait().expect("poll") {
+            let mut out = String::new();
+            let mut err = String::new();
+            use std::io::Read;
+            if let Some(mut o) = guard.0.stdout.take() {
+                o.read_to_string(&mut out).expect("stdout");
+            }
+            if let Some(mut e) = guard.0.stderr.take() {
+                e.read_to_string(&mut err).expect("stderr");
+            }
+            return (status.success(), out, err);
+        }
+        assert!(
+            started.elapsed() < limit,
+            "tes {args:?} did not finish within {limit:?}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn latency_runs_both_paths_and_reports_every_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let (ok, stdout, stderr) = run(
+        &[
+            "bench",
+            "latency",
+            "--actions",
+            "150",
+            "--warmup",
+            "30",
+            "--views",
+            "3",
+            "--json",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &dir.path().join("data"),
+        Duration::from_secs(300),
+    );
+    assert!(ok, "bench failed:\n{stderr}");
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
+    for key in [
+        "wait",
+        "actions",
+        "p50_us",
+        "p99_us",
+        "p999_us",
+        "max_us",
+        "misses",
+        "allocations",
+        "floor_p50_us",
+        "floor_p99_us",
+        "floor_misses",
+        "ratio_p50",
+        "ratio_p99",
+    ] {
+        assert!(v.get(key).is_some(), "missing {key} in {v}");
+    }
+    assert_eq!(v["wait"], "block");
+    assert_eq!(v["actions"], 150);
+    let (p50, p99, max) = (
+        v["p50_us"].as_u64().unwrap(),
+        v["p99_us"].as_u64().unwrap(),
+        v["max_us"].as_u64().unwrap(),
+    );
+    assert!(0 < p50 && p50 <= p99 && p99 <= max, "{v}");
+    assert!(v["floor_p50_us"].as_u64().unwrap() > 0);
+    let ratio = v["ratio_p50"].as_f64().unwrap();
+    assert!((ratio - p50 as f64 / v["floor_p50_us"].as_f64().unwrap()).abs() < 1e-9);
+    // The controller counts its acting path's allocations (the tes binary installs the
+    // counting allocator): every one is iceoryx2's publish, one per command.
+    assert_eq!(v["allocations"], v["ipc_allocations"], "{v}");
+    assert_eq!(v["allocations"], 150, "{v}");
+    for file in [
+        "floor.json",
+        "bridge.json",
+        "controller.json",
+        "library.tesl",
+    ] {
+        assert!(out.join(file).exists(), "{file} kept with --out");
+    }
+}
+
+#[test]
+fn bad_bench_arguments_are_refused_before_anything_starts() {
+    let dir = tempfile::tempdir().unwrap();
+    let (ok, _, stderr) = run(
+        &["bench", "latency", "--wait", "nap"],
+        dir.path(),
+        Duration::from_secs(30),
+    );
+    assert!(!ok);
+    assert!(stderr.contains("--wait"), "{stderr}");
+    let (ok, _, stderr) = run(
+        &["bench", "latency", "--actions", "0"],
+        dir.path(),
+        Duration::from_secs(30),
+    );
+    assert!(!ok);
+    assert!(stderr.contains("--actions"), "{stderr}");
+}
