@@ -21,73 +21,20 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use tes_bench::experiment::EpisodicTask;
 use tes_bench::experiment::grid::GridEnv;
+use tes_bench::fixtures;
 use tes_controller::agents::{Agent, Tes, TesParams};
 use tes_controller::cmdp::CmdpStructure;
-use tes_controller::library::{ActionOutcome, LibraryParams, ViewLibrary, Winner};
-use tes_controller::mdagl::{Features, Mdagl, MdaglParams};
+use tes_controller::library::ViewLibrary;
+use tes_controller::mdagl::{Features, Mdagl};
 use tes_controller::plan::{PlannedModel, PlannerParams, ValueIteration};
 use tes_controller::realtime::PlannerThread;
 use tes_perception_sim::grid::GridSuite;
 
 const SEED: u64 = 2017;
 
-/// An arena-shaped CMDP: a 10×10 grid × 8 headings, 20 effects (4 moves × 5 turns relative
-/// to the heading), 312 binary features with ~15 on per state, a ball (+2) and death spots.
+/// The arena-shaped CMDP (312 features) the benches share with `tes bench scaling`.
 fn arena_like() -> CmdpStructure {
-    let (w, o) = (10i32, 8i32);
-    let n = (w * w * o) as usize;
-    let mut rng = ChaCha8Rng::seed_from_u64(SEED);
-    let features: Vec<Vec<u32>> = (0..n)
-        .map(|s| {
-            let mut f: Vec<u32> = (0..312u32)
-                .filter(|_| rng.random::<f64>() < 0.045)
-                .collect();
-            f.push(300 + (s % 8) as u32);
-            f.sort_unstable();
-            f.dedup();
-            f
-        })
-        .collect();
-    let dirs = [
-        (1, 0),
-        (1, 1),
-        (0, 1),
-        (-1, 1),
-        (-1, 0),
-        (-1, -1),
-        (0, -1),
-        (1, -1),
-    ];
-    let next = |s: usize, e: usize| -> usize {
-        let s = s as i32;
-        let (cell, h) = (s / o, s % o);
-        let (x, y) = (cell % w, cell / w);
-        let (m, t) = (e as i32 / 5, e as i32 % 5);
-        let dir = match m {
-            0 => Some(h),
-            1 => Some((h + 1) % o),
-            2 => Some((h + o - 1) % o),
-            _ => None,
-        };
-        let (nx, ny) = dir.map_or((x, y), |d| (x + dirs[d as usize].0, y + dirs[d as usize].1));
-        let nh = (h + [0, 1, 2, -1, -2][t as usize] + o) % o;
-        if (0..w).contains(&nx) && (0..w).contains(&ny) {
-            ((ny * w + nx) * o + nh) as usize
-        } else {
-            s as usize // pushed against the border: stays
-        }
-    };
-    let mut reward = vec![-0.05; n];
-    let mut terminal = vec![false; n];
-    for cell in [55usize, 12, 87, 33] {
-        for h in 0..8 {
-            let s = cell * 8 + h;
-            reward[s] = if cell == 55 { 2.0 } else { -1.0 };
-            terminal[s] = true;
-        }
-    }
-    CmdpStructure::new(n, 3, 20, 312, next, reward, terminal, |s| &features[s])
-        .expect("a valid arena-like CMDP")
+    fixtures::arena_like(312, SEED).expect("a valid arena-like CMDP")
 }
 
 fn grid() -> CmdpStructure {
@@ -98,28 +45,7 @@ fn grid() -> CmdpStructure {
 
 /// Views that have learned `rows` steps of a seeded random policy in `structure`.
 fn trained_views(structure: &CmdpStructure, rows: usize, seed: u64) -> Vec<Mdagl> {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut views: Vec<Mdagl> = (0..structure.n_actions())
-        .map(|_| {
-            Mdagl::new(
-                structure.n_effects(),
-                structure.n_features(),
-                MdaglParams::default(),
-            )
-            .expect("valid settings")
-        })
-        .collect();
-    for _ in 0..rows {
-        let s = rng.random_range(0..structure.n_states());
-        let a = rng.random_range(0..structure.n_actions());
-        // Effects skewed towards the first few, depending on the first feature.
-        let first = structure.features(s).first().copied().unwrap_or(0) as usize;
-        let e = (first + rng.random_range(0..3)) % structure.n_effects();
-        views[a]
-            .update(Features::SparseBinary(structure.features(s)), e)
-            .expect("valid rows");
-    }
-    views
+    fixtures::trained_views(structure, rows, seed).expect("valid rows")
 }
 
 fn shapes() -> Vec<(&'static str, Arc<CmdpStructure>)> {
@@ -185,37 +111,7 @@ fn bench_planner(c: &mut Criterion) {
 
 /// A library with `n` views spread over the actions, trained on different seeds.
 fn library(structure: &CmdpStructure, n: usize) -> ViewLibrary {
-    let params = LibraryParams {
-        max_views: n.max(1),
-        ..LibraryParams::default()
-    };
-    let mut lib = ViewLibrary::new(
-        structure.n_actions(),
-        structure.n_effects(),
-        structure.n_features(),
-        params,
-    )
-    .expect("valid settings");
-    let mut task = 0;
-    while lib.len() < n {
-        let views = trained_views(structure, 500, SEED + task);
-        let outcomes = views
-            .into_iter()
-            .enumerate()
-            .take(n - lib.len())
-            .map(|(action, model)| ActionOutcome {
-                action,
-                observations: 500,
-                winner: Winner::Fresh,
-                model,
-                score: -100.0,
-                library_scores: vec![],
-            })
-            .collect();
-        lib.end_task(outcomes).expect("valid outcomes");
-        task += 1;
-    }
-    lib
+    fixtures::library_for(structure, n, SEED).expect("valid views")
 }
 
 fn bench_tes(c: &mut Criterion) {
