@@ -96,6 +96,31 @@ fn invalid(key: &str, reason: impl Into<String>) -> ConfigError {
     }
 }
 
+/// The range of `[brick] time_scale`. The bridge adds its periods to a clock running
+/// `time_scale` times the wall clock: at 1e300 that clock is past `Duration::MAX` at once and
+/// the first addition panics; at 1e-300 the brick never moves. 10 000 is 50 times the
+/// launcher's fastest (200).
+pub const TIME_SCALE_RANGE: std::ops::RangeInclusive<f64> = 0.001..=10_000.0;
+
+/// The simulated brick's settings, `time_scale` within [`TIME_SCALE_RANGE`] included.
+fn check_brick(brick: &SimBrickConfig) -> Result<(), ConfigError> {
+    brick
+        .check()
+        .map_err(|e| invalid(&format!("brick.{}", e.key), e.reason))?;
+    if !TIME_SCALE_RANGE.contains(&brick.time_scale) {
+        return Err(invalid(
+            "brick.time_scale",
+            format!(
+                "must be in {}..={}, got {}",
+                TIME_SCALE_RANGE.start(),
+                TIME_SCALE_RANGE.end(),
+                brick.time_scale
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// The simulated Bluetooth link delay (the `[link_delay]` table).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -396,9 +421,7 @@ impl BridgeConfig {
                 ),
             ));
         }
-        raw.brick
-            .check()
-            .map_err(|e| invalid(&format!("brick.{}", e.key), e.reason))?;
+        check_brick(&raw.brick)?;
         let actions = ActionMap::new(ActionConfig {
             motors: raw.motors,
             actions: raw.actions,
@@ -445,7 +468,8 @@ impl BridgeConfig {
 
     /// Sets `[brick] time_scale`: the simulated brick runs `k` times faster than the wall
     /// clock, and with it every period and deadline of the bridge (they are brick time).
-    /// Refused (key `brick.time_scale`) unless finite and > 0; ignored by serial transports.
+    /// Refused (key `brick.time_scale`) unless finite and > 0 and within
+    /// [`TIME_SCALE_RANGE`]; ignored by serial transports.
     ///
     /// ```
     /// use tes_bridge::config::BridgeConfig;
@@ -458,9 +482,7 @@ impl BridgeConfig {
     /// ```
     pub fn with_time_scale(mut self, k: f64) -> Result<Self, ConfigError> {
         self.brick.time_scale = k;
-        self.brick
-            .check()
-            .map_err(|e| invalid(&format!("brick.{}", e.key), e.reason))?;
+        check_brick(&self.brick)?;
         Ok(self)
     }
 
@@ -559,6 +581,56 @@ mod tests {
         assert!(msg("bogus = 1").contains("bogus"));
     }
 
+    /// Settings that are each in range but contradict each other are refused at load,
+    /// naming the key and the reason, as are the `[ipc]` keys.
+    #[test]
+    fn contradictory_settings_name_the_key_and_reason() {
+        let invalid = |s: &str| match BridgeConfig::from_toml_str(s) {
+            Err(ConfigError::Invalid { key, reason }) => (key, reason),
+            other => panic!("{s:?}: expected an invalid key, got {other:?}"),
+        };
+        let cases = [
+            (
+                "[watchdog]\ndeadline_ms = 100\n[poll]\nmoving_period_ms = 100",
+                "poll.moving_period_ms",
+                "must be shorter than watchdog.deadline_ms (100)",
+            ),
+            (
+                "[link_delay]\nmean_ms = 5\njitter_ms = 6",
+                "link_delay.jitter_ms",
+                "need jitter_ms <= mean_ms",
+            ),
+            (
+                "[motors]\nleft_port = \"B\"\nright_port = \"B\"",
+                "motors.right_port",
+                "must differ from left_port",
+            ),
+            (
+                "[[actions]]\nid = 4\nleft_deg = 1\nright_deg = 1\n\
+                 [[actions]]\nid = 4\nleft_deg = 2\nright_deg = 2",
+                "actions[1].id",
+                "duplicate action id 4",
+            ),
+            ("[ipc]\nwait = \"nap\"", "ipc.wait", "nap"),
+            ("[ipc]\nbudget_us = 0", "ipc.budget_us", "at least 1"),
+            (
+                "[serial]\nmax_timeouts = 0",
+                "serial.max_timeouts",
+                "at least 1",
+            ),
+        ];
+        for (text, key, reason) in cases {
+            let (k, r) = invalid(text);
+            assert_eq!(k, key, "{text}");
+            assert!(r.contains(reason), "{text}: {r}");
+        }
+        // A value of the wrong type is a parse error naming the key.
+        let err = BridgeConfig::from_toml_str("[watchdog]\ndeadline_ms = \"soon\"")
+            .expect_err("wrong type")
+            .to_string();
+        assert!(err.contains("deadline_ms"), "{err}");
+    }
+
     #[test]
     fn time_scale_is_a_positive_finite_brick_key() {
         assert_eq!(BridgeConfig::default().brick.time_scale, 1.0);
@@ -572,6 +644,18 @@ mod tests {
                 .to_string();
             assert!(err.contains("brick.time_scale"), "{bad}: {err}");
             assert!(err.contains("finite and > 0"), "{bad}: {err}");
+        }
+        // Found writing the config_parse fuzz target: a scale that overflows the brick
+        // clock (the first `now + period` panicked) or freezes the brick is refused too.
+        for bad in ["1e300", "10000.5", "1e-300", "0.0009"] {
+            let err = BridgeConfig::from_toml_str(&format!("[brick]\ntime_scale = {bad}"))
+                .expect_err(bad)
+                .to_string();
+            assert!(err.contains("brick.time_scale"), "{bad}: {err}");
+            assert!(err.contains("must be in 0.001..=10000"), "{bad}: {err}");
+        }
+        for edge in ["0.001", "10000.0"] {
+            BridgeConfig::from_toml_str(&format!("[brick]\ntime_scale = {edge}")).expect(edge);
         }
         // A serial transport accepts it (and ignores it when running).
         let cfg = BridgeConfig::from_toml_str(
@@ -602,7 +686,7 @@ mod tests {
             .with_service_prefix(long)
             .expect_err("too long");
         assert!(err.to_string().contains("ipc.service_prefix"), "{err}");
-        for bad in [0.0, -2.0, f64::NAN, f64::INFINITY] {
+        for bad in [0.0, -2.0, f64::NAN, f64::INFINITY, 1e300, 1e-300] {
             let err = BridgeConfig::default()
                 .with_time_scale(bad)
                 .expect_err("bad scale");

@@ -1,8 +1,8 @@
 //! Labelled CSV rows: `label,feature_1,…,feature_d`, no header.
 //!
 //! The format `tes fit` reads: each line is one example, its first field the class label (a
-//! whole number `0..K`), the rest the feature values. Parsing never panics and names what is
-//! wrong; the caller adds the line number.
+//! whole number `0..K`, at most [`MAX_LABEL`]), the rest the feature values. Parsing never
+//! panics and names what is wrong; the caller adds the line number.
 //!
 //! ```
 //! use tes_controller::labelled_csv::{parse_row, RowError};
@@ -14,10 +14,17 @@
 //! # Ok::<(), RowError>(())
 //! ```
 
+use std::num::IntErrorKind;
+
 use thiserror::Error;
 
 /// Longest field text quoted back in an error message.
 const QUOTE_LIMIT: usize = 24;
+
+/// The largest class label a row may have. A model has one weight per class and feature, so
+/// a label is a promise of memory: a first column that is really an id or a time stamp
+/// (`1700000000,…`) must be refused, not turned into a billion-class model.
+pub const MAX_LABEL: usize = 65_535;
 
 /// Why a row could not be read.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -25,6 +32,12 @@ pub enum RowError {
     /// The first field is not a whole number ≥ 0.
     #[error("the label {text:?} is not a whole number >= 0")]
     BadLabel {
+        /// The field's text (shortened).
+        text: String,
+    },
+    /// The label is a whole number but above [`MAX_LABEL`].
+    #[error("the label {text:?} is larger than {MAX_LABEL}, the largest class label supported")]
+    LabelTooLarge {
         /// The field's text (shortened).
         text: String,
     },
@@ -65,11 +78,20 @@ pub fn parse_row(line: &str, features: &mut Vec<f64>) -> Result<usize, RowError>
     features.clear();
     let mut fields = line.split(',');
     let label_text = fields.next().unwrap_or("").trim();
-    let label = label_text
-        .parse::<usize>()
-        .map_err(|_| RowError::BadLabel {
-            text: quote(label_text),
-        })?;
+    let label = match label_text.parse::<usize>() {
+        Ok(label) if label <= MAX_LABEL => label,
+        Err(e) if *e.kind() != IntErrorKind::PosOverflow => {
+            return Err(RowError::BadLabel {
+                text: quote(label_text),
+            });
+        }
+        // All digits, but above the limit (or even beyond `usize`).
+        _ => {
+            return Err(RowError::LabelTooLarge {
+                text: quote(label_text),
+            });
+        }
+    };
     for (i, field) in fields.enumerate() {
         let text = field.trim();
         let column = i + 2;
@@ -127,6 +149,28 @@ mod tests {
             Err(RowError::NonFinite {
                 column: 2,
                 text: "inf".into()
+            })
+        );
+        assert_eq!(parse_row("65535,1", &mut f), Ok(MAX_LABEL));
+        assert_eq!(
+            parse_row("65536,1", &mut f),
+            Err(RowError::LabelTooLarge {
+                text: "65536".into()
+            })
+        );
+        // Found writing the csv_read fuzz target: `tes fit` builds a model of `largest
+        // label + 1` classes, so a first column that is a time stamp asked for 1.7 × 10^9
+        // classes (an allocation abort), and one beyond usize overflowed the `+ 1`.
+        assert_eq!(
+            parse_row("1700000000,0.5,1", &mut f),
+            Err(RowError::LabelTooLarge {
+                text: "1700000000".into()
+            })
+        );
+        assert_eq!(
+            parse_row("99999999999999999999999,1", &mut f),
+            Err(RowError::LabelTooLarge {
+                text: "99999999999999999999999".into()
             })
         );
         let long = format!("1,{}", "z".repeat(100));

@@ -100,6 +100,17 @@ pub enum MdaglConfigError {
     /// The feature count does not fit the `u32` indices sparse inputs use.
     #[error("{0} features is more than mDAGL supports ({max})", max = u32::MAX)]
     TooManyFeatures(usize),
+    /// More weights (classes × columns) than [`MAX_WEIGHTS`].
+    #[error(
+        "{classes} classes x {columns} columns is more than the {max} weights a model may have",
+        max = MAX_WEIGHTS
+    )]
+    TooLarge {
+        /// Classes asked for.
+        classes: usize,
+        /// Feature columns (intercept included).
+        columns: usize,
+    },
     /// λ must be finite and ≥ 0.
     #[error("lambda must be a finite number >= 0, got {0}")]
     InvalidLambda(f64),
@@ -107,6 +118,11 @@ pub enum MdaglConfigError {
     #[error("alpha must be a finite number > 0, got {0}")]
     InvalidAlpha(f64),
 }
+
+/// The most weights (classes × feature columns) a model may have: 2²⁴, 128 MiB of gradient
+/// sums — far beyond any view (the arena's are 20 × 312), small enough that a bad setting or
+/// file fails with an error instead of an allocation abort.
+pub const MAX_WEIGHTS: usize = 1 << 24;
 
 /// Why a prediction or update was refused. The model is left unchanged.
 #[derive(Debug, Clone, Copy, PartialEq, Error)]
@@ -315,6 +331,9 @@ impl Mdagl {
             return Err(MdaglConfigError::InvalidAlpha(params.alpha));
         }
         let columns = features + usize::from(params.intercept);
+        if classes.checked_mul(columns).is_none_or(|w| w > MAX_WEIGHTS) {
+            return Err(MdaglConfigError::TooLarge { classes, columns });
+        }
         Ok(Self {
             classes,
             features,

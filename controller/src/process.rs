@@ -119,8 +119,11 @@ impl ControllerConfig {
         if self.max_views == 0 {
             return bad("max_views", "must be at least 1");
         }
-        if !(self.map_timeout_s.is_finite() && self.map_timeout_s > 0.0) {
-            return bad("map_timeout_s", "must be a finite number of seconds > 0");
+        if !(self.map_timeout_s > 0.0 && Duration::try_from_secs_f64(self.map_timeout_s).is_ok()) {
+            return bad(
+                "map_timeout_s",
+                "must be a number of seconds > 0 that fits a duration",
+            );
         }
         tes_topics::settings::wait_strategy(PROCESS, &self.wait)
     }
@@ -739,6 +742,8 @@ mod tests {
             ("alpha = 0.0", "alpha"),
             ("wait = \"nap\"", "wait"),
             ("max_views = 0", "max_views"),
+            ("map_timeout_s = 1e300", "map_timeout_s"),
+            ("map_timeout_s = nan", "map_timeout_s"),
         ] {
             let err = ControllerConfig::from_toml(text).unwrap_err();
             assert_eq!(err.key, key, "{text}");

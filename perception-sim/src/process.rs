@@ -103,8 +103,14 @@ impl PerceptionConfig {
         if self.episodes == 0 {
             return bad("episodes", "must be at least 1");
         }
-        if !(self.real_time_factor.is_finite() && self.real_time_factor >= 0.0) {
-            return bad("real_time_factor", "must be a finite number >= 0");
+        if !(self.real_time_factor.is_finite() && self.real_time_factor >= 0.0)
+            || Duration::try_from_secs_f64(self.settle_ms as f64 / 1000.0 * self.real_time_factor)
+                .is_err()
+        {
+            return bad(
+                "real_time_factor",
+                "must be a finite number >= 0 (and settle_ms x real_time_factor a duration)",
+            );
         }
         if self.step_cap == 0 {
             return bad("step_cap", "must be at least 1");
@@ -389,12 +395,120 @@ mod tests {
         }
     }
 
+    /// Perception's sequence-number rule for motion reports, over real iceoryx2 services: a
+    /// report moves the robot only if it is SETTLED and follows a command newer than the last
+    /// one used (`after_command` greater). A report of no command, a duplicate of the last
+    /// command's, or one of an older command (out of order) moves nothing: the observation is
+    /// re-published flagged RESYNC, with the same step and `after_command`. The rule holds
+    /// across episodes.
+    #[test]
+    fn duplicate_and_out_of_order_motion_reports_move_nothing() {
+        let prefix = format!("tes-test/perception-seq/{}/", std::process::id());
+        let config = PerceptionConfig {
+            episodes: 2,
+            step_cap: 1,
+            motor_timeout_ms: 400,
+            service_prefix: prefix.clone(),
+            ..PerceptionConfig::default()
+        };
+        let name = |s: &str| format!("{prefix}{s}");
+        let node = channel::node(false).unwrap();
+        // Subscribed before perception's publisher exists, so no observation is missed.
+        let observations: Inbox<Observation> = Inbox::open(
+            &node,
+            &name(service::OBSERVATION),
+            &name(service::OBSERVATION_EVENT),
+            0,
+            WaitStrategy::Block,
+        )
+        .unwrap();
+        let motors: Outbox<MotorState> = Outbox::open(
+            &node,
+            &name(service::MOTOR_STATE),
+            &name(service::MOTOR_STATE_EVENT),
+            0,
+        )
+        .unwrap();
+        let stop = AtomicBool::new(false);
+        let never = AtomicBool::new(false);
+        let next = || match observations.next(Duration::from_secs(10), &never).unwrap() {
+            Ok(o) => o,
+            Err(idle) => panic!("no observation within 10 s ({idle:?})"),
+        };
+        let mut report_seq = 0;
+        let mut report = |after_command: u64| {
+            motors.update_connections().unwrap();
+            report_seq += 1;
+            motors
+                .send(MotorState {
+                    seq: report_seq,
+                    after_command,
+                    flags: motor_flags::SETTLED,
+                    ..MotorState::default()
+                })
+                .unwrap();
+        };
+        // A stale report must give a RESYNC of the same step: had it been taken as a motion,
+        // the next observation would be the following step.
+        let refused = |before: &Observation, after: &Observation| {
+            assert_eq!(after.flags, observation_flags::RESYNC, "{after:?}");
+            assert_eq!(
+                (after.episode, after.step, after.after_command),
+                (before.episode, before.step, before.after_command)
+            );
+            assert_eq!(after.state, before.state);
+            assert!(after.seq > before.seq, "observation seq must increase");
+        };
+        // A fresh report moves the robot: one step on, after this command (past any RESYNC
+        // published while it was on its way).
+        let moved = |before: &Observation, command: u64| loop {
+            let o = next();
+            if o.flags == observation_flags::RESYNC {
+                continue;
+            }
+            assert_eq!((o.episode, o.step), (before.episode, before.step + 1));
+            assert_eq!(o.after_command, command);
+            assert_ne!(
+                o.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED),
+                0,
+                "step_cap 1 ends the episode"
+            );
+            return o;
+        };
+        let summary = std::thread::scope(|s| {
+            let perception = s.spawn(|| run(&config, &stop));
+            let first = next();
+            assert_eq!(first.flags, observation_flags::EPISODE_START);
+            assert_eq!((first.seq, first.episode, first.step), (1, 0, 0));
+            report(0); // no command yet: a heartbeat at rest
+            let second = next();
+            refused(&first, &second);
+            report(5);
+            moved(&second, 5);
+            let start = next();
+            assert_eq!(start.flags, observation_flags::EPISODE_START);
+            assert_eq!((start.episode, start.step), (1, 0));
+            report(5); // a duplicate of the command just used
+            let dup = next();
+            refused(&start, &dup);
+            report(3); // an older command, out of order
+            let old = next();
+            refused(&dup, &old);
+            report(6);
+            moved(&old, 6);
+            perception.join().unwrap().unwrap()
+        });
+        assert_eq!(summary.episodes, 2);
+        assert!(summary.resyncs >= 3, "{summary:?}");
+    }
+
     #[test]
     fn settings_are_checked_by_key() {
         assert!(PerceptionConfig::default().check().is_ok());
         for (text, key) in [
             ("arena = 4", "arena"),
             ("episodes = 0", "episodes"),
+            ("real_time_factor = 1e300", "real_time_factor"),
             ("real_time_factor = -1.0", "real_time_factor"),
             ("step_cap = 0", "step_cap"),
             ("wait = \"doze\"", "wait"),

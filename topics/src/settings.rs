@@ -39,3 +39,44 @@ pub fn wait_strategy(process: &'static str, text: &str) -> Result<WaitStrategy, 
         SettingError::new(process, "wait", e.to_string())
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Debug, PartialEq, serde::Deserialize)]
+    #[serde(deny_unknown_fields)]
+    struct Demo {
+        rate: u32,
+    }
+
+    #[test]
+    fn a_bad_document_names_the_file_and_the_parsers_reason() {
+        assert_eq!(parse::<Demo>("demo", "rate = 5"), Ok(Demo { rate: 5 }));
+        for (text, reason) in [
+            ("rate = 5\nrat = 6", "rat"),        // unknown key
+            ("rate = \"fast\"", "rate"),         // wrong type
+            ("rate = 5\nrate = 6", "duplicate"), // a key twice
+            ("rate = ", "rate"),                 // truncated
+            ("", "rate"),                        // a required key missing
+        ] {
+            let err = parse::<Demo>("demo", text).expect_err(text);
+            assert_eq!((err.process, err.key), ("demo", "(file)"), "{text}");
+            assert!(err.reason.contains(reason), "{text}: {err}");
+            assert!(
+                err.to_string().starts_with("demo setting `(file)`: "),
+                "{err}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_bad_wait_strategy_names_the_wait_key() {
+        assert_eq!(wait_strategy("demo", "spin"), Ok(WaitStrategy::Spin));
+        for bad in ["nap", "spin-then-block:0", "spin-then-block:x", ""] {
+            let err = wait_strategy("demo", bad).expect_err(bad);
+            assert_eq!((err.process, err.key), ("demo", "wait"), "{bad}");
+            assert!(!err.reason.is_empty());
+        }
+    }
+}

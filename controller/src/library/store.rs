@@ -28,7 +28,8 @@
 //!
 //! Loading checks everything: magic, version, length, checksum, then that the body is
 //! consistent (shapes, parameters, ids, histories) before anything is built. Every count is
-//! checked against the bytes left before memory is reserved for it.
+//! checked against the bytes left before memory is reserved for it, and a view shape beyond
+//! [`MAX_VIEW_WEIGHTS`] is refused before a model of that shape is allocated.
 
 use std::fs::{self, File};
 use std::io::{self, Write};
@@ -44,6 +45,9 @@ pub const MAGIC: [u8; 8] = *b"TESVLIB\0";
 /// The format version this build writes and reads.
 pub const FORMAT_VERSION: u32 = 1;
 const HEADER_LEN: usize = 8 + 4 + 8 + 4;
+/// The largest view a file may describe, in weights (effects × (features + intercept)):
+/// 2^24, 128 MiB of gradient sums per view. The paper's robot needs 20 × 312.
+pub const MAX_VIEW_WEIGHTS: u64 = crate::mdagl::MAX_WEIGHTS as u64;
 
 /// A library with what names its actions and features, as stored.
 #[derive(Debug, Clone, PartialEq)]
@@ -92,6 +96,19 @@ pub enum StoreProblem {
     /// The body decodes but does not make a valid library.
     #[error("inconsistent: {0}")]
     Inconsistent(String),
+    /// The views' shape is too large to load (more than [`MAX_VIEW_WEIGHTS`] weights).
+    #[error(
+        "views of {effects} effects and {features} features ({weights} weights) are larger \
+         than the {MAX_VIEW_WEIGHTS} weights a view may have"
+    )]
+    TooLarge {
+        /// The file's effects.
+        effects: usize,
+        /// The file's features.
+        features: usize,
+        /// `effects × (features + 1 if there is an intercept)`.
+        weights: u64,
+    },
     /// A view's model cannot be restored.
     #[error("view {id}: {source}")]
     BadView {
@@ -344,6 +361,16 @@ fn decode_body(r: &mut Reader<'_>) -> Result<StoredLibrary, StoreProblem> {
             },
         },
     };
+    // Building the library builds a fresh model of this shape: bound it first.
+    let columns = n_features as u64 + u64::from(params.mdagl.intercept);
+    let weights = columns.saturating_mul(n_effects as u64);
+    if weights > MAX_VIEW_WEIGHTS {
+        return Err(StoreProblem::TooLarge {
+            effects: n_effects,
+            features: n_features,
+            weights,
+        });
+    }
     let mut library = ViewLibrary::new(n_actions, n_effects, n_features, params)
         .map_err(|e| bad(e.to_string()))?;
     library.tasks_seen = r.u32()?;

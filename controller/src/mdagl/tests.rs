@@ -279,6 +279,20 @@ fn invalid_hyper_parameters_are_refused() {
         Mdagl::new(2, 0, ok).unwrap_err(),
         MdaglConfigError::NoInputs
     );
+    // A size that would abort on allocation is an error instead (e.g. `tes fit --classes`
+    // set to a time stamp).
+    assert_eq!(
+        Mdagl::new(1 << 40, 312, ok).unwrap_err(),
+        MdaglConfigError::TooLarge {
+            classes: 1 << 40,
+            columns: 312
+        }
+    );
+    assert!(matches!(
+        Mdagl::new(usize::MAX, 2, ok),
+        Err(MdaglConfigError::TooLarge { .. })
+    ));
+    assert!(Mdagl::new(20, 5000, ok).is_ok());
     assert!(
         Mdagl::new(
             2,

@@ -203,6 +203,108 @@ fn well_checksummed_but_inconsistent_bodies_are_refused() {
     assert!(problem(&huge).to_string().contains("does not fit"));
 }
 
+/// Views the file describes must be for a known action, have distinct ids and finite
+/// gradient sums (well-checksummed files, so the consistency checks are what refuse them).
+#[test]
+fn views_of_unknown_actions_duplicate_ids_or_non_finite_sums_are_refused() {
+    let mut unknown_action = grown();
+    unknown_action.library.views[0].action = 2;
+    let err = problem(&encode(&unknown_action));
+    assert!(matches!(err, StoreProblem::Inconsistent(_)), "{err}");
+    assert!(err.to_string().contains("is for action 2 of 2"), "{err}");
+
+    let mut duplicate = grown();
+    let first = duplicate.library.views[0].id;
+    duplicate.library.views[1].id = first;
+    let err = problem(&encode(&duplicate));
+    assert!(
+        err.to_string()
+            .contains(&format!("two views with id {first}")),
+        "{err}"
+    );
+
+    // The first view's first gradient sum: after the body up to the view count, the
+    // view's id, action, update count and sum count.
+    let mut no_views = grown();
+    no_views.library.views.clear();
+    let at = encode(&no_views).len() - HEADER_LEN + 8 + 4 + 8 + 4;
+    let good = encode(&grown());
+    for bad in [f64::NAN, f64::INFINITY, 1e200] {
+        let file = with_body(&good, |b| b[at..at + 8].copy_from_slice(&bad.to_le_bytes()));
+        match problem(&file) {
+            StoreProblem::BadView {
+                id,
+                source: MdaglStateError::BadSum { index: 0, .. },
+            } => assert_eq!(id, first),
+            other => panic!("{bad}: expected a bad sum, got {other}"),
+        }
+    }
+}
+
+/// A file of `body` behind a valid header (magic, version, length, checksum).
+fn with_header(body: &[u8]) -> Vec<u8> {
+    let mut out = MAGIC.to_vec();
+    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    out.extend_from_slice(&(body.len() as u64).to_le_bytes());
+    out.extend_from_slice(&crc32fast::hash(body).to_le_bytes());
+    out.extend_from_slice(body);
+    out
+}
+
+/// Found by `cargo fuzz run library_load` (fuzz/fuzz_targets/library_load.rs): a
+/// well-checksummed body of 843 404 369 effects × 620 756 992 features made loading allocate
+/// a fresh model of 4.2 × 10^18 bytes (an abort, not an error). The shape is now bounded
+/// before anything is built.
+#[test]
+fn a_huge_view_shape_is_refused_before_anything_is_allocated() {
+    let body: [u8; 53] = [
+        50, 255, 50, 10, 81, 84, 69, 50, 0, 0, 0, 37, 255, 255, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
+        0, 0, 0, 0, 0, 0, 0, 255, 255, 255, 255, 255, 255, 0, 0, 0, 0, 255, 255, 255, 255, 0, 0,
+        51, 10, 10, 96,
+    ];
+    match problem(&with_header(&body)) {
+        StoreProblem::TooLarge {
+            effects,
+            features,
+            weights,
+        } => {
+            assert_eq!((effects, features), (843_404_369, 620_756_992));
+            assert_eq!(weights, 843_404_369 * 620_756_992);
+        }
+        other => panic!("expected TooLarge, got {other}"),
+    }
+    // A saved library with its feature count raised to u32::MAX: refused the same way, and
+    // the message says what is too large.
+    let good = encode(&grown());
+    let wide = with_body(&good, |b| b[8..12].copy_from_slice(&u32::MAX.to_le_bytes()));
+    let err = problem(&wide);
+    assert!(
+        matches!(err, StoreProblem::TooLarge { effects: 3, .. }),
+        "{err}"
+    );
+    assert!(
+        err.to_string()
+            .contains("views of 3 effects and 4294967295 features"),
+        "{err}"
+    );
+    // The intercept counts as a column: 2^12 effects × (2^12 features + intercept) is over.
+    let mut body = 1u32.to_le_bytes().to_vec();
+    body.extend_from_slice(&(1u32 << 12).to_le_bytes());
+    body.extend_from_slice(&(1u32 << 12).to_le_bytes());
+    body.extend_from_slice(&20u32.to_le_bytes());
+    for v in [1.0f64, 0.1, 0.05, 1.5] {
+        body.extend_from_slice(&v.to_le_bytes());
+    }
+    body.push(1);
+    assert!(matches!(
+        problem(&with_header(&body)),
+        StoreProblem::TooLarge {
+            weights: 16_781_312,
+            ..
+        }
+    ));
+}
+
 #[test]
 fn a_failed_save_leaves_the_previous_file_intact() {
     let dir = tempfile::tempdir().unwrap();
