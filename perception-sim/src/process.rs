@@ -295,16 +295,20 @@ pub fn run(
             // Wait for the motion a new command caused to finish.
             let waiting = std::time::Instant::now();
             let motion = loop {
-                // A controller that starts (or restarts) later still gets the map: history
-                // reaches a new subscriber when the publisher updates its connections.
-                maps.update_connections()?;
                 let left = motor_timeout.saturating_sub(waiting.elapsed());
                 if left.is_zero() {
                     break None;
                 }
                 match motors.next(left.min(Duration::from_millis(100)), stop)? {
                     Err(Idle::Stopped) => return Ok(summary),
-                    Err(Idle::Timeout) => continue,
+                    Err(Idle::Timeout) => {
+                        // A controller that starts (or restarts) later still gets the map:
+                        // history reaches a new subscriber when the publisher updates its
+                        // connections. Only when idle: right after an observation this
+                        // work would hold the CPU the controller is being woken on.
+                        maps.update_connections()?;
+                        continue;
+                    }
                     Ok(m) => {
                         let now = [m.tacho_count[ports[0]], m.tacho_count[ports[1]]];
                         let settled = m.flags & motor_flags::SETTLED != 0;
