@@ -96,8 +96,11 @@ pub struct RunSummary {
     pub commands: u64,
     /// Motor states published.
     pub published: u64,
-    /// Commands refused (unknown action or transport failure).
+    /// Commands refused (stale or duplicate sequence number, unknown action, transport
+    /// failure).
     pub refused: u64,
+    /// The newest command sequence number executed.
+    pub last_seq: u64,
     /// Whether a signal ended the loop.
     pub interrupted: bool,
     /// Observation → command latency of the commands received (keep-alives left out).
@@ -197,6 +200,18 @@ fn on_command<T: Transport, C: Clock>(
         latency.record_ns(monotonic_ns().saturating_sub(cmd.observed_ns));
     }
     summary.commands += 1;
+    if cmd.action != tes_topics::KEEP_ALIVE_ACTION {
+        if cmd.seq <= summary.last_seq {
+            summary.refused += 1;
+            tracing::warn!(
+                seq = cmd.seq,
+                last = summary.last_seq,
+                "stale or duplicate command refused"
+            );
+            return;
+        }
+        summary.last_seq = cmd.seq;
+    }
     match bridge.on_command(&cmd, clock.now()) {
         Ok(()) => tracing::debug!(
             seq = cmd.seq,

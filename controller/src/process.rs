@@ -521,7 +521,9 @@ pub fn run(
     let mut warmup_allocations = None;
     let mut ipc_allocations = 0u64;
     let mut last_seq = 0u64;
-    let mut command_seq = 0u64;
+    // From the monotonic clock, so a respawned controller's commands are newer than its
+    // predecessor's (perception and the bridge ignore stale command numbers).
+    let mut command_seq = monotonic_ns();
     // (state, action) of the command in flight, and the episode's running totals.
     let mut pending: Option<(usize, usize)> = None;
     let (mut reward, mut steps, mut episode_misses) = (0.0f64, 0u32, 0u64);

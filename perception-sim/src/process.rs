@@ -260,7 +260,10 @@ pub fn run(
     let motor_timeout = Duration::from_millis(config.motor_timeout_ms);
     let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
     let mut summary = PerceptionSummary::default();
-    let mut seq = 0u64;
+    // Sequence numbers start from the monotonic clock, so a respawned perception's
+    // observations are newer than anything its predecessor published: the controller, which
+    // refuses stale or duplicate numbers, takes them without being told of the restart.
+    let mut seq = monotonic_ns();
     // Tacho counts at the last settled motion, and the last command whose motion we used.
     let mut counts: Option<[i32; 2]> = None;
     let mut last_command = 0u64;
@@ -405,6 +408,15 @@ mod tests {
     /// command's, or one of an older command (out of order) moves nothing: the observation is
     /// re-published flagged RESYNC, with the same step and `after_command`. The rule holds
     /// across episodes.
+    /// Raises a stop flag when dropped (also while unwinding from a failed assertion).
+    struct StopOnDrop<'a>(&'a AtomicBool);
+
+    impl Drop for StopOnDrop<'_> {
+        fn drop(&mut self) {
+            self.0.store(true, std::sync::atomic::Ordering::SeqCst);
+        }
+    }
+
     #[test]
     fn duplicate_and_out_of_order_motion_reports_move_nothing() {
         let prefix = format!("tes-test/perception-seq/{}/", std::process::id());
@@ -481,9 +493,13 @@ mod tests {
         };
         let summary = std::thread::scope(|s| {
             let perception = s.spawn(|| run(&config, &stop));
+            // A failed assertion below must not leave perception waiting forever (the scope
+            // joins it): stop it on the way out, however that is.
+            let _stop_perception = StopOnDrop(&stop);
             let first = next();
             assert_eq!(first.flags, observation_flags::EPISODE_START);
-            assert_eq!((first.seq, first.episode, first.step), (1, 0, 0));
+            assert_eq!((first.episode, first.step), (0, 0));
+            assert!(first.seq > 0);
             report(0); // no command yet: a heartbeat at rest
             let second = next();
             refused(&first, &second);

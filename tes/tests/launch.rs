@@ -102,8 +102,8 @@ impl Group {
         seen
     }
 
-    /// The pid of the child playing `role`.
-    fn child(&self, role: &str) -> Pid {
+    /// The pid of the child playing `role`, if there is one.
+    fn find_child(&self, role: &str) -> Option<Pid> {
         let parent = self.launcher.id();
         for entry in std::fs::read_dir("/proc").expect("procfs") {
             let Ok(entry) = entry else { continue };
@@ -125,10 +125,36 @@ impl Group {
                 && args[1] == b"child"
                 && args[2] == role.as_bytes()
             {
-                return Pid::from_raw(pid);
+                return Some(Pid::from_raw(pid));
             }
         }
-        panic!("no {role} child of the launcher");
+        None
+    }
+
+    /// The pid of the child playing `role`.
+    fn child(&self, role: &str) -> Pid {
+        self.find_child(role)
+            .unwrap_or_else(|| panic!("no {role} child of the launcher"))
+    }
+
+    /// Waits until a stderr line contains `text`; returns the lines seen.
+    fn wait_for_stderr(&self, text: &str, limit: Duration) -> Vec<String> {
+        let deadline = Instant::now() + limit;
+        let mut seen = Vec::new();
+        while !seen.iter().any(|l: &String| l.contains(text)) {
+            let left = deadline.saturating_duration_since(Instant::now());
+            assert!(
+                !left.is_zero(),
+                "no {text:?} on stderr in {limit:?}: {seen:?}"
+            );
+            if let Ok(line) = self
+                .stderr
+                .recv_timeout(left.min(Duration::from_millis(100)))
+            {
+                seen.push(line);
+            }
+        }
+        seen
     }
 
     fn children_alive(&self) -> bool {
@@ -322,4 +348,70 @@ fn ctrl_c_stops_the_group_cleanly_leaving_no_child_or_service() {
     // The controller saved the library on its way out.
     tes_controller::library::store::load_for(&dir.path().join("data/library.tesl"), 3, 20, 312)
         .expect("the library loads");
+}
+
+/// Issue 8's process faults: each of the three processes is SIGKILLed 20 times at seeded
+/// random moments of one launched run under `restart = "on-failure"`. Every kill is reported
+/// and the process respawned (its stale iceoryx2 resources cleaned by the launcher); after
+/// every controller kill the library file on disk loads (saved after every episode here, so
+/// kills land in the middle of saves too); after all 60 the group still finishes episodes and
+/// stops cleanly on Ctrl-C.
+#[test]
+fn every_process_survives_twenty_kills_and_the_library_always_loads() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let toml = launch_file(
+        dir.path(),
+        "restart = \"on-failure\"\nmax_restarts = 1000\n[controller]\nsave_interval_s = 0.0\n",
+    );
+    let mut group = Group::start(dir.path(), &toml, 1_000_000);
+    group.wait_for_episodes(1, Duration::from_secs(60));
+    let library = dir.path().join("data/library.tesl");
+    let mut state = 0x9e37_79b9_7f4a_7c15u64; // xorshift, seeded: the kill moments
+    let mut random_ms = |lo: u64, hi: u64| {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        lo + state % (hi - lo)
+    };
+    let mut kills = std::collections::BTreeMap::new();
+    for round in 0..20 {
+        for role in ["controller", "bridge", "perception-sim"] {
+            std::thread::sleep(Duration::from_millis(random_ms(20, 400)));
+            let deadline = Instant::now() + Duration::from_secs(30);
+            let pid = loop {
+                if let Some(pid) = group.find_child(role) {
+                    break pid;
+                }
+                assert!(
+                    Instant::now() < deadline,
+                    "round {round}: no {role} to kill"
+                );
+                std::thread::sleep(Duration::from_millis(10));
+            };
+            kill(pid, Signal::SIGKILL).expect("kill");
+            *kills.entry(role).or_insert(0) += 1;
+            let n = kills[role];
+            group.wait_for_stderr(
+                &format!("{role} was killed by SIGKILL; respawning it (restart {n}/1000)"),
+                Duration::from_secs(30),
+            );
+            if role == "controller" && library.exists() {
+                tes_controller::library::store::load_for(&library, 3, 20, 312).unwrap_or_else(
+                    |e| panic!("round {round}: the library on disk does not load: {e}"),
+                );
+            }
+        }
+    }
+    // Still running: new episodes arrive after the last kill.
+    while group.stdout.try_recv().is_ok() {}
+    group.wait_for_episodes(2, Duration::from_secs(120));
+    kill(Pid::from_raw(group.launcher.id() as i32), Signal::SIGINT).expect("Ctrl-C");
+    let (_, out, err) = group.finish(Duration::from_secs(60));
+    assert!(
+        err.iter().any(|l| l.contains("stop requested")),
+        "{out:?}\n{err:?}"
+    );
+    tes_controller::library::store::load_for(&library, 3, 20, 312)
+        .expect("the library saved at shutdown loads");
+    assert!(!group.children_alive());
 }

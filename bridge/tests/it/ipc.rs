@@ -172,8 +172,25 @@ fn bridge_loop_turns_commands_into_motor_states() {
         0
     );
 
+    // A duplicate and an older command move nothing: refused by sequence number.
+    for seq in [1, 0] {
+        publisher
+            .loan_uninit()
+            .expect("loan")
+            .write_payload(Command { seq, ..cmd })
+            .send()
+            .expect("send");
+        notifier.notify().expect("notify");
+    }
+    // The second heartbeat from now was published after the bridge took both (it drains
+    // every pending command when woken); the wheels stayed where the first command left them.
+    next(Duration::from_secs(10)).expect("a heartbeat");
+    let after = next(Duration::from_secs(10)).expect("another heartbeat");
+    assert_eq!(after.tacho_count, settled.tacho_count, "{after:?}");
+
     let summary = bridge.finish();
-    assert_eq!(summary.commands, 1);
-    assert_eq!(summary.refused, 0);
+    assert_eq!(summary.commands, 3);
+    assert_eq!(summary.refused, 2);
+    assert_eq!(summary.last_seq, 1);
     assert!(summary.published >= 3);
 }
