@@ -93,16 +93,7 @@ pub fn arena_like(features: usize, seed: u64) -> Result<CmdpStructure> {
             f
         })
         .collect();
-    let dirs = [
-        (1, 0),
-        (1, 1),
-        (0, 1),
-        (-1, 1),
-        (-1, 0),
-        (-1, -1),
-        (0, -1),
-        (1, -1),
-    ];
+    let dirs = tes_perception_sim::arena::DIRS;
     let next = |s: usize, e: usize| -> usize {
         let s = s as i32;
         let (cell, h) = (s / o, s % o);

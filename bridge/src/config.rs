@@ -243,9 +243,12 @@ impl Default for IpcConfig {
 }
 
 impl IpcConfig {
-    /// The wait strategy `wait` names (checked when the config is read).
-    pub fn wait_strategy(&self) -> tes_topics::channel::WaitStrategy {
-        self.wait.parse().unwrap_or_default()
+    /// The wait strategy `wait` names (also checked when the config is read; this refuses a
+    /// bad name set in code).
+    pub fn wait_strategy(
+        &self,
+    ) -> Result<tes_topics::channel::WaitStrategy, tes_topics::channel::BadWaitStrategy> {
+        self.wait.parse()
     }
 }
 

@@ -44,6 +44,9 @@ pub enum ProcessError {
     /// The iceoryx2 loop failed.
     #[error(transparent)]
     Ipc(#[from] IpcError),
+    /// `[ipc] wait` names no strategy.
+    #[error("ipc.wait: {0}")]
+    Wait(#[from] tes_topics::channel::BadWaitStrategy),
     /// The latency report could not be written.
     #[error("cannot write the latency report {}: {error}", path.display())]
     Report {
@@ -111,7 +114,7 @@ pub fn run(cfg: &BridgeConfig, opts: &RunOptions) -> Result<RunSummary, ProcessE
         &clock,
         &names,
         opts,
-        cfg.ipc.wait_strategy(),
+        cfg.ipc.wait_strategy()?,
         &mut latency,
     )?;
     tracing::info!(?summary, stats = ?bridge.stats(), "bridge stopped");

@@ -551,10 +551,12 @@ impl PlannedModel {
         for (a, pending) in self.pending.iter_mut().enumerate() {
             if let (true, Some(view), Some(slot)) = (
                 *pending,
-                self.pending_views[a].as_ref(),
+                self.pending_views.get_mut(a),
                 changes.views.get_mut(a),
             ) {
-                copy_view(slot, view);
+                // Both hold a view of this shape: swapping hands it over without a copy, and
+                // the next `refresh` overwrites the buffer that came back.
+                std::mem::swap(slot, view);
                 changes.changed[a] = true;
             }
             *pending = false;

@@ -196,7 +196,7 @@ pub const START_JITTER_CM: f64 = 1.0;
 pub const START_JITTER_DEG: f64 = 5.0;
 
 /// Cell steps of the 8 orientations (counter-clockwise from east, `y` north).
-const DIRS: [(i32, i32); N_ORIENTATIONS] = [
+pub const DIRS: [(i32, i32); N_ORIENTATIONS] = [
     (1, 0),
     (1, 1),
     (0, 1),
