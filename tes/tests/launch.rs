@@ -239,7 +239,7 @@ fn mean_reward(lines: &[String], from: usize, to: usize) -> f64 {
 
 /// The group learns: over the same seeded budget of 80 episodes on Env 3, the learner's
 /// reward over its last 40 episodes beats a random policy's (the same processes with
-/// `epsilon = 1`) by a wide margin and beats its own first 40. Measured when written (release
+/// `epsilon = 1`) by a wide margin. Measured when written (release
 /// build, seeds 1 and 2): learner last 40 +0.99 / +0.80 per episode, random -1.50 / -1.71.
 #[test]
 fn the_group_learns_against_a_random_policy() {
@@ -254,15 +254,13 @@ fn the_group_learns_against_a_random_policy() {
         assert!(ok, "stdout {out:?}\nstderr {err:?}");
         (mean_reward(&out, 0, 40), mean_reward(&out, 40, 80))
     };
-    let (learner_first, learner_last) = run(0.05);
+    // (Its own first 40 are no baseline: it often learns within a few episodes — measured
+    // first 40 at +0.94 once — so only the random policy is.)
+    let (_, learner_last) = run(0.05);
     let (_, random_last) = run(1.0);
     assert!(
         learner_last > random_last + 1.0,
         "learner {learner_last:.2} vs random {random_last:.2} per episode (last 40)"
-    );
-    assert!(
-        learner_last > learner_first,
-        "no improvement: first 40 {learner_first:.2}, last 40 {learner_last:.2}"
     );
 }
 
