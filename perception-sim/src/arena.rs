@@ -1,8 +1,9 @@
 //! The robot arenas of the paper's §5.2: a LEGO NXT robot on hand-made surfaces, seen from above.
 //!
 //! A three-wheeled differential-drive robot (wheel diameter 8.16 cm, track width 11.2 cm) moves
-//! in a square arena. The floor is plain carpet except under some of the coloured marks, where
-//! the surface (loose beans, a hay-covered slope) makes the wheels slip. The robot's pose is
+//! in a square arena. The floor is plain (Berber carpet in Env 1 and Env 3, smooth paper board in
+//! Env 2) except under some of the coloured marks, where the surface (loose beans, a
+//! hay-covered slope) makes the wheels slip. The robot's pose is
 //! continuous ([`Pose`]: position in cm, heading in rad); the agent sees it discretised into a
 //! cell `(x, y)` and one of 8 orientations, and each state through the paper's 312 binary
 //! features (§5.2.1, see [`feature_name`]): distance rings to the green marks, to the blue marks
@@ -13,7 +14,10 @@
 //! the area" state. In Env 1 and Env 3 the **blue** marks sit on loose beans (both wheels
 //! lose traction) and the green marks are decoys; in Env 2 the **green** marks sit on a hay
 //! slope (the right wheel drags and the robot slides downhill) and the blue marks are decoys.
-//! Env 1 and Env 3 share their surfaces; their ball, death spots and green marks differ.
+//! Env 1 and Env 3 share their surfaces; their ball, death spots and green marks differ. Env 2's
+//! floor is paper board, on which the wheels skid everywhere, so — as the paper says of its
+//! Env 2 — it is very different from Env 1 and Env 3 across the whole arena, not only under its
+//! marks.
 //!
 //! # Coordinates and numbering
 //!
@@ -37,7 +41,10 @@
 //! rotation (its *traction*) and adds seeded noise; the robot then follows the exact
 //! differential-drive arc. The surfaces ([`Surface`]):
 //!
-//! * **carpet** — grip: traction `1 ± 3 %` per wheel, heading noise σ = 1.5°;
+//! * **carpet** (the floor of Env 1 and Env 3) — grip: traction `1 ± 3 %` per wheel, heading
+//!   noise σ = 1.5°;
+//! * **board** (the floor of Env 2) — smooth paper board, the wheels skid: a common traction
+//!   `0.65 ± 0.08` (clamped to [0.45, 0.85]) times `1 ± 8 %` per wheel; heading noise σ = 5°;
 //! * **beans** (under Env 1 and Env 3's blue marks) — both wheels lose traction: in the
 //!   cell's inner 60 % square (deep beans) the wheels spin almost freely (traction < 0.1)
 //!   40 % of the time, near the cell's edges 12 % of the time; otherwise a common traction
@@ -301,6 +308,8 @@ impl MarkColour {
 pub enum Surface {
     /// Plain carpet: firm grip, little noise.
     Carpet,
+    /// Smooth paper board: both wheels skid, so moves and turns fall short.
+    Board,
     /// Loose beans: both wheels lose traction, and in the deep middle of the cell they often
     /// spin in place.
     Beans,
@@ -314,6 +323,7 @@ impl Surface {
     pub fn name(self) -> &'static str {
         match self {
             Surface::Carpet => "carpet",
+            Surface::Board => "board",
             Surface::Beans => "beans",
             Surface::Slope => "slope",
         }
@@ -337,6 +347,15 @@ impl Surface {
                 slide: DVec2::ZERO,
                 heading_noise: 1.5_f64.to_radians() * normal(rng),
             },
+            Surface::Board => {
+                let common = (0.65 + 0.08 * normal(rng)).clamp(0.45, 0.85);
+                Slip {
+                    left: common * (1.0 + 0.08 * normal(rng)).clamp(0.75, 1.25),
+                    right: common * (1.0 + 0.08 * normal(rng)).clamp(0.75, 1.25),
+                    slide: DVec2::ZERO,
+                    heading_noise: 5.0_f64.to_radians() * normal(rng),
+                }
+            }
             Surface::Beans => {
                 let deep = offset.x.abs() < 0.3 && offset.y.abs() < 0.3;
                 let spin_probability = if deep { 0.4 } else { 0.12 };
@@ -632,8 +651,10 @@ pub struct ArenaLayout {
     pub side_cm: f64,
     /// The colour of the marks on the surface that changes the dynamics.
     pub governing: MarkColour,
-    /// The surface under every governing-colour mark; everything else is carpet.
+    /// The surface under every governing-colour mark.
     pub governing_surface: Surface,
+    /// The floor everywhere else (carpet unless set; paper board in the paper's Env 2).
+    pub floor: Surface,
     /// Green mark positions, cm.
     pub green_marks: Vec<DVec2>,
     /// Blue mark positions, cm.
@@ -703,7 +724,7 @@ impl ArenaLayout {
     /// ```
     ///
     /// The blue cells of Env 1 and Env 3 coincide (the same bean patch); green marks, ball and
-    /// death spots differ. Marks sit at fixed offsets from their cell's centre (see
+    /// death spots differ. Env 1 and Env 3 have a carpet floor, Env 2 paper board. Marks sit at fixed offsets from their cell's centre (see
     /// [`ArenaLayout::from_map`]); the ball sits at its cell's centre.
     pub fn paper(id: ArenaId) -> Self {
         let (map, feet, governing, surface) = match id {
@@ -711,15 +732,20 @@ impl ArenaLayout {
             ArenaId::Env2 => (ENV2_MAP, 5.0, MarkColour::Green, Surface::Slope),
             ArenaId::Env3 => (ENV3_MAP, 6.0, MarkColour::Blue, Surface::Beans),
         };
-        Self::from_map(map, feet * FOOT_CM, governing, surface)
-            .expect("the paper's maps are well-formed")
+        let mut layout = Self::from_map(map, feet * FOOT_CM, governing, surface)
+            .expect("the paper's maps are well-formed");
+        if id == ArenaId::Env2 {
+            layout.floor = Surface::Board;
+        }
+        layout
     }
 
     /// Parses a square map, north row first, one character per cell (whitespace ignored):
     /// `.` plain, `g` green mark, `b` blue mark, `+` both, `O` the ball (exactly one), `X` a
     /// death spot. A mark in cell `(x, y)` sits at the cell's centre shifted by a fixed
     /// offset, `(0, 0)`, `(0.2, −0.15)`, `(−0.2, 0.1)` or `(0.15, 0.2)` cells for
-    /// `(x + 2y) % 4` = 0, 1, 2, 3; the ball at its cell's centre.
+    /// `(x + 2y) % 4` = 0, 1, 2, 3; the ball at its cell's centre. The floor is carpet
+    /// (set [`ArenaLayout::floor`] for another).
     pub fn from_map(
         map: &str,
         side_cm: f64,
@@ -748,6 +774,7 @@ impl ArenaLayout {
             side_cm,
             governing,
             governing_surface,
+            floor: Surface::Carpet,
             green_marks: Vec::new(),
             blue_marks: Vec::new(),
             ball: DVec2::ZERO,
@@ -1171,12 +1198,12 @@ impl Arena {
     }
 
     /// The floor of cell `(x, y)`: the governing surface under a governing-colour mark,
-    /// carpet elsewhere (and outside the grid).
+    /// the arena's floor elsewhere (and outside the grid).
     pub fn surface(&self, x: usize, y: usize) -> Surface {
         if self.has_mark(self.layout.governing, x, y) {
             self.layout.governing_surface
         } else {
-            Surface::Carpet
+            self.layout.floor
         }
     }
 

@@ -204,6 +204,7 @@ fn ring_features_match_a_hand_placed_mark() {
         side_cm: 100.0,
         governing: MarkColour::Blue,
         governing_surface: Surface::Beans,
+        floor: Surface::Carpet,
         green_marks: vec![DVec2::new(37.0, 52.0)],
         blue_marks: vec![DVec2::new(5.0, 5.0), DVec2::new(95.0, 95.0)],
         ball: DVec2::new(45.0, 45.0),
@@ -563,6 +564,33 @@ fn env1_and_env3_share_dynamics_and_env2_differs() {
         }
     }
     assert!(differs > 0.3, "Env 2 too like Env 1: {differs}");
+}
+
+#[test]
+fn env2s_board_floor_differs_from_the_carpet_of_env1_and_env3_everywhere() {
+    // The paper's Env 2 is "very different" from Env 1 and Env 3, not only under its marks:
+    // a plain cell of each, same orientation and action, gives different effects.
+    const N: usize = 4000;
+    let (e1, e2, e3) = (
+        Arena::new(ArenaId::Env1),
+        Arena::new(ArenaId::Env2),
+        Arena::new(ArenaId::Env3),
+    );
+    assert_eq!(e2.surface(3, 1), Surface::Board);
+    assert_eq!(e1.surface(3, 1), Surface::Carpet);
+    assert_eq!(e3.surface(3, 1), Surface::Carpet);
+    let mut differs = 0.0f64;
+    for action in 0..N_ACTIONS {
+        for o in [0u16, 3] {
+            let h1 = effect_histogram(&e1, 3, 1, o, action, N, 400 + action as u64);
+            let h3 = effect_histogram(&e3, 3, 1, o, action, N, 500 + action as u64);
+            let h2 = effect_histogram(&e2, 3, 1, o, action, N, 600 + action as u64);
+            let same = total_variation(&h1, &h3);
+            assert!(same < 0.05, "Env 1 vs Env 3 carpet, action {action}: {same}");
+            differs = differs.max(total_variation(&h1, &h2));
+        }
+    }
+    assert!(differs > 0.3, "Env 2's floor too like carpet: {differs}");
 }
 
 #[test]
