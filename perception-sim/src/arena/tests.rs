@@ -586,7 +586,10 @@ fn env2s_board_floor_differs_from_the_carpet_of_env1_and_env3_everywhere() {
             let h3 = effect_histogram(&e3, 3, 1, o, action, N, 500 + action as u64);
             let h2 = effect_histogram(&e2, 3, 1, o, action, N, 600 + action as u64);
             let same = total_variation(&h1, &h3);
-            assert!(same < 0.05, "Env 1 vs Env 3 carpet, action {action}: {same}");
+            assert!(
+                same < 0.05,
+                "Env 1 vs Env 3 carpet, action {action}: {same}"
+            );
             differs = differs.max(total_variation(&h1, &h2));
         }
     }
