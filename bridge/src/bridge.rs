@@ -201,6 +201,7 @@ impl<T: Transport> Bridge<T> {
                     self.stats.watchdog_trips += 1;
                     tracing::warn!(
                         deadline_ms = self.watchdog.deadline().as_millis() as u64,
+                        silence_ms = self.watchdog.silence(now).as_millis() as u64,
                         after_command = self.state.after_command,
                         "watchdog: no command within the deadline while a motor runs; braking all motors"
                     );

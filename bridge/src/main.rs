@@ -68,13 +68,7 @@ fn load(config: Option<&Path>) -> anyhow::Result<BridgeConfig> {
 }
 
 fn main() -> anyhow::Result<()> {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
-        .with_writer(std::io::stderr)
-        .init();
+    tes_topics::logging::init("info");
     match Cli::parse().command {
         Cmd::Run { config, time_scale } => {
             let mut cfg = load(config.as_deref())?;

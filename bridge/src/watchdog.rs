@@ -72,6 +72,11 @@ impl Watchdog {
         Verdict::Brake
     }
 
+    /// How long it has been at `now` since the last command or keep-alive.
+    pub fn silence(&self, now: Duration) -> Duration {
+        now.saturating_sub(self.last_feed)
+    }
+
     /// Time left before the deadline passes (zero once it has).
     pub fn remaining(&self, now: Duration) -> Duration {
         (self.last_feed + self.deadline).saturating_sub(now)

@@ -86,13 +86,7 @@ static ALLOCATOR: tes_controller::alloc_count::CountingAllocator =
     tes_controller::alloc_count::CountingAllocator;
 
 fn main() -> ExitCode {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
-        .with_writer(std::io::stderr)
-        .init();
+    tes_topics::logging::init("info");
     let Cmd::Run(args) = Cli::parse().command;
     let result = config(&args).and_then(|cfg| {
         let stop = process::stop_on_signals().context("cannot install signal handlers")?;

@@ -26,7 +26,7 @@ use std::time::Duration;
 use serde::Deserialize;
 use tes_topics::channel::{self, Idle, Inbox, IpcError, Outbox, WaitStrategy, monotonic_ns};
 use tes_topics::latency::{LatencyRecorder, LatencyReport};
-use tes_topics::{Command, Observation, WorldMap, observation_flags, service};
+use tes_topics::{Command, KEEP_ALIVE_ACTION, Observation, WorldMap, observation_flags, service};
 use thiserror::Error;
 
 use crate::agents::{Agent, AgentError, Tes, TesParams};
@@ -78,6 +78,12 @@ pub struct ControllerConfig {
     pub warmup_actions: u64,
     /// `report`: where to write the run's summary as JSON at exit (default: nowhere).
     pub report: Option<PathBuf>,
+    /// `keepalive_ms`: while a command's move is under way, send the bridge a keep-alive this
+    /// often (default 250 ms; 0 = never). The bridge's watchdog brakes the motors when neither
+    /// commands nor keep-alives arrive within its deadline, so with keep-alives it acts as a
+    /// dead man's switch: a long move goes on while the controller lives and is braked within
+    /// the deadline once it is gone. Keep it well below the bridge's `watchdog.deadline_ms`.
+    pub keepalive_ms: u64,
 }
 
 impl Default for ControllerConfig {
@@ -97,6 +103,7 @@ impl Default for ControllerConfig {
             plan_sweeps: 500,
             warmup_actions: 0,
             report: None,
+            keepalive_ms: 250,
         }
     }
 }
@@ -252,6 +259,10 @@ pub struct ControllerSummary {
     pub failed_saves: u64,
     /// Plans adopted from the planner thread.
     pub plans: u64,
+    /// Keep-alives sent to the bridge's watchdog while moves were under way
+    /// ([`ControllerConfig::keepalive_ms`]).
+    #[serde(default)]
+    pub keepalives: u64,
 }
 
 impl std::fmt::Display for ControllerSummary {
@@ -272,8 +283,8 @@ impl std::fmt::Display for ControllerSummary {
         }
         write!(
             f,
-            "{} observations refused, {} plans",
-            self.refused, self.plans
+            "{} observations refused, {} plans, {} keep-alives",
+            self.refused, self.plans, self.keepalives
         )
     }
 }
@@ -527,11 +538,33 @@ pub fn run(
     // (state, action) of the command in flight, and the episode's running totals.
     let mut pending: Option<(usize, usize)> = None;
     let (mut reward, mut steps, mut episode_misses) = (0.0f64, 0u32, 0u64);
+    let keepalive = (config.keepalive_ms > 0).then(|| Duration::from_millis(config.keepalive_ms));
+    let idle_timeout = keepalive.map_or(Duration::from_millis(100), |k| {
+        k.min(Duration::from_millis(100))
+    });
+    let mut last_sent = std::time::Instant::now();
     loop {
-        let obs = match observations.next(Duration::from_millis(100), stop)? {
+        let obs = match observations.next(idle_timeout, stop)? {
             Ok(o) => o,
             Err(Idle::Stopped) => break,
-            Err(Idle::Timeout) => continue,
+            Err(Idle::Timeout) => {
+                // A move is under way: tell the bridge's watchdog we are still here.
+                if let Some(period) = keepalive
+                    && pending.is_some()
+                    && last_sent.elapsed() >= period
+                {
+                    command_seq += 1;
+                    commands.send(Command {
+                        seq: command_seq,
+                        action: KEEP_ALIVE_ACTION,
+                        stamp_ns: monotonic_ns(),
+                        ..Command::default()
+                    })?;
+                    last_sent = std::time::Instant::now();
+                    summary.keepalives += 1;
+                }
+                continue;
+            }
         };
         // The acting path, from here to the command's publication.
         let counting = alloc_count::count_here();
@@ -611,6 +644,7 @@ pub fn run(
         if warmup_allocations.is_some() {
             ipc_allocations += alloc_count::counted() - before_send;
         }
+        last_sent = std::time::Instant::now();
         // Only now wake the planner with the new model: on a busy machine its wake-up would
         // otherwise compete with the command's way to the bridge.
         planner.offer(agent.model_mut())?;
@@ -670,6 +704,7 @@ fn empty_summary() -> ControllerSummary {
         refused: 0,
         failed_saves: 0,
         plans: 0,
+        keepalives: 0,
     }
 }
 

@@ -354,6 +354,10 @@ fn prepare(file: &LaunchFile) -> Result<Vec<ChildSpec>> {
         t.entry("wait".to_owned())
             .or_insert_with(|| s(&wait.to_string()));
     }
+    let simulated = bridge
+        .get("transport")
+        .and_then(toml::Value::as_str)
+        .is_none_or(|t| t == "sim");
     let time_scale = if l.real_time_factor == 0.0 {
         FASTEST_TIME_SCALE
     } else {
@@ -372,7 +376,9 @@ fn prepare(file: &LaunchFile) -> Result<Vec<ChildSpec>> {
         .entry("watchdog".to_owned())
         .or_insert_with(|| toml::Value::Table(toml::Table::new()));
     if let Some(t) = watchdog.as_table_mut() {
-        let ms = (1000.0 * time_scale.max(1.0)).round() as i64;
+        // A real brick (serial transport) runs in physical time whatever the scale.
+        let scale = if simulated { time_scale.max(1.0) } else { 1.0 };
+        let ms = (1000.0 * scale).round() as i64;
         t.entry("deadline_ms".to_owned())
             .or_insert(toml::Value::Integer(ms));
     }
@@ -384,8 +390,25 @@ fn prepare(file: &LaunchFile) -> Result<Vec<ChildSpec>> {
     ];
     // Every child's settings are checked here, so a bad key stops the launch before any
     // process starts.
-    BridgeConfig::from_toml_str(&texts[0].1).map_err(|e| anyhow::anyhow!("[bridge] {e}"))?;
-    ControllerConfig::from_toml(&texts[1].1).map_err(|e| anyhow::anyhow!("[controller] {e}"))?;
+    let bridge_cfg =
+        BridgeConfig::from_toml_str(&texts[0].1).map_err(|e| anyhow::anyhow!("[bridge] {e}"))?;
+    let controller_cfg = ControllerConfig::from_toml(&texts[1].1)
+        .map_err(|e| anyhow::anyhow!("[controller] {e}"))?;
+    // The watchdog's deadline is brick time; the keep-alives are wall time.
+    let wall_scale = if simulated {
+        bridge_cfg.brick.time_scale
+    } else {
+        1.0
+    };
+    let deadline_wall_ms = bridge_cfg.watchdog_deadline.as_secs_f64() * 1000.0 / wall_scale;
+    if controller_cfg.keepalive_ms as f64 * 2.0 > deadline_wall_ms {
+        anyhow::bail!(
+            "[controller] keepalive_ms = {} must be at most half the bridge's watchdog deadline \
+             ({deadline_wall_ms:.0} ms of wall time: watchdog.deadline_ms / brick.time_scale), \
+             or the watchdog brakes moves of a live controller",
+            controller_cfg.keepalive_ms
+        );
+    }
     PerceptionConfig::from_toml(&texts[2].1).map_err(|e| anyhow::anyhow!("[perception] {e}"))?;
     let mut specs = Vec::new();
     for (role, text) in texts {
@@ -546,5 +569,54 @@ pub fn run_child(role: &str, config: &Path) -> Result<()> {
             Ok(())
         }
         other => bail!("unknown role {other:?} (expected one of {ROLES:?})"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Prepares the children of a launch file with `extra` after its `[launch]` table; the
+    /// directory holds the children's settings files.
+    fn prepared(extra: &str) -> (tempfile::TempDir, Result<Vec<ChildSpec>>) {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let text = format!("[launch]\nrun_dir = \"{}\"\n{extra}", dir.path().display());
+        let file: LaunchFile = toml::from_str(&text).expect("a launch file");
+        let specs = prepare(&file);
+        (dir, specs)
+    }
+
+    fn bridge_settings(dir: &tempfile::TempDir) -> BridgeConfig {
+        let text = std::fs::read_to_string(dir.path().join("bridge.toml")).expect("bridge.toml");
+        BridgeConfig::from_toml_str(&text).expect("valid bridge settings")
+    }
+
+    #[test]
+    fn keep_alives_must_come_well_within_the_watchdog_deadline() {
+        let (_, ok) = prepared("");
+        assert!(ok.is_ok());
+        let (_, off) = prepared("[controller]\nkeepalive_ms = 0\n");
+        assert!(off.is_ok());
+        let (_, bad) = prepared("[controller]\nkeepalive_ms = 600\n");
+        let err = bad.err().expect("refused").to_string();
+        assert!(
+            err.contains("keepalive_ms = 600") && err.contains("1000 ms of wall time"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn the_watchdog_deadline_follows_the_simulated_brick_but_not_a_real_one() {
+        // As fast as possible: the simulated brick runs 200x, so its deadline is 200 s of brick
+        // time, one second of wall time.
+        let (dir, specs) = prepared("");
+        assert!(specs.is_ok());
+        let sim = bridge_settings(&dir);
+        assert_eq!(sim.watchdog_deadline, Duration::from_secs(200));
+        // A real NXT lives in physical time whatever the real-time factor.
+        let (dir, specs) = prepared("[bridge]\ntransport = \"serial:/dev/rfcomm0\"\n");
+        assert!(specs.is_ok());
+        let real = bridge_settings(&dir);
+        assert_eq!(real.watchdog_deadline, Duration::from_secs(1));
     }
 }

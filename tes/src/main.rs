@@ -45,13 +45,7 @@ enum Command {
 /// Children log to stderr (the launcher's terminal), level from `RUST_LOG` (default: warnings
 /// and errors only; the launcher prints the per-episode lines).
 fn init_child_logging() {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
-        )
-        .with_writer(std::io::stderr)
-        .init();
+    tes_topics::logging::init("warn");
 }
 
 /// Counts the controller child's acting-path allocations for its report.

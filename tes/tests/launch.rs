@@ -413,3 +413,135 @@ fn every_process_survives_twenty_kills_and_the_library_always_loads() {
         .expect("the library saved at shutdown loads");
     assert!(!group.children_alive());
 }
+
+/// The bridge's watchdog is a dead man's switch with the real processes: while the controller
+/// lives, its keep-alives hold the watchdog off through a move far longer than the deadline;
+/// once the controller is SIGKILLed mid-move, the bridge brakes within its deadline.
+#[test]
+fn the_bridge_brakes_within_its_deadline_when_the_controller_vanishes_mid_move() {
+    use std::sync::atomic::AtomicBool;
+    use tes_topics::channel::{Inbox, WaitStrategy};
+    use tes_topics::{MotorState, motor_flags, service};
+
+    let dir = tempfile::tempdir().expect("temp dir");
+    // Physical time (the watchdog's deadline is then 1 s of wall time), and every action a
+    // long move: 20 000° a wheel, about 30 s at the default power. (Perception re-publishes
+    // its observation after its 5 s motion timeout; the controller then commands again.)
+    let actions: String = (0..3)
+        .map(|id| {
+            format!(
+                "[[bridge.actions]]\nid = {id}\nname = \"long-{id}\"\nleft_deg = 20000\nright_deg = 20000\n"
+            )
+        })
+        .collect();
+    let extra = format!(
+        "restart = \"on-failure\"\nreal_time_factor = 1.0\n\
+         [bridge]\nuse_command_degrees = false\n{actions}"
+    );
+    let group = Group::start(dir.path(), &launch_file(dir.path(), &extra), 1000);
+    let prefix = format!(
+        "tes-test/{}/{}/",
+        std::process::id(),
+        dir.path()
+            .file_name()
+            .and_then(|n| n.to_str())
+            .unwrap_or("x"),
+    );
+    let node = tes_topics::channel::node(false).expect("node");
+    let states = Inbox::<MotorState>::open(
+        &node,
+        &format!("{prefix}{}", service::MOTOR_STATE),
+        &format!("{prefix}{}", service::MOTOR_STATE_EVENT),
+        0,
+        WaitStrategy::Block,
+    )
+    .expect("subscribe to the motor states");
+    let stop = AtomicBool::new(false);
+    let next = |limit: Duration| -> Option<MotorState> {
+        let until = Instant::now() + limit;
+        while Instant::now() < until {
+            if let Ok(s) = states
+                .next(Duration::from_millis(100), &stop)
+                .expect("receive")
+            {
+                return Some(s);
+            }
+        }
+        None
+    };
+
+    // A move under way for 2.5 s, two and a half deadlines: the keep-alives hold it.
+    let mut moving_since: Option<Instant> = None;
+    let started = Instant::now();
+    let (mut seen, mut last) = (0u32, None);
+    loop {
+        assert!(
+            started.elapsed() < Duration::from_secs(60),
+            "no long move under way within 60 s; {seen} motor states, the last {last:?}"
+        );
+        let Some(s) = next(Duration::from_secs(1)) else {
+            continue;
+        };
+        (seen, last) = (seen + 1, Some(s));
+        assert_eq!(
+            s.flags & motor_flags::WATCHDOG_BRAKED,
+            0,
+            "braked while the controller lives: {s:?}"
+        );
+        if s.after_command > 0 && s.flags & motor_flags::SETTLED == 0 {
+            let since = *moving_since.get_or_insert_with(Instant::now);
+            if since.elapsed() > Duration::from_millis(2500) {
+                break;
+            }
+        }
+    }
+
+    kill(group.child("controller"), Signal::SIGKILL).expect("kill the controller");
+    let killed = Instant::now();
+    let braked = loop {
+        let s = next(Duration::from_secs(10)).expect("motor states keep coming");
+        if s.flags & motor_flags::WATCHDOG_BRAKED != 0 {
+            break s;
+        }
+        assert!(
+            killed.elapsed() < Duration::from_secs(10),
+            "no watchdog brake 10 s after the controller died"
+        );
+    };
+    let took = killed.elapsed();
+    // The bound is the deadline (1 s) after the last keep-alive, which came before the kill;
+    // the slack absorbs a descheduled bridge on a loaded machine.
+    assert!(
+        took <= Duration::from_millis(1500),
+        "braked {took:?} after the kill"
+    );
+    let lines = group.wait_for_stderr(
+        "watchdog: no command within the deadline",
+        Duration::from_secs(10),
+    );
+    let line = lines
+        .iter()
+        .find(|l| l.contains("watchdog: no command within the deadline"))
+        .expect("the watchdog's line");
+    let silence_ms: u64 = line
+        .split("silence_ms=")
+        .nth(1)
+        .and_then(|r| r.split(|c: char| !c.is_ascii_digit()).next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no silence_ms in {line:?}"));
+    assert!(
+        (1000..=1200).contains(&silence_ms),
+        "braked after {silence_ms} ms of silence: {line}"
+    );
+    // The wheels stop: the bridge reports them settled, and they stay where they stopped.
+    let settled = loop {
+        let s = next(Duration::from_secs(10)).expect("motor states keep coming");
+        if s.flags & motor_flags::SETTLED != 0 {
+            break s;
+        }
+    };
+    assert!(
+        settled.tacho_count[1] < 20_000 && settled.tacho_count[2] < 20_000,
+        "the move was cut short: {settled:?} (braked at {braked:?})"
+    );
+}

@@ -228,7 +228,9 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Outbox<T> {
         })
     }
 
-    /// Publishes `value` and wakes the receivers. Allocation-free.
+    /// Publishes `value` and wakes the receivers. Nothing of ours allocates; iceoryx2 0.10's
+    /// `loan_uninit` allocates one small shared-state object per sample (see
+    /// `topics/tests/allocations.rs` and docs/performance.md).
     pub fn send(&self, value: T) -> Result<(), IpcError> {
         let sample = self
             .publisher

@@ -33,6 +33,7 @@ use iceoryx2::prelude::ZeroCopySend;
 
 pub mod channel;
 pub mod latency;
+pub mod logging;
 pub mod settings;
 mod world_map;
 

@@ -134,6 +134,7 @@ fn watchdog_brakes_a_long_move_when_commands_stop() {
         "tripped at {t:?}"
     );
     assert_eq!(bridge.watchdog().trips(), 1);
+    assert!(bridge.watchdog().silence(t) >= Duration::from_millis(300));
     assert!(s.tacho_count[Port::B.index()] < 3600);
     // The motors actually stop, and the bridge reports settled-and-braked.
     let (s, _) = until(
