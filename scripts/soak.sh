@@ -24,6 +24,7 @@ warmup_actions = 10000
 [bridge.ipc]
 warmup_commands = 10000
 latency_report = "$out/bridge.json"
+latency_windows = "$out/bridge-windows.csv"
 TOML
 echo "seconds,role,rss_kib" > "$out/rss.csv"
 start=$(date +%s)

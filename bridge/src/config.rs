@@ -228,6 +228,12 @@ pub struct IpcConfig {
     pub warmup_commands: u64,
     /// Where to write the latency report (JSON) at exit (default: nowhere).
     pub latency_report: Option<std::path::PathBuf>,
+    /// Where to write the latency of every `latency_window` consecutive commands after the
+    /// warm-up, one CSV row per window, at exit (default: nowhere): shows drift over a long
+    /// run.
+    pub latency_windows: Option<std::path::PathBuf>,
+    /// Commands per window of `latency_windows` (default 50 000, at least 1).
+    pub latency_window: u64,
 }
 
 impl Default for IpcConfig {
@@ -238,6 +244,8 @@ impl Default for IpcConfig {
             budget_us: 1000,
             warmup_commands: 0,
             latency_report: None,
+            latency_windows: None,
+            latency_window: 50_000,
         }
     }
 }
@@ -436,6 +444,9 @@ impl BridgeConfig {
         if let Err(e) = raw.ipc.wait.parse::<tes_topics::channel::WaitStrategy>() {
             return Err(invalid("ipc.wait", e.to_string()));
         }
+        if raw.ipc.latency_window == 0 {
+            return Err(invalid("ipc.latency_window", "must be at least 1"));
+        }
         if raw.ipc.budget_us == 0 {
             return Err(invalid("ipc.budget_us", "must be at least 1"));
         }
@@ -616,6 +627,11 @@ mod tests {
             ),
             ("[ipc]\nwait = \"nap\"", "ipc.wait", "nap"),
             ("[ipc]\nbudget_us = 0", "ipc.budget_us", "at least 1"),
+            (
+                "[ipc]\nlatency_window = 0",
+                "ipc.latency_window",
+                "at least 1",
+            ),
             (
                 "[serial]\nmax_timeouts = 0",
                 "serial.max_timeouts",

@@ -109,6 +109,9 @@ pub fn run(cfg: &BridgeConfig, opts: &RunOptions) -> Result<RunSummary, ProcessE
     let mut bridge = Bridge::new(transport, cfg);
     let names = ServiceNames::with_prefix(&cfg.ipc.service_prefix);
     let mut latency = LatencyRecorder::new(cfg.ipc.budget_us, cfg.ipc.warmup_commands);
+    if cfg.ipc.latency_windows.is_some() {
+        latency = latency.with_windows(cfg.ipc.latency_window);
+    }
     let summary = ipc::run_with(
         &mut bridge,
         &clock,
@@ -126,6 +129,14 @@ pub fn run(cfg: &BridgeConfig, opts: &RunOptions) -> Result<RunSummary, ProcessE
                 path: path.clone(),
                 error,
             })?;
+    }
+    if let Some(path) = &cfg.ipc.latency_windows {
+        tes_topics::latency::LatencyReport::save_windows_csv(latency.windows(), path).map_err(
+            |error| ProcessError::Report {
+                path: path.clone(),
+                error,
+            },
+        )?;
     }
     Ok(summary)
 }
