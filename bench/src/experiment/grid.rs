@@ -14,8 +14,7 @@
 
 use std::collections::BTreeMap;
 use std::fs;
-use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
@@ -28,7 +27,7 @@ use tes_controller::agents::Contexts;
 use tes_controller::cmdp::CmdpStructure;
 use tes_perception_sim::grid::{GridSuite, GridTask};
 
-use super::{Algorithm, Episode, EpisodicTask, run_agent, write_file};
+use super::{Algorithm, Episode, EpisodicTask, run_agent, write_episodes_csv, write_file};
 pub use crate::stats::Summary;
 use crate::stats::summarise;
 use crate::svg::{BandPoint, LineChart, Series};
@@ -302,7 +301,22 @@ pub fn run(
         runs.sort_by_key(|r| r.run);
     }
 
-    write_episode_csv(&out.join("episodes.csv"), &by_cell)?;
+    write_episodes_csv(
+        &out.join("episodes.csv"),
+        "algorithm,irrelevant_features,run,seed",
+        by_cell.iter().flat_map(|(cell, runs)| {
+            runs.iter().map(move |r| {
+                let key = format!(
+                    "{},{},{},{}",
+                    cell.algorithm.name(),
+                    cell.irrelevant,
+                    r.run,
+                    r.seed
+                );
+                (key, r.episodes.as_slice())
+            })
+        }),
+    )?;
     let task = &envs[&0].task;
     let task_name = format!(
         "task {} ({}x{}, {} states)",
@@ -466,37 +480,4 @@ fn accumulated_curve(runs: &[RunResult]) -> Vec<BandPoint> {
         });
     }
     points
-}
-
-fn write_episode_csv(path: &PathBuf, by_cell: &BTreeMap<Cell, Vec<RunResult>>) -> Result<()> {
-    let mut out = std::io::BufWriter::new(
-        fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?,
-    );
-    let mut write = || -> std::io::Result<()> {
-        writeln!(
-            out,
-            "algorithm,irrelevant_features,run,seed,episode,reward,steps,finished,agent_seconds"
-        )?;
-        for (cell, runs) in by_cell {
-            for r in runs {
-                for (i, e) in r.episodes.iter().enumerate() {
-                    writeln!(
-                        out,
-                        "{},{},{},{},{},{},{},{},{:.6}",
-                        cell.algorithm.name(),
-                        cell.irrelevant,
-                        r.run,
-                        r.seed,
-                        i + 1,
-                        e.reward,
-                        e.steps,
-                        e.finished,
-                        e.agent_seconds
-                    )?;
-                }
-            }
-        }
-        out.flush()
-    };
-    write().with_context(|| format!("cannot write {}", path.display()))
 }

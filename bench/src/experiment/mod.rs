@@ -184,6 +184,42 @@ pub fn run_agent(
 }
 
 /// Writes `text` to `path`, naming the file on failure.
+/// Writes `episodes.csv`-style rows: the key columns named by `key_header` (comma-separated),
+/// then `episode,reward,steps,finished,agent_seconds`, one row per episode of each
+/// `(key, episodes)` group, the key already formatted as its comma-separated values.
+pub(crate) fn write_episodes_csv<'a>(
+    path: &std::path::Path,
+    key_header: &str,
+    groups: impl IntoIterator<Item = (String, &'a [Episode])>,
+) -> anyhow::Result<()> {
+    use anyhow::Context;
+    use std::io::Write;
+    let file =
+        std::fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?;
+    let mut out = std::io::BufWriter::new(file);
+    let write = || -> std::io::Result<()> {
+        writeln!(
+            out,
+            "{key_header},episode,reward,steps,finished,agent_seconds"
+        )?;
+        for (key, episodes) in groups {
+            for (i, e) in episodes.iter().enumerate() {
+                writeln!(
+                    out,
+                    "{key},{},{},{},{},{:.6}",
+                    i + 1,
+                    e.reward,
+                    e.steps,
+                    e.finished,
+                    e.agent_seconds
+                )?;
+            }
+        }
+        out.flush()
+    };
+    write().with_context(|| format!("cannot write {}", path.display()))
+}
+
 pub(crate) fn write_file(path: &std::path::Path, text: &str) -> anyhow::Result<()> {
     use anyhow::Context;
     std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))

@@ -19,7 +19,6 @@
 
 use std::collections::BTreeMap;
 use std::fs;
-use std::io::Write;
 use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -39,7 +38,7 @@ use tes_controller::mdagl::MdaglParams;
 use tes_controller::plan::PlannerParams;
 use tes_perception_sim::arena::{Arena, ArenaId, Episode as ArenaEpisode, EpisodeStatus};
 
-use super::{Episode, write_file};
+use super::{Episode, write_episodes_csv, write_file};
 use crate::stats::{Summary, summarise};
 use crate::svg::{BandPoint, LineChart, Series};
 
@@ -488,7 +487,14 @@ pub fn run(
         markers: false,
     };
     write_file(&out.join("fig9.svg"), &fig9.to_svg())?;
-    write_csv(&out.join("episodes.csv"), config, &by)?;
+    write_episodes_csv(
+        &out.join("episodes.csv"),
+        "method,run,seed",
+        by.iter().map(|((m, r), eps)| {
+            let key = format!("{},{},{}", m.name(), r, config.seed + *r as u64);
+            (key, eps.as_slice())
+        }),
+    )?;
     let report = RobotReport {
         config: config.clone(),
         wall_seconds: started.elapsed().as_secs_f64(),
@@ -501,38 +507,4 @@ pub fn run(
     let json = serde_json::to_string_pretty(&report).context("cannot encode the summary")?;
     write_file(&out.join("summary.json"), &json)?;
     Ok(report)
-}
-
-fn write_csv(
-    path: &Path,
-    config: &RobotConfig,
-    by: &BTreeMap<(RobotMethod, usize), Vec<Episode>>,
-) -> Result<()> {
-    let mut out = std::io::BufWriter::new(
-        fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?,
-    );
-    let mut write = || -> std::io::Result<()> {
-        writeln!(
-            out,
-            "method,run,seed,episode,reward,steps,finished,agent_seconds"
-        )?;
-        for ((m, r), eps) in by {
-            for (i, e) in eps.iter().enumerate() {
-                writeln!(
-                    out,
-                    "{},{},{},{},{},{},{},{:.6}",
-                    m.name(),
-                    r,
-                    config.seed + *r as u64,
-                    i + 1,
-                    e.reward,
-                    e.steps,
-                    e.finished,
-                    e.agent_seconds
-                )?;
-            }
-        }
-        out.flush()
-    };
-    write().with_context(|| format!("cannot write {}", path.display()))
 }

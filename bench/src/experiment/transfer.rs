@@ -18,7 +18,6 @@
 
 use std::collections::BTreeMap;
 use std::fs;
-use std::io::Write;
 use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
@@ -35,7 +34,7 @@ use tes_controller::library::{LibraryParams, ViewLibrary};
 use tes_perception_sim::grid::GridSuite;
 
 use super::grid::GridEnv;
-use super::{Algorithm, Episode, EpisodicTask, run_episode, write_file};
+use super::{Algorithm, Episode, EpisodicTask, run_episode, write_episodes_csv, write_file};
 use crate::stats::{Summary, summarise};
 use crate::svg::{BandPoint, LineChart, Series};
 
@@ -269,7 +268,16 @@ pub fn run(
         .collect::<Result<_>>()?;
     results.sort_by_key(|r| (r.task, r.run));
 
-    write_episode_csv(&out.join("episodes.csv"), &results)?;
+    write_episodes_csv(
+        &out.join("episodes.csv"),
+        "test_task,run,seed,method",
+        results.iter().flat_map(|r| {
+            r.episodes.iter().map(move |(m, eps)| {
+                let key = format!("{},{},{},{}", r.task, r.run, r.seed, m.name());
+                (key, eps.as_slice())
+            })
+        }),
+    )?;
     let mut tasks = Vec::new();
     for &task in &config.test_tasks {
         let runs: Vec<&JobResult> = results.iter().filter(|r| r.task == task).collect();
@@ -550,37 +558,4 @@ fn write_jumpstart_chart(out: &Path, tasks: &[TaskSummary]) -> Result<()> {
         markers: true,
     };
     write_file(&out.join("table2.svg"), &chart.to_svg())
-}
-
-fn write_episode_csv(path: &Path, results: &[JobResult]) -> Result<()> {
-    let mut out = std::io::BufWriter::new(
-        fs::File::create(path).with_context(|| format!("cannot create {}", path.display()))?,
-    );
-    let mut write = || -> std::io::Result<()> {
-        writeln!(
-            out,
-            "test_task,run,seed,method,episode,reward,steps,finished,agent_seconds"
-        )?;
-        for r in results {
-            for (m, eps) in &r.episodes {
-                for (i, e) in eps.iter().enumerate() {
-                    writeln!(
-                        out,
-                        "{},{},{},{},{},{},{},{},{:.6}",
-                        r.task,
-                        r.run,
-                        r.seed,
-                        m.name(),
-                        i + 1,
-                        e.reward,
-                        e.steps,
-                        e.finished,
-                        e.agent_seconds
-                    )?;
-                }
-            }
-        }
-        out.flush()
-    };
-    write().with_context(|| format!("cannot write {}", path.display()))
 }
