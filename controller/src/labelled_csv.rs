@@ -57,6 +57,14 @@ pub enum RowError {
         /// The field's text (shortened).
         text: String,
     },
+    /// The line is not UTF-8 text (a binary file, or text in another encoding).
+    #[error("byte 0x{byte:02X} at position {position} is not UTF-8 text (is this a CSV file?)")]
+    NotText {
+        /// The first byte that is not part of valid UTF-8.
+        byte: u8,
+        /// Its 1-based position in the line, in bytes.
+        position: usize,
+    },
 }
 
 fn quote(text: &str) -> String {
@@ -64,6 +72,19 @@ fn quote(text: &str) -> String {
         Some((cut, _)) => format!("{}…", &text[..cut]),
         None => text.to_owned(),
     }
+}
+
+/// A line's bytes as text, or [`RowError::NotText`] naming the first byte that is not UTF-8.
+/// Read lines as bytes and pass them through this, rather than reading text, to get a typed
+/// error for a file that is not text.
+pub fn row_text(line: &[u8]) -> Result<&str, RowError> {
+    std::str::from_utf8(line).map_err(|e| {
+        let at = e.valid_up_to();
+        RowError::NotText {
+            byte: line.get(at).copied().unwrap_or(0),
+            position: at + 1,
+        }
+    })
 }
 
 /// Whether a line holds no row (blank or only white space).
@@ -179,12 +200,48 @@ mod tests {
         assert!(is_blank("  \r") && !is_blank("0"));
     }
 
+    #[test]
+    fn lines_that_are_not_utf8_are_refused_naming_the_byte() {
+        assert_eq!(row_text(b"1,0.5\n"), Ok("1,0.5\n"));
+        assert_eq!(row_text("1,\u{e9}\n".as_bytes()), Ok("1,\u{e9}\n"));
+        assert_eq!(
+            row_text(b"1,\xff\xfe,0\n"),
+            Err(RowError::NotText {
+                byte: 0xFF,
+                position: 3
+            })
+        );
+        // A multi-byte sequence cut short is named by its first byte.
+        let err = row_text(b"\xc3").unwrap_err();
+        assert_eq!(
+            err,
+            RowError::NotText {
+                byte: 0xC3,
+                position: 1
+            }
+        );
+        assert!(err.to_string().contains("0xC3"), "{err}");
+    }
+
     proptest! {
         /// Any text: a row or a typed error, never a panic.
         #[test]
         fn never_panics(line in "\\PC{0,80}") {
             let mut f = Vec::new();
             let _ = parse_row(&line, &mut f);
+        }
+
+        /// Any bytes: text exactly when they are UTF-8, else the first bad byte named.
+        #[test]
+        fn any_bytes_are_text_or_name_their_first_bad_byte(bytes in proptest::collection::vec(any::<u8>(), 0..64)) {
+            match (row_text(&bytes), std::str::from_utf8(&bytes)) {
+                (Ok(text), Ok(expected)) => prop_assert_eq!(text, expected),
+                (Err(RowError::NotText { byte, position }), Err(e)) => {
+                    prop_assert_eq!(position, e.valid_up_to() + 1);
+                    prop_assert_eq!(byte, bytes[e.valid_up_to()]);
+                }
+                (got, _) => prop_assert!(false, "{:?}", got),
+            }
         }
 
         /// Written rows read back exactly.

@@ -796,6 +796,150 @@ mod tests {
         ));
     }
 
+    /// Raises a stop flag when dropped (also while unwinding from a failed assertion).
+    struct StopOnDrop<'a>(&'a AtomicBool);
+
+    impl Drop for StopOnDrop<'_> {
+        fn drop(&mut self) {
+            self.0.store(true, std::sync::atomic::Ordering::SeqCst);
+        }
+    }
+
+    /// The controller's rule for observations, over real iceoryx2 services with the real
+    /// loop: one whose `seq` is not newer than the last accepted one (a duplicate, or an older
+    /// one out of order), one with a non-finite reward and one of a state outside the map are
+    /// refused and counted in `refused`; no command answers them and nothing is learned from
+    /// them. Each good observation is answered by exactly one command.
+    ///
+    /// The refused observations follow an accepted one with a command in flight and are not
+    /// episode starts, so taking any of them would have taught the agent that command's
+    /// effect; the last good observation starts a new episode, which drops the command in
+    /// flight unlearned. So the library saved at shutdown must be empty: a view is kept only
+    /// for an action with an observed effect.
+    #[test]
+    fn stale_duplicate_and_non_finite_observations_are_refused_and_answered_by_nothing() {
+        use iceoryx2::prelude::PortFactory;
+        use std::sync::atomic::Ordering;
+        use std::time::Instant;
+
+        // Unique to this test and process; every port below and in the controller is
+        // dropped when the test ends, passing or failing, which removes the services.
+        let prefix = format!("tes-test/controller-seq/{}/", std::process::id());
+        let dir = tempfile::tempdir().unwrap();
+        let library = dir.path().join("library.tesl");
+        let config = ControllerConfig {
+            service_prefix: prefix.clone(),
+            library: Some(library.clone()),
+            map_timeout_s: 20.0,
+            keepalive_ms: 0,
+            ..ControllerConfig::default()
+        };
+        let [
+            map_name,
+            map_event,
+            obs_name,
+            obs_event,
+            cmd_name,
+            cmd_event,
+        ] = names(&prefix);
+        let node = channel::node(false).unwrap();
+        // Subscribed before the controller publishes, so no command is missed.
+        let commands: Inbox<Command> =
+            Inbox::open(&node, &cmd_name, &cmd_event, 0, WaitStrategy::Block).unwrap();
+        let maps: Outbox<WorldMap> = Outbox::open(&node, &map_name, &map_event, 1).unwrap();
+        let observations: Outbox<Observation> =
+            Outbox::open(&node, &obs_name, &obs_event, 0).unwrap();
+        let observation_service = channel::pubsub::<Observation>(&node, &obs_name, 0).unwrap();
+        let m = map();
+        let (a, b, c) = (at(&m, 0, 1, 0), at(&m, 1, 1, 0), at(&m, 2, 2, 3));
+        let observation = |seq: u64, state: usize, reward: f32, flags: u32| Observation {
+            seq,
+            stamp_ns: monotonic_ns(),
+            state: m.attributes(state),
+            n_features: m.n_features,
+            features: m.features[state],
+            reward,
+            flags,
+            ..Observation::default()
+        };
+        let never = AtomicBool::new(false);
+        let next_command = || match commands.next(Duration::from_secs(20), &never).unwrap() {
+            Ok(c) => c,
+            Err(idle) => panic!("no command within 20 s ({idle:?})"),
+        };
+        let stop = AtomicBool::new(false);
+        let summary = std::thread::scope(|s| {
+            let controller = s.spawn(|| run(&config, &stop, |_| {}));
+            // A failed assertion below must not leave the controller running (the scope
+            // joins it): stop it on the way out, however that is.
+            let _stop_controller = StopOnDrop(&stop);
+            // The controller subscribes to the map, then to observations, then waits for the
+            // map: once it has an observation subscriber, both reach it.
+            let deadline = Instant::now() + Duration::from_secs(20);
+            while observation_service.dynamic_config().number_of_subscribers() == 0 {
+                assert!(Instant::now() < deadline, "the controller never subscribed");
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            maps.send(m).unwrap();
+
+            let first = observation(100, a, 0.0, observation_flags::EPISODE_START);
+            observations.send(first).unwrap();
+            let answer = next_command();
+            assert_eq!(answer.answers, 100, "{answer:?}");
+            assert!((answer.action as usize) < 2 && answer.seq > 0, "{answer:?}");
+            assert_eq!(answer.observed_ns, first.stamp_ns);
+
+            // The refused: a duplicate, an older seq, a non-finite reward (with a fresh seq)
+            // and a state outside the map (with a fresh seq). All but the last are
+            // well-formed moves a → b that would be learned from if taken.
+            observations.send(observation(100, b, -0.05, 0)).unwrap();
+            observations.send(observation(99, b, -0.05, 0)).unwrap();
+            observations.send(observation(101, b, f32::NAN, 0)).unwrap();
+            observations
+                .send(observation(102, b, f32::INFINITY, 0))
+                .unwrap();
+            let mut outside = observation(103, b, -0.05, 0);
+            outside.state.x = 7;
+            observations.send(outside).unwrap();
+
+            // The next good one: newer than the last accepted (100), not than every seq sent
+            // (a refused seq does not count as seen).
+            let last = observation(101, c, 0.0, observation_flags::EPISODE_START);
+            observations.send(last).unwrap();
+            // Observations are taken in order, so had a refused one been answered, its
+            // command would come first.
+            let second = next_command();
+            assert_eq!(second.answers, 101, "{second:?}");
+            // This one, not the refused one with the same seq and a NaN reward.
+            assert_eq!(second.observed_ns, last.stamp_ns, "{second:?}");
+            assert!(second.seq > answer.seq, "{second:?} after {answer:?}");
+
+            stop.store(true, Ordering::SeqCst);
+            controller.join().unwrap().unwrap()
+        });
+        assert_eq!(commands.try_next().unwrap(), None, "no other command");
+        assert_eq!(summary.refused, 5, "{summary:?}");
+        assert_eq!(summary.actions, 2, "{summary:?}");
+        assert_eq!(
+            (summary.episodes, summary.keepalives),
+            (0, 0),
+            "{summary:?}"
+        );
+        assert_eq!(summary.failed_saves, 0, "{summary:?}");
+        let saved = store::load_for(&library, 2, 3, 4).unwrap();
+        assert!(
+            saved.library.is_empty(),
+            "nothing learned: {} views",
+            saved.library.len()
+        );
+        // With the last port gone, no service of the test is left behind.
+        drop((commands, maps, observations, observation_service, node));
+        assert_eq!(
+            channel::services_with_prefix(&prefix).unwrap(),
+            Vec::<String>::new()
+        );
+    }
+
     #[test]
     fn settings_are_checked_by_key() {
         assert!(ControllerConfig::default().check().is_ok());

@@ -1,5 +1,5 @@
 //! Feeds arbitrary bytes to the labelled-CSV reader as `tes fit` uses it (tes/src/fit.rs):
-//! line by line (a line that is not UTF-8 stops `tes fit` with a read error naming it),
+//! line by line (a line that is not UTF-8 stops `tes fit` with `RowError::NotText` naming it),
 //! blank lines skipped, every row parsed, every row as wide as the first; then, as `tes fit`
 //! does, an mDAGL model of `largest label + 1` classes learns the rows in order.
 //!

@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use tes_controller::labelled_csv::{is_blank, parse_row};
+use tes_controller::labelled_csv::{is_blank, parse_row, row_text};
 use tes_controller::mdagl::{Features, Mdagl, MdaglParams};
 
 /// Rows parsed before each timed batch of updates.
@@ -77,24 +77,27 @@ fn for_each_row(
     mut row: impl FnMut(u64, usize, &[f64]) -> Result<()>,
 ) -> Result<()> {
     let mut reader = open(path)?;
-    let mut line = String::new();
+    // Lines are read as bytes, so that one that is not UTF-8 text is a malformed row naming
+    // the byte, not an I/O error.
+    let mut bytes = Vec::new();
     let mut features = Vec::new();
     let mut number = 0u64;
     loop {
-        line.clear();
+        bytes.clear();
         let read = reader
-            .read_line(&mut line)
-            .with_context(|| format!("{}: cannot read line {}", path.display(), number + 1))?;
+            .read_until(b'\n', &mut bytes)
+            .with_context(|| format!("{}:{}: cannot read the line", path.display(), number + 1))?;
         if read == 0 {
             return Ok(());
         }
         number += 1;
         progress.inc(read as u64);
-        if is_blank(&line) {
+        let malformed = || format!("{}:{number}: malformed row", path.display());
+        let line = row_text(&bytes).with_context(malformed)?;
+        if is_blank(line) {
             continue;
         }
-        let label = parse_row(&line, &mut features)
-            .with_context(|| format!("{}:{number}: malformed row", path.display()))?;
+        let label = parse_row(line, &mut features).with_context(malformed)?;
         row(number, label, &features)?;
     }
 }

@@ -147,23 +147,156 @@ pub(crate) struct GroupOutcome {
 /// Runs `tes launch`.
 pub fn run(args: &LaunchArgs) -> Result<()> {
     let mut file = match &args.config {
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("cannot read {}", path.display()))?;
-            toml::from_str::<LaunchFile>(&text).with_context(|| format!("in {}", path.display()))?
-        }
+        Some(path) => read_launch_file(path)?,
         None => LaunchFile::default(),
     };
     if let Some(n) = args.episodes {
         file.launch.episodes = n;
     }
-    run_file(&file, true).map(|_| ())
+    let specs = match &args.config {
+        Some(path) => prepare(&file).map_err(|e| LaunchFileError {
+            path: path.clone(),
+            problem: LaunchFileProblem::Settings(e),
+        })?,
+        None => prepare(&file).context(NOTHING_STARTED)?,
+    };
+    run_group(&file, specs, true).map(|_| ())
+}
+
+const NOTHING_STARTED: &str = "the launch settings are invalid; nothing was started";
+
+/// A launch file that cannot be used; when one is refused, nothing is started.
+#[derive(Debug)]
+pub(crate) struct LaunchFileError {
+    /// The file.
+    pub(crate) path: PathBuf,
+    /// What is wrong with it.
+    pub(crate) problem: LaunchFileProblem,
+}
+
+/// What is wrong with a launch file.
+#[derive(Debug)]
+pub(crate) enum LaunchFileProblem {
+    /// It cannot be read: missing, unreadable, or not UTF-8 text.
+    Read(std::io::Error),
+    /// It does not parse: not TOML, or a key that is unknown, repeated or of the wrong type.
+    Parse {
+        /// 1-based line of the offending text in the file.
+        line: usize,
+        /// 1-based column (in characters).
+        column: usize,
+        /// The key the error is about (`[launch] episodes`), when the parser got that far.
+        key: Option<String>,
+        /// The parser's reason.
+        reason: String,
+    },
+    /// It parses, but a value is out of range, the settings contradict each other, or the
+    /// children's settings cannot be written to the run directory.
+    Settings(anyhow::Error),
+}
+
+impl std::fmt::Display for LaunchFileError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let path = self.path.display();
+        match &self.problem {
+            LaunchFileProblem::Read(error) => {
+                write!(f, "cannot read the launch file {path}: {error}")?;
+            }
+            LaunchFileProblem::Parse {
+                line,
+                column,
+                key: Some(key),
+                reason,
+            } => write!(f, "launch file {path}:{line}:{column}: {key}: {reason}")?,
+            LaunchFileProblem::Parse {
+                line,
+                column,
+                key: None,
+                reason,
+            } => write!(
+                f,
+                "launch file {path}:{line}:{column}: not valid TOML: {reason}"
+            )?,
+            LaunchFileProblem::Settings(error) => write!(f, "launch file {path}: {error:#}")?,
+        }
+        f.write_str("; nothing was started")
+    }
+}
+
+impl std::error::Error for LaunchFileError {}
+
+/// The `[controller]` and `[perception]` tables as those processes read them: checked
+/// against the launch file's own text, so that an unknown or mistyped key is reported at its
+/// line. ([`prepare`] checks them again, merged with the launch-wide settings, with their
+/// ranges.) The bridge's table is checked only by [`prepare`].
+#[derive(Deserialize)]
+struct ChildTables {
+    #[serde(default, rename = "controller")]
+    _controller: Option<ControllerConfig>,
+    #[serde(default, rename = "perception")]
+    _perception: Option<PerceptionConfig>,
+}
+
+/// Reads and parses a launch file; a problem is reported with the file, the line and the key.
+pub(crate) fn read_launch_file(path: &Path) -> Result<LaunchFile, LaunchFileError> {
+    let refuse = |problem| LaunchFileError {
+        path: path.to_owned(),
+        problem,
+    };
+    let text = std::fs::read_to_string(path).map_err(|e| refuse(LaunchFileProblem::Read(e)))?;
+    let parse_error = |e: toml::de::Error| refuse(parse_problem(&text, &e));
+    let file: LaunchFile = toml::from_str(&text).map_err(parse_error)?;
+    toml::from_str::<ChildTables>(&text).map_err(parse_error)?;
+    Ok(file)
+}
+
+/// Where in `text` the parser's `error` is, and which key it is about.
+fn parse_problem(text: &str, error: &toml::de::Error) -> LaunchFileProblem {
+    let at = error.span().map_or(0, |s| s.start);
+    let before = text.get(..at).unwrap_or("");
+    let line = before.matches('\n').count() + 1;
+    let column = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+    let key = toml::de::DeTable::parse(text).ok().and_then(|doc| {
+        let mut path = Vec::new();
+        key_at(doc.get_ref(), at, &mut path).then(|| match path.split_first() {
+            Some((table, rest)) if !rest.is_empty() => format!("[{table}] {}", rest.join(".")),
+            _ => path.join("."),
+        })
+    });
+    LaunchFileProblem::Parse {
+        line,
+        column,
+        key,
+        reason: error.message().to_owned(),
+    }
+}
+
+/// The path of the innermost key of `table` whose name or value holds byte `at`.
+fn key_at(table: &toml::de::DeTable<'_>, at: usize, path: &mut Vec<String>) -> bool {
+    for (key, value) in table.iter() {
+        path.push(key.get_ref().to_string());
+        if let toml::de::DeValue::Table(inner) = value.get_ref()
+            && key_at(inner, at, path)
+        {
+            return true;
+        }
+        if key.span().contains(&at) || value.span().contains(&at) {
+            return true;
+        }
+        path.pop();
+    }
+    false
 }
 
 /// Runs the group `file` describes until perception finishes, a child fails (or exhausts its
 /// restarts) or a signal; `echo` prints the controller's lines and the launcher's notes.
 pub(crate) fn run_file(file: &LaunchFile, echo: bool) -> Result<GroupOutcome> {
-    let specs = prepare(file).context("the launch settings are invalid; nothing was started")?;
+    let specs = prepare(file).context(NOTHING_STARTED)?;
+    run_group(file, specs, echo)
+}
+
+/// [`run_file`] with the children already prepared.
+fn run_group(file: &LaunchFile, specs: Vec<ChildSpec>, echo: bool) -> Result<GroupOutcome> {
     let launch = &file.launch;
     let note = |text: String| {
         if echo {

@@ -97,6 +97,69 @@ fn malformed_rows_stop_with_the_line_and_report_nothing() {
     }
 }
 
+/// A CSV file that is not UTF-8 text stops `tes fit` at the first line that is not, naming
+/// `FILE:LINE` and the byte, and nothing is reported: a row holding the bytes 0xFF 0xFE, a
+/// UTF-16 file (which starts with them), and a file of random bytes.
+#[test]
+fn files_that_are_not_utf8_stop_with_the_line_and_report_nothing() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let utf16: Vec<u8> = [0xFF, 0xFE]
+        .into_iter()
+        .chain("0,1,0\n1,0,1\n".encode_utf16().flat_map(u16::to_le_bytes))
+        .collect();
+    // xorshift64: the same "random" bytes every run.
+    let mut x = 0x9E37_79B9_7F4A_7C15u64;
+    let random: Vec<u8> = (0..4096)
+        .map(|_| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 32) as u8
+        })
+        .collect();
+    let first_line = random.split(|&b| b == b'\n').next().unwrap_or(&[]);
+    assert!(
+        std::str::from_utf8(first_line).is_err(),
+        "the random file's first line is not UTF-8"
+    );
+    let cases: [(&str, &[u8], &str); 3] = [
+        (
+            "latin.csv",
+            b"0,1,0\n1,0,1\n1,\xff\xfe,0\n0,1,1\n",
+            "latin.csv:3: malformed row: byte 0xFF at position 3 is not UTF-8 text",
+        ),
+        (
+            "utf16.csv",
+            &utf16,
+            "utf16.csv:1: malformed row: byte 0xFF at position 1 is not UTF-8 text",
+        ),
+        (
+            "random.bin",
+            &random,
+            "random.bin:1: malformed row: byte 0x",
+        ),
+    ];
+    for (name, bytes, expected) in cases {
+        let path = dir.path().join(name);
+        std::fs::write(&path, bytes).expect("temp file");
+        for json in [false, true] {
+            let mut args = vec!["fit", path.to_str().expect("utf-8 path")];
+            if json {
+                args.push("--json");
+            }
+            let out = tes(&args);
+            assert!(!out.status.success(), "{name} should fail");
+            assert!(out.stdout.is_empty(), "{name}: nothing reported");
+            let stderr = String::from_utf8_lossy(&out.stderr);
+            assert!(
+                stderr.contains(expected) && stderr.contains("not UTF-8 text"),
+                "{name}: {stderr}"
+            );
+            assert!(!stderr.contains("panicked"), "{name}: {stderr}");
+        }
+    }
+}
+
 #[test]
 fn labels_beyond_classes_and_bad_settings_are_refused() {
     let dir = tempfile::tempdir().expect("temp dir");

@@ -25,10 +25,15 @@ impl Group {
     fn start(dir: &Path, launch_toml: &str, episodes: u32) -> Self {
         let config = dir.join("launch.toml");
         std::fs::write(&config, launch_toml).expect("launch file");
+        Self::start_with(dir, &config, episodes)
+    }
+
+    /// Launches with the launch file `config` (which need not exist), data in `dir/data`.
+    fn start_with(dir: &Path, config: &Path, episodes: u32) -> Self {
         let mut launcher = Command::new(env!("CARGO_BIN_EXE_tes"))
             .arg("launch")
             .arg("--config")
-            .arg(&config)
+            .arg(config)
             .arg("--episodes")
             .arg(episodes.to_string())
             .env("TES_DATA_DIR", dir.join("data"))
@@ -195,6 +200,88 @@ fn launch_file(dir: &Path, extra: &str) -> String {
         dir.file_name().and_then(|n| n.to_str()).unwrap_or("x"),
         dir.join("run").display()
     )
+}
+
+/// A bad launch file — an unknown key or table, a value of the wrong type or out of range,
+/// text that is not TOML, bytes that are not UTF-8, no file at all — makes `tes launch` exit
+/// non-zero at once with an error naming the file and the line and key (or the reason), and
+/// start no process: no child's settings file, which is written just before the child starts,
+/// exists, and the launcher never announces the group.
+#[test]
+fn a_bad_launch_file_is_refused_naming_the_file_and_key_and_starts_nothing() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let cases: [(Option<&[u8]>, &[&str]); 11] = [
+        (
+            Some(b"[launch]\nepisodez = 3\n"),
+            &[":2:1: [launch] episodez: unknown field `episodez`"],
+        ),
+        (
+            Some(b"[launch]\nepisodes = \"many\"\n"),
+            &[":2:12: [launch] episodes: invalid type: string \"many\", expected u32"],
+        ),
+        (
+            Some(b"[controller]\nepsilon = 0.1\nbudjet_us = 5\n"),
+            &[":3:1: [controller] budjet_us: unknown field `budjet_us`"],
+        ),
+        (
+            Some(b"[perception]\narena = \"three\"\n"),
+            &[":2:9: [perception] arena: invalid type: string \"three\""],
+        ),
+        (
+            Some(b"[launch]\nepisodes = 2\n[monitor]\nrate = 5\n"),
+            &[":3:2: monitor: unknown field `monitor`"],
+        ),
+        (Some(b"this is { not toml\n"), &[":1:6: not valid TOML"]),
+        (
+            Some(b"[launch]\narena = 4\n"),
+            &["[launch] arena: must be 1, 2 or 3, got 4"],
+        ),
+        (
+            Some(b"[controller]\nbudget_us = 0\n"),
+            &["[controller]", "`budget_us`: must be at least 1"],
+        ),
+        (
+            Some(b"[bridge]\nwatchdogg = 1\n"),
+            &["[bridge]", "unknown field `watchdogg`"],
+        ),
+        (
+            Some(b"[launch]\nepisodes = 3\n\xff\xfe\n"),
+            &["cannot read the launch file", "UTF-8"],
+        ),
+        (None, &["cannot read the launch file", "No such file"]),
+    ];
+    let run = dir.path().join("data/run");
+    for (i, (bytes, expected)) in cases.into_iter().enumerate() {
+        let name = format!("bad{i}.toml");
+        let path = dir.path().join(&name);
+        if let Some(bytes) = bytes {
+            std::fs::write(&path, bytes).expect("launch file");
+        }
+        let mut group = Group::start_with(dir.path(), &path, 1);
+        let (ok, out, err) = group.finish(Duration::from_secs(30));
+        let err = err.join("\n");
+        assert!(!ok, "case {i} should fail: {err}");
+        assert!(out.is_empty(), "case {i}: nothing on stdout: {out:?}");
+        let first = err.lines().next().unwrap_or("");
+        assert!(
+            first.starts_with("error: ") && first.contains(&name),
+            "case {i}: the file is named: {err}"
+        );
+        for text in expected {
+            assert!(err.contains(text), "case {i}: {text:?} in {err}");
+        }
+        assert!(
+            err.trim_end().ends_with("; nothing was started"),
+            "case {i}: {err}"
+        );
+        assert!(!err.contains("launch: arena"), "case {i}: announced: {err}");
+        for role in ["bridge", "controller", "perception-sim"] {
+            assert!(
+                !run.join(format!("{role}.toml")).exists(),
+                "case {i}: {role} was prepared"
+            );
+        }
+    }
 }
 
 #[test]
