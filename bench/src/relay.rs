@@ -21,7 +21,9 @@ use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
-use tes_topics::channel::{self, Idle, Inbox, IpcError, Outbox, WaitStrategy, monotonic_ns};
+use tes_topics::channel::{
+    self, Idle, Inbox, IpcError, LatestInbox, LatestOutbox, Outbox, WaitStrategy, monotonic_ns,
+};
 use tes_topics::latency::{LatencyRecorder, LatencyReport};
 use tes_topics::settings::{self, SettingError};
 use tes_topics::{Command, FeatureBits, MotorState, Observation, observation_flags, service};
@@ -217,11 +219,10 @@ fn hop(
         0,
         wait,
     )?;
-    let out: Outbox<Command> = Outbox::open(
+    let out: LatestOutbox<Command> = LatestOutbox::open(
         node,
         &cfg.name(service::COMMAND),
         &cfg.name(service::COMMAND_EVENT),
-        0,
     )?;
     loop {
         let obs = match observations.next(idle, stop)? {
@@ -249,11 +250,10 @@ fn sink(
     idle: Duration,
     stop: &AtomicBool,
 ) -> Result<LatencyReport, RelayError> {
-    let commands: Inbox<Command> = Inbox::open(
+    let commands: LatestInbox<Command> = LatestInbox::open(
         node,
         &cfg.name(service::COMMAND),
         &cfg.name(service::COMMAND_EVENT),
-        0,
         wait,
     )?;
     let acks: Outbox<MotorState> = Outbox::open(

@@ -31,7 +31,7 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
-use tes_topics::channel::{Idle, Inbox, Outbox, WaitStrategy};
+use tes_topics::channel::{Idle, LatestInbox, Outbox, WaitStrategy};
 use tes_topics::latency::{LatencyRecorder, LatencyReport};
 use tes_topics::{Command, MotorState, service};
 
@@ -147,8 +147,8 @@ pub fn run_with<T: Transport, C: Clock>(
         }
     }
     let node = tes_topics::channel::node(false)?;
-    let commands: Inbox<Command> =
-        Inbox::open(&node, &names.command, &names.command_event, 0, wait)?;
+    let mut commands: LatestInbox<Command> =
+        LatestInbox::open(&node, &names.command, &names.command_event, wait)?;
     let states: Outbox<MotorState> =
         Outbox::open(&node, &names.motor_state, &names.motor_state_event, 0)?;
     tracing::info!(command = %names.command, motor_state = %names.motor_state, %wait, "bridge loop running");
@@ -168,7 +168,11 @@ pub fn run_with<T: Transport, C: Clock>(
                     on_command(bridge, clock, latency, cmd, &mut summary);
                 }
             }
-            Err(Idle::Timeout) => {}
+            Err(Idle::Timeout) => {
+                // A controller killed mid-run leaves its command board unusable to its
+                // successor; let it go while idle (see LatestInbox::renew_if_abandoned).
+                commands.renew_if_abandoned(&node)?;
+            }
             Err(Idle::Stopped) => {
                 summary.interrupted = opts.handle_signals;
                 break;

@@ -12,8 +12,8 @@
 //! 4. picks the next action (ε-greedy) and publishes the [`Command`];
 //! 5. hands the planner thread the updated model.
 //!
-//! Steps 1–5 allocate nothing of ours after warm-up (iceoryx2 0.10 allocates one small object
-//! per published sample) and steps 1–4 are timed from the observation's stamp to the
+//! Steps 1–5 allocate nothing after warm-up — the command goes out through a blackboard entry
+//! ([`LatestOutbox`]), since iceoryx2 0.10's publisher allocates per loaned sample — and steps 1–4 are timed from the observation's stamp to the
 //! command's publication against a budget (default 1 ms); misses are counted. At an
 //! episode's end, at most every `save_interval_s`, the library — as it would be if the task
 //! ended now — is saved atomically on a thread of its own, and again on shutdown. One line per episode goes to stdout; diagnostics go to `tracing`.
@@ -24,7 +24,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use serde::Deserialize;
-use tes_topics::channel::{self, Idle, Inbox, IpcError, Outbox, WaitStrategy, monotonic_ns};
+use tes_topics::channel::{self, Idle, Inbox, IpcError, LatestOutbox, WaitStrategy, monotonic_ns};
 use tes_topics::latency::{LatencyRecorder, LatencyReport};
 use tes_topics::{Command, KEEP_ALIVE_ACTION, Observation, WorldMap, observation_flags, service};
 use thiserror::Error;
@@ -250,8 +250,8 @@ pub struct ControllerSummary {
     /// the warm-up; `None` if the process does not count them (no
     /// [`CountingAllocator`](crate::alloc_count::CountingAllocator)).
     pub allocations: Option<u64>,
-    /// Of `allocations`, those made inside iceoryx2 publishing the command (0.10 allocates
-    /// one small object per loaned sample).
+    /// Of `allocations`, those made inside iceoryx2 sending the command (0 since commands go
+    /// through a blackboard entry; iceoryx2 0.10's publisher allocated one object per sample).
     pub ipc_allocations: Option<u64>,
     /// Observations refused (stale or duplicate sequence number, unknown state, bad reward).
     pub refused: u64,
@@ -276,7 +276,7 @@ impl std::fmt::Display for ControllerSummary {
         match self.allocations {
             Some(n) => write!(
                 f,
-                "{n} allocations on the acting path ({} inside iceoryx2's publish), ",
+                "{n} allocations on the acting path ({} inside iceoryx2's send), ",
                 self.ipc_allocations.unwrap_or(0)
             )?,
             None => f.write_str("allocations not counted, ")?,
@@ -464,7 +464,8 @@ pub fn run(
     let node = channel::node(false)?;
     let maps: Inbox<WorldMap> = Inbox::open(&node, &map_name, &map_event, 1, WaitStrategy::Block)?;
     let observations: Inbox<Observation> = Inbox::open(&node, &obs_name, &obs_event, 0, strategy)?;
-    let commands: Outbox<Command> = Outbox::open(&node, &cmd_name, &cmd_event, 0)?;
+    // A blackboard, not a publisher: sending a command allocates nothing (see LatestOutbox).
+    let commands: LatestOutbox<Command> = LatestOutbox::open(&node, &cmd_name, &cmd_event)?;
 
     tracing::info!(service = %map_name, "waiting for the world map");
     let map_timeout = Duration::from_secs_f64(config.map_timeout_s);
@@ -714,6 +715,7 @@ pub use tes_topics::channel::stop_on_signals;
 mod tests {
     use super::*;
     use tes_topics::StateAttributes;
+    use tes_topics::channel::{LatestInbox, Outbox};
 
     /// A 3×3 arena-like map: 4 orientations, effects 0 = forward (east when o = 0), 1 = stay,
     /// 2 = turn left.
@@ -844,8 +846,8 @@ mod tests {
         ] = names(&prefix);
         let node = channel::node(false).unwrap();
         // Subscribed before the controller publishes, so no command is missed.
-        let commands: Inbox<Command> =
-            Inbox::open(&node, &cmd_name, &cmd_event, 0, WaitStrategy::Block).unwrap();
+        let commands: LatestInbox<Command> =
+            LatestInbox::open(&node, &cmd_name, &cmd_event, WaitStrategy::Block).unwrap();
         let maps: Outbox<WorldMap> = Outbox::open(&node, &map_name, &map_event, 1).unwrap();
         let observations: Outbox<Observation> =
             Outbox::open(&node, &obs_name, &obs_event, 0).unwrap();

@@ -123,7 +123,7 @@ struct LatencyResult {
     misses: u64,
     /// Heap allocations on the controller's acting path (null if not counted).
     allocations: Option<u64>,
-    /// Of those, the ones inside iceoryx2's publish (one per loaned sample in 0.10).
+    /// Of those, the ones inside iceoryx2 sending the command.
     ipc_allocations: Option<u64>,
     /// The controller's own decision latency (observation stamped → command published).
     decision: LatencyReport,
@@ -266,7 +266,7 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         result.ratio_p50,
         result.ratio_p99,
         match (result.allocations, result.ipc_allocations) {
-            (Some(n), Some(ipc)) => format!("{n} ({ipc} inside iceoryx2's publish)"),
+            (Some(n), Some(ipc)) => format!("{n} ({ipc} inside iceoryx2's send)"),
             _ => "not counted".to_owned(),
         }
     );

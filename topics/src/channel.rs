@@ -7,6 +7,10 @@
 //!   * `block` (default) — sleep on the event listener until notified: no CPU burnt while idle;
 //!   * `spin` — busy-poll the subscriber: lowest latency, one core fully used;
 //!   * `spin-then-block` — busy-poll for a bounded time, then sleep.
+//! * [`LatestOutbox`] / [`LatestInbox`] — the same over a one-entry iceoryx2 blackboard: the
+//!   receiver sees the latest value, each once. Sending allocates nothing (the publisher of
+//!   0.10 allocates one small object per sample), so the controller sends its commands this
+//!   way.
 //!
 //! Ports of `ipc::Service` are not `Send`: keep each channel on the thread that made it.
 
@@ -264,7 +268,7 @@ pub enum Idle {
 /// The receiving end: a subscriber, a listener, and the strategy to wait by.
 pub struct Inbox<T: ZeroCopySend + Copy + fmt::Debug + 'static> {
     subscriber: iceoryx2::port::subscriber::Subscriber<ipc::Service, T, ()>,
-    listener: iceoryx2::port::listener::Listener<ipc::Service>,
+    listener: Listener,
     strategy: WaitStrategy,
 }
 
@@ -308,27 +312,6 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Inbox<T> {
         })
     }
 
-    /// Blocks until the listener's socket is readable or `timeout` passes, by `ppoll(2)`:
-    /// timer-precise, unlike iceoryx2 0.10's `Listener::timed_wait` (a socket receive
-    /// timeout, which the kernel rounds up to its tick — measured 8 ms here for any timeout
-    /// from 20 µs to 3 ms). A signal ends the wait early (the caller looks at its stop flag).
-    fn wait_readable(&self, timeout: Duration) -> Result<(), IpcError> {
-        use iceoryx2::prelude::FileDescriptorBased;
-        use nix::poll::{PollFd, PollFlags, ppoll};
-        use std::os::fd::BorrowedFd;
-        // SAFETY: the descriptor belongs to `self.listener`, which outlives this call.
-        let fd = unsafe { BorrowedFd::borrow_raw(self.listener.file_descriptor().native_handle()) };
-        let mut fds = [PollFd::new(fd, PollFlags::POLLIN)];
-        match ppoll(
-            &mut fds,
-            Some(nix::sys::time::TimeSpec::from_duration(timeout)),
-            None,
-        ) {
-            Ok(_) | Err(nix::errno::Errno::EINTR) => Ok(()),
-            Err(e) => Err(ipc_err("wait on the listener")(e)),
-        }
-    }
-
     /// The strategy it waits by.
     pub fn strategy(&self) -> WaitStrategy {
         self.strategy
@@ -346,46 +329,9 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Inbox<T> {
     /// Waits, by the inbox's strategy, for the next payload, at most `timeout`, and returns
     /// early when `stop` is raised. Allocation-free in `spin`; `block` sleeps in the kernel.
     pub fn next(&self, timeout: Duration, stop: &AtomicBool) -> Result<Result<T, Idle>, IpcError> {
-        let start = Instant::now();
-        let spin_for = match self.strategy {
-            WaitStrategy::Block => Duration::ZERO,
-            WaitStrategy::Spin => timeout,
-            WaitStrategy::SpinThenBlock(d) => d.min(timeout),
-        };
-        let mut polls: u32 = 0;
-        loop {
-            if let Some(v) = self.try_next()? {
-                return Ok(Ok(v));
-            }
-            let waited = start.elapsed();
-            if waited >= spin_for {
-                break;
-            }
-            polls = polls.wrapping_add(1);
-            if polls.is_multiple_of(1024) && stop.load(Ordering::Relaxed) {
-                return Ok(Err(Idle::Stopped));
-            }
-            std::hint::spin_loop();
-        }
-        loop {
-            if stop.load(Ordering::Relaxed) {
-                return Ok(Err(Idle::Stopped));
-            }
-            let left = timeout.saturating_sub(start.elapsed());
-            if left.is_zero() {
-                return Ok(Err(Idle::Timeout));
-            }
-            // Sleep until the listener's socket is readable or the time is up, then drain
-            // every pending notification and look again: a sample published between the last
-            // look and the wait still wakes us, because its notification is pending.
-            self.wait_readable(left.min(STOP_POLL))?;
-            self.listener
-                .try_wait(|_| {})
-                .map_err(ipc_err("drain the listener"))?;
-            if let Some(v) = self.try_next()? {
-                return Ok(Ok(v));
-            }
-        }
+        wait_next(&self.listener, self.strategy, timeout, stop, || {
+            self.try_next()
+        })
     }
 
     /// Connects publishers that appeared since the last call.
@@ -393,6 +339,305 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Inbox<T> {
         self.subscriber
             .update_connections()
             .map_err(ipc_err("connect a subscriber"))
+    }
+}
+
+type Listener = iceoryx2::port::listener::Listener<ipc::Service>;
+
+/// Polls `try_next` and waits between polls by `strategy` on `listener`, at most `timeout`;
+/// returns early when `stop` is raised. Allocation-free in `spin`; `block` sleeps in the kernel.
+fn wait_next<T>(
+    listener: &Listener,
+    strategy: WaitStrategy,
+    timeout: Duration,
+    stop: &AtomicBool,
+    mut try_next: impl FnMut() -> Result<Option<T>, IpcError>,
+) -> Result<Result<T, Idle>, IpcError> {
+    let start = Instant::now();
+    let spin_for = match strategy {
+        WaitStrategy::Block => Duration::ZERO,
+        WaitStrategy::Spin => timeout,
+        WaitStrategy::SpinThenBlock(d) => d.min(timeout),
+    };
+    let mut polls: u32 = 0;
+    loop {
+        if let Some(v) = try_next()? {
+            return Ok(Ok(v));
+        }
+        let waited = start.elapsed();
+        if waited >= spin_for {
+            break;
+        }
+        polls = polls.wrapping_add(1);
+        if polls.is_multiple_of(1024) && stop.load(Ordering::Relaxed) {
+            return Ok(Err(Idle::Stopped));
+        }
+        std::hint::spin_loop();
+    }
+    loop {
+        if stop.load(Ordering::Relaxed) {
+            return Ok(Err(Idle::Stopped));
+        }
+        let left = timeout.saturating_sub(start.elapsed());
+        if left.is_zero() {
+            return Ok(Err(Idle::Timeout));
+        }
+        // Sleep until the listener's socket is readable or the time is up, then drain
+        // every pending notification and look again: a value sent between the last look
+        // and the wait still wakes us, because its notification is pending.
+        wait_readable(listener, left.min(STOP_POLL))?;
+        listener
+            .try_wait(|_| {})
+            .map_err(ipc_err("drain the listener"))?;
+        if let Some(v) = try_next()? {
+            return Ok(Ok(v));
+        }
+    }
+}
+
+/// Blocks until the listener's socket is readable or `timeout` passes, by `ppoll(2)`:
+/// timer-precise, unlike iceoryx2 0.10's `Listener::timed_wait` (a socket receive
+/// timeout, which the kernel rounds up to its tick — measured 8 ms here for any timeout
+/// from 20 µs to 3 ms). A signal ends the wait early (the caller looks at its stop flag).
+fn wait_readable(listener: &Listener, timeout: Duration) -> Result<(), IpcError> {
+    use iceoryx2::prelude::FileDescriptorBased;
+    use nix::poll::{PollFd, PollFlags, ppoll};
+    use std::os::fd::BorrowedFd;
+    // SAFETY: the descriptor belongs to `listener`, which outlives this call.
+    let fd = unsafe { BorrowedFd::borrow_raw(listener.file_descriptor().native_handle()) };
+    let mut fds = [PollFd::new(fd, PollFlags::POLLIN)];
+    match ppoll(
+        &mut fds,
+        Some(nix::sys::time::TimeSpec::from_duration(timeout)),
+        None,
+    ) {
+        Ok(_) | Err(nix::errno::Errno::EINTR) => Ok(()),
+        Err(e) => Err(ipc_err("wait on the listener")(e)),
+    }
+}
+
+/// The one key of every latest-value board.
+const BOARD_KEY: u64 = 0;
+
+type Board = iceoryx2::service::port_factory::blackboard::PortFactory<ipc::Service, u64>;
+
+/// Opens the blackboard service `name` holding one `T` under [`BOARD_KEY`], creating it (with
+/// `T::default()`) if no process has yet; retried while another process is creating it.
+fn board<T: ZeroCopySend + Copy + Default + fmt::Debug + 'static>(
+    node: &Node<ipc::Service>,
+    name: &str,
+) -> Result<Board, IpcError> {
+    let name = service_name(name)?;
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        let opened = node
+            .service_builder(&name)
+            .blackboard_opener::<u64>()
+            .open();
+        let open_error = match opened {
+            Ok(board) => return Ok(board),
+            Err(e) => e,
+        };
+        match node
+            .service_builder(&name)
+            .blackboard_creator::<u64>()
+            .add::<T>(BOARD_KEY, T::default())
+            .create()
+        {
+            Ok(board) => return Ok(board),
+            Err(create_error) if Instant::now() > deadline => {
+                return Err(ipc_err("open or create a blackboard")(format!(
+                    "open: {open_error:?}; create: {create_error:?}"
+                )));
+            }
+            Err(_) => std::thread::sleep(Duration::from_millis(2)),
+        }
+    }
+}
+
+/// The sending end of a latest-value channel: an iceoryx2 blackboard entry holding one `T`,
+/// overwritten in place by each [`send`](Self::send), and an event to wake the reader.
+///
+/// Unlike [`Outbox`], sending allocates nothing at all (iceoryx2 0.10's publisher allocates
+/// one shared-state object per loaned sample; a blackboard entry is a lock-free store into
+/// shared memory). The reader sees only the latest value: use it where the sender waits for
+/// the receiver's answer before sending again (the controller's commands), so nothing is
+/// overwritten unread; a value overwritten anyway is detected by its sequence number.
+pub struct LatestOutbox<T: ZeroCopySend + Copy + fmt::Debug + 'static> {
+    entry: iceoryx2::port::writer::EntryHandleMut<ipc::Service, u64, T>,
+    notifier: iceoryx2::port::notifier::Notifier<ipc::Service>,
+    _writer: iceoryx2::port::writer::Writer<ipc::Service, u64>,
+    _board: Board,
+}
+
+impl<T: ZeroCopySend + Copy + Default + fmt::Debug + 'static> LatestOutbox<T> {
+    /// Opens (or creates) the board `name` and its event service `event`. One writer per
+    /// board.
+    ///
+    /// A writer killed without dropping its ports leaves the entry marked as written by it
+    /// (iceoryx2 0.10 cannot release that mark), so a respawned writer waits, up to 30 s, for
+    /// the readers to drop the abandoned board ([`LatestInbox::renew_if_abandoned`]) and then
+    /// opens a fresh one.
+    pub fn open(node: &Node<ipc::Service>, name: &str, event: &str) -> Result<Self, IpcError> {
+        let deadline = Instant::now() + Duration::from_secs(30);
+        let (board, writer, entry) = loop {
+            let board = board::<T>(node, name)?;
+            let writer = board
+                .writer_builder()
+                .create()
+                .map_err(ipc_err("create a blackboard writer"))?;
+            match writer.entry::<T>(&BOARD_KEY) {
+                Ok(entry) => break (board, writer, entry),
+                Err(iceoryx2::port::writer::EntryHandleMutError::HandleAlreadyExists)
+                    if Instant::now() < deadline =>
+                {
+                    drop(writer);
+                    drop(board);
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+                Err(e) => return Err(ipc_err("open the blackboard entry for writing")(e)),
+            }
+        };
+        let notifier = node
+            .service_builder(&service_name(event)?)
+            .event()
+            .open_or_create()
+            .map_err(ipc_err("open an event service"))?
+            .notifier_builder()
+            .create()
+            .map_err(ipc_err("create a notifier"))?;
+        Ok(Self {
+            entry,
+            notifier,
+            _writer: writer,
+            _board: board,
+        })
+    }
+
+    /// Stores `value` as the board's latest and wakes the reader. Allocation-free.
+    pub fn send(&self, value: T) -> Result<(), IpcError> {
+        self.entry.update_with_copy(value);
+        self.notifier.notify().map_err(ipc_err("notify"))?;
+        Ok(())
+    }
+}
+
+/// The receiving end of a latest-value channel ([`LatestOutbox`]): yields each new value of
+/// the board once, waiting by its [`WaitStrategy`] like [`Inbox`].
+pub struct LatestInbox<T: ZeroCopySend + Copy + PartialEq + fmt::Debug + 'static> {
+    /// `None` only between letting an abandoned board go and opening the next.
+    reading: Option<BoardReader<T>>,
+    /// The last value read, to tell a new one from it.
+    last: std::cell::Cell<Option<iceoryx2::port::reader::BlackboardValue<T>>>,
+    listener: Listener,
+    strategy: WaitStrategy,
+    name: String,
+}
+
+/// A reader's hold on a board (dropped together, so the board can be renewed).
+struct BoardReader<T: ZeroCopySend + Copy + fmt::Debug + 'static> {
+    entry: iceoryx2::port::reader::EntryHandle<ipc::Service, u64, T>,
+    _reader: iceoryx2::port::reader::Reader<ipc::Service, u64>,
+    board: Board,
+}
+
+impl<T: ZeroCopySend + Copy + Default + fmt::Debug + 'static> BoardReader<T> {
+    fn open(node: &Node<ipc::Service>, name: &str) -> Result<Self, IpcError> {
+        let board = board::<T>(node, name)?;
+        let reader = board
+            .reader_builder()
+            .create()
+            .map_err(ipc_err("create a blackboard reader"))?;
+        let entry = reader
+            .entry::<T>(&BOARD_KEY)
+            .map_err(ipc_err("open the blackboard entry for reading"))?;
+        Ok(Self {
+            entry,
+            _reader: reader,
+            board,
+        })
+    }
+}
+
+impl<T: ZeroCopySend + Copy + Default + PartialEq + fmt::Debug + 'static> LatestInbox<T> {
+    /// Opens (or creates) the board `name` and its event service `event`. What the board holds
+    /// at opening counts as already read.
+    pub fn open(
+        node: &Node<ipc::Service>,
+        name: &str,
+        event: &str,
+        strategy: WaitStrategy,
+    ) -> Result<Self, IpcError> {
+        let reading = BoardReader::open(node, name)?;
+        let listener = node
+            .service_builder(&service_name(event)?)
+            .event()
+            .open_or_create()
+            .map_err(ipc_err("open an event service"))?
+            .listener_builder()
+            .create()
+            .map_err(ipc_err("create a listener"))?;
+        let last = std::cell::Cell::new(Some(reading.entry.get()));
+        Ok(Self {
+            reading: Some(reading),
+            last,
+            listener,
+            strategy,
+            name: name.to_owned(),
+        })
+    }
+
+    /// When the board has no writer, lets go of it and opens it afresh; returns whether it
+    /// did. Call it while idle: a writer killed without dropping its ports leaves the board's
+    /// entry marked as its own, and a respawned writer can only write to a board created
+    /// after every holder of the old one let go ([`LatestOutbox::open`]).
+    pub fn renew_if_abandoned(&mut self, node: &Node<ipc::Service>) -> Result<bool, IpcError> {
+        use iceoryx2::service::port_factory::PortFactory as _;
+        if let Some(r) = &self.reading
+            && r.board.dynamic_config().number_of_writers() > 0
+        {
+            return Ok(false);
+        }
+        // Let the old board go first, so that, abandoned, it can be removed.
+        self.last.set(None);
+        self.reading = None;
+        let fresh = BoardReader::open(node, &self.name)?;
+        self.last.set(Some(fresh.entry.get()));
+        self.reading = Some(fresh);
+        Ok(true)
+    }
+
+    /// The strategy it waits by.
+    pub fn strategy(&self) -> WaitStrategy {
+        self.strategy
+    }
+
+    /// The board's value if it changed since the last read, without waiting.
+    pub fn try_next(&self) -> Result<Option<T>, IpcError> {
+        let Some(reading) = &self.reading else {
+            return Ok(None);
+        };
+        let last = self.last.take();
+        if let Some(l) = &last
+            && reading.entry.is_up_to_date(l)
+        {
+            self.last.set(last);
+            return Ok(None);
+        }
+        let now = reading.entry.get();
+        let value = *now;
+        // A write racing the read can make the same value look new once more.
+        let same = last.as_ref().is_some_and(|l| **l == value);
+        self.last.set(Some(now));
+        Ok((!same).then_some(value))
+    }
+
+    /// Waits, by the inbox's strategy, for the board's next value, at most `timeout`, and
+    /// returns early when `stop` is raised. Allocation-free.
+    pub fn next(&self, timeout: Duration, stop: &AtomicBool) -> Result<Result<T, Idle>, IpcError> {
+        wait_next(&self.listener, self.strategy, timeout, stop, || {
+            self.try_next()
+        })
     }
 }
 

@@ -10,9 +10,10 @@
 //!       └───────────────────── MotorState ◀─────────────────┘
 //! ```
 //!
-//! Every payload here is `#[repr(C)]`, `Copy`, pointer-free and of fixed size, so a publisher
-//! writes it straight into shared memory (`loan_uninit().write_payload(..)`) and no process
-//! ever serialises or allocates to send one.
+//! Every payload here is `#[repr(C)]`, `Copy`, pointer-free and of fixed size, so it is written
+//! straight into shared memory — by a publisher (`loan_uninit().write_payload(..)`) or, for
+//! the controller's `Command`, into a blackboard entry ([`channel::LatestOutbox`], which unlike
+//! iceoryx2 0.10's publisher allocates nothing per message) — and no process serialises one.
 //!
 //! ```
 //! use tes_topics::{FeatureBits, Observation, StateAttributes};

@@ -1,13 +1,14 @@
-//! What the channel allocates per message once the ports exist (the controller's acting path
-//! publishes a command per decision): receiving and waiting nothing, sending one small
-//! object inside iceoryx2 0.10.
+//! What the channels allocate per message once the ports exist: the publish–subscribe
+//! [`Outbox`] / [`Inbox`] receive and wait for nothing but send one small object inside
+//! iceoryx2 0.10; the blackboard [`LatestOutbox`] / [`LatestInbox`] the controller sends its
+//! commands through allocate nothing at all.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
 use tes_topics::Command;
-use tes_topics::channel::{self, Inbox, Outbox, WaitStrategy};
+use tes_topics::channel::{self, Inbox, LatestInbox, LatestOutbox, Outbox, WaitStrategy};
 
 struct Counting;
 static ON: AtomicBool = AtomicBool::new(false);
@@ -31,6 +32,9 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static A: Counting = Counting;
 
+/// The counter is process-wide: the tests take turns.
+static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 fn count(f: impl FnOnce()) -> u64 {
     COUNT.store(0, Ordering::SeqCst);
     ON.store(true, Ordering::SeqCst);
@@ -41,6 +45,7 @@ fn count(f: impl FnOnce()) -> u64 {
 
 #[test]
 fn sending_and_receiving_allocate_nothing_after_warm_up() {
+    let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let prefix = format!("alloc-test-{}/", std::process::id());
     let node = channel::node(false).unwrap();
     let name = format!("{prefix}cmd");
@@ -90,4 +95,56 @@ fn sending_and_receiving_allocate_nothing_after_warm_up() {
         }
     });
     assert_eq!(receives, 0, "polling an empty inbox");
+}
+
+#[test]
+fn the_latest_value_channel_allocates_nothing_after_warm_up() {
+    let _turn = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let prefix = format!("alloc-test-latest-{}/", std::process::id());
+    let node = channel::node(false).unwrap();
+    let name = format!("{prefix}cmd");
+    let event = format!("{prefix}cmd/event");
+    let inbox: LatestInbox<Command> =
+        LatestInbox::open(&node, &name, &event, WaitStrategy::Block).unwrap();
+    let outbox: LatestOutbox<Command> = LatestOutbox::open(&node, &name, &event).unwrap();
+    let stop = AtomicBool::new(false);
+    let command = |seq| Command {
+        seq,
+        ..Command::default()
+    };
+    for seq in 1..=10 {
+        outbox.send(command(seq)).unwrap();
+        assert_eq!(
+            inbox
+                .next(Duration::from_secs(1), &stop)
+                .unwrap()
+                .unwrap()
+                .seq,
+            seq
+        );
+    }
+    let mut received = Vec::with_capacity(2000);
+    let n = count(|| {
+        for seq in 11..=1010 {
+            outbox.send(command(seq)).unwrap();
+            received.push(inbox.try_next().unwrap().map(|c| c.seq));
+        }
+        for seq in 1011..=2010 {
+            outbox.send(command(seq)).unwrap();
+            received.push(
+                inbox
+                    .next(Duration::from_secs(1), &stop)
+                    .unwrap()
+                    .ok()
+                    .map(|c| c.seq),
+            );
+        }
+        for _ in 0..1000 {
+            assert!(inbox.try_next().unwrap().is_none());
+        }
+    });
+    assert_eq!(n, 0, "2000 sends, receives and 1000 empty polls");
+    // Every value was seen exactly once, in order.
+    let expected: Vec<Option<u64>> = (11..=2010).map(Some).collect();
+    assert_eq!(received, expected);
 }

@@ -5,7 +5,6 @@ use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 use tes_bridge::brick::SimBrick;
 use tes_bridge::bridge::Bridge;
@@ -14,6 +13,7 @@ use tes_bridge::config::BridgeConfig;
 use tes_bridge::ipc::{self as bridge_ipc, RunOptions, RunSummary, ServiceNames};
 use tes_bridge::nxt::Port;
 use tes_bridge::transport::SimTransport;
+use tes_topics::channel::LatestOutbox;
 use tes_topics::{Command, MotorState, motor_flags};
 
 /// Runs the bridge loop on a thread; stops and joins it on drop, even if the test panics.
@@ -95,14 +95,9 @@ fn bridge_loop_turns_commands_into_motor_states() {
         .expect("node");
     let sn = |s: &str| ServiceName::new(s).expect("valid name");
     // The shared settings every TES process opens its publish-subscribe services with.
-    let cmd_service = retry(|| tes_topics::channel::pubsub::<Command>(&node, &names.command, 0));
-    let publisher = cmd_service.publisher_builder().create().expect("publisher");
-    let cmd_event = retry(|| {
-        node.service_builder(&sn(&names.command_event))
-            .event()
-            .open_or_create()
-    });
-    let notifier = cmd_event.notifier_builder().create().expect("notifier");
+    // Commands travel on a blackboard entry, as the controller sends them.
+    let commands =
+        retry(|| LatestOutbox::<Command>::open(&node, &names.command, &names.command_event));
     let state_service =
         retry(|| tes_topics::channel::pubsub::<MotorState>(&node, &names.motor_state, 0));
     let subscriber = state_service
@@ -131,7 +126,6 @@ fn bridge_loop_turns_commands_into_motor_states() {
     assert_ne!(first.flags & motor_flags::SETTLED, 0, "at rest: {first:?}");
     assert!(first.stamp_ns > 0);
 
-    publisher.update_connections().expect("connect");
     let cmd = Command {
         seq: 1,
         action: 0,
@@ -139,13 +133,7 @@ fn bridge_loop_turns_commands_into_motor_states() {
         right_deg: 246,
         ..Command::default()
     };
-    publisher
-        .loan_uninit()
-        .expect("loan")
-        .write_payload(cmd)
-        .send()
-        .expect("send");
-    notifier.notify().expect("notify");
+    commands.send(cmd).expect("send");
 
     let mut last_seq = first.seq;
     let settled = loop {
@@ -174,13 +162,15 @@ fn bridge_loop_turns_commands_into_motor_states() {
 
     // A duplicate and an older command move nothing: refused by sequence number.
     for seq in [1, 0] {
-        publisher
-            .loan_uninit()
-            .expect("loan")
-            .write_payload(Command { seq, ..cmd })
-            .send()
+        commands
+            .send(Command {
+                seq,
+                left_deg: 90 + seq as i32,
+                ..cmd
+            })
             .expect("send");
-        notifier.notify().expect("notify");
+        // The bridge sees the board's latest value: give it time to take each one.
+        std::thread::sleep(Duration::from_millis(200));
     }
     // The second heartbeat from now was published after the bridge took both (it drains
     // every pending command when woken); the wheels stayed where the first command left them.

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use tes_bridge::config::BridgeConfig;
 use tes_bridge::ipc::RunOptions;
-use tes_topics::channel::{self, Inbox, Outbox, WaitStrategy};
+use tes_topics::channel::{self, Inbox, LatestOutbox, WaitStrategy};
 use tes_topics::{Command, MotorState, motor_flags, service};
 
 /// Runs a bridge at `time_scale` through [`tes_bridge::process::run`], sends action 0 (both
@@ -40,18 +40,16 @@ fn settle_time(time_scale: f64, tag: &str, limit: Duration) -> Option<Duration> 
         WaitStrategy::Block,
     )
     .expect("motor states");
-    let commands: Outbox<Command> = Outbox::open(
+    let commands: LatestOutbox<Command> = LatestOutbox::open(
         &node,
         &name(service::COMMAND),
         &name(service::COMMAND_EVENT),
-        0,
     )
     .expect("commands");
     let never = AtomicBool::new(false);
     // Wait for the bridge's first heartbeat, so it is connected.
     let up = Instant::now();
     loop {
-        commands.update_connections().expect("connect");
         states.update_connections().expect("connect");
         if states
             .next(Duration::from_millis(50), &never)
