@@ -191,6 +191,31 @@ pub fn services_with_prefix(prefix: &str) -> Result<Vec<String>, IpcError> {
     Ok(names)
 }
 
+/// A notifier on the event service `event` (opened or created).
+fn notifier(
+    node: &Node<ipc::Service>,
+    event: &str,
+) -> Result<iceoryx2::port::notifier::Notifier<ipc::Service>, IpcError> {
+    node.service_builder(&service_name(event)?)
+        .event()
+        .open_or_create()
+        .map_err(ipc_err("open an event service"))?
+        .notifier_builder()
+        .create()
+        .map_err(ipc_err("create a notifier"))
+}
+
+/// A listener on the event service `event` (opened or created).
+fn listener(node: &Node<ipc::Service>, event: &str) -> Result<Listener, IpcError> {
+    node.service_builder(&service_name(event)?)
+        .event()
+        .open_or_create()
+        .map_err(ipc_err("open an event service"))?
+        .listener_builder()
+        .create()
+        .map_err(ipc_err("create a listener"))
+}
+
 fn service_name(name: &str) -> Result<ServiceName, IpcError> {
     ServiceName::new(name).map_err(ipc_err("use the service name"))
 }
@@ -215,14 +240,7 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Outbox<T> {
             .publisher_builder()
             .create()
             .map_err(ipc_err("create a publisher"))?;
-        let notifier = node
-            .service_builder(&service_name(event)?)
-            .event()
-            .open_or_create()
-            .map_err(ipc_err("open an event service"))?
-            .notifier_builder()
-            .create()
-            .map_err(ipc_err("create a notifier"))?;
+        let notifier = notifier(node, event)?;
         publisher
             .update_connections()
             .map_err(ipc_err("connect a publisher"))?;
@@ -294,14 +312,7 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Inbox<T> {
             .subscriber_builder()
             .create()
             .map_err(ipc_err("create a subscriber"))?;
-        let listener = node
-            .service_builder(&service_name(event)?)
-            .event()
-            .open_or_create()
-            .map_err(ipc_err("open an event service"))?
-            .listener_builder()
-            .create()
-            .map_err(ipc_err("create a listener"))?;
+        let listener = listener(node, event)?;
         subscriber
             .update_connections()
             .map_err(ipc_err("connect a subscriber"))?;
@@ -498,14 +509,7 @@ impl<T: ZeroCopySend + Copy + Default + fmt::Debug + 'static> LatestOutbox<T> {
                 Err(e) => return Err(ipc_err("open the blackboard entry for writing")(e)),
             }
         };
-        let notifier = node
-            .service_builder(&service_name(event)?)
-            .event()
-            .open_or_create()
-            .map_err(ipc_err("open an event service"))?
-            .notifier_builder()
-            .create()
-            .map_err(ipc_err("create a notifier"))?;
+        let notifier = notifier(node, event)?;
         Ok(Self {
             entry,
             notifier,
@@ -532,7 +536,15 @@ pub struct LatestInbox<T: ZeroCopySend + Copy + PartialEq + fmt::Debug + 'static
     listener: Listener,
     strategy: WaitStrategy,
     name: String,
+    /// Whether a writer has been seen on the current board.
+    had_writer: bool,
+    /// Since when the current board has had no writer (as last checked).
+    writerless_since: Option<Instant>,
 }
+
+/// How long a board that never had a writer is kept before [`LatestInbox::renew_if_abandoned`]
+/// renews it anyway.
+const RENEW_AFTER: Duration = Duration::from_secs(2);
 
 /// A reader's hold on a board (dropped together, so the board can be renewed).
 struct BoardReader<T: ZeroCopySend + Copy + fmt::Debug + 'static> {
@@ -569,14 +581,7 @@ impl<T: ZeroCopySend + Copy + Default + PartialEq + fmt::Debug + 'static> Latest
         strategy: WaitStrategy,
     ) -> Result<Self, IpcError> {
         let reading = BoardReader::open(node, name)?;
-        let listener = node
-            .service_builder(&service_name(event)?)
-            .event()
-            .open_or_create()
-            .map_err(ipc_err("open an event service"))?
-            .listener_builder()
-            .create()
-            .map_err(ipc_err("create a listener"))?;
+        let listener = listener(node, event)?;
         let last = std::cell::Cell::new(Some(reading.entry.get()));
         Ok(Self {
             reading: Some(reading),
@@ -584,20 +589,32 @@ impl<T: ZeroCopySend + Copy + Default + PartialEq + fmt::Debug + 'static> Latest
             listener,
             strategy,
             name: name.to_owned(),
+            had_writer: false,
+            writerless_since: None,
         })
     }
 
-    /// When the board has no writer, lets go of it and opens it afresh; returns whether it
-    /// did. Call it while idle: a writer killed without dropping its ports leaves the board's
+    /// When the board's writer has left (or none has come for 2 s), lets go of it and opens
+    /// it afresh; returns whether it did. Call it while idle: a writer killed without dropping its ports leaves the board's
     /// entry marked as its own, and a respawned writer can only write to a board created
     /// after every holder of the old one let go ([`LatestOutbox::open`]).
     pub fn renew_if_abandoned(&mut self, node: &Node<ipc::Service>) -> Result<bool, IpcError> {
         use iceoryx2::service::port_factory::PortFactory as _;
-        if let Some(r) = &self.reading
-            && r.board.dynamic_config().number_of_writers() > 0
-        {
-            return Ok(false);
+        if let Some(r) = &self.reading {
+            if r.board.dynamic_config().number_of_writers() > 0 {
+                self.had_writer = true;
+                self.writerless_since = None;
+                return Ok(false);
+            }
+            // Renew a board its writer left, or one no writer has used for a while (a
+            // respawned writer may be waiting for it); not one a writer may be about to join.
+            let since = *self.writerless_since.get_or_insert_with(Instant::now);
+            if !self.had_writer && since.elapsed() < RENEW_AFTER {
+                return Ok(false);
+            }
         }
+        self.had_writer = false;
+        self.writerless_since = None;
         // Let the old board go first, so that, abandoned, it can be removed.
         self.last.set(None);
         self.reading = None;
