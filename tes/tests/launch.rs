@@ -84,27 +84,12 @@ impl Group {
 
     /// Waits until stdout shows `n` episode lines; returns the lines seen.
     fn wait_for_episodes(&self, n: usize, limit: Duration) -> Vec<String> {
-        let deadline = Instant::now() + limit;
-        let mut seen = Vec::new();
-        while seen
-            .iter()
-            .filter(|l: &&String| l.starts_with("episode "))
-            .count()
-            < n
-        {
-            let left = deadline.saturating_duration_since(Instant::now());
-            assert!(
-                !left.is_zero(),
-                "fewer than {n} episodes in {limit:?}: {seen:?}"
-            );
-            if let Ok(line) = self
-                .stdout
-                .recv_timeout(left.min(Duration::from_millis(100)))
-            {
-                seen.push(line);
-            }
-        }
-        seen
+        wait_for_lines(
+            &self.stdout,
+            limit,
+            &format!("{n} episodes on stdout"),
+            |seen| seen.iter().filter(|l| l.starts_with("episode ")).count() >= n,
+        )
     }
 
     /// The pid of the child playing `role`, if there is one.
@@ -144,22 +129,12 @@ impl Group {
 
     /// Waits until a stderr line contains `text`; returns the lines seen.
     fn wait_for_stderr(&self, text: &str, limit: Duration) -> Vec<String> {
-        let deadline = Instant::now() + limit;
-        let mut seen = Vec::new();
-        while !seen.iter().any(|l: &String| l.contains(text)) {
-            let left = deadline.saturating_duration_since(Instant::now());
-            assert!(
-                !left.is_zero(),
-                "no {text:?} on stderr in {limit:?}: {seen:?}"
-            );
-            if let Ok(line) = self
-                .stderr
-                .recv_timeout(left.min(Duration::from_millis(100)))
-            {
-                seen.push(line);
-            }
-        }
-        seen
+        wait_for_lines(
+            &self.stderr,
+            limit,
+            &format!("{text:?} on stderr"),
+            |seen| seen.iter().any(|l| l.contains(text)),
+        )
     }
 
     fn children_alive(&self) -> bool {
@@ -191,6 +166,26 @@ impl Drop for Group {
         }
         let _ = tes_topics::channel::clean_stale_resources();
     }
+}
+
+/// Collects lines from `lines` until `done` holds for those seen (at most `limit`, else the
+/// test fails naming `what`); returns them.
+fn wait_for_lines(
+    lines: &mpsc::Receiver<String>,
+    limit: Duration,
+    what: &str,
+    done: impl Fn(&[String]) -> bool,
+) -> Vec<String> {
+    let deadline = Instant::now() + limit;
+    let mut seen = Vec::new();
+    while !done(&seen) {
+        let left = deadline.saturating_duration_since(Instant::now());
+        assert!(!left.is_zero(), "no {what} in {limit:?}: {seen:?}");
+        if let Ok(line) = lines.recv_timeout(left.min(Duration::from_millis(100))) {
+            seen.push(line);
+        }
+    }
+    seen
 }
 
 fn launch_file(dir: &Path, extra: &str) -> String {
