@@ -57,6 +57,15 @@ fn serial_transport_drives_the_pty_brick() {
     .expect("the motor reaches its tacho limit");
     assert!((360..=380).contains(&s.tacho_count), "{s:?}");
     assert_eq!(output_state(&mut link, Port::A).tacho_count, 0);
+    // IDLE is reported the moment the limit is reached, while the brake is still
+    // stopping the wheel (as on the real brick): wait for it to rest before the reset
+    // below, or the last degree of the stop lands after it.
+    eventually(Duration::from_secs(10), || {
+        let before = output_state(&mut link, Port::B).tacho_count;
+        std::thread::sleep(Duration::from_millis(50));
+        (output_state(&mut link, Port::B).tacho_count == before).then_some(())
+    })
+    .expect("the braked motor comes to rest");
 
     // Malformed requests get the firmware's error statuses through the link.
     let bad_port = Telegram::from_bytes(&[0x00, 0x06, 0x05]).expect("fits");
