@@ -241,14 +241,107 @@ impl CmdpStructure {
 
 /// `P(e | x(s), a)` for every action, state and effect: the learned half of the transition
 /// model, cached so planning does not call the views.
-#[derive(Debug, Clone, PartialEq)]
+///
+/// Two tables are equal when their shapes and probabilities are.
+#[derive(Debug, Clone)]
 pub struct EffectTable {
     n_states: usize,
     n_effects: usize,
     /// `probs[(a * S + s) * E + e]`.
     probs: Vec<f64>,
-    /// One action's rows, where [`EffectTable::refresh`] builds the new ones before comparing.
-    scratch: Vec<f64>,
+    /// Working memory of [`EffectTable::refresh`].
+    scratch: RefreshScratch,
+}
+
+impl PartialEq for EffectTable {
+    fn eq(&self, other: &Self) -> bool {
+        self.n_states == other.n_states
+            && self.n_effects == other.n_effects
+            && self.probs == other.probs
+    }
+}
+
+/// How many of a view's feature columns [`EffectTable::refresh`] tracks as a per-state bit
+/// pattern; a view using more is refreshed state by state.
+const PATTERN_BITS: usize = 64;
+
+/// What [`EffectTable::refresh`] works in, kept between calls so it allocates nothing.
+#[derive(Debug, Clone)]
+struct RefreshScratch {
+    /// One action's new rows, built before they are compared with the old ones.
+    rows: Vec<f64>,
+    /// Per state: bit `j` set when the view's `j`-th used feature column is on there.
+    patterns: Vec<u64>,
+    /// The weights of the view's used feature columns, `PATTERN_BITS × E`.
+    columns: Vec<f64>,
+    /// The intercept's weights (`E`; zero without one).
+    intercept: Vec<f64>,
+    /// Open-addressing map from a pattern to the state whose row holds its probabilities;
+    /// an entry counts only if its stamp is the current refresh's.
+    keys: Vec<u64>,
+    first_state: Vec<u32>,
+    stamps: Vec<u32>,
+    stamp: u32,
+}
+
+impl RefreshScratch {
+    fn new(n_states: usize, n_effects: usize) -> Self {
+        let slots = (2 * n_states).next_power_of_two().max(2);
+        Self {
+            rows: vec![0.0; n_states * n_effects],
+            patterns: vec![0; n_states],
+            columns: vec![0.0; PATTERN_BITS * n_effects],
+            intercept: vec![0.0; n_effects],
+            keys: vec![0; slots],
+            first_state: vec![0; slots],
+            stamps: vec![0; slots],
+            stamp: 0,
+        }
+    }
+
+    /// Starts a new pattern map (no entry of an earlier refresh counts any more).
+    fn clear_map(&mut self) {
+        self.stamp = self.stamp.wrapping_add(1);
+        if self.stamp == 0 {
+            // Wrapped: stamps from 2^32 refreshes ago could look current.
+            self.stamps.fill(0);
+            self.stamp = 1;
+        }
+    }
+
+    /// The state already holding `pattern`'s row, or `None` after recording `s` as it.
+    fn first_with(&mut self, pattern: u64, s: usize) -> Option<usize> {
+        let mask = self.keys.len() - 1;
+        // Fibonacci hashing: the high bits of the product mix every bit of the pattern.
+        let mut i = (pattern.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as usize & mask;
+        loop {
+            if self.stamps[i] != self.stamp {
+                self.stamps[i] = self.stamp;
+                self.keys[i] = pattern;
+                self.first_state[i] = s as u32;
+                return None;
+            }
+            if self.keys[i] == pattern {
+                return Some(self.first_state[i] as usize);
+            }
+            i = (i + 1) & mask;
+        }
+    }
+}
+
+/// Turns scores into probabilities in place (softmax).
+fn softmax(row: &mut [f64]) -> Result<(), MdaglError> {
+    let max = row.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if !max.is_finite() {
+        return Err(MdaglError::Overflow);
+    }
+    let mut sum = 0.0;
+    for p in row.iter_mut() {
+        *p = (*p - max).exp();
+        sum += *p;
+    }
+    row.iter_mut().for_each(|p| *p /= sum);
+    Ok(())
 }
 
 impl EffectTable {
@@ -263,7 +356,7 @@ impl EffectTable {
             n_states: s,
             n_effects: e,
             probs: vec![1.0 / e as f64; a * s * e],
-            scratch: vec![0.0; s * e],
+            scratch: RefreshScratch::new(s, e),
         }
     }
 
@@ -294,7 +387,8 @@ impl EffectTable {
     ///
     /// Equal to calling [`Mdagl::predict_into`] on every state, but it visits only the
     /// features the view uses (a sparse view over hundreds of features touches a handful),
-    /// adding each used column's weights to the scores of the states where it is on.
+    /// and computes the probabilities once per pattern of used features that are on, not
+    /// once per state.
     /// The view must predict `n_effects` classes from `n_features` features.
     pub fn refresh(
         &mut self,
@@ -315,7 +409,30 @@ impl EffectTable {
                 got: structure.n_features(),
             });
         }
-        let fresh = &mut self.scratch;
+        let n_features = structure.n_features();
+        let mut used = 0;
+        view.for_each_weight_column(|col, _, _| used += usize::from(col < n_features));
+        if used <= PATTERN_BITS {
+            self.rows_by_pattern(view, structure)?;
+        } else {
+            self.rows_by_state(view, structure)?;
+        }
+        let fresh = &self.scratch.rows;
+        let rows = &mut self.probs[a * self.n_states * e..(a + 1) * self.n_states * e];
+        let moved = rows
+            .chunks_exact(e)
+            .zip(fresh.chunks_exact(e))
+            .map(|(old, new)| l1_distance(old, new))
+            .fold(0.0, f64::max);
+        rows.copy_from_slice(fresh);
+        Ok(moved)
+    }
+
+    /// Builds one action's rows into the scratch by adding each used column's weights to the
+    /// scores of the states where it is on, then taking every state's softmax.
+    fn rows_by_state(&mut self, view: &Mdagl, structure: &CmdpStructure) -> Result<(), MdaglError> {
+        let e = self.n_effects;
+        let fresh = &mut self.scratch.rows;
         fresh.fill(0.0);
         view.for_each_weight_column(|col, scale, sums| {
             let mut add = |s: usize| {
@@ -333,26 +450,65 @@ impl EffectTable {
                 (0..structure.n_states()).for_each(add);
             }
         });
-        for row in fresh.chunks_exact_mut(e) {
-            let max = row.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-            if !max.is_finite() {
-                return Err(MdaglError::Overflow);
+        fresh.chunks_exact_mut(e).try_for_each(softmax)
+    }
+
+    /// Builds one action's rows into the scratch for a view using at most [`PATTERN_BITS`]
+    /// feature columns. States on which the same used columns are on get the same row, and a
+    /// sparse view leaves few such patterns (mDAGL keeps a handful of columns), so each
+    /// pattern's scores and softmax are computed once and copied to the other states — the
+    /// `exp` per state and effect dominated the refresh before. Scores are summed in the same
+    /// order as [`rows_by_state`](Self::rows_by_state), so both give the same bits.
+    fn rows_by_pattern(
+        &mut self,
+        view: &Mdagl,
+        structure: &CmdpStructure,
+    ) -> Result<(), MdaglError> {
+        let e = self.n_effects;
+        let n_features = structure.n_features();
+        let scratch = &mut self.scratch;
+        scratch.patterns.fill(0);
+        scratch.intercept.fill(0.0);
+        let mut used = 0;
+        view.for_each_weight_column(|col, scale, sums| {
+            if col < n_features {
+                let column = &mut scratch.columns[used * e..(used + 1) * e];
+                for (w, &g) in column.iter_mut().zip(sums) {
+                    *w = scale * g;
+                }
+                for &s in structure.states_with_feature(col) {
+                    scratch.patterns[s as usize] |= 1 << used;
+                }
+                used += 1;
+            } else {
+                for (w, &g) in scratch.intercept.iter_mut().zip(sums) {
+                    *w = scale * g;
+                }
             }
-            let mut sum = 0.0;
-            for p in row.iter_mut() {
-                *p = (*p - max).exp();
-                sum += *p;
+        });
+        scratch.clear_map();
+        for s in 0..structure.n_states() {
+            let pattern = scratch.patterns[s];
+            if let Some(first) = scratch.first_with(pattern, s) {
+                scratch.rows.copy_within(first * e..(first + 1) * e, s * e);
+                continue;
             }
-            row.iter_mut().for_each(|p| *p /= sum);
+            let row = &mut scratch.rows[s * e..(s + 1) * e];
+            row.fill(0.0);
+            let mut bits = pattern;
+            while bits != 0 {
+                let j = bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                for (score, &w) in row.iter_mut().zip(&scratch.columns[j * e..(j + 1) * e]) {
+                    *score += w;
+                }
+            }
+            for (score, &w) in row.iter_mut().zip(&scratch.intercept) {
+                *score += w;
+            }
+            softmax(row)?;
         }
-        let rows = &mut self.probs[a * self.n_states * e..(a + 1) * self.n_states * e];
-        let moved = rows
-            .chunks_exact(e)
-            .zip(fresh.chunks_exact(e))
-            .map(|(old, new)| l1_distance(old, new))
-            .fold(0.0, f64::max);
-        rows.copy_from_slice(fresh);
-        Ok(moved)
+        Ok(())
     }
 
     /// Overwrites `P(· | s, a)` directly (for models that are not mDAGL views).
@@ -476,17 +632,19 @@ pub(crate) mod tests {
     }
 
     proptest::proptest! {
-        /// The column-wise refresh equals predicting every state one by one.
+        /// The column-wise refresh equals predicting every state one by one, whether it goes
+        /// by pattern (views using up to 64 feature columns) or state by state; where both
+        /// apply they give the same bits.
         #[test]
         fn refresh_equals_per_state_prediction(
             seed in 0u64..1000,
-            features in 1usize..60,
+            features in 1usize..100,
             intercept in proptest::bool::ANY,
             lambda in 0.0..0.1f64,
         ) {
             use rand::{RngExt, SeedableRng};
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-            let n = 12;
+            let n = 30;
             let feats: Vec<Vec<u32>> = (0..n)
                 .map(|_| (0..features as u32).filter(|_| rng.random::<f64>() < 0.3).collect())
                 .collect();
@@ -507,6 +665,14 @@ pub(crate) mod tests {
                 for (a, b) in p.iter().zip(table.probs(1, s)) {
                     proptest::prop_assert!((a - b).abs() < 1e-12);
                 }
+            }
+            let mut used = 0;
+            view.for_each_weight_column(|col, _, _| used += usize::from(col < features));
+            if used <= PATTERN_BITS {
+                table.rows_by_pattern(&view, &c).unwrap();
+                let by_pattern = table.scratch.rows.clone();
+                table.rows_by_state(&view, &c).unwrap();
+                proptest::prop_assert_eq!(by_pattern, table.scratch.rows.clone());
             }
         }
     }
