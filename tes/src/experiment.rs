@@ -107,6 +107,10 @@ struct GridArgs {
     /// Worker threads [default: all cores].
     #[arg(long)]
     threads: Option<usize>,
+    /// Plan every re-plan to the tolerance, instead of stopping it once no value moves by
+    /// more than the model change that triggered it (see `tes_controller::plan`).
+    #[arg(long)]
+    converge_plans: bool,
 }
 
 /// Runs `tes experiment`.
@@ -242,6 +246,7 @@ fn run_grid(args: &GridArgs) -> Result<()> {
     }
     config.seed = args.seed;
     config.world_seed = args.world_seed;
+    config.stop_at_drift = !args.converge_plans;
     set_threads(args.threads)?;
     eprintln!(
         "grid experiment: {} runs x {} episodes, irrelevant features {:?}, seeds {}.., world seed {} -> {}",

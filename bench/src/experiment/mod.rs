@@ -82,11 +82,27 @@ impl Algorithm {
         task: &dyn EpisodicTask,
         seed: u64,
     ) -> Result<Box<dyn Agent + Send>, AgentError> {
+        self.build_planned(task, seed, PlannerParams::default())
+    }
+
+    /// [`build`](Self::build) with the given planner settings for the agent's planner.
+    pub fn build_planned(
+        self,
+        task: &dyn EpisodicTask,
+        seed: u64,
+        planner: PlannerParams,
+    ) -> Result<Box<dyn Agent + Send>, AgentError> {
         let structure = task.structure();
-        let planner = PlannerParams::default();
+        let lore = |params: LoreRlParams| LoreRlParams { planner, ..params };
         Ok(match self {
-            Algorithm::LoreRl => Box::new(LoreRl::new(structure, LoreRlParams::default(), seed)?),
-            Algorithm::BloreRl => Box::new(LoreRl::new(structure, LoreRlParams::blore_rl(), seed)?),
+            Algorithm::LoreRl => {
+                Box::new(LoreRl::new(structure, lore(LoreRlParams::default()), seed)?)
+            }
+            Algorithm::BloreRl => Box::new(LoreRl::new(
+                structure,
+                lore(LoreRlParams::blore_rl()),
+                seed,
+            )?),
             Algorithm::Rmax => Box::new(CountingAgent::rmax(structure, 5, planner, seed)?),
             Algorithm::FRmax => Box::new(CountingAgent::factored_rmax(
                 structure,
@@ -102,10 +118,22 @@ impl Algorithm {
                 planner,
                 seed,
             )?),
-            Algorithm::RlDt => Box::new(RlDt::new(structure, RlDtParams::default(), seed)?),
-            Algorithm::LseRmax => {
-                Box::new(LseRmax::new(structure, LseRmaxParams::default(), seed)?)
-            }
+            Algorithm::RlDt => Box::new(RlDt::new(
+                structure,
+                RlDtParams {
+                    planner,
+                    ..RlDtParams::default()
+                },
+                seed,
+            )?),
+            Algorithm::LseRmax => Box::new(LseRmax::new(
+                structure,
+                LseRmaxParams {
+                    planner,
+                    ..LseRmaxParams::default()
+                },
+                seed,
+            )?),
         })
     }
 }
@@ -159,7 +187,7 @@ pub fn run_episode(
     Ok(episode)
 }
 
-/// Runs `episodes` episodes of a fresh `algorithm` agent on `task`.
+/// Runs `episodes` episodes of a fresh `algorithm` agent on `task`, planning with `planner`.
 ///
 /// The agent explores with `seed`; the world (starts and dynamics) uses a stream derived from
 /// it, so two algorithms given the same seed face the same start states as long as the
@@ -169,10 +197,11 @@ pub fn run_agent(
     task: &dyn EpisodicTask,
     episodes: usize,
     seed: u64,
+    planner: PlannerParams,
     mut on_episode: impl FnMut(&Episode),
 ) -> Result<Vec<Episode>, AgentError> {
     let structure = task.structure();
-    let mut agent = algorithm.build(task, seed)?;
+    let mut agent = algorithm.build_planned(task, seed, planner)?;
     let mut world = ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_0F70_121D);
     let mut out = Vec::with_capacity(episodes);
     for _ in 0..episodes {
