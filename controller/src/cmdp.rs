@@ -16,7 +16,7 @@
 
 use thiserror::Error;
 
-use crate::mdagl::{Features, Mdagl, MdaglError};
+use crate::mdagl::{Features, Mdagl, MdaglError, softmax};
 
 /// Why a [`CmdpStructure`] is malformed.
 #[derive(Debug, Clone, PartialEq, Error)]
@@ -329,21 +329,6 @@ impl RefreshScratch {
     }
 }
 
-/// Turns scores into probabilities in place (softmax).
-fn softmax(row: &mut [f64]) -> Result<(), MdaglError> {
-    let max = row.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    if !max.is_finite() {
-        return Err(MdaglError::Overflow);
-    }
-    let mut sum = 0.0;
-    for p in row.iter_mut() {
-        *p = (*p - max).exp();
-        sum += *p;
-    }
-    row.iter_mut().for_each(|p| *p /= sum);
-    Ok(())
-}
-
 impl EffectTable {
     /// A table with every effect equally likely everywhere (what a fresh view predicts).
     pub fn uniform(structure: &CmdpStructure) -> Self {
@@ -450,7 +435,9 @@ impl EffectTable {
                 (0..structure.n_states()).for_each(add);
             }
         });
-        fresh.chunks_exact_mut(e).try_for_each(softmax)
+        fresh
+            .chunks_exact_mut(e)
+            .try_for_each(|row| softmax(row).map(|_| ()))
     }
 
     /// Builds one action's rows into the scratch for a view using at most [`PATTERN_BITS`]

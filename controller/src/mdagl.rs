@@ -697,6 +697,13 @@ const SUM_LIMIT: f64 = 1e150;
 
 /// Turns scores into probabilities in place (max-shifted) and returns `ln Σ exp(score)`.
 fn softmax_in_place(v: &mut [f64]) -> Result<f64, MdaglError> {
+    softmax(v).map(|(max, sum)| max + sum.ln())
+}
+
+/// Turns scores into probabilities in place, shifted by their maximum for stability; returns
+/// that maximum and `Σ exp(score − max)`. Shared with the effect table's refresh, so a table
+/// row and [`Mdagl::predict_into`] agree to the bit.
+pub(crate) fn softmax(v: &mut [f64]) -> Result<(f64, f64), MdaglError> {
     let max = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     if !max.is_finite() {
         return Err(MdaglError::Overflow);
@@ -709,7 +716,7 @@ fn softmax_in_place(v: &mut [f64]) -> Result<f64, MdaglError> {
     for x in v.iter_mut() {
         *x /= sum;
     }
-    Ok(max + sum.ln())
+    Ok((max, sum))
 }
 
 fn argmax(v: &[f64]) -> usize {
