@@ -316,17 +316,28 @@ impl std::fmt::Display for EpisodeLine {
     }
 }
 
-/// The service names, with the configured prefix.
-fn names(prefix: &str) -> [String; 6] {
-    [
-        service::WORLD_MAP,
-        service::WORLD_MAP_EVENT,
-        service::OBSERVATION,
-        service::OBSERVATION_EVENT,
-        service::COMMAND,
-        service::COMMAND_EVENT,
-    ]
-    .map(|n| format!("{prefix}{n}"))
+/// The services the controller uses, named with the configured prefix.
+struct ServiceNames {
+    map: String,
+    map_event: String,
+    observation: String,
+    observation_event: String,
+    command: String,
+    command_event: String,
+}
+
+impl ServiceNames {
+    fn new(prefix: &str) -> Self {
+        let name = |n: &str| format!("{prefix}{n}");
+        Self {
+            map: name(service::WORLD_MAP),
+            map_event: name(service::WORLD_MAP_EVENT),
+            observation: name(service::OBSERVATION),
+            observation_event: name(service::OBSERVATION_EVENT),
+            command: name(service::COMMAND),
+            command_event: name(service::COMMAND_EVENT),
+        }
+    }
 }
 
 /// Builds the agent-known CMDP from a world map.
@@ -453,21 +464,22 @@ pub fn run(
     mut on_episode: impl FnMut(&EpisodeLine),
 ) -> Result<ControllerSummary, ControllerError> {
     let strategy = config.check()?;
-    let [
-        map_name,
-        map_event,
-        obs_name,
-        obs_event,
-        cmd_name,
-        cmd_event,
-    ] = names(&config.service_prefix);
+    let names = ServiceNames::new(&config.service_prefix);
     let node = channel::node(false)?;
-    let maps: Inbox<WorldMap> = Inbox::open(&node, &map_name, &map_event, 1, WaitStrategy::Block)?;
-    let observations: Inbox<Observation> = Inbox::open(&node, &obs_name, &obs_event, 0, strategy)?;
+    let maps: Inbox<WorldMap> =
+        Inbox::open(&node, &names.map, &names.map_event, 1, WaitStrategy::Block)?;
+    let observations: Inbox<Observation> = Inbox::open(
+        &node,
+        &names.observation,
+        &names.observation_event,
+        0,
+        strategy,
+    )?;
     // A blackboard, not a publisher: sending a command allocates nothing (see LatestOutbox).
-    let commands: LatestOutbox<Command> = LatestOutbox::open(&node, &cmd_name, &cmd_event)?;
+    let commands: LatestOutbox<Command> =
+        LatestOutbox::open(&node, &names.command, &names.command_event)?;
 
-    tracing::info!(service = %map_name, "waiting for the world map");
+    tracing::info!(service = %names.map, "waiting for the world map");
     let map_timeout = Duration::from_secs_f64(config.map_timeout_s);
     // A boxed map: it is ~90 kB, too big to pass around on the stack comfortably.
     let map: Box<WorldMap> = match maps.next(map_timeout, stop)? {
@@ -836,22 +848,21 @@ mod tests {
             keepalive_ms: 0,
             ..ControllerConfig::default()
         };
-        let [
-            map_name,
-            map_event,
-            obs_name,
-            obs_event,
-            cmd_name,
-            cmd_event,
-        ] = names(&prefix);
+        let names = ServiceNames::new(&prefix);
         let node = channel::node(false).unwrap();
         // Subscribed before the controller publishes, so no command is missed.
-        let commands: LatestInbox<Command> =
-            LatestInbox::open(&node, &cmd_name, &cmd_event, WaitStrategy::Block).unwrap();
-        let maps: Outbox<WorldMap> = Outbox::open(&node, &map_name, &map_event, 1).unwrap();
+        let commands: LatestInbox<Command> = LatestInbox::open(
+            &node,
+            &names.command,
+            &names.command_event,
+            WaitStrategy::Block,
+        )
+        .unwrap();
+        let maps: Outbox<WorldMap> = Outbox::open(&node, &names.map, &names.map_event, 1).unwrap();
         let observations: Outbox<Observation> =
-            Outbox::open(&node, &obs_name, &obs_event, 0).unwrap();
-        let observation_service = channel::pubsub::<Observation>(&node, &obs_name, 0).unwrap();
+            Outbox::open(&node, &names.observation, &names.observation_event, 0).unwrap();
+        let observation_service =
+            channel::pubsub::<Observation>(&node, &names.observation, 0).unwrap();
         let m = map();
         let (a, b, c) = (at(&m, 0, 1, 0), at(&m, 1, 1, 0), at(&m, 2, 2, 3));
         let observation = |seq: u64, state: usize, reward: f32, flags: u32| Observation {
