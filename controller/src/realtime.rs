@@ -283,9 +283,6 @@ mod tests {
                 .unwrap()
                 .expect("a plan within 10 s");
             assert!(stats.converged);
-            // A table handed over whole is planned to the tolerance (its drift is unknown
-            // there), so the inline reference is too.
-            inline.invalidate();
             inline.replan();
             assert_eq!(offloaded.planner().values(), inline.planner().values());
             assert_eq!(offloaded.planner().policy(), inline.planner().policy());
@@ -335,9 +332,8 @@ mod tests {
             assert_eq!(offloaded.planner().policy(), inline.planner().policy());
         }
         // Refused before anything is handed over: a view of another shape.
-        let needed = offloaded.needs_plan();
         let wrong = Mdagl::new(4, 2, MdaglParams::default()).unwrap();
         assert!(offloaded.refresh(0, &wrong).is_err());
-        assert_eq!(offloaded.needs_plan(), needed, "nothing new to plan");
+        assert!(!offloaded.needs_plan());
     }
 }
