@@ -23,11 +23,13 @@ use anyhow::{Context, Result};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
-use tes_controller::agents::Contexts;
+use tes_controller::agents::{Contexts, ExampleStore};
 use tes_controller::cmdp::CmdpStructure;
 use tes_perception_sim::grid::{GridSuite, GridTask};
 
-use super::{Algorithm, Episode, EpisodicTask, run_agent, write_episodes_csv, write_file};
+use super::{
+    AgentSettings, Algorithm, Episode, EpisodicTask, run_agent, write_episodes_csv, write_file,
+};
 pub use crate::stats::Summary;
 use crate::stats::summarise;
 use crate::svg::{BandPoint, LineChart, Series};
@@ -114,6 +116,10 @@ pub struct GridConfig {
     /// every greedy step, so converging further than its model holds still is the cost
     /// Table 1 would otherwise measure.
     pub stop_at_drift: bool,
+    /// How RL-DT keeps its examples: `List` (Hester & Stone's, the default) or
+    /// `PerStateCounts` (our shortcut: the same trees and rewards, induction bounded by the
+    /// states instead of the steps). Only Table 1's RL-DT time depends on it.
+    pub rl_dt_examples: ExampleStore,
 }
 
 impl GridConfig {
@@ -128,6 +134,7 @@ impl GridConfig {
             seed: 1,
             quick: false,
             stop_at_drift: true,
+            rl_dt_examples: ExampleStore::List,
         }
     }
 
@@ -143,6 +150,7 @@ impl GridConfig {
             seed: 1,
             quick: true,
             stop_at_drift: true,
+            rl_dt_examples: ExampleStore::List,
         }
     }
 }
@@ -280,11 +288,14 @@ pub fn run(
         .map(|&(cell, run)| {
             let seed = config.seed + run as u64;
             let env = &envs[&cell.irrelevant];
-            let planner = PlannerParams {
-                stop_at_drift: config.stop_at_drift,
-                ..PlannerParams::default()
+            let settings = AgentSettings {
+                planner: PlannerParams {
+                    stop_at_drift: config.stop_at_drift,
+                    ..PlannerParams::default()
+                },
+                rl_dt_examples: config.rl_dt_examples,
             };
-            let episodes = run_agent(cell.algorithm, env, config.episodes, seed, planner, |_| {
+            let episodes = run_agent(cell.algorithm, env, config.episodes, seed, settings, |_| {
                 let d = done.fetch_add(1, Ordering::Relaxed) + 1;
                 progress(d, total);
             })

@@ -16,8 +16,8 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use tes_controller::agents::{
-    Agent, AgentError, Contexts, CountingAgent, LoreRl, LoreRlParams, LseRmax, LseRmaxParams, RlDt,
-    RlDtParams,
+    Agent, AgentError, Contexts, CountingAgent, ExampleStore, LoreRl, LoreRlParams, LseRmax,
+    LseRmaxParams, RlDt, RlDtParams,
 };
 use tes_controller::cmdp::CmdpStructure;
 use tes_controller::plan::PlannerParams;
@@ -82,16 +82,20 @@ impl Algorithm {
         task: &dyn EpisodicTask,
         seed: u64,
     ) -> Result<Box<dyn Agent + Send>, AgentError> {
-        self.build_planned(task, seed, PlannerParams::default())
+        self.build_with(task, seed, AgentSettings::default())
     }
 
-    /// [`build`](Self::build) with the given planner settings for the agent's planner.
-    pub fn build_planned(
+    /// [`build`](Self::build) with the given settings.
+    pub fn build_with(
         self,
         task: &dyn EpisodicTask,
         seed: u64,
-        planner: PlannerParams,
+        settings: AgentSettings,
     ) -> Result<Box<dyn Agent + Send>, AgentError> {
+        let AgentSettings {
+            planner,
+            rl_dt_examples,
+        } = settings;
         let structure = task.structure();
         let lore = |params: LoreRlParams| LoreRlParams { planner, ..params };
         Ok(match self {
@@ -122,6 +126,7 @@ impl Algorithm {
                 structure,
                 RlDtParams {
                     planner,
+                    examples: rl_dt_examples,
                     ..RlDtParams::default()
                 },
                 seed,
@@ -187,7 +192,17 @@ pub fn run_episode(
     Ok(episode)
 }
 
-/// Runs `episodes` episodes of a fresh `algorithm` agent on `task`, planning with `planner`.
+/// Settings an experiment may vary across every [`Algorithm`]; the rest are the paper's.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct AgentSettings {
+    /// Every agent's planner.
+    pub planner: PlannerParams,
+    /// How RL-DT keeps its examples (same behaviour, different cost; default: the list, as
+    /// Hester & Stone).
+    pub rl_dt_examples: ExampleStore,
+}
+
+/// Runs `episodes` episodes of a fresh `algorithm` agent on `task`, built with `settings`.
 ///
 /// The agent explores with `seed`; the world (starts and dynamics) uses a stream derived from
 /// it, so two algorithms given the same seed face the same start states as long as the
@@ -197,11 +212,11 @@ pub fn run_agent(
     task: &dyn EpisodicTask,
     episodes: usize,
     seed: u64,
-    planner: PlannerParams,
+    settings: AgentSettings,
     mut on_episode: impl FnMut(&Episode),
 ) -> Result<Vec<Episode>, AgentError> {
     let structure = task.structure();
-    let mut agent = algorithm.build_planned(task, seed, planner)?;
+    let mut agent = algorithm.build_with(task, seed, settings)?;
     let mut world = ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_0F70_121D);
     let mut out = Vec::with_capacity(episodes);
     for _ in 0..episodes {

@@ -20,7 +20,7 @@ pub use counting::{Contexts, CountingAgent, Exploration};
 pub use decision_tree::{DecisionTree, Example, LeafId, TreeError, TreeParams};
 pub use lore_rl::{LoreRl, LoreRlParams};
 pub use lse_rmax::{LseRmax, LseRmaxParams};
-pub use rl_dt::{RlDt, RlDtParams};
+pub use rl_dt::{ExampleStore, RlDt, RlDtParams};
 pub use tes::{Origin, Tes, TesParams, ViewPolicy, WorkingView};
 
 /// Why an agent could not be built or could not learn from a step. On a step error the agent

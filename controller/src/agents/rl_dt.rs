@@ -12,10 +12,21 @@
 //! paper's fEpsG).
 //!
 //! **Keeping all data and re-inducing.** Like Hester & Stone's implementation, the agent stores
-//! *every* observed example (as exact per-state effect counts, which induce the same tree as
-//! the raw list) and, by default, re-induces the taken action's tree from all of them after
-//! every step ([`RlDtParams::rebuild_every`] = 1). With a larger `rebuild_every` a tree is
-//! re-induced only when
+//! *every* observed example and, by default, re-induces the taken action's tree from all of
+//! them after every step ([`RlDtParams::rebuild_every`] = 1). How the examples are kept is
+//! [`RlDtParams::examples`]:
+//!
+//! * [`ExampleStore::List`] (the default) keeps the list of examples as observed, one entry
+//!   per step, and induces from it — the published algorithm and its cost: each induction
+//!   scans every example the action ever produced (Nguyen et al. §6 name this, and storing all
+//!   data, as why RL-DT is slow).
+//! * [`ExampleStore::PerStateCounts`] keeps, per state, how often each effect followed. A
+//!   state's features are fixed in a CMDP, so the counts are the list with equal examples
+//!   merged into weights: the induced trees are identical (integer class weights per node do
+//!   not depend on order or grouping; tested), at a cost bounded by the number of states
+//!   rather than the number of steps. This is our shortcut, not the paper's.
+//!
+//! With a larger `rebuild_every` a tree is re-induced only when
 //!
 //! * the new example *contradicts* its leaf — the leaf is empty or its most frequent effect is
 //!   not the observed one (Hester & Stone rebuild when a new instance is mis-predicted), or
@@ -53,16 +64,34 @@ pub struct RlDtParams {
     /// Re-induce an action's tree after this many of its examples even if none contradicted
     /// the tree (≥ 1; 1 rebuilds on every step).
     pub rebuild_every: u32,
+    /// How the examples are kept for re-induction (same trees either way, different cost).
+    pub examples: ExampleStore,
+}
+
+/// How [`RlDt`] keeps the examples it re-induces its trees from. Both give the same trees
+/// and so the same behaviour; they differ in memory and induction time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ExampleStore {
+    /// Every example as observed, one entry per step (Hester & Stone's RL-DT): induction
+    /// scans all of an action's examples, so its cost grows with the number of steps.
+    #[default]
+    List,
+    /// Per state, how often each effect followed (equal examples merged into weights):
+    /// induction scans at most one entry per visited state and effect.
+    PerStateCounts,
 }
 
 impl Default for RlDtParams {
-    /// γ = 0.95, ε = 0.1, default tree settings, the tree re-induced after every example.
+    /// γ = 0.95, ε = 0.1, default tree settings, the tree re-induced after every example from
+    /// the list of all examples.
     fn default() -> Self {
         Self {
             planner: PlannerParams::default(),
             epsilon: 0.1,
             tree: TreeParams::default(),
             rebuild_every: 1,
+            examples: ExampleStore::List,
         }
     }
 }
@@ -78,8 +107,11 @@ pub struct RlDt {
     trees: Vec<DecisionTree>,
     /// `counts[(a * S + s) * E + e]`: every example ever seen, losslessly.
     counts: Vec<u32>,
-    /// Per action, the states it was tried in, in first-visit order.
+    /// Per action, the states it was tried in, in first-visit order
+    /// ([`ExampleStore::PerStateCounts`]).
     visited: Vec<Vec<u32>>,
+    /// Per action, every `(state, effect)` in the order observed ([`ExampleStore::List`]).
+    list: Vec<Vec<(u32, u32)>>,
     /// Per action, examples since its tree was last re-induced.
     since_rebuild: Vec<u32>,
     rebuilds: u64,
@@ -123,6 +155,7 @@ impl RlDt {
             trees: vec![DecisionTree::empty(f, e); a],
             counts: vec![0; a * s * e],
             visited: vec![Vec::new(); a],
+            list: vec![Vec::new(); a],
             since_rebuild: vec![0; a],
             rebuilds: 0,
             model,
@@ -167,28 +200,43 @@ impl RlDt {
     /// Re-induces `action`'s tree from all its stored examples.
     fn rebuild(&mut self, action: usize) {
         let (n_s, n_e) = (self.structure.n_states(), self.structure.n_effects());
-        let mut examples = Vec::new();
-        for &s in &self.visited[action] {
-            let s = s as usize;
-            let row = &self.counts[(action * n_s + s) * n_e..(action * n_s + s + 1) * n_e];
-            for (class, &weight) in row.iter().enumerate() {
-                if weight > 0 {
-                    examples.push(Example {
-                        features: self.structure.features(s),
-                        class,
-                        weight,
-                    });
+        let structure = &self.structure;
+        let examples: Vec<Example<'_>> = match self.params.examples {
+            ExampleStore::List => self.list[action]
+                .iter()
+                .map(|&(s, class)| Example {
+                    features: structure.features(s as usize),
+                    class: class as usize,
+                    weight: 1,
+                })
+                .collect(),
+            ExampleStore::PerStateCounts => {
+                let mut examples = Vec::new();
+                for &s in &self.visited[action] {
+                    let s = s as usize;
+                    let row = &self.counts[(action * n_s + s) * n_e..(action * n_s + s + 1) * n_e];
+                    for (class, &weight) in row.iter().enumerate() {
+                        if weight > 0 {
+                            examples.push(Example {
+                                features: structure.features(s),
+                                class,
+                                weight,
+                            });
+                        }
+                    }
                 }
+                examples
             }
-        }
-        self.trees[action] = DecisionTree::fit_unchecked(
-            self.structure.n_features(),
-            n_e,
-            &examples,
-            self.params.tree,
-        );
+        };
+        self.trees[action] =
+            DecisionTree::fit_unchecked(structure.n_features(), n_e, &examples, self.params.tree);
         self.since_rebuild[action] = 0;
         self.rebuilds += 1;
+    }
+
+    /// How many examples are stored, over all actions (every observed step).
+    pub fn n_examples(&self) -> u64 {
+        self.counts.iter().map(|&n| u64::from(n)).sum()
     }
 }
 
@@ -211,8 +259,13 @@ impl Agent for RlDt {
         check_step(&self.structure, state, action, Some(effect))?;
         let (n_s, n_e) = (self.structure.n_states(), self.structure.n_effects());
         let cell = (action * n_s + state) * n_e;
-        if self.counts[cell..cell + n_e].iter().all(|&n| n == 0) {
-            self.visited[action].push(state as u32);
+        match self.params.examples {
+            ExampleStore::List => self.list[action].push((state as u32, effect as u32)),
+            ExampleStore::PerStateCounts => {
+                if self.counts[cell..cell + n_e].iter().all(|&n| n == 0) {
+                    self.visited[action].push(state as u32);
+                }
+            }
         }
         self.counts[cell + effect] = self.counts[cell + effect].saturating_add(1);
         self.since_rebuild[action] += 1;
@@ -363,12 +416,45 @@ pub(crate) mod tests {
     }
 
     #[test]
+    fn the_example_list_and_per_state_counts_induce_the_same_trees() {
+        // Same seeds, two stores: every tree, every effect-table row and every return must be
+        // identical, while the list holds one entry per step.
+        let c = Arc::new(icy_corridor(12, &[3, 6, 9]));
+        let agents: Vec<(RlDt, Vec<f64>)> = [ExampleStore::List, ExampleStore::PerStateCounts]
+            .into_iter()
+            .map(|examples| {
+                let params = RlDtParams {
+                    examples,
+                    ..RlDtParams::default()
+                };
+                let mut agent = RlDt::new(c.clone(), params, 5).unwrap();
+                let returns = run(&mut agent, &c, 5, 40, 9);
+                (agent, returns)
+            })
+            .collect();
+        let (list, counts) = (&agents[0], &agents[1]);
+        assert_eq!(list.1, counts.1);
+        for a in 0..c.n_actions() {
+            assert_eq!(list.0.tree(a), counts.0.tree(a));
+            assert!(list.0.tree(a).unwrap().n_leaves() > 1, "action {a} split");
+        }
+        assert_eq!(list.0.effect_table(), counts.0.effect_table());
+        assert_eq!(list.0.n_rebuilds(), counts.0.n_rebuilds());
+        let steps: usize = list.0.list.iter().map(Vec::len).sum();
+        assert_eq!(steps as u64, list.0.n_examples());
+        assert!(counts.0.list.iter().all(Vec::is_empty));
+        let merged: usize = counts.0.visited.iter().map(Vec::len).sum();
+        assert!(merged < steps / 4, "{merged} states for {steps} steps");
+    }
+
+    #[test]
     fn bad_steps_and_settings_are_refused() {
         let c = Arc::new(corridor(5, &[]));
         let mut agent = RlDt::new(c.clone(), RlDtParams::default(), 1).unwrap();
         assert_refuses_bad_steps(&mut agent);
         assert_eq!(agent.n_rebuilds(), 0);
-        assert!(agent.counts.iter().all(|&n| n == 0));
+        assert_eq!(agent.n_examples(), 0);
+        assert!(agent.list.iter().all(Vec::is_empty));
         let ok = RlDtParams::default();
         for bad in [
             RlDtParams {
