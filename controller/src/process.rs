@@ -246,6 +246,14 @@ pub struct ControllerSummary {
     pub misses: u64,
     /// Decision latency (observation stamped → command published), after the warm-up.
     pub latency: LatencyReport,
+    /// The decision's first part: observation stamped → received by the acting loop (the
+    /// publication and this process's wake-up; the operating system's share).
+    #[serde(default)]
+    pub wake: LatencyReport,
+    /// The decision's second part: observation received → command published (the acting
+    /// path's own work), against the same budget.
+    #[serde(default)]
+    pub compute: LatencyReport,
     /// Heap allocations on the acting path (observation received → command published) after
     /// the warm-up; `None` if the process does not count them (no
     /// [`CountingAllocator`](crate::alloc_count::CountingAllocator)).
@@ -270,8 +278,22 @@ impl std::fmt::Display for ControllerSummary {
         let l = &self.latency;
         write!(
             f,
-            "{} episodes, {} actions, decision latency p50 {} us p99 {} us max {} us, {} over the {} us budget, ",
-            self.episodes, self.actions, l.p50_us, l.p99_us, l.max_us, self.misses, l.budget_us
+            "{} episodes, {} actions, decision latency p50 {} us p99 {} us max {} us, {} over the {} us budget \
+             (wake-up p50 {} p99 {} max {} us; compute p50 {} p99 {} max {} us, {} over), ",
+            self.episodes,
+            self.actions,
+            l.p50_us,
+            l.p99_us,
+            l.max_us,
+            self.misses,
+            l.budget_us,
+            self.wake.p50_us,
+            self.wake.p99_us,
+            self.wake.max_us,
+            self.compute.p50_us,
+            self.compute.p99_us,
+            self.compute.max_us,
+            self.compute.misses,
         )?;
         match self.allocations {
             Some(n) => write!(
@@ -539,6 +561,8 @@ pub fn run(
     let save_interval = Duration::from_secs_f64(config.save_interval_s);
     let mut last_save = std::time::Instant::now();
     let mut all = LatencyRecorder::new(config.budget_us, config.warmup_actions);
+    let mut wake = LatencyRecorder::new(config.budget_us, config.warmup_actions);
+    let mut compute = LatencyRecorder::new(config.budget_us, config.warmup_actions);
     let mut episode_latency = LatencyRecorder::new(config.budget_us, 0);
     let mut summary = empty_summary();
     // Allocations on the acting path before the warm-up ended, to subtract.
@@ -558,7 +582,7 @@ pub fn run(
     let mut last_sent = std::time::Instant::now();
     loop {
         let obs = match observations.next(idle_timeout, stop)? {
-            Ok(o) => o,
+            Ok(o) => (o, monotonic_ns()),
             Err(Idle::Stopped) => break,
             Err(Idle::Timeout) => {
                 // A move is under way: tell the bridge's watchdog we are still here.
@@ -579,6 +603,7 @@ pub fn run(
                 continue;
             }
         };
+        let (obs, received_ns) = obs;
         // The acting path, from here to the command's publication.
         let counting = alloc_count::count_here();
         if warmup_allocations.is_none() && all.warmed_up() {
@@ -668,10 +693,14 @@ pub fn run(
         let latency_ns = now.saturating_sub(obs.stamp_ns);
         let misses_before = episode_latency.misses();
         all.record_ns(latency_ns);
+        wake.record_ns(received_ns.saturating_sub(obs.stamp_ns));
+        compute.record_ns(now.saturating_sub(received_ns));
         episode_latency.record_ns(latency_ns);
         episode_misses += episode_latency.misses() - misses_before;
     }
     summary.latency = all.report();
+    summary.wake = wake.report();
+    summary.compute = compute.report();
     summary.misses = summary.latency.misses;
     summary.allocations = alloc_count::installed()
         .then(|| alloc_count::counted() - warmup_allocations.unwrap_or(alloc_count::counted()));
@@ -712,6 +741,8 @@ fn empty_summary() -> ControllerSummary {
         actions: 0,
         misses: 0,
         latency: LatencyReport::default(),
+        wake: LatencyReport::default(),
+        compute: LatencyReport::default(),
         allocations: None,
         ipc_allocations: None,
         refused: 0,

@@ -127,6 +127,10 @@ struct LatencyResult {
     ipc_allocations: Option<u64>,
     /// The controller's own decision latency (observation stamped → command published).
     decision: LatencyReport,
+    /// Its first part: observation stamped → received by the controller's acting loop.
+    wake: LatencyReport,
+    /// Its second part: observation received → command published (the acting path's work).
+    compute: LatencyReport,
     floor_p50_us: u64,
     floor_p90_us: u64,
     floor_p99_us: u64,
@@ -229,6 +233,8 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         allocations: controller.allocations,
         ipc_allocations: controller.ipc_allocations,
         decision: controller.latency,
+        wake: controller.wake,
+        compute: controller.compute,
         floor_p50_us: floor.p50_us,
         floor_p90_us: floor.p90_us,
         floor_p99_us: floor.p99_us,
@@ -261,6 +267,8 @@ fn latency(args: &LatencyArgs) -> Result<()> {
     row("floor (raw two-hop relay)", &floor);
     row("ours: observation -> bridge", &ours);
     row("ours: controller decision only", &controller.latency);
+    row("  of which: stamp -> received", &controller.wake);
+    row("  of which: received -> published", &controller.compute);
     println!(
         "ratio ours/floor: p50 {:.2}, p99 {:.2}; allocations on the acting path: {}",
         result.ratio_p50,
