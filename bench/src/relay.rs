@@ -51,6 +51,9 @@ pub struct RelayConfig {
     pub idle_timeout_ms: u64,
     /// Pause between an acknowledgement and the next observation, µs (the loop's cadence).
     pub gap_us: u64,
+    /// Pin the hop to this CPU, as the controller's `acting_cpu` pins its acting thread
+    /// (default: unpinned).
+    pub hop_cpu: Option<usize>,
 }
 
 impl Default for RelayConfig {
@@ -64,6 +67,7 @@ impl Default for RelayConfig {
             report: None,
             idle_timeout_ms: 10_000,
             gap_us: 0,
+            hop_cpu: None,
         }
     }
 }
@@ -94,6 +98,7 @@ impl RelayConfig {
                 "budget_us and idle_timeout_ms must be at least 1",
             ));
         }
+        settings::cpu(PROCESS, "hop_cpu", self.hop_cpu)?;
         settings::wait_strategy(PROCESS, &self.wait)
     }
 
@@ -125,6 +130,9 @@ pub enum RelayError {
     /// Not a relay role.
     #[error("unknown relay role {0:?} (expected one of {ROLES:?})")]
     Role(String),
+    /// The hop could not be pinned to `hop_cpu`.
+    #[error("relay-hop: {0}")]
+    Affinity(#[from] tes_topics::affinity::AffinityError),
 }
 
 /// Runs one relay role until its messages are done or `stop` is raised. The sink returns its
@@ -224,6 +232,9 @@ fn hop(
         &cfg.name(service::COMMAND),
         &cfg.name(service::COMMAND_EVENT),
     )?;
+    if let Some(cpu) = cfg.hop_cpu {
+        tes_topics::affinity::pin_this_thread(cpu)?;
+    }
     loop {
         let obs = match observations.next(idle, stop)? {
             Ok(o) => o,
@@ -312,6 +323,10 @@ mod tests {
         assert_eq!(
             RelayConfig::from_toml("mesages = 5").unwrap_err().key,
             "(file)"
+        );
+        assert_eq!(
+            RelayConfig::from_toml("hop_cpu = 100000").unwrap_err().key,
+            "hop_cpu"
         );
     }
 

@@ -84,6 +84,13 @@ pub struct ControllerConfig {
     /// dead man's switch: a long move goes on while the controller lives and is braked within
     /// the deadline once it is gone. Keep it well below the bridge's `watchdog.deadline_ms`.
     pub keepalive_ms: u64,
+    /// `acting_cpu`: pin the acting loop's thread to this CPU (default: unpinned). With
+    /// `planner_cpu` set to another CPU, planning no longer runs on the acting thread's CPU
+    /// between actions, which keeps the views' memory in that CPU's caches and the wake-up
+    /// short (see docs/performance.md). Must be a CPU this process may run on.
+    pub acting_cpu: Option<usize>,
+    /// `planner_cpu`: pin the planner thread to this CPU (default: unpinned).
+    pub planner_cpu: Option<usize>,
 }
 
 impl Default for ControllerConfig {
@@ -104,6 +111,8 @@ impl Default for ControllerConfig {
             warmup_actions: 0,
             report: None,
             keepalive_ms: 250,
+            acting_cpu: None,
+            planner_cpu: None,
         }
     }
 }
@@ -156,6 +165,8 @@ impl ControllerConfig {
                 "must be a number of seconds > 0 that fits a duration",
             );
         }
+        tes_topics::settings::cpu(PROCESS, "acting_cpu", self.acting_cpu)?;
+        tes_topics::settings::cpu(PROCESS, "planner_cpu", self.planner_cpu)?;
         tes_topics::settings::wait_strategy(PROCESS, &self.wait)
     }
 
@@ -225,6 +236,9 @@ pub enum ControllerError {
     /// The library saver thread could not start.
     #[error("cannot start the library saver thread: {0}")]
     SaverThread(std::io::Error),
+    /// The acting thread could not be pinned to `acting_cpu`.
+    #[error("acting thread: {0}")]
+    Affinity(#[from] tes_topics::affinity::AffinityError),
     /// The run's report could not be written.
     #[error("cannot write the report {}: {error}", path.display())]
     Report {
@@ -552,7 +566,8 @@ pub fn run(
         max_sweeps: config.plan_sweeps,
         ..PlannerParams::default()
     };
-    let mut planner = PlannerThread::spawn(structure.clone(), planner_params)?;
+    let mut planner =
+        PlannerThread::spawn_on(structure.clone(), planner_params, config.planner_cpu)?;
     // The first policy before the first action.
     planner.offer(agent.model_mut())?;
     planner.wait(agent.model_mut(), Duration::from_secs(10))?;
@@ -580,6 +595,9 @@ pub fn run(
         k.min(Duration::from_millis(100))
     });
     let mut last_sent = std::time::Instant::now();
+    if let Some(cpu) = config.acting_cpu {
+        tes_topics::affinity::pin_this_thread(cpu)?;
+    }
     loop {
         let obs = match observations.next(idle_timeout, stop)? {
             Ok(o) => (o, monotonic_ns()),
@@ -999,6 +1017,8 @@ mod tests {
             ("map_timeout_s = 1e300", "map_timeout_s"),
             ("map_timeout_s = nan", "map_timeout_s"),
             ("save_interval_s = -1.0", "save_interval_s"),
+            ("acting_cpu = 100000", "acting_cpu"),
+            ("planner_cpu = 100000", "planner_cpu"),
         ] {
             let err = ControllerConfig::from_toml(text).unwrap_err();
             assert_eq!(err.key, key, "{text}");

@@ -46,6 +46,7 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use crossbeam::channel::{self, Receiver, RecvTimeoutError, Sender, TryRecvError};
+use tes_topics::affinity::{AffinityError, check_cpu, pin_this_thread};
 use thiserror::Error;
 
 use crate::cmdp::{CmdpError, CmdpStructure};
@@ -66,6 +67,9 @@ pub enum PlannerThreadError {
     /// The OS refused to start the thread.
     #[error("cannot start the planner thread: {0}")]
     Spawn(std::io::Error),
+    /// The CPU asked for the planner thread cannot be used.
+    #[error("planner thread: {0}")]
+    Affinity(#[from] AffinityError),
     /// The planner thread is gone (it panicked).
     #[error("the planner thread stopped")]
     Gone,
@@ -100,6 +104,20 @@ impl PlannerThread {
         structure: Arc<CmdpStructure>,
         params: PlannerParams,
     ) -> Result<Self, PlannerThreadError> {
+        Self::spawn_on(structure, params, None)
+    }
+
+    /// [`spawn`](Self::spawn), the thread pinned to `cpu` if given (checked first: a CPU this
+    /// process may not run on is refused). Pinning it away from the acting thread's CPU keeps
+    /// planning from cooling that CPU's caches between actions.
+    pub fn spawn_on(
+        structure: Arc<CmdpStructure>,
+        params: PlannerParams,
+        cpu: Option<usize>,
+    ) -> Result<Self, PlannerThreadError> {
+        if let Some(cpu) = cpu {
+            check_cpu(cpu)?;
+        }
         // The planner's own copy of the model: inline, so it refreshes rows and plans here.
         let mut model = PlannedModel::new(structure.clone(), params)?;
         let n = structure.n_states();
@@ -115,6 +133,11 @@ impl PlannerThread {
         let handle = std::thread::Builder::new()
             .name("planner".into())
             .spawn(move || {
+                if let Some(cpu) = cpu
+                    && let Err(e) = pin_this_thread(cpu)
+                {
+                    tracing::warn!(error = %e, "the planner thread runs unpinned");
+                }
                 lower_this_threads_priority();
                 // Ends when the acting side drops its sender.
                 while let Ok(mut job) = jobs.recv() {

@@ -29,6 +29,7 @@ use tes_bench::relay::{self, RelayConfig};
 use tes_bench::{fixtures, scaling};
 use tes_controller::library::store::{self, StoredLibrary};
 use tes_controller::process::ControllerSummary;
+use tes_topics::affinity;
 use tes_topics::channel::WaitStrategy;
 use tes_topics::latency::LatencyReport;
 
@@ -78,6 +79,13 @@ pub struct LatencyArgs {
     /// Print one JSON object instead of the table.
     #[arg(long)]
     json: bool,
+    /// Pin the controller's acting thread to this CPU, and the floor's hop (its place in the
+    /// relay) to the same one, so both run with the same placement [default: unpinned].
+    #[arg(long)]
+    acting_cpu: Option<usize>,
+    /// Pin the controller's planner thread to this CPU [default: unpinned].
+    #[arg(long)]
+    planner_cpu: Option<usize>,
 }
 
 /// Arguments of `tes bench scaling`.
@@ -142,6 +150,10 @@ struct LatencyResult {
     /// Mean time between actions in our run, which the floor's source kept too, µs.
     cycle_us: u64,
     seed: u64,
+    /// The controller's acting thread's CPU, and the floor's hop's (null: unpinned).
+    acting_cpu: Option<usize>,
+    /// The controller's planner thread's CPU (null: unpinned).
+    planner_cpu: Option<usize>,
 }
 
 fn ratio(ours: u64, floor: u64) -> f64 {
@@ -155,6 +167,14 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         .map_err(|e| anyhow::anyhow!("--wait: {e}"))?;
     if args.actions == 0 || args.budget_us == 0 || args.views == 0 {
         bail!("--actions, --budget-us and --views must be at least 1");
+    }
+    for (flag, cpu) in [
+        ("--acting-cpu", args.acting_cpu),
+        ("--planner-cpu", args.planner_cpu),
+    ] {
+        if let Some(cpu) = cpu {
+            affinity::check_cpu(cpu).with_context(|| format!("{flag} {cpu}"))?;
+        }
     }
     let temp;
     let dir: &Path = match &args.out {
@@ -245,14 +265,25 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         ratio_p99: ratio(ours.p99_us, floor.p99_us),
         cycle_us,
         seed: args.seed,
+        acting_cpu: args.acting_cpu,
+        planner_cpu: args.planner_cpu,
     };
     if args.json {
         println!("{}", serde_json::to_string(&result)?);
         return Ok(());
     }
+    let cpu = |c: Option<usize>| c.map_or("unpinned".to_owned(), |c| format!("CPU {c}"));
     println!(
-        "tes bench latency: wait {}, {} actions measured (+{} warm-up), {} views, budget {} us, one action every {} us",
-        result.wait, result.actions, args.warmup, args.views, args.budget_us, cycle_us
+        "tes bench latency: wait {}, {} actions measured (+{} warm-up), {} views, budget {} us, one action every {} us; \
+         acting thread and floor hop {}, planner {}",
+        result.wait,
+        result.actions,
+        args.warmup,
+        args.views,
+        args.budget_us,
+        cycle_us,
+        cpu(args.acting_cpu),
+        cpu(args.planner_cpu)
     );
     println!(
         "{:<34} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
@@ -318,6 +349,14 @@ fn group_file(
         .insert("warmup_actions".into(), int(args.warmup));
     file.controller
         .insert("report".into(), path(controller_report));
+    for (key, cpu) in [
+        ("acting_cpu", args.acting_cpu),
+        ("planner_cpu", args.planner_cpu),
+    ] {
+        if let Some(cpu) = cpu {
+            file.controller.insert(key.into(), int(cpu as u64));
+        }
+    }
     let mut ipc = toml::Table::new();
     ipc.insert("budget_us".into(), int(args.budget_us));
     ipc.insert("warmup_commands".into(), int(args.warmup));
@@ -344,6 +383,7 @@ fn run_floor(
         report: Some(report.clone()),
         // The source's own round trip is part of the cycle.
         gap_us: cycle_us.saturating_sub(50),
+        hop_cpu: args.acting_cpu,
         ..RelayConfig::default()
     };
     cfg.check()?;

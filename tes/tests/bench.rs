@@ -51,6 +51,12 @@ fn run(args: &[&str], data: &std::path::Path, limit: Duration) -> (bool, String,
 fn latency_runs_both_paths_and_reports_every_key() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
+    // Pinned, as docs/performance.md's block runs are: the acting thread and the floor's
+    // hop to one allowed CPU, the planner to another where there is one.
+    let allowed = tes_topics::affinity::allowed_cpus();
+    let acting = *allowed.last().expect("an allowed CPU");
+    let planner = allowed[0];
+    let (acting_arg, planner_arg) = (acting.to_string(), planner.to_string());
     let (ok, stdout, stderr) = run(
         &[
             "bench",
@@ -62,6 +68,10 @@ fn latency_runs_both_paths_and_reports_every_key() {
             "--views",
             "3",
             "--json",
+            "--acting-cpu",
+            &acting_arg,
+            "--planner-cpu",
+            &planner_arg,
             "--out",
             out.to_str().unwrap(),
         ],
@@ -84,8 +94,17 @@ fn latency_runs_both_paths_and_reports_every_key() {
         "floor_misses",
         "ratio_p50",
         "ratio_p99",
+        "decision",
+        "wake",
+        "compute",
     ] {
         assert!(v.get(key).is_some(), "missing {key} in {v}");
+    }
+    assert_eq!(v["acting_cpu"], acting, "{v}");
+    assert_eq!(v["planner_cpu"], planner, "{v}");
+    // The decision splits into its wake-up and its compute.
+    for part in ["decision", "wake", "compute"] {
+        assert_eq!(v[part]["count"], 150, "{part}: {v}");
     }
     assert_eq!(v["wait"], "block");
     assert_eq!(v["actions"], 150);
@@ -129,4 +148,14 @@ fn bad_bench_arguments_are_refused_before_anything_starts() {
     );
     assert!(!ok);
     assert!(stderr.contains("--actions"), "{stderr}");
+    let (ok, _, stderr) = run(
+        &["bench", "latency", "--acting-cpu", "100000"],
+        dir.path(),
+        Duration::from_secs(30),
+    );
+    assert!(!ok);
+    assert!(
+        stderr.contains("--acting-cpu 100000") && stderr.contains("allowed"),
+        "{stderr}"
+    );
 }

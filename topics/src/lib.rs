@@ -32,6 +32,7 @@
 
 use iceoryx2::prelude::ZeroCopySend;
 
+pub mod affinity;
 pub mod channel;
 pub mod latency;
 pub mod logging;

@@ -40,6 +40,19 @@ pub fn wait_strategy(process: &'static str, text: &str) -> Result<WaitStrategy, 
     })
 }
 
+/// Checks a CPU-placement key (`acting_cpu`, …): unset, or a CPU this process may run on.
+pub fn cpu(
+    process: &'static str,
+    key: &'static str,
+    cpu: Option<usize>,
+) -> Result<(), SettingError> {
+    match cpu {
+        None => Ok(()),
+        Some(c) => crate::affinity::check_cpu(c)
+            .map_err(|e| SettingError::new(process, key, e.to_string())),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -68,6 +81,18 @@ mod tests {
                 "{err}"
             );
         }
+    }
+
+    #[test]
+    fn a_cpu_key_is_unset_or_an_allowed_cpu() {
+        assert_eq!(cpu("demo", "acting_cpu", None), Ok(()));
+        let allowed = crate::affinity::allowed_cpus();
+        if let Some(&c) = allowed.first() {
+            assert_eq!(cpu("demo", "acting_cpu", Some(c)), Ok(()));
+        }
+        let err = cpu("demo", "acting_cpu", Some(100_000)).expect_err("no such CPU");
+        assert_eq!((err.process, err.key), ("demo", "acting_cpu"));
+        assert!(err.reason.contains("100000"), "{err}");
     }
 
     #[test]
