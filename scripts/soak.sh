@@ -3,6 +3,8 @@
 # factor, sampling each child's resident memory every 10 s into rss.csv, and keep the
 # controller's report (latency percentiles, budget misses, allocations) in controller.json.
 #   bash scripts/soak.sh [ACTIONS] [OUT_DIR]
+# ACTING_CPU / PLANNER_CPU, if set, pin the controller's two threads (its acting_cpu and
+# planner_cpu keys), e.g. ACTING_CPU=1 PLANNER_CPU=0 on a 2-core machine.
 set -euo pipefail
 actions="${1:-1000000}"
 out="${2:-soak-$(date +%Y%m%d-%H%M%S)}"
@@ -21,6 +23,8 @@ actions = $actions
 library = "$out/library.tesl"
 report = "$out/controller.json"
 warmup_actions = 10000
+${ACTING_CPU:+acting_cpu = $ACTING_CPU}
+${PLANNER_CPU:+planner_cpu = $PLANNER_CPU}
 [bridge.ipc]
 warmup_commands = 10000
 latency_report = "$out/bridge.json"
