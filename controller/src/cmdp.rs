@@ -206,6 +206,13 @@ impl CmdpStructure {
         self.next[s * self.n_effects + e] as usize
     }
 
+    /// The states each effect leads to from `s`, by effect: `successors(s)[e] ==
+    /// next_state(s, e)`.
+    #[inline]
+    pub fn successors(&self, s: usize) -> &[u32] {
+        &self.next[s * self.n_effects..(s + 1) * self.n_effects]
+    }
+
     /// Reward for entering state `s`.
     #[inline]
     pub fn reward(&self, s: usize) -> f64 {
@@ -268,7 +275,8 @@ const PATTERN_BITS: usize = 64;
 /// What [`EffectTable::refresh`] works in, kept between calls so it allocates nothing.
 #[derive(Debug, Clone)]
 struct RefreshScratch {
-    /// One action's new rows, built before they are compared with the old ones.
+    /// New rows, built before they are compared with the old ones: one per state (state
+    /// refresh) or one per distinct pattern (pattern refresh).
     rows: Vec<f64>,
     /// Per state: bit `j` set when the view's `j`-th used feature column is on there.
     patterns: Vec<u64>,
@@ -276,10 +284,12 @@ struct RefreshScratch {
     columns: Vec<f64>,
     /// The intercept's weights (`E`; zero without one).
     intercept: Vec<f64>,
-    /// Open-addressing map from a pattern to the state whose row holds its probabilities;
-    /// an entry counts only if its stamp is the current refresh's.
+    /// Per state: the row of `rows` holding its pattern's probabilities (pattern refresh).
+    slots: Vec<u32>,
+    /// Open-addressing map from a pattern to its row of `rows`; an entry counts only if its
+    /// stamp is the current refresh's.
     keys: Vec<u64>,
-    first_state: Vec<u32>,
+    slot: Vec<u32>,
     stamps: Vec<u32>,
     stamp: u32,
 }
@@ -292,8 +302,9 @@ impl RefreshScratch {
             patterns: vec![0; n_states],
             columns: vec![0.0; PATTERN_BITS * n_effects],
             intercept: vec![0.0; n_effects],
+            slots: vec![0; n_states],
             keys: vec![0; slots],
-            first_state: vec![0; slots],
+            slot: vec![0; slots],
             stamps: vec![0; slots],
             stamp: 0,
         }
@@ -309,8 +320,9 @@ impl RefreshScratch {
         }
     }
 
-    /// The state already holding `pattern`'s row, or `None` after recording `s` as it.
-    fn first_with(&mut self, pattern: u64, s: usize) -> Option<usize> {
+    /// The scratch row of `pattern`: the one recorded earlier in this refresh, or else
+    /// `next`, now recorded as its row.
+    fn slot_of(&mut self, pattern: u64, next: usize) -> usize {
         let mask = self.keys.len() - 1;
         // Fibonacci hashing: the high bits of the product mix every bit of the pattern.
         let mut i = (pattern.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 32) as usize & mask;
@@ -318,11 +330,11 @@ impl RefreshScratch {
             if self.stamps[i] != self.stamp {
                 self.stamps[i] = self.stamp;
                 self.keys[i] = pattern;
-                self.first_state[i] = s as u32;
-                return None;
+                self.slot[i] = next as u32;
+                return next;
             }
             if self.keys[i] == pattern {
-                return Some(self.first_state[i] as usize);
+                return self.slot[i] as usize;
             }
             i = (i + 1) & mask;
         }
@@ -397,11 +409,27 @@ impl EffectTable {
         let n_features = structure.n_features();
         let mut used = 0;
         view.for_each_weight_column(|col, _, _| used += usize::from(col < n_features));
-        if used <= PATTERN_BITS {
-            self.rows_by_pattern(view, structure)?;
-        } else {
-            self.rows_by_state(view, structure)?;
+        if used > PATTERN_BITS {
+            return self.refresh_by_state(a, view, structure);
         }
+        // The grid tasks have 5 effects, the robot arenas 20 (see `refresh_by_pattern`).
+        match e {
+            5 => self.refresh_by_pattern::<5>(a, view, structure),
+            20 => self.refresh_by_pattern::<20>(a, view, structure),
+            _ => self.refresh_by_pattern::<0>(a, view, structure),
+        }
+    }
+
+    /// [`refresh`](Self::refresh) state by state: builds action `a`'s rows in the scratch
+    /// ([`rows_by_state`](Self::rows_by_state)), then compares and copies them in.
+    fn refresh_by_state(
+        &mut self,
+        a: usize,
+        view: &Mdagl,
+        structure: &CmdpStructure,
+    ) -> Result<f64, MdaglError> {
+        let e = self.n_effects;
+        self.rows_by_state(view, structure)?;
         let fresh = &self.scratch.rows;
         let rows = &mut self.probs[a * self.n_states * e..(a + 1) * self.n_states * e];
         let moved = rows
@@ -440,18 +468,24 @@ impl EffectTable {
             .try_for_each(|row| softmax(row).map(|_| ()))
     }
 
-    /// Builds one action's rows into the scratch for a view using at most [`PATTERN_BITS`]
-    /// feature columns. States on which the same used columns are on get the same row, and a
-    /// sparse view leaves few such patterns (mDAGL keeps a handful of columns), so each
-    /// pattern's scores and softmax are computed once and copied to the other states — the
-    /// `exp` per state and effect dominated the refresh before. Scores are summed in the same
-    /// order as [`rows_by_state`](Self::rows_by_state), so both give the same bits.
-    fn rows_by_pattern(
+    /// [`refresh`](Self::refresh) for a view using at most [`PATTERN_BITS`] feature columns.
+    /// States on which the same used columns are on get the same row, and a sparse view
+    /// leaves few such patterns (mDAGL keeps a handful of columns), so each pattern's scores
+    /// and softmax are computed once (into the scratch, one row per pattern) and then compared
+    /// with and copied into every state's row — the `exp` per state and effect dominated the
+    /// refresh before. Scores are summed in the same order as
+    /// [`rows_by_state`](Self::rows_by_state), so both give the same bits. Nothing is written
+    /// to the table unless every row was computed.
+    ///
+    /// `E` is the number of effects when the table is specialised for it, 0 for any other;
+    /// as a constant it lets the compiler unroll the per-effect loops (same code, same bits).
+    fn refresh_by_pattern<const E: usize>(
         &mut self,
+        a: usize,
         view: &Mdagl,
         structure: &CmdpStructure,
-    ) -> Result<(), MdaglError> {
-        let e = self.n_effects;
+    ) -> Result<f64, MdaglError> {
+        let e = if E == 0 { self.n_effects } else { E };
         let n_features = structure.n_features();
         let scratch = &mut self.scratch;
         scratch.patterns.fill(0);
@@ -473,29 +507,41 @@ impl EffectTable {
                 }
             }
         });
+        // Each distinct pattern gets the next row of the scratch; `slots[s]` is state `s`'s.
         scratch.clear_map();
+        let mut distinct = 0;
         for s in 0..structure.n_states() {
             let pattern = scratch.patterns[s];
-            if let Some(first) = scratch.first_with(pattern, s) {
-                scratch.rows.copy_within(first * e..(first + 1) * e, s * e);
+            let slot = scratch.slot_of(pattern, distinct);
+            scratch.slots[s] = slot as u32;
+            if slot < distinct {
                 continue;
             }
-            let row = &mut scratch.rows[s * e..(s + 1) * e];
+            distinct += 1;
+            let row = &mut scratch.rows[slot * e..slot * e + e];
             row.fill(0.0);
             let mut bits = pattern;
             while bits != 0 {
                 let j = bits.trailing_zeros() as usize;
                 bits &= bits - 1;
-                for (score, &w) in row.iter_mut().zip(&scratch.columns[j * e..(j + 1) * e]) {
+                for (score, &w) in row.iter_mut().zip(&scratch.columns[j * e..j * e + e]) {
                     *score += w;
                 }
             }
-            for (score, &w) in row.iter_mut().zip(&scratch.intercept) {
+            for (score, &w) in row.iter_mut().zip(&scratch.intercept[..e]) {
                 *score += w;
             }
             softmax(row)?;
         }
-        Ok(())
+        let rows = &mut self.probs[a * self.n_states * e..(a + 1) * self.n_states * e];
+        let mut moved: f64 = 0.0;
+        for (old, &slot) in rows.chunks_exact_mut(e).zip(&scratch.slots) {
+            let slot = slot as usize;
+            let new = &scratch.rows[slot * e..slot * e + e];
+            moved = moved.max(l1_distance(&old[..e], new));
+            old[..e].copy_from_slice(new);
+        }
+        Ok(moved)
     }
 
     /// Overwrites `P(· | s, a)` directly (for models that are not mDAGL views).
@@ -620,12 +666,14 @@ pub(crate) mod tests {
 
     proptest::proptest! {
         /// The column-wise refresh equals predicting every state one by one, whether it goes
-        /// by pattern (views using up to 64 feature columns) or state by state; where both
-        /// apply they give the same bits.
+        /// by pattern (views using up to 64 feature columns; specialised for 5 and 20
+        /// effects) or state by state; where both apply they give the same bits and report
+        /// the same move.
         #[test]
         fn refresh_equals_per_state_prediction(
             seed in 0u64..1000,
             features in 1usize..100,
+            effects in proptest::sample::select(vec![4usize, 5, 20]),
             intercept in proptest::bool::ANY,
             lambda in 0.0..0.1f64,
         ) {
@@ -636,17 +684,22 @@ pub(crate) mod tests {
                 .map(|_| (0..features as u32).filter(|_| rng.random::<f64>() < 0.3).collect())
                 .collect();
             let c = CmdpStructure::new(
-                n, 2, 4, features, |s, _| s, vec![0.0; n], vec![false; n], |s| &feats[s],
+                n, 2, effects, features, |s, _| s, vec![0.0; n], vec![false; n], |s| &feats[s],
             ).unwrap();
             let params = crate::mdagl::MdaglParams { lambda, alpha: 0.5, intercept };
-            let mut view = Mdagl::new(4, features, params).unwrap();
+            let mut view = Mdagl::new(effects, features, params).unwrap();
+            let mut table = EffectTable::uniform(&c);
             for t in 0..200 {
                 let s = rng.random_range(0..n);
-                view.update(Features::SparseBinary(&feats[s]), (s + t % 2) % 4).unwrap();
+                view.update(Features::SparseBinary(&feats[s]), (s + t % 2) % effects).unwrap();
+                if t == 100 {
+                    // A refresh over an earlier one, so the move is between two views.
+                    table.refresh(1, &view, &c).unwrap();
+                }
             }
-            let mut table = EffectTable::uniform(&c);
+            let before = table.clone();
             table.refresh(1, &view, &c).unwrap();
-            let mut p = [0.0; 4];
+            let mut p = vec![0.0; effects];
             for (s, f) in feats.iter().enumerate() {
                 view.predict_into(Features::SparseBinary(f), &mut p).unwrap();
                 for (a, b) in p.iter().zip(table.probs(1, s)) {
@@ -656,10 +709,19 @@ pub(crate) mod tests {
             let mut used = 0;
             view.for_each_weight_column(|col, _, _| used += usize::from(col < features));
             if used <= PATTERN_BITS {
-                table.rows_by_pattern(&view, &c).unwrap();
-                let by_pattern = table.scratch.rows.clone();
-                table.rows_by_state(&view, &c).unwrap();
-                proptest::prop_assert_eq!(by_pattern, table.scratch.rows.clone());
+                let (mut specialised, mut generic) = (before.clone(), before.clone());
+                let mut by_state = before;
+                let moved_specialised = match effects {
+                    5 => specialised.refresh_by_pattern::<5>(1, &view, &c).unwrap(),
+                    20 => specialised.refresh_by_pattern::<20>(1, &view, &c).unwrap(),
+                    _ => specialised.refresh_by_pattern::<0>(1, &view, &c).unwrap(),
+                };
+                let moved_generic = generic.refresh_by_pattern::<0>(1, &view, &c).unwrap();
+                let moved_state = by_state.refresh_by_state(1, &view, &c).unwrap();
+                proptest::prop_assert_eq!(&specialised.probs, &by_state.probs);
+                proptest::prop_assert_eq!(&generic.probs, &by_state.probs);
+                proptest::prop_assert_eq!(moved_specialised.to_bits(), moved_state.to_bits());
+                proptest::prop_assert_eq!(moved_generic.to_bits(), moved_state.to_bits());
             }
         }
     }

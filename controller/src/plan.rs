@@ -107,6 +107,8 @@ pub struct ValueIteration {
     policy: Vec<u32>,
     /// Scratch: `R(s'_e) + γ V(s'_e)` for each effect of the state being backed up.
     backup: Vec<f64>,
+    /// The spread of `R(s) + γV(s)` over all states after the last sweep made here.
+    backup_span: f64,
 }
 
 impl ValueIteration {
@@ -126,6 +128,7 @@ impl ValueIteration {
             values: vec![0.0; structure.n_states()],
             policy: vec![0; structure.n_states()],
             backup: vec![0.0; structure.n_effects()],
+            backup_span: 0.0,
         })
     }
 
@@ -169,46 +172,72 @@ impl ValueIteration {
             .sum()
     }
 
-    /// The best action in `s` and its value (lowest action id on ties).
+    /// One Gauss–Seidel sweep over every non-terminal state; returns the largest value change
+    /// and the spread of `R(s) + γV(s)` over all states after it (what [`PlannedModel`] bounds
+    /// its drift with).
     ///
-    /// Every action's Q-value in `s` reads the same successors (effects, not actions, decide
-    /// where the agent lands), so each successor's `R + γV` is computed once into `backup` and
-    /// shared by all actions: `E` lookups per state instead of `A × E`.
-    #[inline]
-    fn best(
-        values: &[f64],
-        backup: &mut [f64],
-        gamma: f64,
+    /// `E` is the number of effects when it is one the planner is specialised for, 0 for any
+    /// other: with the count a constant the compiler unrolls the per-effect loops and drops
+    /// their bounds checks (the sweep is most of an agent's time per step). Every
+    /// specialisation runs the same code in the same order, so all give the same bits.
+    fn sweep<const E: usize>(
+        &mut self,
         structure: &CmdpStructure,
         table: &EffectTable,
         optimism: Option<Optimism<'_>>,
-        s: usize,
-    ) -> (usize, f64) {
-        for (e, b) in backup.iter_mut().enumerate() {
-            let next = structure.next_state(s, e);
-            let future = if structure.is_terminal(next) {
-                0.0
-            } else {
-                gamma * values[next]
-            };
-            *b = structure.reward(next) + future;
-        }
-        let mut best = (0, f64::NEG_INFINITY);
-        for a in 0..structure.n_actions() {
-            let q = match optimism {
-                Some(o) if o.unknown[a * structure.n_states() + s] => o.value,
-                _ => table
-                    .probs(a, s)
-                    .iter()
-                    .zip(backup.iter())
-                    .map(|(&p, &b)| p * b)
-                    .sum(),
-            };
-            if q > best.1 {
-                best = (a, q);
+    ) -> (f64, f64) {
+        let n_effects = if E == 0 { structure.n_effects() } else { E };
+        let gamma = self.params.gamma;
+        let backup = &mut self.backup[..n_effects];
+        let mut residual: f64 = 0.0;
+        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for s in 0..structure.n_states() {
+            let terminal = structure.is_terminal(s);
+            if !terminal {
+                // Every action's Q-value in `s` reads the same successors (effects, not
+                // actions, decide where the agent lands), so each successor's `R + γV` is
+                // computed once and shared by all actions: `E` lookups per state, not `A × E`.
+                let successors = &structure.successors(s)[..n_effects];
+                for (b, &next) in backup.iter_mut().zip(successors) {
+                    let next = next as usize;
+                    let future = if structure.is_terminal(next) {
+                        0.0
+                    } else {
+                        gamma * self.values[next]
+                    };
+                    *b = structure.reward(next) + future;
+                }
+                // The best action (lowest id on ties) and its value.
+                let mut best = (0, f64::NEG_INFINITY);
+                for a in 0..structure.n_actions() {
+                    let q = match optimism {
+                        Some(o) if o.unknown[a * structure.n_states() + s] => o.value,
+                        _ => table.probs(a, s)[..n_effects]
+                            .iter()
+                            .zip(backup.iter())
+                            .map(|(&p, &b)| p * b)
+                            .sum(),
+                    };
+                    if q > best.1 {
+                        best = (a, q);
+                    }
+                }
+                let (a, v) = best;
+                residual = residual.max((v - self.values[s]).abs());
+                self.values[s] = v;
+                self.policy[s] = a as u32;
             }
+            // `V(s)` is final for this sweep once its state has been visited.
+            let b = structure.reward(s)
+                + if terminal {
+                    0.0
+                } else {
+                    gamma * self.values[s]
+                };
+            lo = lo.min(b);
+            hi = hi.max(b);
         }
-        best
+        (residual, hi - lo)
     }
 
     /// Plans to convergence (or the sweep cap) from the current values. Allocation-free.
@@ -244,24 +273,13 @@ impl ValueIteration {
             converged: false,
         };
         while stats.sweeps < self.params.max_sweeps {
-            let mut residual: f64 = 0.0;
-            for s in 0..structure.n_states() {
-                if structure.is_terminal(s) {
-                    continue;
-                }
-                let (a, v) = Self::best(
-                    &self.values,
-                    &mut self.backup,
-                    self.params.gamma,
-                    structure,
-                    table,
-                    optimism,
-                    s,
-                );
-                residual = residual.max((v - self.values[s]).abs());
-                self.values[s] = v;
-                self.policy[s] = a as u32;
-            }
+            // The grid tasks have 5 effects, the robot arenas 20.
+            let (residual, span) = match structure.n_effects() {
+                5 => self.sweep::<5>(structure, table, optimism),
+                20 => self.sweep::<20>(structure, table, optimism),
+                _ => self.sweep::<0>(structure, table, optimism),
+            };
+            self.backup_span = span;
             stats.sweeps += 1;
             stats.residual = residual;
             if residual <= self.params.tolerance {
@@ -627,7 +645,7 @@ impl PlannedModel {
     ) -> Result<(), PlanError> {
         self.planner.adopt(values, policy)?;
         let drift = self.drift;
-        self.planned(stats);
+        self.planned(stats, self.backup_span());
         // Changes since the snapshot still count.
         self.drift = drift;
         Ok(())
@@ -642,7 +660,7 @@ impl PlannedModel {
         let stats = self
             .planner
             .plan_inner(&self.structure, &self.table, None, self.good_enough());
-        self.planned(stats);
+        self.planned(stats, self.planner.backup_span);
         Some(stats)
     }
 
@@ -657,7 +675,7 @@ impl PlannedModel {
             Some(optimism),
             self.good_enough(),
         );
-        self.planned(stats);
+        self.planned(stats, self.planner.backup_span);
         Some(stats)
     }
 
@@ -672,9 +690,18 @@ impl PlannedModel {
         }
     }
 
-    fn planned(&mut self, stats: PlanStats) {
+    /// Records a finished plan whose values spread `R + γV` over `backup_span`.
+    fn planned(&mut self, stats: PlanStats, backup_span: f64) {
         self.last = stats;
         self.converged = stats.converged;
+        self.backup_span = backup_span;
+        self.drift = 0.0;
+        self.forced = false;
+    }
+
+    /// The spread of `R(s) + γV(s)` over all states under the planner's current values (a
+    /// plan made here gets it from its last sweep; an adopted one needs this pass).
+    fn backup_span(&self) -> f64 {
         let gamma = self.planner.params().gamma;
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
         for s in 0..self.structure.n_states() {
@@ -687,9 +714,7 @@ impl PlannedModel {
             lo = lo.min(b);
             hi = hi.max(b);
         }
-        self.backup_span = hi - lo;
-        self.drift = 0.0;
-        self.forced = false;
+        hi - lo
     }
 
     /// The greedy action in `s` under the last plan.
