@@ -384,7 +384,11 @@ fn run_group(file: &LaunchFile, specs: Vec<ChildSpec>, echo: bool) -> Result<Gro
         std::thread::sleep(Duration::from_millis(20));
     }
     shutdown(&mut children, grace);
-    for line in lines.try_iter() {
+    // Every child has exited; take what they printed last (the controller reports its last
+    // episode and its summary on the way out) until each one's output is closed, or 2 s.
+    drop(lines_tx);
+    let deadline = Instant::now() + Duration::from_secs(2);
+    while let Ok(line) = lines.recv_timeout(deadline.saturating_duration_since(Instant::now())) {
         if line.starts_with("episode ") {
             episodes += 1;
         }
