@@ -514,6 +514,16 @@ pub fn run(
     mut on_episode: impl FnMut(&EpisodeLine),
 ) -> Result<ControllerSummary, ControllerError> {
     let strategy = config.check()?;
+    if strategy == WaitStrategy::Spin
+        && std::thread::available_parallelism().is_ok_and(|n| n.get() <= 2)
+    {
+        // Measured on two cores (docs/performance.md): one plan per ~100 actions.
+        tracing::warn!(
+            "wait = \"spin\" on 2 CPUs: the busy-polling acting loop and bridge leave the \
+             planner thread, which yields to everything, almost no time; the policy will lag \
+             far behind learning (use \"block\" here)"
+        );
+    }
     let names = ServiceNames::new(&config.service_prefix);
     let node = channel::node(false)?;
     let maps: Inbox<WorldMap> =

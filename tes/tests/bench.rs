@@ -108,6 +108,11 @@ fn latency_runs_both_paths_and_reports_every_key() {
     }
     assert_eq!(v["wait"], "block");
     assert_eq!(v["actions"], 150);
+    // The planner thread planned (at least the first plan, before the first action) and the
+    // acting loop adopted its plans: at most one per observation (180 actions, plus each
+    // episode's last observation).
+    let plans = v["plans"].as_u64().expect("plans is a count");
+    assert!((1..=360).contains(&plans), "{v}");
     let (p50, p99, max) = (
         v["p50_us"].as_u64().unwrap(),
         v["p99_us"].as_u64().unwrap(),
