@@ -3,6 +3,8 @@
 //! * `planner/full` — value iteration from scratch to convergence (tolerance 1e-4);
 //! * `planner/incremental` — what one step costs the planner: a view learns one step, its
 //!   action's model rows are refreshed, and the anytime re-plan runs (≤ 10 warm sweeps);
+//! * `planner/slice` — one slice of that work as the controller does it between polls when
+//!   it spins (`SlicedPlanner`, 32 states' worth): what an arriving observation may wait;
 //! * `tes/score_update` — TES's per-step view work with a 9-view library: score every view
 //!   of the taken action (working copies and frozen originals), update the working views,
 //!   re-select, refresh the model;
@@ -15,6 +17,7 @@
 
 use std::hint::black_box;
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 use criterion::{BatchSize, BenchmarkId, Criterion, criterion_group, criterion_main};
 use rand::{RngExt, SeedableRng};
@@ -27,7 +30,7 @@ use tes_controller::cmdp::CmdpStructure;
 use tes_controller::library::ViewLibrary;
 use tes_controller::mdagl::{Features, Mdagl};
 use tes_controller::plan::{PlannedModel, PlannerParams, ValueIteration};
-use tes_controller::realtime::PlannerThread;
+use tes_controller::realtime::{PlannerThread, SlicedPlanner};
 use tes_perception_sim::grid::GridSuite;
 
 const SEED: u64 = 2017;
@@ -104,6 +107,35 @@ fn bench_planner(c: &mut Criterion) {
                 },
                 BatchSize::SmallInput,
             )
+        });
+        // One slice of planning between polls (32 states' worth, the controller's default):
+        // what an observation arriving mid-slice waits at most. Each plan is one learning
+        // step's (as above), offered untimed; every slice of it is timed, the adoption too.
+        let mut acting = warm.clone();
+        acting.set_inline_planning(false);
+        let mut planner = SlicedPlanner::new(structure.clone(), PlannerParams::default(), 32)
+            .expect("valid settings");
+        let mut views = views.clone();
+        let mut i = 0;
+        group.bench_function(BenchmarkId::new("slice/32_states", name), |b| {
+            b.iter_custom(|iters| {
+                let mut total = Duration::ZERO;
+                for _ in 0..iters {
+                    while !planner.busy() {
+                        i = (i + 1) % steps.len();
+                        let (s, a, e) = steps[i];
+                        views[a]
+                            .update(Features::SparseBinary(structure.features(s)), e)
+                            .expect("valid step");
+                        acting.refresh(a, &views[a]).expect("matching shapes");
+                        planner.offer(&mut acting).expect("a plan");
+                    }
+                    let start = Instant::now();
+                    black_box(planner.work_then_adopt(&mut acting));
+                    total += start.elapsed();
+                }
+                total
+            })
         });
     }
     group.finish();

@@ -14,6 +14,8 @@
 //! and the features of every state. [`EffectTable`] caches the learned part, `P(e | x(s), a)`
 //! for every state and action, and is refreshed one action at a time as views learn.
 
+use std::ops::Range;
+
 use thiserror::Error;
 
 use crate::mdagl::{Features, Mdagl, MdaglError, softmax};
@@ -292,6 +294,10 @@ struct RefreshScratch {
     slot: Vec<u32>,
     stamps: Vec<u32>,
     stamp: u32,
+    /// Whether the refresh in progress goes by pattern (else state by state).
+    by_pattern: bool,
+    /// Distinct patterns met so far in the refresh in progress.
+    distinct: usize,
 }
 
 impl RefreshScratch {
@@ -307,6 +313,8 @@ impl RefreshScratch {
             slot: vec![0; slots],
             stamps: vec![0; slots],
             stamp: 0,
+            by_pattern: true,
+            distinct: 0,
         }
     }
 
@@ -387,12 +395,32 @@ impl EffectTable {
     /// and computes the probabilities once per pattern of used features that are on, not
     /// once per state.
     /// The view must predict `n_effects` classes from `n_features` features.
+    ///
+    /// A planner between polls does the same work in bounded pieces, with the same bits
+    /// (see [`PlannedModel::advance`](crate::plan::PlannedModel::advance)).
     pub fn refresh(
         &mut self,
         a: usize,
         view: &Mdagl,
         structure: &CmdpStructure,
     ) -> Result<f64, MdaglError> {
+        self.begin_refresh(view, structure)?;
+        let all = 0..self.n_states;
+        self.refresh_rows(all.clone())?;
+        Ok(self.refresh_write(a, all))
+    }
+
+    /// Starts a refresh from `view` (checked against the table's shape): takes the weights
+    /// of the columns it uses, and, by pattern, each state's pattern of used columns that are
+    /// on; by state (a view using more than [`PATTERN_BITS`] columns), every state's scores.
+    /// Then [`refresh_rows`](Self::refresh_rows) builds the new rows over every state, in
+    /// order, and [`refresh_write`](Self::refresh_write) compares and writes them. Nothing
+    /// reaches the table before `refresh_write`, so a refresh that fails leaves it intact.
+    pub(crate) fn begin_refresh(
+        &mut self,
+        view: &Mdagl,
+        structure: &CmdpStructure,
+    ) -> Result<(), MdaglError> {
         let e = self.n_effects;
         if view.n_classes() != e {
             return Err(MdaglError::WrongOutputLen {
@@ -410,42 +438,20 @@ impl EffectTable {
         let mut used = 0;
         view.for_each_weight_column(|col, _, _| used += usize::from(col < n_features));
         if used > PATTERN_BITS {
-            return self.refresh_by_state(a, view, structure);
+            self.begin_by_state(view, structure);
+        } else {
+            self.begin_by_pattern(view, structure);
         }
-        // The grid tasks have 5 effects, the robot arenas 20 (see `refresh_by_pattern`).
-        match e {
-            5 => self.refresh_by_pattern::<5>(a, view, structure),
-            20 => self.refresh_by_pattern::<20>(a, view, structure),
-            _ => self.refresh_by_pattern::<0>(a, view, structure),
-        }
+        Ok(())
     }
 
-    /// [`refresh`](Self::refresh) state by state: builds action `a`'s rows in the scratch
-    /// ([`rows_by_state`](Self::rows_by_state)), then compares and copies them in.
-    fn refresh_by_state(
-        &mut self,
-        a: usize,
-        view: &Mdagl,
-        structure: &CmdpStructure,
-    ) -> Result<f64, MdaglError> {
+    /// By state: every state's scores, adding each used column's weights to the states
+    /// where it is on.
+    fn begin_by_state(&mut self, view: &Mdagl, structure: &CmdpStructure) {
         let e = self.n_effects;
-        self.rows_by_state(view, structure)?;
-        let fresh = &self.scratch.rows;
-        let rows = &mut self.probs[a * self.n_states * e..(a + 1) * self.n_states * e];
-        let moved = rows
-            .chunks_exact(e)
-            .zip(fresh.chunks_exact(e))
-            .map(|(old, new)| l1_distance(old, new))
-            .fold(0.0, f64::max);
-        rows.copy_from_slice(fresh);
-        Ok(moved)
-    }
-
-    /// Builds one action's rows into the scratch by adding each used column's weights to the
-    /// scores of the states where it is on, then taking every state's softmax.
-    fn rows_by_state(&mut self, view: &Mdagl, structure: &CmdpStructure) -> Result<(), MdaglError> {
-        let e = self.n_effects;
-        let fresh = &mut self.scratch.rows;
+        let scratch = &mut self.scratch;
+        scratch.by_pattern = false;
+        let fresh = &mut scratch.rows;
         fresh.fill(0.0);
         view.for_each_weight_column(|col, scale, sums| {
             let mut add = |s: usize| {
@@ -463,31 +469,19 @@ impl EffectTable {
                 (0..structure.n_states()).for_each(add);
             }
         });
-        fresh
-            .chunks_exact_mut(e)
-            .try_for_each(|row| softmax(row).map(|_| ()))
     }
 
-    /// [`refresh`](Self::refresh) for a view using at most [`PATTERN_BITS`] feature columns.
-    /// States on which the same used columns are on get the same row, and a sparse view
-    /// leaves few such patterns (mDAGL keeps a handful of columns), so each pattern's scores
-    /// and softmax are computed once (into the scratch, one row per pattern) and then compared
-    /// with and copied into every state's row — the `exp` per state and effect dominated the
-    /// refresh before. Scores are summed in the same order as
-    /// [`rows_by_state`](Self::rows_by_state), so both give the same bits. Nothing is written
-    /// to the table unless every row was computed.
-    ///
-    /// `E` is the number of effects when the table is specialised for it, 0 for any other;
-    /// as a constant it lets the compiler unroll the per-effect loops (same code, same bits).
-    fn refresh_by_pattern<const E: usize>(
-        &mut self,
-        a: usize,
-        view: &Mdagl,
-        structure: &CmdpStructure,
-    ) -> Result<f64, MdaglError> {
-        let e = if E == 0 { self.n_effects } else { E };
+    /// By pattern (a view using at most [`PATTERN_BITS`] feature columns): states on which
+    /// the same used columns are on get the same row, and a sparse view leaves few such
+    /// patterns (mDAGL keeps a handful of columns), so each pattern's scores and softmax are
+    /// computed once (into the scratch, one row per pattern) and then compared with and
+    /// copied into every state's row — the `exp` per state and effect dominated the refresh
+    /// before. Scores are summed in the same order as by state, so both give the same bits.
+    fn begin_by_pattern(&mut self, view: &Mdagl, structure: &CmdpStructure) {
+        let e = self.n_effects;
         let n_features = structure.n_features();
         let scratch = &mut self.scratch;
+        scratch.by_pattern = true;
         scratch.patterns.fill(0);
         scratch.intercept.fill(0.0);
         let mut used = 0;
@@ -509,15 +503,39 @@ impl EffectTable {
         });
         // Each distinct pattern gets the next row of the scratch; `slots[s]` is state `s`'s.
         scratch.clear_map();
-        let mut distinct = 0;
-        for s in 0..structure.n_states() {
+        scratch.distinct = 0;
+    }
+
+    /// Builds the new rows of `states` (after [`begin_refresh`](Self::begin_refresh); call
+    /// it over every state in order, in as many pieces as wanted).
+    pub(crate) fn refresh_rows(&mut self, states: Range<usize>) -> Result<(), MdaglError> {
+        // The grid tasks have 5 effects, the robot arenas 20: with the count a constant the
+        // compiler unrolls the per-effect loops (same code, same bits).
+        match self.n_effects {
+            5 => self.rows_of::<5>(states),
+            20 => self.rows_of::<20>(states),
+            _ => self.rows_of::<0>(states),
+        }
+    }
+
+    /// [`refresh_rows`](Self::refresh_rows) for `E` effects (0: any count).
+    fn rows_of<const E: usize>(&mut self, states: Range<usize>) -> Result<(), MdaglError> {
+        let e = if E == 0 { self.n_effects } else { E };
+        let scratch = &mut self.scratch;
+        if !scratch.by_pattern {
+            return scratch.rows[states.start * e..states.end * e]
+                .chunks_exact_mut(e)
+                .try_for_each(|row| softmax(row).map(|_| ()));
+        }
+        for s in states {
             let pattern = scratch.patterns[s];
+            let distinct = scratch.distinct;
             let slot = scratch.slot_of(pattern, distinct);
             scratch.slots[s] = slot as u32;
             if slot < distinct {
                 continue;
             }
-            distinct += 1;
+            scratch.distinct += 1;
             let row = &mut scratch.rows[slot * e..slot * e + e];
             row.fill(0.0);
             let mut bits = pattern;
@@ -533,15 +551,63 @@ impl EffectTable {
             }
             softmax(row)?;
         }
-        let rows = &mut self.probs[a * self.n_states * e..(a + 1) * self.n_states * e];
+        Ok(())
+    }
+
+    /// Writes the new rows of `states` into action `a`'s rows (once
+    /// [`refresh_rows`](Self::refresh_rows) has built every state's) and returns the
+    /// largest L1 distance between a state's old and new row among them.
+    pub(crate) fn refresh_write(&mut self, a: usize, states: Range<usize>) -> f64 {
+        match self.n_effects {
+            5 => self.write_of::<5>(a, states),
+            20 => self.write_of::<20>(a, states),
+            _ => self.write_of::<0>(a, states),
+        }
+    }
+
+    /// [`refresh_write`](Self::refresh_write) for `E` effects (0: any count).
+    fn write_of<const E: usize>(&mut self, a: usize, states: Range<usize>) -> f64 {
+        let e = if E == 0 { self.n_effects } else { E };
+        let scratch = &self.scratch;
+        let base = a * self.n_states;
+        let rows = &mut self.probs[(base + states.start) * e..(base + states.end) * e];
         let mut moved: f64 = 0.0;
-        for (old, &slot) in rows.chunks_exact_mut(e).zip(&scratch.slots) {
-            let slot = slot as usize;
+        for (old, s) in rows.chunks_exact_mut(e).zip(states) {
+            let slot = if scratch.by_pattern {
+                scratch.slots[s] as usize
+            } else {
+                s
+            };
             let new = &scratch.rows[slot * e..slot * e + e];
             moved = moved.max(l1_distance(&old[..e], new));
             old[..e].copy_from_slice(new);
         }
-        Ok(moved)
+        moved
+    }
+
+    /// Copies action rows `rows` (indices `a * n_states + s`) from `other`, of the same
+    /// shape (a whole-table copy in pieces; see [`copy_from`](Self::copy_from)).
+    pub(crate) fn copy_rows_from(
+        &mut self,
+        other: &EffectTable,
+        rows: Range<usize>,
+    ) -> Result<(), CmdpError> {
+        if self.probs.len() != other.probs.len() || self.n_effects != other.n_effects {
+            return Err(CmdpError::WrongLength {
+                table: "effect table",
+                got: other.probs.len(),
+                expected: self.probs.len(),
+            });
+        }
+        let e = self.n_effects;
+        let span = rows.start * e..rows.end * e;
+        self.probs[span.clone()].copy_from_slice(&other.probs[span]);
+        Ok(())
+    }
+
+    /// How many rows (state–action pairs) the table has.
+    pub(crate) fn n_rows(&self) -> usize {
+        self.probs.len() / self.n_effects.max(1)
     }
 
     /// Overwrites `P(· | s, a)` directly (for models that are not mDAGL views).
@@ -667,8 +733,8 @@ pub(crate) mod tests {
     proptest::proptest! {
         /// The column-wise refresh equals predicting every state one by one, whether it goes
         /// by pattern (views using up to 64 feature columns; specialised for 5 and 20
-        /// effects) or state by state; where both apply they give the same bits and report
-        /// the same move.
+        /// effects) or state by state, whole or in pieces; where several apply they give the
+        /// same bits and report the same move.
         #[test]
         fn refresh_equals_per_state_prediction(
             seed in 0u64..1000,
@@ -676,6 +742,7 @@ pub(crate) mod tests {
             effects in proptest::sample::select(vec![4usize, 5, 20]),
             intercept in proptest::bool::ANY,
             lambda in 0.0..0.1f64,
+            piece in 1usize..40,
         ) {
             use rand::{RngExt, SeedableRng};
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
@@ -706,24 +773,58 @@ pub(crate) mod tests {
                     proptest::prop_assert!((a - b).abs() < 1e-12);
                 }
             }
+            // In pieces of any size, with the generic code or the specialised, by pattern
+            // or by state: the same bits and the same move.
+            let whole = table;
+            let moved_whole = before.clone().refresh(1, &view, &c).unwrap();
             let mut used = 0;
             view.for_each_weight_column(|col, _, _| used += usize::from(col < features));
-            if used <= PATTERN_BITS {
-                let (mut specialised, mut generic) = (before.clone(), before.clone());
-                let mut by_state = before;
-                let moved_specialised = match effects {
-                    5 => specialised.refresh_by_pattern::<5>(1, &view, &c).unwrap(),
-                    20 => specialised.refresh_by_pattern::<20>(1, &view, &c).unwrap(),
-                    _ => specialised.refresh_by_pattern::<0>(1, &view, &c).unwrap(),
-                };
-                let moved_generic = generic.refresh_by_pattern::<0>(1, &view, &c).unwrap();
-                let moved_state = by_state.refresh_by_state(1, &view, &c).unwrap();
-                proptest::prop_assert_eq!(&specialised.probs, &by_state.probs);
-                proptest::prop_assert_eq!(&generic.probs, &by_state.probs);
-                proptest::prop_assert_eq!(moved_specialised.to_bits(), moved_state.to_bits());
-                proptest::prop_assert_eq!(moved_generic.to_bits(), moved_state.to_bits());
+            let modes: &[bool] = if used <= PATTERN_BITS { &[true, false] } else { &[false] };
+            for &by_pattern in modes {
+                for generic in [false, true] {
+                    let mut t = before.clone();
+                    let moved = refresh_in_pieces(&mut t, 1, &view, &c, by_pattern, generic, piece);
+                    proptest::prop_assert_eq!(&t.probs, &whole.probs);
+                    proptest::prop_assert_eq!(moved.to_bits(), moved_whole.to_bits());
+                }
             }
         }
+    }
+
+    /// A refresh of action `a` made `piece` states at a time, forced by pattern or by state,
+    /// with the code specialised for the effect count or the generic code.
+    fn refresh_in_pieces(
+        table: &mut EffectTable,
+        a: usize,
+        view: &Mdagl,
+        c: &CmdpStructure,
+        by_pattern: bool,
+        generic: bool,
+        piece: usize,
+    ) -> f64 {
+        if by_pattern {
+            table.begin_by_pattern(view, c);
+        } else {
+            table.begin_by_state(view, c);
+        }
+        let n = c.n_states();
+        let pieces = || (0..n).step_by(piece).map(move |s| s..(s + piece).min(n));
+        for range in pieces() {
+            if generic {
+                table.rows_of::<0>(range).unwrap();
+            } else {
+                table.refresh_rows(range).unwrap();
+            }
+        }
+        let mut moved: f64 = 0.0;
+        for range in pieces() {
+            moved = moved.max(if generic {
+                table.write_of::<0>(a, range)
+            } else {
+                table.refresh_write(a, range)
+            });
+        }
+        moved
     }
 
     #[test]

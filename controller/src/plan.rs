@@ -17,6 +17,7 @@
 //! the paper's Table 1, where every ε-greedy agent pays about the same planning cost per step.
 //! For a one-off solve to convergence raise `max_sweeps`.
 
+use std::ops::Range;
 use std::sync::Arc;
 
 use thiserror::Error;
@@ -88,6 +89,35 @@ pub struct PlanStats {
     pub residual: f64,
     /// Whether the residual fell to the tolerance.
     pub converged: bool,
+}
+
+impl PlanStats {
+    /// No sweep made yet.
+    const NONE: Self = Self {
+        sweeps: 0,
+        residual: f64::INFINITY,
+        converged: false,
+    };
+}
+
+/// What a sweep in progress has found: the largest value change so far and the range of
+/// `R(s) + γV(s)` over the states visited.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct SweepTally {
+    residual: f64,
+    lo: f64,
+    hi: f64,
+}
+
+impl SweepTally {
+    /// Nothing visited yet.
+    pub(crate) fn new() -> Self {
+        Self {
+            residual: 0.0,
+            lo: f64::INFINITY,
+            hi: f64::NEG_INFINITY,
+        }
+    }
 }
 
 /// Which state–action pairs R-max treats as unknown, and what they are worth.
@@ -172,9 +202,26 @@ impl ValueIteration {
             .sum()
     }
 
-    /// One Gauss–Seidel sweep over every non-terminal state; returns the largest value change
-    /// and the spread of `R(s) + γV(s)` over all states after it (what [`PlannedModel`] bounds
-    /// its drift with).
+    /// Backs up `states` (in order) in the current Gauss–Seidel sweep, adding what it finds
+    /// to `tally`: a whole sweep is one call over every state, or several over consecutive
+    /// ranges (the same arithmetic in the same order, so the same bits).
+    pub(crate) fn sweep_states(
+        &mut self,
+        structure: &CmdpStructure,
+        table: &EffectTable,
+        optimism: Option<Optimism<'_>>,
+        states: Range<usize>,
+        tally: &mut SweepTally,
+    ) {
+        // The grid tasks have 5 effects, the robot arenas 20.
+        match structure.n_effects() {
+            5 => self.sweep::<5>(structure, table, optimism, states, tally),
+            20 => self.sweep::<20>(structure, table, optimism, states, tally),
+            _ => self.sweep::<0>(structure, table, optimism, states, tally),
+        }
+    }
+
+    /// [`sweep_states`](Self::sweep_states) for `E` effects.
     ///
     /// `E` is the number of effects when it is one the planner is specialised for, 0 for any
     /// other: with the count a constant the compiler unrolls the per-effect loops and drops
@@ -185,13 +232,13 @@ impl ValueIteration {
         structure: &CmdpStructure,
         table: &EffectTable,
         optimism: Option<Optimism<'_>>,
-    ) -> (f64, f64) {
+        states: Range<usize>,
+        tally: &mut SweepTally,
+    ) {
         let n_effects = if E == 0 { structure.n_effects() } else { E };
         let gamma = self.params.gamma;
         let backup = &mut self.backup[..n_effects];
-        let mut residual: f64 = 0.0;
-        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-        for s in 0..structure.n_states() {
+        for s in states {
             let terminal = structure.is_terminal(s);
             if !terminal {
                 // Every action's Q-value in `s` reads the same successors (effects, not
@@ -223,7 +270,7 @@ impl ValueIteration {
                     }
                 }
                 let (a, v) = best;
-                residual = residual.max((v - self.values[s]).abs());
+                tally.residual = tally.residual.max((v - self.values[s]).abs());
                 self.values[s] = v;
                 self.policy[s] = a as u32;
             }
@@ -234,10 +281,23 @@ impl ValueIteration {
                 } else {
                     gamma * self.values[s]
                 };
-            lo = lo.min(b);
-            hi = hi.max(b);
+            tally.lo = tally.lo.min(b);
+            tally.hi = tally.hi.max(b);
         }
-        (residual, hi - lo)
+    }
+
+    /// Counts a finished sweep into `stats`; returns whether the plan stops here: converged
+    /// (residual at most the tolerance), good enough (at most `good_enough`, not converged),
+    /// or at the sweep cap.
+    fn end_sweep(&mut self, stats: &mut PlanStats, tally: SweepTally, good_enough: f64) -> bool {
+        self.backup_span = tally.hi - tally.lo;
+        stats.sweeps += 1;
+        stats.residual = tally.residual;
+        if tally.residual <= self.params.tolerance {
+            stats.converged = true;
+            return true;
+        }
+        tally.residual <= good_enough || stats.sweeps >= self.params.max_sweeps
     }
 
     /// Plans to convergence (or the sweep cap) from the current values. Allocation-free.
@@ -267,30 +327,15 @@ impl ValueIteration {
         optimism: Option<Optimism<'_>>,
         good_enough: f64,
     ) -> PlanStats {
-        let mut stats = PlanStats {
-            sweeps: 0,
-            residual: f64::INFINITY,
-            converged: false,
-        };
-        while stats.sweeps < self.params.max_sweeps {
-            // The grid tasks have 5 effects, the robot arenas 20.
-            let (residual, span) = match structure.n_effects() {
-                5 => self.sweep::<5>(structure, table, optimism),
-                20 => self.sweep::<20>(structure, table, optimism),
-                _ => self.sweep::<0>(structure, table, optimism),
-            };
-            self.backup_span = span;
-            stats.sweeps += 1;
-            stats.residual = residual;
-            if residual <= self.params.tolerance {
-                stats.converged = true;
-                break;
-            }
-            if residual <= good_enough {
-                break;
+        let mut stats = PlanStats::NONE;
+        let n = structure.n_states();
+        loop {
+            let mut tally = SweepTally::new();
+            self.sweep_states(structure, table, optimism, 0..n, &mut tally);
+            if self.end_sweep(&mut stats, tally, good_enough) {
+                return stats;
             }
         }
-        stats
     }
 
     /// `V(s)` from the last plan.
@@ -406,7 +451,7 @@ pub struct PlannedModel {
 
 /// What an acting loop hands a planner elsewhere: the whole effect table when it changed
 /// directly, and the latest view of each action whose view changed. The planner recomputes
-/// those actions' rows itself ([`PlannedModel::apply`]), so the acting loop neither refreshes
+/// those actions' rows itself ([`PlannedModel::begin_pieces`]), so the acting loop neither refreshes
 /// the table nor copies it per step — it copies one view (a few kB to tens of kB).
 ///
 /// Built once at full size; passing it back and forth allocates nothing once every action's
@@ -436,6 +481,47 @@ impl ModelChanges {
     pub fn is_empty(&self) -> bool {
         !self.whole_table && !self.force && !self.changed.iter().any(|&c| c)
     }
+}
+
+/// How far a piecewise apply-and-replan has come ([`PlannedModel::begin_pieces`],
+/// [`PlannedModel::advance`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pieces {
+    stage: Stage,
+}
+
+impl Pieces {
+    /// Nothing to do (as if done).
+    pub const DONE: Self = Self { stage: Stage::Done };
+
+    /// Whether all the work is done.
+    pub fn done(&self) -> bool {
+        self.stage == Stage::Done
+    }
+}
+
+/// The stages of [`Pieces`], in order; each keeps where it stopped.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Stage {
+    /// Copying the table sent whole, from row `next`.
+    CopyTable { next: usize },
+    /// Looking for the next action, from `a`, whose view changed.
+    Refresh { a: usize },
+    /// Building action `a`'s new rows, from state `next`.
+    Rows { a: usize, next: usize },
+    /// Writing them, from state `next`; `moved` so far.
+    Write { a: usize, next: usize, moved: f64 },
+    /// Deciding whether the changes need a plan.
+    Plan,
+    /// Sweeping, from state `next`, with the sweep's tally and the plan's statistics so far.
+    Sweep {
+        next: usize,
+        tally: SweepTally,
+        stats: PlanStats,
+        good_enough: f64,
+    },
+    /// Finished.
+    Done,
 }
 
 /// Why a planner could not apply [`ModelChanges`].
@@ -481,11 +567,7 @@ impl PlannedModel {
             forced: true,
             converged: false,
             inline: true,
-            last: PlanStats {
-                sweeps: 0,
-                residual: f64::INFINITY,
-                converged: false,
-            },
+            last: PlanStats::NONE,
             table_unsent: false,
             pending_views: Vec::new(),
             pending: Vec::new(),
@@ -611,24 +693,159 @@ impl PlannedModel {
         Ok(())
     }
 
-    /// Applies changes made elsewhere (the planner side of
-    /// [`snapshot_into`](Self::snapshot_into)): copies the table if it was sent whole, then
-    /// recomputes the rows of every action whose view changed. The drift gate then decides
-    /// whether [`replan`](Self::replan) has work to do.
-    pub fn apply(&mut self, changes: &ModelChanges) -> Result<(), ChangeError> {
-        if changes.whole_table {
-            self.table.copy_from(&changes.table)?;
-            self.forced = true;
-        }
+    /// Starts applying changes made elsewhere (the planner side of
+    /// [`snapshot_into`](Self::snapshot_into)) and re-planning, in pieces
+    /// ([`advance`](Self::advance)): copies the table if it was sent whole, recomputes the
+    /// rows of every action whose view changed, then re-plans as [`replan`](Self::replan)
+    /// would (the drift gate decides whether there is work). In one piece for a planner
+    /// thread; in many for a caller that must stay able to stop every few microseconds (an
+    /// acting loop planning between polls, [`crate::realtime::SlicedPlanner`]). `changes`
+    /// must not change until done.
+    pub fn begin_pieces(&mut self, changes: &ModelChanges) -> Pieces {
         if changes.force {
             self.forced = true;
         }
-        for (a, view) in changes.views.iter().enumerate() {
-            if let (true, Some(view)) = (changes.changed[a], view) {
-                self.refresh(a, view)?;
-            }
+        Pieces {
+            stage: if changes.whole_table {
+                Stage::CopyTable { next: 0 }
+            } else {
+                Stage::Refresh { a: 0 }
+            },
         }
-        Ok(())
+    }
+
+    /// Does about `budget` states' worth of the work `pieces` stands at (a copied table row,
+    /// a refreshed state's row, a state backed up in a sweep count one each; starting an
+    /// action's refresh, a pass over its used columns, ends the call), and returns whether it
+    /// is all done, the last plan then in [`last_plan`](Self::last_plan) and the planner.
+    /// Allocation-free.
+    ///
+    /// However the work is cut, it is done in the same order, so the result is the same bit
+    /// for bit, and the same as refreshing the views inline and calling
+    /// [`replan`](Self::replan). After an error the changes are partly applied and nothing is
+    /// planned.
+    pub fn advance(
+        &mut self,
+        changes: &ModelChanges,
+        pieces: &mut Pieces,
+        budget: usize,
+    ) -> Result<bool, ChangeError> {
+        let n = self.structure.n_states();
+        let mut left = budget.max(1);
+        while left > 0 {
+            let step = |next: usize, end: usize| next.saturating_add(left).min(end);
+            pieces.stage = match pieces.stage {
+                Stage::Done => return Ok(true),
+                Stage::CopyTable { next } => {
+                    let end = step(next, self.table.n_rows());
+                    if let Err(e) = self.table.copy_rows_from(&changes.table, next..end) {
+                        pieces.stage = Stage::Done;
+                        return Err(e.into());
+                    }
+                    left -= end - next;
+                    if end == self.table.n_rows() {
+                        self.forced = true;
+                        Stage::Refresh { a: 0 }
+                    } else {
+                        Stage::CopyTable { next: end }
+                    }
+                }
+                Stage::Refresh { a } => {
+                    let next = (a..changes.changed.len())
+                        .find(|&b| changes.changed[b] && changes.views[b].is_some());
+                    match next.and_then(|b| Some((b, changes.views[b].as_ref()?))) {
+                        None => Stage::Plan,
+                        Some((a, view)) => {
+                            if let Err(e) = self.table.begin_refresh(view, &self.structure) {
+                                pieces.stage = Stage::Done;
+                                return Err(e.into());
+                            }
+                            left = 0;
+                            Stage::Rows { a, next: 0 }
+                        }
+                    }
+                }
+                Stage::Rows { a, next } => {
+                    let end = step(next, n);
+                    if let Err(e) = self.table.refresh_rows(next..end) {
+                        pieces.stage = Stage::Done;
+                        return Err(e.into());
+                    }
+                    left -= end - next;
+                    if end == n {
+                        Stage::Write {
+                            a,
+                            next: 0,
+                            moved: 0.0,
+                        }
+                    } else {
+                        Stage::Rows { a, next: end }
+                    }
+                }
+                Stage::Write { a, next, moved } => {
+                    let end = step(next, n);
+                    let moved = moved.max(self.table.refresh_write(a, next..end));
+                    left -= end - next;
+                    if end == n {
+                        self.note_change(moved);
+                        Stage::Refresh { a: a + 1 }
+                    } else {
+                        Stage::Write {
+                            a,
+                            next: end,
+                            moved,
+                        }
+                    }
+                }
+                Stage::Plan => {
+                    if self.needs_plan() {
+                        Stage::Sweep {
+                            next: 0,
+                            tally: SweepTally::new(),
+                            stats: PlanStats::NONE,
+                            good_enough: self.good_enough(),
+                        }
+                    } else {
+                        Stage::Done
+                    }
+                }
+                Stage::Sweep {
+                    next,
+                    mut tally,
+                    mut stats,
+                    good_enough,
+                } => {
+                    let end = step(next, n);
+                    self.planner.sweep_states(
+                        &self.structure,
+                        &self.table,
+                        None,
+                        next..end,
+                        &mut tally,
+                    );
+                    left -= end - next;
+                    if end < n {
+                        Stage::Sweep {
+                            next: end,
+                            tally,
+                            stats,
+                            good_enough,
+                        }
+                    } else if self.planner.end_sweep(&mut stats, tally, good_enough) {
+                        self.planned(stats, self.planner.backup_span);
+                        Stage::Done
+                    } else {
+                        Stage::Sweep {
+                            next: 0,
+                            tally: SweepTally::new(),
+                            stats,
+                            good_enough,
+                        }
+                    }
+                }
+            };
+        }
+        Ok(pieces.stage == Stage::Done)
     }
 
     /// Statistics of the last plan made here or adopted.

@@ -36,7 +36,7 @@ use crate::library::store::{self, StoreError, StoredLibrary};
 use crate::library::{LibraryError, LibraryParams, ViewLibrary};
 use crate::mdagl::MdaglParams;
 use crate::plan::PlannerParams;
-use crate::realtime::{PlannerThread, PlannerThreadError};
+use crate::realtime::{Planner, PlannerThread, PlannerThreadError, SlicedPlanner};
 
 /// Settings of the controller process (TOML: the `[controller]` table of a launch file, or a
 /// file of its own). Every key is optional.
@@ -91,6 +91,34 @@ pub struct ControllerConfig {
     pub acting_cpu: Option<usize>,
     /// `planner_cpu`: pin the planner thread to this CPU (default: unpinned).
     pub planner_cpu: Option<usize>,
+    /// `planning`: who plans — `thread` (a planner thread under `SCHED_IDLE`),
+    /// `between-polls` (the acting thread itself, in slices, while it spins waiting for the
+    /// next observation; needs `wait = "spin"` or `"spin-then-block"`) or `auto` (the default:
+    /// between polls with `wait = "spin"`, else the thread). Spinning on two cores leaves a
+    /// planner thread almost no time; between polls, the spin does the planning.
+    pub planning: String,
+    /// `plan_slice`: with `planning = "between-polls"`, the states' worth of planning work done
+    /// between two polls (default 32, about 2 µs on the arena: what an observation arriving
+    /// mid-slice waits at most).
+    pub plan_slice: usize,
+}
+
+/// Who plans for the acting loop ([`ControllerConfig::planning`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Planning {
+    /// A planner thread.
+    Thread,
+    /// The acting thread, between the polls of its spinning wait.
+    BetweenPolls,
+}
+
+impl std::fmt::Display for Planning {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Planning::Thread => "thread",
+            Planning::BetweenPolls => "between-polls",
+        })
+    }
 }
 
 impl Default for ControllerConfig {
@@ -113,6 +141,8 @@ impl Default for ControllerConfig {
             keepalive_ms: 250,
             acting_cpu: None,
             planner_cpu: None,
+            planning: "auto".into(),
+            plan_slice: 32,
         }
     }
 }
@@ -165,9 +195,41 @@ impl ControllerConfig {
                 "must be a number of seconds > 0 that fits a duration",
             );
         }
+        if self.plan_slice == 0 {
+            return bad("plan_slice", "must be at least 1");
+        }
         tes_topics::settings::cpu(PROCESS, "acting_cpu", self.acting_cpu)?;
         tes_topics::settings::cpu(PROCESS, "planner_cpu", self.planner_cpu)?;
-        tes_topics::settings::wait_strategy(PROCESS, &self.wait)
+        let strategy = tes_topics::settings::wait_strategy(PROCESS, &self.wait)?;
+        self.planning_for(strategy)?;
+        Ok(strategy)
+    }
+
+    /// Who plans, given the wait strategy (checked: `between-polls` needs a spinning wait, and
+    /// has no planner thread to pin).
+    pub fn planning_for(&self, strategy: WaitStrategy) -> Result<Planning, ConfigError> {
+        let bad = |reason: &str| Err(ConfigError::new(PROCESS, "planning", reason));
+        let planning = match self.planning.as_str() {
+            "auto" if strategy == WaitStrategy::Spin => Planning::BetweenPolls,
+            "auto" | "thread" => Planning::Thread,
+            "between-polls" => Planning::BetweenPolls,
+            _ => return bad("expected auto, thread or between-polls"),
+        };
+        if planning == Planning::BetweenPolls {
+            if strategy == WaitStrategy::Block {
+                return bad(
+                    "between-polls needs wait = \"spin\" or \"spin-then-block\": a loop that \
+                     blocks never polls",
+                );
+            }
+            if self.planner_cpu.is_some() {
+                return bad(
+                    "planner_cpu pins the planner thread, and between-polls planning has none \
+                     (it runs on the acting thread: see acting_cpu)",
+                );
+            }
+        }
+        Ok(planning)
     }
 
     /// The library file: the configured one or [`default_library_path`].
@@ -279,8 +341,11 @@ pub struct ControllerSummary {
     pub refused: u64,
     /// Library saves that failed (each is also logged).
     pub failed_saves: u64,
-    /// Plans adopted from the planner thread.
+    /// Plans adopted from the planner.
     pub plans: u64,
+    /// Who planned: `thread` or `between-polls` ([`Planning`]).
+    #[serde(default)]
+    pub planning: String,
     /// Keep-alives sent to the bridge's watchdog while moves were under way
     /// ([`ControllerConfig::keepalive_ms`]).
     #[serde(default)]
@@ -319,8 +384,8 @@ impl std::fmt::Display for ControllerSummary {
         }
         write!(
             f,
-            "{} observations refused, {} plans, {} keep-alives",
-            self.refused, self.plans, self.keepalives
+            "{} observations refused, {} plans ({}), {} keep-alives",
+            self.refused, self.plans, self.planning, self.keepalives
         )
     }
 }
@@ -514,14 +579,16 @@ pub fn run(
     mut on_episode: impl FnMut(&EpisodeLine),
 ) -> Result<ControllerSummary, ControllerError> {
     let strategy = config.check()?;
+    let planning = config.planning_for(strategy)?;
     if strategy == WaitStrategy::Spin
+        && planning == Planning::Thread
         && std::thread::available_parallelism().is_ok_and(|n| n.get() <= 2)
     {
         // Measured on two cores (docs/performance.md): one plan per ~100 actions.
         tracing::warn!(
-            "wait = \"spin\" on 2 CPUs: the busy-polling acting loop and bridge leave the \
-             planner thread, which yields to everything, almost no time; the policy will lag \
-             far behind learning (use \"block\" here)"
+            "wait = \"spin\" with planning = \"thread\" on 2 CPUs: the busy-polling acting \
+             loop and bridge leave the planner thread, which yields to everything, almost no \
+             time; the policy will lag far behind learning (use planning = \"between-polls\")"
         );
     }
     let names = ServiceNames::new(&config.service_prefix);
@@ -590,8 +657,18 @@ pub fn run(
         max_sweeps: config.plan_sweeps,
         ..PlannerParams::default()
     };
-    let mut planner =
-        PlannerThread::spawn_on(structure.clone(), planner_params, config.planner_cpu)?;
+    let mut planner = match planning {
+        Planning::Thread => Planner::Thread(PlannerThread::spawn_on(
+            structure.clone(),
+            planner_params,
+            config.planner_cpu,
+        )?),
+        Planning::BetweenPolls => Planner::BetweenPolls(Box::new(SlicedPlanner::new(
+            structure.clone(),
+            planner_params,
+            config.plan_slice,
+        )?)),
+    };
     // The first policy before the first action.
     planner.offer(agent.model_mut())?;
     planner.wait(agent.model_mut(), Duration::from_secs(10))?;
@@ -628,7 +705,10 @@ pub fn run(
         tes_topics::affinity::pin_this_thread(cpu)?;
     }
     loop {
-        let obs = match observations.next(idle_timeout, stop)? {
+        // Spinning, the wait does the planner's slices and adopts its plan (a planner thread
+        // needs none).
+        let work = || planner.work(agent.model_mut());
+        let obs = match observations.next_or_work(idle_timeout, stop, work)? {
             Ok(o) => (o, monotonic_ns()),
             Err(Idle::Stopped) => break,
             Err(Idle::Timeout) => {
@@ -761,6 +841,7 @@ pub fn run(
         .then(|| alloc_count::counted() - warmup_allocations.unwrap_or(alloc_count::counted()));
     summary.ipc_allocations = alloc_count::installed().then_some(ipc_allocations);
     summary.plans = planner.plans();
+    summary.planning = planning.to_string();
     summary.failed_saves += saver.finish();
     if let Err(e) = save_library(agent, &library_path, map.world) {
         summary.failed_saves += 1;
@@ -803,6 +884,7 @@ fn empty_summary() -> ControllerSummary {
         refused: 0,
         failed_saves: 0,
         plans: 0,
+        planning: String::new(),
         keepalives: 0,
     }
 }
@@ -1188,6 +1270,48 @@ mod tests {
         rig.close();
     }
 
+    /// Spinning, the controller plans between its polls (no planner thread): every learned
+    /// step gets a plan in the pause before the next observation, and the loop still answers
+    /// each observation once.
+    #[test]
+    fn a_spinning_controller_plans_between_polls() {
+        use std::sync::atomic::Ordering;
+
+        let mut rig = Rig::new("controller-between-polls");
+        rig.config.wait = "spin".into();
+        let (config, observations) = (&rig.config, &rig.observations);
+        let m = map();
+        let (a, b) = (at(&m, 0, 1, 0), at(&m, 1, 1, 0));
+        let steps = 20u64;
+        let stop = AtomicBool::new(false);
+        let summary = std::thread::scope(|s| {
+            let controller = s.spawn(|| run(config, &stop, |_| {}));
+            let _stop_controller = StopOnDrop(&stop);
+            rig.send_map_when_listening(m);
+            for seq in 100..=100 + steps {
+                let (state, flags) = match seq {
+                    100 => (a, observation_flags::EPISODE_START),
+                    _ if seq % 2 == 0 => (a, 0),
+                    _ => (b, 0),
+                };
+                observations
+                    .send(observation_of(&m, seq, 0, state, -0.05, flags))
+                    .unwrap();
+                assert_eq!(rig.next_command().answers, seq);
+                // Time for the plan (a few microseconds of slices on this small map).
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            stop.store(true, Ordering::SeqCst);
+            controller.join().unwrap().unwrap()
+        });
+        assert_eq!(summary.planning, "between-polls", "{summary:?}");
+        assert_eq!(summary.actions, steps + 1, "{summary:?}");
+        // The start-up plan, then one per learned step that finished before the next
+        // observation (all of them unless the machine stalled the test for 10 ms).
+        assert!(summary.plans > steps / 2, "{summary:?}");
+        rig.close();
+    }
+
     #[test]
     fn settings_are_checked_by_key() {
         assert!(ControllerConfig::default().check().is_ok());
@@ -1205,9 +1329,32 @@ mod tests {
             ("save_interval_s = -1.0", "save_interval_s"),
             ("acting_cpu = 100000", "acting_cpu"),
             ("planner_cpu = 100000", "planner_cpu"),
+            ("plan_slice = 0", "plan_slice"),
+            ("planning = \"later\"", "planning"),
+            // Contradictions: a blocking loop never polls; no planner thread to pin.
+            ("planning = \"between-polls\"", "planning"),
+            (
+                "planning = \"between-polls\"\nwait = \"spin\"\nplanner_cpu = 0",
+                "planning",
+            ),
         ] {
             let err = ControllerConfig::from_toml(text).unwrap_err();
             assert_eq!(err.key, key, "{text}");
+        }
+        // Who plans, by default and when asked.
+        for (text, planning) in [
+            ("", Planning::Thread),
+            ("wait = \"spin\"", Planning::BetweenPolls),
+            ("wait = \"spin-then-block\"", Planning::Thread),
+            ("wait = \"spin\"\nplanning = \"thread\"", Planning::Thread),
+            (
+                "wait = \"spin-then-block\"\nplanning = \"between-polls\"",
+                Planning::BetweenPolls,
+            ),
+        ] {
+            let cfg = ControllerConfig::from_toml(text).unwrap();
+            let strategy = cfg.check().unwrap();
+            assert_eq!(cfg.planning_for(strategy), Ok(planning), "{text}");
         }
         let err = ControllerConfig::from_toml("budjet_us = 5").unwrap_err();
         assert!(err.reason.contains("budjet_us"), "{err}");

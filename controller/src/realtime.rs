@@ -50,7 +50,9 @@ use tes_topics::affinity::{AffinityError, check_cpu, pin_this_thread};
 use thiserror::Error;
 
 use crate::cmdp::{CmdpError, CmdpStructure};
-use crate::plan::{ChangeError, ModelChanges, PlanError, PlanStats, PlannedModel, PlannerParams};
+use crate::plan::{
+    ChangeError, ModelChanges, Pieces, PlanError, PlanStats, PlannedModel, PlannerParams,
+};
 
 /// Why the planner thread failed.
 #[derive(Debug, Error)]
@@ -141,11 +143,16 @@ impl PlannerThread {
                 lower_this_threads_priority();
                 // Ends when the acting side drops its sender.
                 while let Ok(mut job) = jobs.recv() {
-                    job.error = model.apply(&job.changes).err();
-                    if job.error.is_none() {
-                        // Skipped when the changes moved no backup by the tolerance.
-                        model.replan();
-                    }
+                    // In as few pieces as it takes; no plan when the changes moved no backup
+                    // by the tolerance.
+                    let mut pieces = model.begin_pieces(&job.changes);
+                    job.error = loop {
+                        match model.advance(&job.changes, &mut pieces, usize::MAX) {
+                            Ok(false) => continue,
+                            Ok(true) => break None,
+                            Err(e) => break Some(e),
+                        }
+                    };
                     job.stats = model.last_plan();
                     job.values.copy_from_slice(model.planner().values());
                     job.policy.copy_from_slice(model.planner().policy());
@@ -238,6 +245,240 @@ impl PlannerThread {
     }
 }
 
+/// Value iteration on the acting thread, in slices between the polls of a spinning wait.
+///
+/// With `wait = "spin"` the acting thread polls for the next observation without sleeping,
+/// and on two cores the busy-polling acting loop and bridge leave a planner thread that
+/// yields to everything almost no time (measured: one plan per ~100 actions). Planning
+/// between polls turns the spinning into the planning: each [`work`](Self::work) call does
+/// about `slice` states' worth of it (a few microseconds), so an observation that arrives
+/// mid-slice waits at most one slice. The work and its order are the planner thread's
+/// ([`PlannedModel::advance`]), so the plans are the same, bit for bit; the protocol
+/// ([`offer`](Self::offer), [`collect`](Self::collect)) is [`PlannerThread`]'s.
+///
+/// ```
+/// use std::sync::Arc;
+/// use tes_controller::cmdp::CmdpStructure;
+/// use tes_controller::plan::{PlannedModel, PlannerParams};
+/// use tes_controller::realtime::SlicedPlanner;
+///
+/// let features: [&[u32]; 2] = [&[0], &[0]];
+/// let structure = Arc::new(CmdpStructure::new(
+///     2, 2, 2, 1,
+///     |s, e| if e == 0 { 1 } else { s },
+///     vec![0.0, 1.0],
+///     vec![false, true],
+///     |s| features[s],
+/// )?);
+/// let mut model = PlannedModel::new(structure.clone(), PlannerParams::default())?;
+/// model.set_inline_planning(false);
+/// model.set(0, 0, &[0.1, 0.9]);
+/// model.set(1, 0, &[0.8, 0.2]);
+/// let mut planner = SlicedPlanner::new(structure, PlannerParams::default(), 1)?;
+/// assert!(planner.offer(&mut model)?);
+/// while planner.work() {} // between polls, one slice at a time
+/// assert!(planner.collect(&mut model)?.is_some());
+/// assert_eq!(model.action(0), 1);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+#[derive(Debug)]
+pub struct SlicedPlanner {
+    /// The planner's own copy of the model, as on a planner thread.
+    model: PlannedModel,
+    changes: ModelChanges,
+    /// Where the work offered last stands ([`Pieces::DONE`] when there is none).
+    pieces: Pieces,
+    /// Whether a plan was offered and not yet collected.
+    busy: bool,
+    /// Set when the changes could not be applied.
+    error: Option<ChangeError>,
+    /// Set when a plan adopted between polls could not be; reported by the next
+    /// [`collect`](Self::collect).
+    failed: Option<PlannerThreadError>,
+    slice: usize,
+    plans: u64,
+}
+
+impl SlicedPlanner {
+    /// A planner for `structure` with `params`, doing about `slice` states' worth of work per
+    /// [`work`](Self::work) call (at least 1).
+    pub fn new(
+        structure: Arc<CmdpStructure>,
+        params: PlannerParams,
+        slice: usize,
+    ) -> Result<Self, PlannerThreadError> {
+        Ok(Self {
+            model: PlannedModel::new(structure.clone(), params)?,
+            changes: ModelChanges::new(&structure),
+            pieces: Pieces::DONE,
+            busy: false,
+            error: None,
+            failed: None,
+            slice: slice.max(1),
+            plans: 0,
+        })
+    }
+
+    /// Whether a plan is being made (or made and not yet collected).
+    pub fn busy(&self) -> bool {
+        self.busy
+    }
+
+    /// Plans adopted so far.
+    pub fn plans(&self) -> u64 {
+        self.plans
+    }
+
+    /// Takes a snapshot of `model`'s changes if no plan is in progress and the model needs
+    /// one; returns whether it did. Allocation-free.
+    pub fn offer(&mut self, model: &mut PlannedModel) -> Result<bool, PlannerThreadError> {
+        if self.busy || !model.needs_plan() {
+            return Ok(false);
+        }
+        model.snapshot_into(&mut self.changes)?;
+        self.pieces = self.model.begin_pieces(&self.changes);
+        self.error = None;
+        self.busy = true;
+        Ok(true)
+    }
+
+    /// Does one slice of the plan in progress; returns whether work is left. Allocation-free.
+    pub fn work(&mut self) -> bool {
+        if self.pieces.done() {
+            return false;
+        }
+        match self
+            .model
+            .advance(&self.changes, &mut self.pieces, self.slice)
+        {
+            Ok(done) => !done,
+            Err(e) => {
+                self.error = Some(e);
+                self.pieces = Pieces::DONE;
+                false
+            }
+        }
+    }
+
+    /// One slice of the plan in progress, or, once it is finished, its adoption into `model`
+    /// (a copy of the values and policy, a pass over the states: about a slice's time);
+    /// returns whether work is left. Adopting here, while the acting loop waits, keeps it off
+    /// the next decision. An adoption that fails is reported by the next
+    /// [`collect`](Self::collect). Allocation-free.
+    pub fn work_then_adopt(&mut self, model: &mut PlannedModel) -> bool {
+        if self.work() {
+            return true;
+        }
+        if let Err(e) = self.collect(model) {
+            self.failed = Some(e);
+        }
+        false
+    }
+
+    /// Adopts the plan into `model` if it is finished (and reports a failed adoption of
+    /// [`work_then_adopt`](Self::work_then_adopt)). Allocation-free.
+    pub fn collect(
+        &mut self,
+        model: &mut PlannedModel,
+    ) -> Result<Option<PlanStats>, PlannerThreadError> {
+        if let Some(e) = self.failed.take() {
+            return Err(e);
+        }
+        if !self.busy || !self.pieces.done() {
+            return Ok(None);
+        }
+        self.busy = false;
+        if let Some(e) = self.error.take() {
+            return Err(e.into());
+        }
+        let stats = self.model.last_plan();
+        model.adopt(
+            self.model.planner().values(),
+            self.model.planner().policy(),
+            stats,
+        )?;
+        self.plans += 1;
+        Ok(Some(stats))
+    }
+
+    /// Finishes the plan in progress on the calling thread, at most `timeout`, and adopts it
+    /// (for start-up and tests).
+    pub fn wait(
+        &mut self,
+        model: &mut PlannedModel,
+        timeout: Duration,
+    ) -> Result<Option<PlanStats>, PlannerThreadError> {
+        let start = std::time::Instant::now();
+        while self.work() {
+            if start.elapsed() > timeout {
+                return Ok(None);
+            }
+        }
+        self.collect(model)
+    }
+}
+
+/// Who plans for an acting loop: a [`PlannerThread`], or the acting thread itself between
+/// polls ([`SlicedPlanner`]). The same protocol either way.
+#[derive(Debug)]
+pub enum Planner {
+    /// On its own thread.
+    Thread(PlannerThread),
+    /// On the acting thread, between polls.
+    BetweenPolls(Box<SlicedPlanner>),
+}
+
+impl Planner {
+    /// See [`PlannerThread::offer`].
+    pub fn offer(&mut self, model: &mut PlannedModel) -> Result<bool, PlannerThreadError> {
+        match self {
+            Self::Thread(p) => p.offer(model),
+            Self::BetweenPolls(p) => p.offer(model),
+        }
+    }
+
+    /// See [`PlannerThread::collect`].
+    pub fn collect(
+        &mut self,
+        model: &mut PlannedModel,
+    ) -> Result<Option<PlanStats>, PlannerThreadError> {
+        match self {
+            Self::Thread(p) => p.collect(model),
+            Self::BetweenPolls(p) => p.collect(model),
+        }
+    }
+
+    /// See [`PlannerThread::wait`].
+    pub fn wait(
+        &mut self,
+        model: &mut PlannedModel,
+        timeout: Duration,
+    ) -> Result<Option<PlanStats>, PlannerThreadError> {
+        match self {
+            Self::Thread(p) => p.wait(model, timeout),
+            Self::BetweenPolls(p) => p.wait(model, timeout),
+        }
+    }
+
+    /// One slice of planning, or the adoption of a finished plan into `model`, when planning
+    /// happens between polls (see [`SlicedPlanner::work_then_adopt`]); returns whether work
+    /// is left. A planner thread needs none: `false`.
+    pub fn work(&mut self, model: &mut PlannedModel) -> bool {
+        match self {
+            Self::Thread(_) => false,
+            Self::BetweenPolls(p) => p.work_then_adopt(model),
+        }
+    }
+
+    /// Plans adopted so far.
+    pub fn plans(&self) -> u64 {
+        match self {
+            Self::Thread(p) => p.plans(),
+            Self::BetweenPolls(p) => p.plans(),
+        }
+    }
+}
+
 /// `SCHED_IDLE` for the calling thread, or nice +19 if that is refused (Linux schedules
 /// threads individually); best effort — planning still works at normal priority.
 pub(crate) fn lower_this_threads_priority() {
@@ -278,45 +519,80 @@ mod tests {
     use super::*;
     use crate::cmdp::tests::corridor;
 
+    /// Every way of planning elsewhere: the thread, and between polls in slices of 1 state
+    /// (the finest cut), 7 (cuts falling anywhere) and more than a whole sweep.
+    fn planners(c: &Arc<CmdpStructure>, params: PlannerParams) -> Vec<Planner> {
+        let mut all = vec![Planner::Thread(
+            PlannerThread::spawn(c.clone(), params).unwrap(),
+        )];
+        for slice in [1, 7, 1000] {
+            all.push(Planner::BetweenPolls(Box::new(
+                SlicedPlanner::new(c.clone(), params, slice).unwrap(),
+            )));
+        }
+        all
+    }
+
+    /// Waits for `planner`'s plan (doing its slices, if it plans between polls; with slices
+    /// of 7, as the acting loop does: adopting it as the last piece of work).
+    fn finish(planner: &mut Planner, model: &mut PlannedModel) -> PlanStats {
+        if let Planner::BetweenPolls(p) = planner {
+            assert!(
+                p.collect(model).unwrap().is_none(),
+                "not finished before its slices"
+            );
+            if p.slice == 7 {
+                while planner.work(model) {}
+                assert!(planner.collect(model).unwrap().is_none(), "adopted already");
+                return model.last_plan();
+            }
+        }
+        planner
+            .wait(model, Duration::from_secs(10))
+            .unwrap()
+            .expect("a plan within 10 s")
+    }
+
     #[test]
-    fn plans_made_on_the_thread_equal_inline_plans() {
+    fn plans_made_elsewhere_equal_inline_plans() {
         let c = Arc::new(corridor(9, &[]));
         let params = PlannerParams {
             max_sweeps: 10_000,
             ..PlannerParams::default()
         };
-        let mut offloaded = PlannedModel::new(c.clone(), params).unwrap();
-        offloaded.set_inline_planning(false);
-        let mut inline = PlannedModel::new(c.clone(), params).unwrap();
-        let mut thread = PlannerThread::spawn(c.clone(), params).unwrap();
-        for round in 0..5 {
-            let p = 0.5 + 0.1 * round as f64;
-            for s in 0..9 {
-                for m in [&mut offloaded, &mut inline] {
-                    m.set(0, s, &[p, 1.0 - p, 0.0]);
-                    m.set(1, s, &[1.0 - p, p, 0.0]);
+        for mut planner in planners(&c, params) {
+            let mut offloaded = PlannedModel::new(c.clone(), params).unwrap();
+            offloaded.set_inline_planning(false);
+            let mut inline = PlannedModel::new(c.clone(), params).unwrap();
+            for round in 0..5 {
+                let p = 0.5 + 0.1 * round as f64;
+                for s in 0..9 {
+                    for m in [&mut offloaded, &mut inline] {
+                        m.set(0, s, &[p, 1.0 - p, 0.0]);
+                        m.set(1, s, &[1.0 - p, p, 0.0]);
+                    }
                 }
+                assert!(offloaded.replan().is_none(), "not planned inline");
+                assert!(planner.offer(&mut offloaded).unwrap());
+                assert!(
+                    !planner.offer(&mut offloaded).unwrap(),
+                    "one plan in flight"
+                );
+                let stats = finish(&mut planner, &mut offloaded);
+                assert!(stats.converged);
+                assert_eq!(Some(stats), inline.replan());
+                assert_eq!(offloaded.planner().values(), inline.planner().values());
+                assert_eq!(offloaded.planner().policy(), inline.planner().policy());
             }
-            assert!(offloaded.replan().is_none(), "not planned inline");
-            assert!(thread.offer(&mut offloaded).unwrap());
-            assert!(thread.busy());
-            assert!(!thread.offer(&mut offloaded).unwrap(), "one plan in flight");
-            let stats = thread
-                .wait(&mut offloaded, Duration::from_secs(10))
-                .unwrap()
-                .expect("a plan within 10 s");
-            assert!(stats.converged);
-            inline.replan();
-            assert_eq!(offloaded.planner().values(), inline.planner().values());
-            assert_eq!(offloaded.planner().policy(), inline.planner().policy());
+            assert_eq!(planner.plans(), 5);
+            assert!(!offloaded.needs_plan());
+            assert!(planner.collect(&mut offloaded).unwrap().is_none());
+            assert!(!planner.work(&mut offloaded), "nothing left to do");
         }
-        assert_eq!(thread.plans(), 5);
-        assert!(!offloaded.needs_plan());
-        assert!(thread.collect(&mut offloaded).unwrap().is_none());
     }
 
     #[test]
-    fn views_refreshed_on_the_thread_plan_like_views_refreshed_inline() {
+    fn views_refreshed_elsewhere_plan_like_views_refreshed_inline() {
         use crate::cmdp::EffectTable;
         use crate::mdagl::{Features, Mdagl, MdaglParams};
         let c = Arc::new(corridor(9, &[3, 4]));
@@ -324,39 +600,38 @@ mod tests {
             max_sweeps: 10_000,
             ..PlannerParams::default()
         };
-        let mut offloaded = PlannedModel::new(c.clone(), params).unwrap();
-        offloaded.set_inline_planning(false);
-        let mut inline = PlannedModel::new(c.clone(), params).unwrap();
-        let mut thread = PlannerThread::spawn(c.clone(), params).unwrap();
-        let mut views = [0, 1].map(|_| Mdagl::new(3, 2, MdaglParams::default()).unwrap());
-        for round in 0..6 {
-            // Action 0 moves left, action 1 right, except on the slippery cells (feature 1).
-            let a = round % 2;
-            for s in 1..8 {
-                let x = c.features(s);
-                let effect = if x.contains(&1) { 2 } else { a };
-                views[a].update(Features::SparseBinary(x), effect).unwrap();
+        for mut planner in planners(&c, params) {
+            let mut offloaded = PlannedModel::new(c.clone(), params).unwrap();
+            offloaded.set_inline_planning(false);
+            let mut inline = PlannedModel::new(c.clone(), params).unwrap();
+            let mut views = [0, 1].map(|_| Mdagl::new(3, 2, MdaglParams::default()).unwrap());
+            for round in 0..6 {
+                // Action 0 moves left, action 1 right, except on the slippery cells
+                // (feature 1).
+                let a = round % 2;
+                for s in 1..8 {
+                    let x = c.features(s);
+                    let effect = if x.contains(&1) { 2 } else { a };
+                    views[a].update(Features::SparseBinary(x), effect).unwrap();
+                }
+                for m in [&mut offloaded, &mut inline] {
+                    m.refresh(a, &views[a]).unwrap();
+                }
+                assert_eq!(
+                    offloaded.table(),
+                    &EffectTable::uniform(&c),
+                    "the acting side's table is left to the planner"
+                );
+                assert!(planner.offer(&mut offloaded).unwrap());
+                let stats = finish(&mut planner, &mut offloaded);
+                assert_eq!(Some(stats), inline.replan());
+                assert_eq!(offloaded.planner().values(), inline.planner().values());
+                assert_eq!(offloaded.planner().policy(), inline.planner().policy());
             }
-            for m in [&mut offloaded, &mut inline] {
-                m.refresh(a, &views[a]).unwrap();
-            }
-            assert_eq!(
-                offloaded.table(),
-                &EffectTable::uniform(&c),
-                "the acting side's table is left to the planner"
-            );
-            assert!(thread.offer(&mut offloaded).unwrap());
-            thread
-                .wait(&mut offloaded, Duration::from_secs(10))
-                .unwrap()
-                .expect("a plan within 10 s");
-            inline.replan();
-            assert_eq!(offloaded.planner().values(), inline.planner().values());
-            assert_eq!(offloaded.planner().policy(), inline.planner().policy());
+            // Refused before anything is handed over: a view of another shape.
+            let wrong = Mdagl::new(4, 2, MdaglParams::default()).unwrap();
+            assert!(offloaded.refresh(0, &wrong).is_err());
+            assert!(!offloaded.needs_plan());
         }
-        // Refused before anything is handed over: a view of another shape.
-        let wrong = Mdagl::new(4, 2, MdaglParams::default()).unwrap();
-        assert!(offloaded.refresh(0, &wrong).is_err());
-        assert!(!offloaded.needs_plan());
     }
 }

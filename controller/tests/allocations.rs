@@ -271,49 +271,65 @@ fn tes_steps_with_a_nine_view_library_allocate_nothing() {
     );
 }
 
-/// The controller's acting loop with planning on its own thread: learn, adopt a finished
-/// plan, hand the planner a new snapshot, act — allocates nothing on the acting thread.
+/// The controller's acting loop, with planning on its own thread or between its polls in
+/// slices: learn, adopt a finished plan, hand the planner a new snapshot, act, (between
+/// polls) do slices of planning — allocates nothing on the acting thread.
 #[test]
 fn the_real_time_acting_loop_allocates_nothing() {
     use tes_controller::agents::{Agent, Tes, TesParams};
     use tes_controller::plan::PlannerParams;
-    use tes_controller::realtime::PlannerThread;
+    use tes_controller::realtime::{Planner, PlannerThread, SlicedPlanner};
 
     let structure = mud_grid();
-    let mut agent = Tes::new(
-        structure.clone(),
-        nine_view_library(),
-        TesParams::default(),
-        4,
-    )
-    .unwrap();
-    agent.model_mut().set_inline_planning(false);
-    let mut planner = PlannerThread::spawn(structure.clone(), PlannerParams::default()).unwrap();
-    let mut s = 0usize;
-    let mut step = |agent: &mut Tes, planner: &mut PlannerThread, t: usize| {
-        planner.collect(agent.model_mut()).unwrap();
-        planner.offer(agent.model_mut()).unwrap();
-        let a = agent.act(s).unwrap();
-        let e = if structure.features(s).contains(&1) && t.is_multiple_of(3) {
-            4
-        } else {
-            a
+    let params = PlannerParams::default();
+    for mut planner in [
+        Planner::Thread(PlannerThread::spawn(structure.clone(), params).unwrap()),
+        Planner::BetweenPolls(Box::new(
+            SlicedPlanner::new(structure.clone(), params, 32).unwrap(),
+        )),
+    ] {
+        let mut agent = Tes::new(
+            structure.clone(),
+            nine_view_library(),
+            TesParams::default(),
+            4,
+        )
+        .unwrap();
+        agent.model_mut().set_inline_planning(false);
+        let mut s = 0usize;
+        let mut step = |agent: &mut Tes, planner: &mut Planner, t: usize| {
+            planner.collect(agent.model_mut()).unwrap();
+            planner.offer(agent.model_mut()).unwrap();
+            let a = agent.act(s).unwrap();
+            let e = if structure.features(s).contains(&1) && t.is_multiple_of(3) {
+                4
+            } else {
+                a
+            };
+            agent.observe(s, a, e).unwrap();
+            s = structure.next_state(s, e);
+            if structure.is_terminal(s) {
+                s = t % (structure.n_states() - 1);
+            }
+            // The polls before the next observation: a few slices (nothing on a thread).
+            for _ in 0..t % 40 {
+                planner.work(agent.model_mut());
+            }
         };
-        agent.observe(s, a, e).unwrap();
-        s = structure.next_state(s, e);
-        if structure.is_terminal(s) {
-            s = t % (structure.n_states() - 1);
+        for t in 0..200 {
+            step(&mut agent, &mut planner, t);
         }
-    };
-    for t in 0..200 {
-        step(&mut agent, &mut planner, t);
+        let guard = Tracked::start();
+        for t in 0..10_000 {
+            step(&mut agent, &mut planner, t);
+        }
+        let who = match planner {
+            Planner::Thread(_) => "planning on a thread",
+            Planner::BetweenPolls(_) => "planning between polls",
+        };
+        assert_eq!(guard.allocations(), 0, "the acting loop allocated, {who}");
+        drop(guard);
+        // How many depends on scheduling; that plans flow at all is the point.
+        assert!(planner.plans() > 0, "no plan was adopted");
     }
-    let guard = Tracked::start();
-    for t in 0..10_000 {
-        step(&mut agent, &mut planner, t);
-    }
-    assert_eq!(guard.allocations(), 0, "the acting loop allocated");
-    drop(guard);
-    // How many depends on scheduling; that plans flow at all is the point.
-    assert!(planner.plans() > 0, "no plan was adopted");
 }

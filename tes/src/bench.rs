@@ -28,7 +28,7 @@ use serde::Serialize;
 use tes_bench::relay::{self, RelayConfig};
 use tes_bench::{fixtures, scaling};
 use tes_controller::library::store::{self, StoredLibrary};
-use tes_controller::process::ControllerSummary;
+use tes_controller::process::{ControllerConfig, ControllerSummary};
 use tes_topics::affinity;
 use tes_topics::channel::WaitStrategy;
 use tes_topics::latency::LatencyReport;
@@ -86,6 +86,10 @@ pub struct LatencyArgs {
     /// Pin the controller's planner thread to this CPU [default: unpinned].
     #[arg(long)]
     planner_cpu: Option<usize>,
+    /// Who plans in the controller: thread or between-polls (the acting thread, in slices,
+    /// while it spins) [default: between-polls with --wait spin, else thread].
+    #[arg(long)]
+    planning: Option<String>,
 }
 
 /// Arguments of `tes bench scaling`.
@@ -154,8 +158,10 @@ struct LatencyResult {
     acting_cpu: Option<usize>,
     /// The controller's planner thread's CPU (null: unpinned).
     planner_cpu: Option<usize>,
-    /// Plans the controller's planner thread finished and the acting loop adopted.
+    /// Plans the controller's planner finished and the acting loop adopted.
     plans: u64,
+    /// Who planned: `thread` or `between-polls`.
+    planning: String,
 }
 
 fn ratio(ours: u64, floor: u64) -> f64 {
@@ -178,6 +184,15 @@ fn latency(args: &LatencyArgs) -> Result<()> {
             affinity::check_cpu(cpu).with_context(|| format!("{flag} {cpu}"))?;
         }
     }
+    let settings = ControllerConfig {
+        wait: args.wait.clone(),
+        planner_cpu: args.planner_cpu,
+        planning: args.planning.clone().unwrap_or_else(|| "auto".into()),
+        ..ControllerConfig::default()
+    };
+    settings
+        .planning_for(wait)
+        .map_err(|e| anyhow::anyhow!("--planning: {}", e.reason))?;
     let temp;
     let dir: &Path = match &args.out {
         Some(d) => {
@@ -270,6 +285,7 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         acting_cpu: args.acting_cpu,
         planner_cpu: args.planner_cpu,
         plans: controller.plans,
+        planning: controller.planning.clone(),
     };
     if args.json {
         println!("{}", serde_json::to_string(&result)?);
@@ -312,10 +328,11 @@ fn latency(args: &LatencyArgs) -> Result<()> {
             _ => "not counted".to_owned(),
         }
     );
-    // The planner thread yields to everything: where the measured loops keep both CPUs busy
+    // A planner thread yields to everything: where the measured loops keep both CPUs busy
     // (spin on two cores) it barely runs, and the agent acts on an old policy.
     println!(
-        "planner: {} plans finished and adopted, one per {:.0} actions",
+        "planner ({}): {} plans finished and adopted, one per {:.0} actions",
+        result.planning,
         result.plans,
         (args.actions + args.warmup) as f64 / result.plans.max(1) as f64
     );
@@ -366,6 +383,10 @@ fn group_file(
         if let Some(cpu) = cpu {
             file.controller.insert(key.into(), int(cpu as u64));
         }
+    }
+    if let Some(planning) = &args.planning {
+        file.controller
+            .insert("planning".into(), toml::Value::String(planning.clone()));
     }
     let mut ipc = toml::Table::new();
     ipc.insert("budget_us".into(), int(args.budget_us));

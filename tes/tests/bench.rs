@@ -107,6 +107,7 @@ fn latency_runs_both_paths_and_reports_every_key() {
         assert_eq!(v[part]["count"], 150, "{part}: {v}");
     }
     assert_eq!(v["wait"], "block");
+    assert_eq!(v["planning"], "thread", "{v}");
     assert_eq!(v["actions"], 150);
     // The planner thread planned (at least the first plan, before the first action) and the
     // acting loop adopted its plans: at most one per observation (180 actions, plus each
@@ -161,6 +162,17 @@ fn bad_bench_arguments_are_refused_before_anything_starts() {
     assert!(!ok);
     assert!(
         stderr.contains("--acting-cpu 100000") && stderr.contains("allowed"),
+        "{stderr}"
+    );
+    // Planning between polls needs a spinning wait.
+    let (ok, _, stderr) = run(
+        &["bench", "latency", "--planning", "between-polls"],
+        dir.path(),
+        Duration::from_secs(30),
+    );
+    assert!(!ok);
+    assert!(
+        stderr.contains("--planning") && stderr.contains("spin"),
         "{stderr}"
     );
 }

@@ -340,9 +340,28 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Inbox<T> {
     /// Waits, by the inbox's strategy, for the next payload, at most `timeout`, and returns
     /// early when `stop` is raised. Allocation-free in `spin`; `block` sleeps in the kernel.
     pub fn next(&self, timeout: Duration, stop: &AtomicBool) -> Result<Result<T, Idle>, IpcError> {
-        wait_next(&self.listener, self.strategy, timeout, stop, || {
-            self.try_next()
-        })
+        self.next_or_work(timeout, stop, || false)
+    }
+
+    /// [`next`](Self::next), calling `work` between polls while it spins (`spin`, and the
+    /// spinning part of `spin-then-block`): a waiting acting loop can do bounded pieces of
+    /// background work (a slice of planning) instead of only spinning. `work` returns
+    /// whether it has more to do; while it has, polls follow each other without a pause.
+    /// How long one call takes is what an arriving payload may wait.
+    pub fn next_or_work(
+        &self,
+        timeout: Duration,
+        stop: &AtomicBool,
+        work: impl FnMut() -> bool,
+    ) -> Result<Result<T, Idle>, IpcError> {
+        wait_next(
+            &self.listener,
+            self.strategy,
+            timeout,
+            stop,
+            || self.try_next(),
+            work,
+        )
     }
 
     /// Connects publishers that appeared since the last call.
@@ -355,14 +374,15 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Inbox<T> {
 
 type Listener = iceoryx2::port::listener::Listener<ipc::Service>;
 
-/// Polls `try_next` and waits between polls by `strategy` on `listener`, at most `timeout`;
-/// returns early when `stop` is raised. Allocation-free in `spin`; `block` sleeps in the kernel.
+/// Polls `try_next` and waits between polls by `strategy` on `listener`, at most `timeout`,
+/// calling `work` between polls while spinning; returns early when `stop` is raised. Allocation-free in `spin`; `block` sleeps in the kernel.
 fn wait_next<T>(
     listener: &Listener,
     strategy: WaitStrategy,
     timeout: Duration,
     stop: &AtomicBool,
     mut try_next: impl FnMut() -> Result<Option<T>, IpcError>,
+    mut work: impl FnMut() -> bool,
 ) -> Result<Result<T, Idle>, IpcError> {
     let start = Instant::now();
     let spin_for = match strategy {
@@ -383,7 +403,9 @@ fn wait_next<T>(
         if polls.is_multiple_of(1024) && stop.load(Ordering::Relaxed) {
             return Ok(Err(Idle::Stopped));
         }
-        std::hint::spin_loop();
+        if !work() {
+            std::hint::spin_loop();
+        }
     }
     loop {
         if stop.load(Ordering::Relaxed) {
@@ -652,9 +674,14 @@ impl<T: ZeroCopySend + Copy + Default + PartialEq + fmt::Debug + 'static> Latest
     /// Waits, by the inbox's strategy, for the board's next value, at most `timeout`, and
     /// returns early when `stop` is raised. Allocation-free.
     pub fn next(&self, timeout: Duration, stop: &AtomicBool) -> Result<Result<T, Idle>, IpcError> {
-        wait_next(&self.listener, self.strategy, timeout, stop, || {
-            self.try_next()
-        })
+        wait_next(
+            &self.listener,
+            self.strategy,
+            timeout,
+            stop,
+            || self.try_next(),
+            || false,
+        )
     }
 }
 

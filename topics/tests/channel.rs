@@ -75,3 +75,53 @@ fn spin_then_block_round_trip() {
         "spin-then-block",
     );
 }
+
+/// `next_or_work` does the caller's work between polls while it spins, never while it
+/// blocks, and still returns a payload that arrives meanwhile.
+#[test]
+fn work_is_done_between_polls_only_while_spinning() {
+    let stop = AtomicBool::new(false);
+    let node = channel::node(false).unwrap();
+    for (strategy, tag) in [
+        (WaitStrategy::Block, "work-block"),
+        (WaitStrategy::Spin, "work-spin"),
+        (
+            WaitStrategy::SpinThenBlock(Duration::from_millis(2)),
+            "work-spin-then-block",
+        ),
+    ] {
+        let (payload, event) = names(tag);
+        let inbox: Inbox<Command> = Inbox::open(&node, &payload, &event, 0, strategy).unwrap();
+        let mut slices = 0u32;
+        // Work for 100 slices, then none left.
+        let idle = inbox
+            .next_or_work(Duration::from_millis(20), &stop, || {
+                slices += 1;
+                slices < 100
+            })
+            .unwrap();
+        assert_eq!(idle, Err(Idle::Timeout), "{strategy}");
+        if strategy == WaitStrategy::Block {
+            assert_eq!(slices, 0, "{strategy}: no work while blocked");
+        } else {
+            // Called on every poll: more than 100 times in a spin of 2 ms or more.
+            assert!(slices > 100, "{strategy}: {slices} calls");
+        }
+        if strategy != WaitStrategy::Spin {
+            continue;
+        }
+        // Work that never runs out does not keep a payload from being taken.
+        let outbox: Outbox<Command> = Outbox::open(&node, &payload, &event, 0).unwrap();
+        inbox.update_connections().unwrap();
+        outbox
+            .send(Command {
+                seq: 7,
+                ..Command::default()
+            })
+            .unwrap();
+        let got = inbox
+            .next_or_work(Duration::from_secs(5), &stop, || true)
+            .unwrap();
+        assert_eq!(got.map(|c| c.seq), Ok(7));
+    }
+}
