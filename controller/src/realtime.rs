@@ -15,6 +15,10 @@
 //! action. (At nice +10 the kernel let it finish its time slice first: measured ~0.5 ms
 //! added to the observation → bridge latency on 2 busy cores.)
 //!
+//! An acting loop that spins instead of sleeping can do the same work itself, in slices
+//! between its polls ([`SlicedPlanner`]; [`Planner`] is either): on two cores a spinning loop
+//! leaves a planner thread almost no time.
+//!
 //! ```
 //! use std::sync::Arc;
 //! use tes_controller::cmdp::CmdpStructure;
