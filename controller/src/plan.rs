@@ -730,6 +730,20 @@ impl PlannedModel {
         pieces: &mut Pieces,
         budget: usize,
     ) -> Result<bool, ChangeError> {
+        let result = self.advance_pieces(changes, pieces, budget);
+        if result.is_err() {
+            pieces.stage = Stage::Done;
+        }
+        result
+    }
+
+    /// [`advance`](Self::advance), but leaves `pieces` where an error stopped it.
+    fn advance_pieces(
+        &mut self,
+        changes: &ModelChanges,
+        pieces: &mut Pieces,
+        budget: usize,
+    ) -> Result<bool, ChangeError> {
         let n = self.structure.n_states();
         let mut left = budget.max(1);
         while left > 0 {
@@ -738,10 +752,7 @@ impl PlannedModel {
                 Stage::Done => return Ok(true),
                 Stage::CopyTable { next } => {
                     let end = step(next, self.table.n_rows());
-                    if let Err(e) = self.table.copy_rows_from(&changes.table, next..end) {
-                        pieces.stage = Stage::Done;
-                        return Err(e.into());
-                    }
+                    self.table.copy_rows_from(&changes.table, next..end)?;
                     left -= end - next;
                     if end == self.table.n_rows() {
                         self.forced = true;
@@ -751,15 +762,18 @@ impl PlannedModel {
                     }
                 }
                 Stage::Refresh { a } => {
-                    let next = (a..changes.changed.len())
-                        .find(|&b| changes.changed[b] && changes.views[b].is_some());
-                    match next.and_then(|b| Some((b, changes.views[b].as_ref()?))) {
+                    let changed = changes
+                        .views
+                        .iter()
+                        .enumerate()
+                        .skip(a)
+                        .find_map(|(b, view)| {
+                            Some((b, view.as_ref().filter(|_| changes.changed[b])?))
+                        });
+                    match changed {
                         None => Stage::Plan,
                         Some((a, view)) => {
-                            if let Err(e) = self.table.begin_refresh(view, &self.structure) {
-                                pieces.stage = Stage::Done;
-                                return Err(e.into());
-                            }
+                            self.table.begin_refresh(view, &self.structure)?;
                             left = 0;
                             Stage::Rows { a, next: 0 }
                         }
@@ -767,10 +781,7 @@ impl PlannedModel {
                 }
                 Stage::Rows { a, next } => {
                     let end = step(next, n);
-                    if let Err(e) = self.table.refresh_rows(next..end) {
-                        pieces.stage = Stage::Done;
-                        return Err(e.into());
-                    }
+                    self.table.refresh_rows(next..end)?;
                     left -= end - next;
                     if end == n {
                         Stage::Write {
