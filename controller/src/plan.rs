@@ -864,16 +864,20 @@ impl PlannedModel {
         self.last
     }
 
-    /// Adopts a plan made elsewhere on a snapshot of this model.
+    /// Adopts a plan made elsewhere on a snapshot of this model: its values and policy, its
+    /// statistics, and the spread of `R + γV` under its values (the planning model's
+    /// [`plan_span`](Self::plan_span), which its last sweep measured, so that adopting costs
+    /// no pass over the states).
     pub fn adopt(
         &mut self,
         values: &[f64],
         policy: &[u32],
         stats: PlanStats,
+        backup_span: f64,
     ) -> Result<(), PlanError> {
         self.planner.adopt(values, policy)?;
         let drift = self.drift;
-        self.planned(stats, self.backup_span());
+        self.planned(stats, backup_span);
         // Changes since the snapshot still count.
         self.drift = drift;
         Ok(())
@@ -927,22 +931,11 @@ impl PlannedModel {
         self.forced = false;
     }
 
-    /// The spread of `R(s) + γV(s)` over all states under the planner's current values (a
-    /// plan made here gets it from its last sweep; an adopted one needs this pass).
-    fn backup_span(&self) -> f64 {
-        let gamma = self.planner.params().gamma;
-        let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-        for s in 0..self.structure.n_states() {
-            let future = if self.structure.is_terminal(s) {
-                0.0
-            } else {
-                gamma * self.planner.value(s)
-            };
-            let b = self.structure.reward(s) + future;
-            lo = lo.min(b);
-            hi = hi.max(b);
-        }
-        hi - lo
+    /// The spread of `R(s) + γV(s)` over all states under the last plan's values (measured by
+    /// its last sweep), which bounds how far a model change moves a backup; what a planner
+    /// elsewhere hands over with its plan ([`adopt`](Self::adopt)).
+    pub fn plan_span(&self) -> f64 {
+        self.backup_span
     }
 
     /// The greedy action in `s` under the last plan.
@@ -1004,6 +997,42 @@ mod tests {
         assert!((vi.value(1) - expected).abs() < 1e-5);
         assert_eq!(vi.action(1), 1);
         assert_eq!(vi.value(0), 0.0, "terminal states keep V = 0");
+    }
+
+    /// The span a plan hands over with its values is the spread of `R + γV` under them, as a
+    /// pass over the states would find it, to the bit — whether the plan converged or
+    /// stopped at the sweep cap.
+    #[test]
+    fn the_plan_span_is_the_spread_of_the_backups_under_the_values() {
+        let c = Arc::new(corridor(9, &[4]));
+        for max_sweeps in [1, 3, 10_000] {
+            let params = PlannerParams {
+                max_sweeps,
+                ..tight()
+            };
+            let mut model = PlannedModel::new(c.clone(), params).unwrap();
+            for s in 0..9 {
+                model.set(0, s, &[0.7, 0.2, 0.1]);
+                model.set(1, s, &[0.1, 0.6, 0.3]);
+            }
+            model.replan().unwrap();
+            let gamma = params.gamma;
+            let backups = (0..9).map(|s| {
+                let future = if c.is_terminal(s) {
+                    0.0
+                } else {
+                    gamma * model.planner().value(s)
+                };
+                c.reward(s) + future
+            });
+            let lo = backups.clone().fold(f64::INFINITY, f64::min);
+            let hi = backups.fold(f64::NEG_INFINITY, f64::max);
+            assert_eq!(
+                model.plan_span().to_bits(),
+                (hi - lo).to_bits(),
+                "{max_sweeps}"
+            );
+        }
     }
 
     #[test]

@@ -98,7 +98,7 @@ pub struct ControllerConfig {
     /// planner thread almost no time; between polls, the spin does the planning.
     pub planning: String,
     /// `plan_slice`: with `planning = "between-polls"`, the states' worth of planning work done
-    /// between two polls (default 32: ~0.3 µs on the arena, ~2 µs for the slice that starts
+    /// between two polls (default 32: ~0.3 µs on the arena, ~1 µs for the slice that starts
     /// an action's refresh or adopts the plan — what an observation arriving mid-slice waits
     /// at most).
     pub plan_slice: usize,

@@ -88,6 +88,8 @@ struct PlanJob {
     values: Vec<f64>,
     policy: Vec<u32>,
     stats: PlanStats,
+    /// [`PlannedModel::plan_span`] of the planner's model after the plan.
+    backup_span: f64,
     /// Set by the planner when the changes could not be applied.
     error: Option<ChangeError>,
 }
@@ -132,6 +134,7 @@ impl PlannerThread {
             values: vec![0.0; n],
             policy: vec![0; n],
             stats: model.last_plan(),
+            backup_span: 0.0,
             error: None,
         });
         let (to_planner, jobs) = channel::bounded::<Box<PlanJob>>(1);
@@ -158,6 +161,7 @@ impl PlannerThread {
                         }
                     };
                     job.stats = model.last_plan();
+                    job.backup_span = model.plan_span();
                     job.values.copy_from_slice(model.planner().values());
                     job.policy.copy_from_slice(model.planner().policy());
                     if done.send(job).is_err() {
@@ -241,7 +245,7 @@ impl PlannerThread {
             self.spare = Some(job);
             return Err(e.into());
         }
-        let adopted = model.adopt(&job.values, &job.policy, stats);
+        let adopted = model.adopt(&job.values, &job.policy, stats, job.backup_span);
         self.spare = Some(job);
         adopted?;
         self.plans += 1;
@@ -365,7 +369,7 @@ impl SlicedPlanner {
     }
 
     /// One slice of the plan in progress, or, once it is finished, its adoption into `model`
-    /// (a copy of the values and policy, a pass over the states: about a slice's time);
+    /// (a copy of the values and policy: about a slice's time);
     /// returns whether work is left. Adopting here, while the acting loop waits, keeps it off
     /// the next decision. An adoption that fails is reported by the next
     /// [`collect`](Self::collect). Allocation-free.
@@ -400,6 +404,7 @@ impl SlicedPlanner {
             self.model.planner().values(),
             self.model.planner().policy(),
             stats,
+            self.model.plan_span(),
         )?;
         self.plans += 1;
         Ok(Some(stats))
