@@ -368,15 +368,7 @@ impl EffectTable {
     /// Overwrites this table with `other`, which must have the same shape. Allocation-free
     /// (unlike `clone_from`, which reallocates).
     pub fn copy_from(&mut self, other: &EffectTable) -> Result<(), CmdpError> {
-        if self.probs.len() != other.probs.len() || self.n_effects != other.n_effects {
-            return Err(CmdpError::WrongLength {
-                table: "effect table",
-                got: other.probs.len(),
-                expected: self.probs.len(),
-            });
-        }
-        self.probs.copy_from_slice(&other.probs);
-        Ok(())
+        self.copy_rows_from(other, 0..self.n_rows())
     }
 
     /// `P(· | x(s), a)` as a slice over effects.
