@@ -9,7 +9,10 @@
 //! * **hop** (the controller's place) answers each observation at once with a [`Command`]
 //!   carrying the observation's stamp;
 //! * **sink** (the bridge's place) records `now − stamp` for each command, exactly where the
-//!   real bridge records it, and acknowledges with a [`MotorState`].
+//!   real bridge records it, and acknowledges with a [`MotorState`]. It also records the
+//!   first hop alone (stamp → the hop's command published, from the command's own stamp):
+//!   the floor's counterpart of the controller's decision latency, so a gap between the two
+//!   paths can be placed at the controller's hop or the bridge's.
 //!
 //! What the sink measures is therefore the cost of two iceoryx2 hops and two wake-ups by the
 //! chosen strategy on this machine: the floor any controller on this transport pays. The
@@ -47,6 +50,9 @@ pub struct RelayConfig {
     pub budget_us: u64,
     /// Where the sink writes its [`LatencyReport`].
     pub report: Option<PathBuf>,
+    /// Where the sink writes the first hop's [`LatencyReport`]: observation stamped → the
+    /// hop's command published, the floor's counterpart of the controller's decision latency.
+    pub hop_report: Option<PathBuf>,
     /// Give up after this long without a message, ms.
     pub idle_timeout_ms: u64,
     /// Pause between an acknowledgement and the next observation, µs (the loop's cadence).
@@ -65,6 +71,7 @@ impl Default for RelayConfig {
             warmup: 1_000,
             budget_us: 1000,
             report: None,
+            hop_report: None,
             idle_timeout_ms: 10_000,
             gap_us: 0,
             hop_cpu: None,
@@ -274,6 +281,7 @@ fn sink(
         0,
     )?;
     let mut latency = LatencyRecorder::new(cfg.budget_us, cfg.warmup);
+    let mut first_hop = LatencyRecorder::new(cfg.budget_us, cfg.warmup);
     let mut last_seq = 0;
     loop {
         let cmd = match commands.next(idle, stop)? {
@@ -285,6 +293,7 @@ fn sink(
         // not a new round trip.
         if cmd.seq > last_seq {
             latency.record_ns(monotonic_ns().saturating_sub(cmd.observed_ns));
+            first_hop.record_ns(cmd.stamp_ns.saturating_sub(cmd.observed_ns));
             last_seq = cmd.seq;
         }
         acks.send(MotorState {
@@ -298,11 +307,16 @@ fn sink(
         }
     }
     let report = latency.report();
-    if let Some(path) = &cfg.report {
-        report.save(path).map_err(|error| RelayError::Report {
-            path: path.clone(),
-            error,
-        })?;
+    for (path, report) in [
+        (&cfg.report, &report),
+        (&cfg.hop_report, &first_hop.report()),
+    ] {
+        if let Some(path) = path {
+            report.save(path).map_err(|error| RelayError::Report {
+                path: path.clone(),
+                error,
+            })?;
+        }
     }
     Ok(report)
 }
@@ -333,8 +347,11 @@ mod tests {
     #[test]
     fn three_threads_relay_every_message_and_report_it() {
         // The roles as threads of one process (ports are per thread), on a private prefix.
+        let dir = tempfile::tempdir().unwrap();
         let cfg = RelayConfig {
             service_prefix: format!("relay-test-{}/", std::process::id()),
+            report: Some(dir.path().join("floor.json")),
+            hop_report: Some(dir.path().join("hop.json")),
             messages: 300,
             warmup: 50,
             idle_timeout_ms: 20_000,
@@ -353,6 +370,14 @@ mod tests {
         assert_eq!(report.count, 250);
         assert_eq!(report.warmup, 50);
         assert!(report.p50_us >= 1 && report.p50_us <= report.p99_us);
+        assert_eq!(
+            LatencyReport::load(&dir.path().join("floor.json")).unwrap(),
+            report
+        );
+        // The first hop is part of the round trip: never longer, message by message.
+        let hop = LatencyReport::load(&dir.path().join("hop.json")).unwrap();
+        assert_eq!((hop.count, hop.warmup), (250, 50));
+        assert!(hop.p50_us <= report.p50_us && hop.max_us <= report.max_us);
         assert!(matches!(
             run("relay-nope", &cfg, &stop),
             Err(RelayError::Role(_))

@@ -24,6 +24,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use serde::Deserialize;
+use tes_topics::affinity::Placement;
 use tes_topics::channel::{self, Idle, Inbox, IpcError, LatestOutbox, WaitStrategy, monotonic_ns};
 use tes_topics::latency::{LatencyRecorder, LatencyReport};
 use tes_topics::{Command, KEEP_ALIVE_ACTION, Observation, WorldMap, observation_flags, service};
@@ -84,13 +85,18 @@ pub struct ControllerConfig {
     /// dead man's switch: a long move goes on while the controller lives and is braked within
     /// the deadline once it is gone. Keep it well below the bridge's `watchdog.deadline_ms`.
     pub keepalive_ms: u64,
-    /// `acting_cpu`: pin the acting loop's thread to this CPU (default: unpinned). With
-    /// `planner_cpu` set to another CPU, planning no longer runs on the acting thread's CPU
-    /// between actions, which keeps the views' memory in that CPU's caches and the wake-up
-    /// short (see docs/performance.md). Must be a CPU this process may run on.
-    pub acting_cpu: Option<usize>,
-    /// `planner_cpu`: pin the planner thread to this CPU (default: unpinned).
-    pub planner_cpu: Option<usize>,
+    /// `acting_cpu`: the CPU the acting loop's thread runs on — a CPU number, `"none"`
+    /// (unpinned) or `"auto"` (the default): with `wait = "block"` on two or more CPUs, the
+    /// last CPU this process may run on, else unpinned. Pinned, a blocking acting thread is
+    /// woken where its memory is warm instead of wherever the scheduler finds room: on the
+    /// project's 2-core VM that halved its compute and cut its wake-up from ~57 to ~13 µs
+    /// at the median (docs/performance.md, "Thread placement"). A spinning thread never
+    /// sleeps, so `auto` leaves it unpinned.
+    pub acting_cpu: Placement,
+    /// `planner_cpu`: the planner thread's CPU — a number, `"none"` or `"auto"` (the default:
+    /// where the acting thread is pinned, the first allowed CPU other than its own, so that
+    /// planning never runs on the acting thread's CPU; else unpinned).
+    pub planner_cpu: Placement,
     /// `planning`: who plans — `thread` (a planner thread under `SCHED_IDLE`),
     /// `between-polls` (the acting thread itself, in slices, while it spins waiting for the
     /// next observation; needs `wait = "spin"` or `"spin-then-block"`) or `auto` (the default:
@@ -102,6 +108,16 @@ pub struct ControllerConfig {
     /// an action's refresh or adopts the plan — what an observation arriving mid-slice waits
     /// at most).
     pub plan_slice: usize,
+}
+
+/// Where the controller's threads run: CPUs, or `None` for unpinned
+/// ([`ControllerConfig::placement`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct ThreadPlacement {
+    /// The acting loop's thread.
+    pub acting: Option<usize>,
+    /// The planner thread (never pinned with between-polls planning: there is none).
+    pub planner: Option<usize>,
 }
 
 /// Who plans for the acting loop ([`ControllerConfig::planning`]).
@@ -140,8 +156,8 @@ impl Default for ControllerConfig {
             warmup_actions: 0,
             report: None,
             keepalive_ms: 250,
-            acting_cpu: None,
-            planner_cpu: None,
+            acting_cpu: Placement::Auto,
+            planner_cpu: Placement::Auto,
             planning: "auto".into(),
             plan_slice: 32,
         }
@@ -199,11 +215,40 @@ impl ControllerConfig {
         if self.plan_slice == 0 {
             return bad("plan_slice", "must be at least 1");
         }
-        tes_topics::settings::cpu(PROCESS, "acting_cpu", self.acting_cpu)?;
-        tes_topics::settings::cpu(PROCESS, "planner_cpu", self.planner_cpu)?;
         let strategy = tes_topics::settings::wait_strategy(PROCESS, &self.wait)?;
-        self.planning_for(strategy)?;
+        let planning = self.planning_for(strategy)?;
+        self.placement(strategy, planning)?;
         Ok(strategy)
+    }
+
+    /// Where the acting and planner threads run, `auto` resolved (see
+    /// [`ControllerConfig::acting_cpu`]); a CPU this process may not run on is refused,
+    /// naming its key.
+    pub fn placement(
+        &self,
+        strategy: WaitStrategy,
+        planning: Planning,
+    ) -> Result<ThreadPlacement, ConfigError> {
+        let pair = tes_topics::affinity::auto_pair();
+        let acting = match self.acting_cpu {
+            Placement::Cpu(c) => Some(c),
+            Placement::Unpinned => None,
+            Placement::Auto if strategy == WaitStrategy::Block => pair.map(|(rt, _)| rt),
+            Placement::Auto => None,
+        };
+        let planner = match (planning, self.planner_cpu) {
+            (Planning::BetweenPolls, _) => None,
+            (Planning::Thread, Placement::Cpu(c)) => Some(c),
+            (Planning::Thread, Placement::Unpinned) => None,
+            (Planning::Thread, Placement::Auto) => acting.and_then(|a| {
+                tes_topics::affinity::allowed_cpus()
+                    .into_iter()
+                    .find(|&c| c != a)
+            }),
+        };
+        tes_topics::settings::cpu(PROCESS, "acting_cpu", acting)?;
+        tes_topics::settings::cpu(PROCESS, "planner_cpu", planner)?;
+        Ok(ThreadPlacement { acting, planner })
     }
 
     /// Who plans, given the wait strategy (checked: `between-polls` needs a spinning wait, and
@@ -223,7 +268,7 @@ impl ControllerConfig {
                      blocks never polls",
                 );
             }
-            if self.planner_cpu.is_some() {
+            if let Placement::Cpu(_) = self.planner_cpu {
                 return bad(
                     "planner_cpu pins the planner thread, and between-polls planning has none \
                      (it runs on the acting thread: see acting_cpu)",
@@ -581,6 +626,14 @@ pub fn run(
 ) -> Result<ControllerSummary, ControllerError> {
     let strategy = config.check()?;
     let planning = config.planning_for(strategy)?;
+    let placement = config.placement(strategy, planning)?;
+    let cpu = |c: Option<usize>| c.map_or("unpinned".to_owned(), |c| format!("CPU {c}"));
+    tracing::info!(
+        acting = %cpu(placement.acting),
+        planner = %cpu(placement.planner),
+        %planning,
+        "thread placement"
+    );
     if strategy == WaitStrategy::Spin
         && planning == Planning::Thread
         && std::thread::available_parallelism().is_ok_and(|n| n.get() <= 2)
@@ -662,7 +715,7 @@ pub fn run(
         Planning::Thread => Planner::Thread(PlannerThread::spawn_on(
             structure.clone(),
             planner_params,
-            config.planner_cpu,
+            placement.planner,
         )?),
         Planning::BetweenPolls => Planner::BetweenPolls(Box::new(SlicedPlanner::new(
             structure.clone(),
@@ -702,7 +755,7 @@ pub fn run(
         k.min(Duration::from_millis(100))
     });
     let mut last_sent = std::time::Instant::now();
-    if let Some(cpu) = config.acting_cpu {
+    if let Some(cpu) = placement.acting {
         tes_topics::affinity::pin_this_thread(cpu)?;
     }
     loop {
@@ -1359,5 +1412,49 @@ mod tests {
         }
         let err = ControllerConfig::from_toml("budjet_us = 5").unwrap_err();
         assert!(err.reason.contains("budjet_us"), "{err}");
+        let err = ControllerConfig::from_toml("acting_cpu = \"fast\"").unwrap_err();
+        assert!(err.reason.contains("\"none\""), "{err}");
+    }
+
+    /// `auto` pins a blocking acting thread to the last allowed CPU and the planner to the
+    /// first other one; spinning, between polls, with one CPU, or when told, it does not.
+    #[test]
+    fn threads_are_placed_by_the_wait_and_the_keys() {
+        let allowed = tes_topics::affinity::allowed_cpus();
+        let placed = |text: &str| {
+            let cfg = ControllerConfig::from_toml(text).unwrap();
+            let strategy = cfg.check().unwrap();
+            let planning = cfg.planning_for(strategy).unwrap();
+            let p = cfg.placement(strategy, planning).unwrap();
+            (p.acting, p.planner)
+        };
+        let (first, last) = (allowed.first().copied(), allowed.last().copied());
+        let pair = (allowed.len() >= 2).then_some((last, first));
+        assert_eq!(placed(""), pair.unwrap_or((None, None)));
+        assert_eq!(placed("wait = \"spin\""), (None, None));
+        assert_eq!(
+            placed("wait = \"spin\"\nplanning = \"thread\""),
+            (None, None)
+        );
+        assert_eq!(placed("wait = \"spin-then-block\""), (None, None));
+        assert_eq!(placed("acting_cpu = \"none\""), (None, None));
+        assert_eq!(
+            placed("planner_cpu = \"none\""),
+            (pair.and_then(|(a, _)| a), None)
+        );
+        // Told where, the planner goes elsewhere by itself.
+        let cpu = allowed[0];
+        let other = allowed.iter().copied().find(|&c| c != cpu);
+        assert_eq!(placed(&format!("acting_cpu = {cpu}")), (Some(cpu), other));
+        assert_eq!(
+            placed(&format!(
+                "acting_cpu = {cpu}\nwait = \"spin\"\nplanner_cpu = \"auto\""
+            )),
+            (Some(cpu), None)
+        );
+        assert_eq!(
+            placed(&format!("acting_cpu = \"none\"\nplanner_cpu = {cpu}")),
+            (None, Some(cpu))
+        );
     }
 }

@@ -28,8 +28,8 @@ use serde::Serialize;
 use tes_bench::relay::{self, RelayConfig};
 use tes_bench::{fixtures, scaling};
 use tes_controller::library::store::{self, StoredLibrary};
-use tes_controller::process::{ControllerConfig, ControllerSummary};
-use tes_topics::affinity;
+use tes_controller::process::{ControllerConfig, ControllerSummary, ThreadPlacement};
+use tes_topics::affinity::{self, Placement};
 use tes_topics::channel::WaitStrategy;
 use tes_topics::latency::LatencyReport;
 
@@ -79,13 +79,15 @@ pub struct LatencyArgs {
     /// Print one JSON object instead of the table.
     #[arg(long)]
     json: bool,
-    /// Pin the controller's acting thread to this CPU, and the floor's hop (its place in the
-    /// relay) to the same one, so both run with the same placement [default: unpinned].
-    #[arg(long)]
-    acting_cpu: Option<usize>,
-    /// Pin the controller's planner thread to this CPU [default: unpinned].
-    #[arg(long)]
-    planner_cpu: Option<usize>,
+    /// The controller's acting thread's CPU — a number, auto or none — and the floor's hop
+    /// (its place in the relay) is pinned the same way, so both paths run with the same
+    /// placement. auto: with --wait block, the last allowed CPU (the controller's default)
+    #[arg(long, default_value = "auto")]
+    acting_cpu: Placement,
+    /// The controller's planner thread's CPU — a number, auto or none. auto: the first
+    /// allowed CPU other than the acting thread's, where that is pinned
+    #[arg(long, default_value = "auto")]
+    planner_cpu: Placement,
     /// Who plans in the controller: thread or between-polls (the acting thread, in slices,
     /// while it spins) [default: between-polls with --wait spin, else thread].
     #[arg(long)]
@@ -149,6 +151,9 @@ struct LatencyResult {
     floor_p999_us: u64,
     floor_max_us: u64,
     floor_misses: u64,
+    /// The floor's first hop alone (observation stamped → the hop's command published): the
+    /// counterpart of `decision` with no work.
+    floor_decision: LatencyReport,
     ratio_p50: f64,
     ratio_p99: f64,
     /// Mean time between actions in our run, which the floor's source kept too, µs.
@@ -180,19 +185,24 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         ("--acting-cpu", args.acting_cpu),
         ("--planner-cpu", args.planner_cpu),
     ] {
-        if let Some(cpu) = cpu {
+        if let Placement::Cpu(cpu) = cpu {
             affinity::check_cpu(cpu).with_context(|| format!("{flag} {cpu}"))?;
         }
     }
     let settings = ControllerConfig {
         wait: args.wait.clone(),
+        acting_cpu: args.acting_cpu,
         planner_cpu: args.planner_cpu,
         planning: args.planning.clone().unwrap_or_else(|| "auto".into()),
         ..ControllerConfig::default()
     };
-    settings
+    let planning = settings
         .planning_for(wait)
         .map_err(|e| anyhow::anyhow!("--planning: {}", e.reason))?;
+    // Resolved here, so that the floor's hop gets the acting thread's very CPU.
+    let placement = settings
+        .placement(wait, planning)
+        .map_err(|e| anyhow::anyhow!("--{}: {}", e.key.replace('_', "-"), e.reason))?;
     let temp;
     let dir: &Path = match &args.out {
         Some(d) => {
@@ -212,9 +222,10 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         args.views
     );
     let library = fixtures::arena_library(args.views, 3000, args.seed)?;
-    let library_path = dir.join("library.tesl");
+    let files = RunFiles::in_dir(dir);
+    let library_path = &files.library;
     store::save(
-        &library_path,
+        library_path,
         &StoredLibrary {
             library,
             world: "arena 1+2 (bench)".into(),
@@ -223,24 +234,15 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         },
     )?;
     eprintln!("bench: ours — perception-sim → controller → bridge on Env 3, {total} actions");
-    let controller_report = dir.join("controller.json");
-    let bridge_report = dir.join("bridge.json");
-    let file = group_file(
-        dir,
-        &prefix,
-        wait,
-        args,
-        &library_path,
-        &controller_report,
-        &bridge_report,
-    )?;
+    let (controller_report, bridge_report) = (&files.controller_report, &files.bridge_report);
+    let file = group_file(dir, &prefix, wait, args, placement, &files)?;
     let started = Instant::now();
     launch::run_file(&file, false).context("the process group failed")?;
     let elapsed = started.elapsed();
-    let ours = LatencyReport::load(&bridge_report)
+    let ours = LatencyReport::load(bridge_report)
         .with_context(|| format!("no bridge report at {}", bridge_report.display()))?;
     let controller: ControllerSummary = serde_json::from_str(
-        &std::fs::read_to_string(&controller_report)
+        &std::fs::read_to_string(controller_report)
             .with_context(|| format!("no controller report at {}", controller_report.display()))?,
     )
     .context("the controller's report is malformed")?;
@@ -255,7 +257,7 @@ fn latency(args: &LatencyArgs) -> Result<()> {
     eprintln!(
         "bench: the floor — a raw iceoryx2 two-hop relay, {total} round trips, wait {wait}, one every {cycle_us} us"
     );
-    let floor = run_floor(dir, &prefix, wait, cycle_us, args)?;
+    let (floor, floor_decision) = run_floor(dir, &prefix, wait, cycle_us, args, placement.acting)?;
     let result = LatencyResult {
         wait: wait.to_string(),
         actions: ours.count,
@@ -278,12 +280,13 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         floor_p999_us: floor.p999_us,
         floor_max_us: floor.max_us,
         floor_misses: floor.misses,
+        floor_decision,
         ratio_p50: ratio(ours.p50_us, floor.p50_us),
         ratio_p99: ratio(ours.p99_us, floor.p99_us),
         cycle_us,
         seed: args.seed,
-        acting_cpu: args.acting_cpu,
-        planner_cpu: args.planner_cpu,
+        acting_cpu: placement.acting,
+        planner_cpu: placement.planner,
         plans: controller.plans,
         planning: controller.planning.clone(),
     };
@@ -301,8 +304,8 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         args.views,
         args.budget_us,
         cycle_us,
-        cpu(args.acting_cpu),
-        cpu(args.planner_cpu)
+        cpu(placement.acting),
+        cpu(placement.planner)
     );
     println!(
         "{:<34} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
@@ -315,6 +318,7 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         );
     };
     row("floor (raw two-hop relay)", &floor);
+    row("floor: first hop only", &result.floor_decision);
     row("ours: observation -> bridge", &ours);
     row("ours: controller decision only", &controller.latency);
     row("  of which: stamp -> received", &controller.wake);
@@ -340,14 +344,33 @@ fn latency(args: &LatencyArgs) -> Result<()> {
 }
 
 /// The launch file of the measured group.
+/// The files of one `tes bench latency` run, in its directory.
+struct RunFiles {
+    /// The controller's view library.
+    library: PathBuf,
+    /// The controller's summary (`report`).
+    controller_report: PathBuf,
+    /// The bridge's latency report (observation → command at the bridge).
+    bridge_report: PathBuf,
+}
+
+impl RunFiles {
+    fn in_dir(dir: &Path) -> Self {
+        Self {
+            library: dir.join("library.tesl"),
+            controller_report: dir.join("controller.json"),
+            bridge_report: dir.join("bridge.json"),
+        }
+    }
+}
+
 fn group_file(
     dir: &Path,
     prefix: &str,
     wait: WaitStrategy,
     args: &LatencyArgs,
-    library: &Path,
-    controller_report: &Path,
-    bridge_report: &Path,
+    placement: ThreadPlacement,
+    files: &RunFiles,
 ) -> Result<LaunchFile> {
     let path = |p: &Path| toml::Value::String(p.display().to_string());
     let int = |n: u64| toml::Value::Integer(i64::try_from(n).unwrap_or(i64::MAX));
@@ -369,20 +392,22 @@ fn group_file(
     // The return path (robot motion) is not measured: block, as the floor's source does.
     file.perception
         .insert("wait".into(), toml::Value::String("block".into()));
-    file.controller.insert("library".into(), path(library));
+    file.controller
+        .insert("library".into(), path(&files.library));
     file.controller
         .insert("budget_us".into(), int(args.budget_us));
     file.controller
         .insert("warmup_actions".into(), int(args.warmup));
     file.controller
-        .insert("report".into(), path(controller_report));
+        .insert("report".into(), path(&files.controller_report));
+    // Resolved CPUs or "none", never "auto": the floor's hop was given the same CPU.
     for (key, cpu) in [
-        ("acting_cpu", args.acting_cpu),
-        ("planner_cpu", args.planner_cpu),
+        ("acting_cpu", placement.acting),
+        ("planner_cpu", placement.planner),
     ] {
-        if let Some(cpu) = cpu {
-            file.controller.insert(key.into(), int(cpu as u64));
-        }
+        let value = cpu.map_or(Placement::Unpinned, Placement::Cpu);
+        file.controller
+            .insert(key.into(), toml::Value::try_from(value)?);
     }
     if let Some(planning) = &args.planning {
         file.controller
@@ -391,20 +416,23 @@ fn group_file(
     let mut ipc = toml::Table::new();
     ipc.insert("budget_us".into(), int(args.budget_us));
     ipc.insert("warmup_commands".into(), int(args.warmup));
-    ipc.insert("latency_report".into(), path(bridge_report));
+    ipc.insert("latency_report".into(), path(&files.bridge_report));
     file.bridge.insert("ipc".into(), toml::Value::Table(ipc));
     Ok(file)
 }
 
-/// Runs the three relay processes and returns the sink's report.
+/// Runs the three relay processes and returns the sink's reports: the round trip, and its
+/// first hop alone.
 fn run_floor(
     dir: &Path,
     prefix: &str,
     wait: WaitStrategy,
     cycle_us: u64,
     args: &LatencyArgs,
-) -> Result<LatencyReport> {
+    hop_cpu: Option<usize>,
+) -> Result<(LatencyReport, LatencyReport)> {
     let report = dir.join("floor.json");
+    let hop_report = dir.join("floor-first-hop.json");
     let cfg = RelayConfig {
         service_prefix: format!("{prefix}floor/"),
         wait: wait.to_string(),
@@ -412,9 +440,10 @@ fn run_floor(
         warmup: args.warmup,
         budget_us: args.budget_us,
         report: Some(report.clone()),
+        hop_report: Some(hop_report.clone()),
         // The source's own round trip is part of the cycle.
         gap_us: cycle_us.saturating_sub(50),
-        hop_cpu: args.acting_cpu,
+        hop_cpu,
         ..RelayConfig::default()
     };
     cfg.check()?;
@@ -455,7 +484,10 @@ fn run_floor(
             None => bail!("the floor's {} did not finish", c.spec.role),
         }
     }
-    LatencyReport::load(&report).with_context(|| format!("no floor report at {}", report.display()))
+    let load = |path: &Path| {
+        LatencyReport::load(path).with_context(|| format!("no floor report at {}", path.display()))
+    };
+    Ok((load(&report)?, load(&hop_report)?))
 }
 
 fn scaling_sweep(args: &ScalingArgs) -> Result<()> {

@@ -3,6 +3,7 @@
 //! documented keys with consistent values. (Figures are for the benchmarks to judge, not
 //! for tests.) A guard kills the bench and its process group if the test fails.
 
+use serde_json::json;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -51,12 +52,13 @@ fn run(args: &[&str], data: &std::path::Path, limit: Duration) -> (bool, String,
 fn latency_runs_both_paths_and_reports_every_key() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
-    // Pinned, as docs/performance.md's block runs are: the acting thread and the floor's
-    // hop to one allowed CPU, the planner to another where there is one.
+    // The default placement, as a user gets it: blocking, on two or more CPUs, the acting
+    // thread (and the floor's hop) on the last allowed CPU and the planner on the first.
     let allowed = tes_topics::affinity::allowed_cpus();
-    let acting = *allowed.last().expect("an allowed CPU");
-    let planner = allowed[0];
-    let (acting_arg, planner_arg) = (acting.to_string(), planner.to_string());
+    let (acting, planner) = match (allowed.first(), allowed.last()) {
+        (Some(&first), Some(&last)) if first != last => (json!(last), json!(first)),
+        _ => (json!(null), json!(null)),
+    };
     let (ok, stdout, stderr) = run(
         &[
             "bench",
@@ -68,10 +70,6 @@ fn latency_runs_both_paths_and_reports_every_key() {
             "--views",
             "3",
             "--json",
-            "--acting-cpu",
-            &acting_arg,
-            "--planner-cpu",
-            &planner_arg,
             "--out",
             out.to_str().unwrap(),
         ],
@@ -92,6 +90,7 @@ fn latency_runs_both_paths_and_reports_every_key() {
         "floor_p50_us",
         "floor_p99_us",
         "floor_misses",
+        "floor_decision",
         "ratio_p50",
         "ratio_p99",
         "decision",
@@ -103,7 +102,7 @@ fn latency_runs_both_paths_and_reports_every_key() {
     assert_eq!(v["acting_cpu"], acting, "{v}");
     assert_eq!(v["planner_cpu"], planner, "{v}");
     // The decision splits into its wake-up and its compute.
-    for part in ["decision", "wake", "compute"] {
+    for part in ["decision", "wake", "compute", "floor_decision"] {
         assert_eq!(v[part]["count"], 150, "{part}: {v}");
     }
     assert_eq!(v["wait"], "block");
@@ -121,6 +120,8 @@ fn latency_runs_both_paths_and_reports_every_key() {
     );
     assert!(0 < p50 && p50 <= p99 && p99 <= max, "{v}");
     assert!(v["floor_p50_us"].as_u64().unwrap() > 0);
+    // The floor's first hop is part of its round trip.
+    assert!(v["floor_decision"]["p50_us"].as_u64().unwrap() <= v["floor_p50_us"].as_u64().unwrap());
     let ratio = v["ratio_p50"].as_f64().unwrap();
     assert!((ratio - p50 as f64 / v["floor_p50_us"].as_f64().unwrap()).abs() < 1e-9);
     // The controller counts its acting path's allocations (the tes binary installs the
@@ -129,6 +130,7 @@ fn latency_runs_both_paths_and_reports_every_key() {
     assert_eq!(v["ipc_allocations"], 0, "{v}");
     for file in [
         "floor.json",
+        "floor-first-hop.json",
         "bridge.json",
         "controller.json",
         "library.tesl",
@@ -162,6 +164,16 @@ fn bad_bench_arguments_are_refused_before_anything_starts() {
     assert!(!ok);
     assert!(
         stderr.contains("--acting-cpu 100000") && stderr.contains("allowed"),
+        "{stderr}"
+    );
+    let (ok, _, stderr) = run(
+        &["bench", "latency", "--acting-cpu", "fast"],
+        dir.path(),
+        Duration::from_secs(30),
+    );
+    assert!(!ok);
+    assert!(
+        stderr.contains("--acting-cpu") && stderr.contains("none"),
         "{stderr}"
     );
     // Planning between polls needs a spinning wait.
