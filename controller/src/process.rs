@@ -112,7 +112,7 @@ pub struct ControllerConfig {
 
 /// Where the controller's threads run: CPUs, or `None` for unpinned
 /// ([`ControllerConfig::placement`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct ThreadPlacement {
     /// The acting loop's thread.
     pub acting: Option<usize>,
@@ -396,6 +396,9 @@ pub struct ControllerSummary {
     /// ([`ControllerConfig::keepalive_ms`]).
     #[serde(default)]
     pub keepalives: u64,
+    /// Where the acting and planner threads ran ([`ControllerConfig::placement`]).
+    #[serde(default)]
+    pub placement: ThreadPlacement,
 }
 
 impl std::fmt::Display for ControllerSummary {
@@ -430,10 +433,20 @@ impl std::fmt::Display for ControllerSummary {
         }
         write!(
             f,
-            "{} observations refused, {} plans ({}), {} keep-alives",
-            self.refused, self.plans, self.planning, self.keepalives
+            "{} observations refused, {} plans ({}), {} keep-alives; acting thread {}, planner {}",
+            self.refused,
+            self.plans,
+            self.planning,
+            self.keepalives,
+            on_cpu(self.placement.acting),
+            on_cpu(self.placement.planner),
         )
     }
+}
+
+/// "CPU n" or "unpinned".
+fn on_cpu(cpu: Option<usize>) -> String {
+    cpu.map_or("unpinned".to_owned(), |c| format!("CPU {c}"))
 }
 
 /// One finished episode, as printed.
@@ -627,10 +640,9 @@ pub fn run(
     let strategy = config.check()?;
     let planning = config.planning_for(strategy)?;
     let placement = config.placement(strategy, planning)?;
-    let cpu = |c: Option<usize>| c.map_or("unpinned".to_owned(), |c| format!("CPU {c}"));
     tracing::info!(
-        acting = %cpu(placement.acting),
-        planner = %cpu(placement.planner),
+        acting = %on_cpu(placement.acting),
+        planner = %on_cpu(placement.planner),
         %planning,
         "thread placement"
     );
@@ -896,6 +908,7 @@ pub fn run(
     summary.ipc_allocations = alloc_count::installed().then_some(ipc_allocations);
     summary.plans = planner.plans();
     summary.planning = planning.to_string();
+    summary.placement = placement;
     summary.failed_saves += saver.finish();
     if let Err(e) = save_library(agent, &library_path, map.world) {
         summary.failed_saves += 1;
@@ -940,6 +953,7 @@ fn empty_summary() -> ControllerSummary {
         plans: 0,
         planning: String::new(),
         keepalives: 0,
+        placement: ThreadPlacement::default(),
     }
 }
 
@@ -1237,6 +1251,13 @@ mod tests {
             "{summary:?}"
         );
         assert_eq!(summary.failed_saves, 0, "{summary:?}");
+        // Blocking, with the default placement: pinned where two CPUs allow it.
+        let pinned = tes_topics::affinity::auto_pair().map(|(a, p)| (Some(a), Some(p)));
+        assert_eq!(
+            (summary.placement.acting, summary.placement.planner),
+            pinned.unwrap_or((None, None)),
+            "{summary:?}"
+        );
         let library = rig.config.library.as_ref().unwrap();
         let saved = store::load_for(library, 2, 3, 4).unwrap();
         assert!(
@@ -1359,6 +1380,8 @@ mod tests {
             controller.join().unwrap().unwrap()
         });
         assert_eq!(summary.planning, "between-polls", "{summary:?}");
+        // Spinning, nothing is pinned.
+        assert_eq!(summary.placement, ThreadPlacement::default(), "{summary:?}");
         assert_eq!(summary.actions, steps + 1, "{summary:?}");
         // The start-up plan, then one per learned step that finished before the next
         // observation (all of them unless the machine stalled the test for 10 ms).

@@ -253,6 +253,12 @@ fn latency(args: &LatencyArgs) -> Result<()> {
             args.actions
         );
     }
+    if controller.placement != placement {
+        bail!(
+            "the controller placed its threads at {:?}, not at {placement:?} as asked: the floor's hop would not match",
+            controller.placement
+        );
+    }
     let cycle_us = (elapsed.as_micros() / u128::from(total)) as u64;
     eprintln!(
         "bench: the floor — a raw iceoryx2 two-hop relay, {total} round trips, wait {wait}, one every {cycle_us} us"
