@@ -3,8 +3,9 @@
 # factor, sampling each child's resident memory every 10 s into rss.csv, and keep the
 # controller's report (latency percentiles, budget misses, allocations) in controller.json.
 #   bash scripts/soak.sh [ACTIONS] [OUT_DIR]
-# ACTING_CPU / PLANNER_CPU, if set, pin the controller's two threads (its acting_cpu and
-# planner_cpu keys), e.g. ACTING_CPU=1 PLANNER_CPU=0 on a 2-core machine.
+# ACTING_CPU / PLANNER_CPU, if set, place the controller's two threads (its acting_cpu and
+# planner_cpu keys: a CPU, auto or none), e.g. ACTING_CPU=none PLANNER_CPU=none to run them
+# unpinned; unset, the controller's default (auto: pinned, blocking on >= 2 CPUs) applies.
 set -euo pipefail
 actions="${1:-1000000}"
 out="${2:-soak-$(date +%Y%m%d-%H%M%S)}"
@@ -12,6 +13,10 @@ mkdir -p "$out"
 out="$(cd "$out" && pwd)"
 cd "$(dirname "$0")/.."
 cargo build --release -p tes
+# TOML strings ("1", "auto", "none"): the keys take a CPU written either way.
+placement=""
+[ -n "${ACTING_CPU:-}" ] && placement+="acting_cpu = \"$ACTING_CPU\""$'\n'
+[ -n "${PLANNER_CPU:-}" ] && placement+="planner_cpu = \"$PLANNER_CPU\""$'\n'
 cat > "$out/soak.toml" <<TOML
 [launch]
 episodes = 100000000
@@ -23,8 +28,7 @@ actions = $actions
 library = "$out/library.tesl"
 report = "$out/controller.json"
 warmup_actions = 10000
-${ACTING_CPU:+acting_cpu = $ACTING_CPU}
-${PLANNER_CPU:+planner_cpu = $PLANNER_CPU}
+$placement
 [bridge.ipc]
 warmup_commands = 10000
 latency_report = "$out/bridge.json"

@@ -206,6 +206,9 @@ mod placement_tests {
                 c: Placement::Unpinned
             }
         );
+        // A number in a string reads too (scripts write every value quoted).
+        let quoted: Keys = toml::from_str("a = \"2\"\nb = \"auto\"\nc = \"none\"").unwrap();
+        assert_eq!(quoted, keys);
         let written = toml::to_string(&keys).unwrap();
         assert_eq!(toml::from_str::<Keys>(&written).unwrap(), keys);
         for p in [Placement::Auto, Placement::Unpinned, Placement::Cpu(7)] {
