@@ -29,7 +29,7 @@ use tes_bench::relay::{self, RelayConfig};
 use tes_bench::{fixtures, scaling};
 use tes_controller::library::store::{self, StoredLibrary};
 use tes_controller::process::{ControllerConfig, ControllerSummary, ThreadPlacement};
-use tes_topics::affinity::{self, Placement};
+use tes_topics::affinity::Placement;
 use tes_topics::channel::WaitStrategy;
 use tes_topics::latency::LatencyReport;
 
@@ -181,14 +181,6 @@ fn latency(args: &LatencyArgs) -> Result<()> {
     if args.actions == 0 || args.budget_us == 0 || args.views == 0 {
         bail!("--actions, --budget-us and --views must be at least 1");
     }
-    for (flag, cpu) in [
-        ("--acting-cpu", args.acting_cpu),
-        ("--planner-cpu", args.planner_cpu),
-    ] {
-        if let Placement::Cpu(cpu) = cpu {
-            affinity::check_cpu(cpu).with_context(|| format!("{flag} {cpu}"))?;
-        }
-    }
     let settings = ControllerConfig {
         wait: args.wait.clone(),
         acting_cpu: args.acting_cpu,
@@ -199,7 +191,7 @@ fn latency(args: &LatencyArgs) -> Result<()> {
     let planning = settings
         .planning_for(wait)
         .map_err(|e| anyhow::anyhow!("--planning: {}", e.reason))?;
-    // Resolved here, so that the floor's hop gets the acting thread's very CPU.
+    // Resolved (and checked) here, so that the floor's hop gets the acting thread's very CPU.
     let placement = settings
         .placement(wait, planning)
         .map_err(|e| anyhow::anyhow!("--{}: {}", e.key.replace('_', "-"), e.reason))?;

@@ -163,7 +163,9 @@ fn bad_bench_arguments_are_refused_before_anything_starts() {
     );
     assert!(!ok);
     assert!(
-        stderr.contains("--acting-cpu 100000") && stderr.contains("allowed"),
+        stderr.contains("--acting-cpu")
+            && stderr.contains("CPU 100000")
+            && stderr.contains("allowed"),
         "{stderr}"
     );
     let (ok, _, stderr) = run(
