@@ -775,7 +775,7 @@ pub fn run(
         // needs none).
         let work = || planner.work(agent.model_mut());
         let obs = match observations.next_or_work(idle_timeout, stop, work)? {
-            Ok(o) => (o, monotonic_ns()),
+            Ok(o) => o,
             Err(Idle::Stopped) => break,
             Err(Idle::Timeout) => {
                 // A move is under way: tell the bridge's watchdog we are still here.
@@ -796,7 +796,7 @@ pub fn run(
                 continue;
             }
         };
-        let (obs, received_ns) = obs;
+        let received_ns = monotonic_ns();
         // The acting path, from here to the command's publication.
         let counting = alloc_count::count_here();
         if warmup_allocations.is_none() && all.warmed_up() {
