@@ -770,6 +770,15 @@ pub fn run(
     if let Some(cpu) = placement.acting {
         tes_topics::affinity::pin_this_thread(cpu)?;
     }
+    // When to wake the planner with the new model: before the command when the bridge sleeps
+    // on events, after it when the bridge busy-polls. A bridge woken while this CPU is busy
+    // is placed on the other, idle CPU; in a VM whose idle vCPUs halt, waking one costs
+    // ~30 µs (measured: the bridge's hop 23-36 µs p50 against the floor's 14). Waking the
+    // planner first — a futex wake, ~5 µs on the acting path — gets that CPU out of halt
+    // while the command is being sent, and the SCHED_IDLE planner gives way to the bridge
+    // at once (observation → bridge p50 41-49 µs against 65-70, docs/performance.md). A
+    // spinning bridge needs no wake-up, so there the planner waits for the command.
+    let offer_before_command = strategy != WaitStrategy::Spin;
     loop {
         // Spinning, the wait does the planner's slices and adopts its plan (a planner thread
         // needs none).
@@ -855,6 +864,9 @@ pub fn run(
             continue;
         }
         let action = agent.act(state)?;
+        if offer_before_command {
+            planner.offer(agent.model_mut())?;
+        }
         let [left_deg, right_deg] = map.action_wheels[action];
         command_seq += 1;
         let now = monotonic_ns();
@@ -873,9 +885,9 @@ pub fn run(
             ipc_allocations += alloc_count::counted() - before_send;
         }
         last_sent = std::time::Instant::now();
-        // Only now wake the planner with the new model: on a busy machine its wake-up would
-        // otherwise compete with the command's way to the bridge.
-        planner.offer(agent.model_mut())?;
+        if !offer_before_command {
+            planner.offer(agent.model_mut())?;
+        }
         drop(counting);
         // Reporting and saving are not on the acting path: the command is out.
         if let Some(line) = ended.take() {
