@@ -388,6 +388,39 @@ impl Mdagl {
         }
     }
 
+    /// Makes `self` predict exactly as `source` does — the same weights, bit for bit — while
+    /// copying only what the weights depend on: the step count, every column's norm, and the
+    /// gradient sums of the columns `source` currently uses (non-zero weights; ~15 of 312 in
+    /// the arena instead of all 312 × K). The sums of switched-off columns keep whatever they
+    /// held: a prediction or [`for_each_weight_column`](Self::for_each_weight_column) never
+    /// reads them, but learning would, so this is for read-only copies (the planner's
+    /// hand-over, on the acting path). Copies everything when the shapes differ;
+    /// allocation-free when they match.
+    pub(crate) fn copy_weights_from(&mut self, source: &Self) {
+        if self.classes != source.classes
+            || self.features != source.features
+            || self.sums.len() != source.sums.len()
+            || self.norms.len() != source.norms.len()
+        {
+            self.clone_from(source);
+            return;
+        }
+        self.params = source.params;
+        self.threshold = source.threshold;
+        self.updates = source.updates;
+        self.norms.copy_from_slice(&source.norms);
+        let Some((inv_beta, cut)) = source.step_constants() else {
+            return;
+        };
+        let k = self.classes;
+        for col in 0..source.norms.len() {
+            if source.column_scale(col, inv_beta, cut) != 0.0 {
+                let range = col * k..(col + 1) * k;
+                self.sums[range.clone()].copy_from_slice(&source.sums[range]);
+            }
+        }
+    }
+
     #[inline]
     fn is_intercept(&self, col: usize) -> bool {
         col == self.features

@@ -546,10 +546,12 @@ fn placeholder_view(structure: &CmdpStructure) -> Option<Mdagl> {
     .ok()
 }
 
-/// `to = from`, reusing `to`'s buffers when it already holds a model.
+/// Makes `to` a read-only copy of `from` for the planner: the same weights, bit for bit,
+/// reusing `to`'s buffers when it already holds a model and copying only the columns `from`
+/// uses ([`Mdagl::copy_weights_from`]): the hand-over is on the acting path.
 fn copy_view(to: &mut Option<Mdagl>, from: &Mdagl) {
     match to {
-        Some(m) => m.clone_from(from),
+        Some(m) => m.copy_weights_from(from),
         None => *to = Some(from.clone()),
     }
 }

@@ -149,6 +149,36 @@ proptest! {
         }
     }
 
+    /// A weights-only copy (the planner's hand-over), made again and again into the same
+    /// buffer while the source learns — so its switched-off columns hold stale sums — predicts
+    /// and reports weight columns exactly as its source, bit for bit.
+    #[test]
+    fn a_weights_only_copy_predicts_as_its_source(
+        (k, d, rows, _) in stream(),
+        lambda in prop_oneof![Just(0.0), Just(0.05), 0.01..0.5f64],
+        intercept in any::<bool>(),
+    ) {
+        let params = MdaglParams { lambda, alpha: 0.5, intercept };
+        let mut source = Mdagl::new(k, d, params).unwrap();
+        let mut copy = Mdagl::new(k, d, params).unwrap();
+        let (mut want, mut got) = (vec![0.0; k], vec![0.0; k]);
+        for (y, x) in &rows {
+            source.update(Features::Dense(x), *y).unwrap();
+            copy.copy_weights_from(&source);
+            for (_, probe) in &rows {
+                source.predict_into(Features::Dense(probe), &mut want).unwrap();
+                copy.predict_into(Features::Dense(probe), &mut got).unwrap();
+                prop_assert_eq!(&want, &got);
+            }
+            let mut columns = Vec::new();
+            source.for_each_weight_column(|c, scale, sums| columns.push((c, scale, sums.to_vec())));
+            let mut copied = Vec::new();
+            copy.for_each_weight_column(|c, scale, sums| copied.push((c, scale, sums.to_vec())));
+            prop_assert_eq!(columns, copied);
+            prop_assert_eq!(source.selected_features().collect::<Vec<_>>(), copy.selected_features().collect::<Vec<_>>());
+        }
+    }
+
     /// Probabilities always form a distribution, whatever the data.
     #[test]
     fn predictions_are_distributions((k, d, rows, _) in stream()) {
