@@ -409,16 +409,10 @@ impl Mdagl {
         self.threshold = source.threshold;
         self.updates = source.updates;
         self.norms.copy_from_slice(&source.norms);
-        let Some((inv_beta, cut)) = source.step_constants() else {
-            return;
-        };
-        let k = self.classes;
-        for col in 0..source.norms.len() {
-            if source.column_scale(col, inv_beta, cut) != 0.0 {
-                let range = col * k..(col + 1) * k;
-                self.sums[range.clone()].copy_from_slice(&source.sums[range]);
-            }
-        }
+        let (k, sums) = (self.classes, &mut self.sums);
+        source.for_each_weight_column(|col, _, column| {
+            sums[col * k..(col + 1) * k].copy_from_slice(column);
+        });
     }
 
     #[inline]
