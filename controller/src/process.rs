@@ -772,12 +772,11 @@ pub fn run(
     }
     // When to wake the planner with the new model: before the command when the bridge sleeps
     // on events, after it when the bridge busy-polls. A bridge woken while this CPU is busy
-    // is placed on the other, idle CPU; in a VM whose idle vCPUs halt, waking one costs
-    // ~30 µs (measured: the bridge's hop 23-36 µs p50 against the floor's 14). Waking the
-    // planner first — a futex wake, ~5 µs on the acting path — gets that CPU out of halt
-    // while the command is being sent, and the SCHED_IDLE planner gives way to the bridge
-    // at once (observation → bridge p50 41-49 µs against 65-70, docs/performance.md). A
-    // spinning bridge needs no wake-up, so there the planner waits for the command.
+    // goes to the other, idle CPU; in a VM whose idle vCPUs halt, it ran there ~30 µs later
+    // (its hop 34-36 µs p50 against the floor's 14-15). Waking the planner first (~5 µs on
+    // the acting path) gets that CPU out of halt while the command is sent, and the
+    // SCHED_IDLE planner gives way to the bridge at once (its hop 10-14 µs; docs/
+    // performance.md, "A new machine"). A spinning bridge needs no wake-up.
     let offer_before_command = strategy != WaitStrategy::Spin;
     loop {
         // Spinning, the wait does the planner's slices and adopts its plan (a planner thread
