@@ -8,8 +8,8 @@
 use std::hint::black_box;
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
-use tes_controller::mdagl::synthetic::{SparseMultinomialStream, SyntheticSpec};
-use tes_controller::mdagl::{Features, Mdagl, MdaglParams};
+use tes_learning::mdagl::synthetic::{SparseMultinomialStream, SyntheticSpec};
+use tes_learning::mdagl::{Features, Mdagl, MdaglParams};
 
 const ROWS: usize = 4096;
 const SEED: u64 = 2017;

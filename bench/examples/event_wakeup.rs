@@ -10,7 +10,7 @@
 //! |---|---|---|
 //! | `socket` (`ipc::Service`'s `UnixDatagramShmCountingBitSet`) | `blocking` | `Listener::blocking_wait`: `recvfrom` on the socket |
 //! | `socket` | `timed` | `Listener::timed_wait(50 ms)`: a socket receive timeout |
-//! | `socket` | `ppoll` | `ppoll` on the listener's descriptor, then drain (what `tes_topics::channel` does) |
+//! | `socket` | `ppoll` | `ppoll` on the listener's descriptor, then drain (what `tes_runtime::channel` does) |
 //! | `socket` | `waitset` | a `WaitSet` with the listener attached (epoll), then drain |
 //! | `semaphore` (`SemaphoreShmCountingBitSet`, a process-shared POSIX semaphore: a futex) | `blocking` | `Listener::blocking_wait`: `sem_wait` |
 //! | `semaphore` | `timed` | `Listener::timed_wait(50 ms)`: iceoryx2's adaptive wait (yield, then sleeps of 0.1–10 ms) |
@@ -43,8 +43,8 @@ use iceoryx2::prelude::{CallbackProgression, Config, ZeroCopySend, ipc};
 use iceoryx2::service::Service;
 use iceoryx2::service::service_name::ServiceName;
 use serde::{Deserialize, Serialize};
-use tes_topics::channel::monotonic_ns;
-use tes_topics::latency::{LatencyRecorder, LatencyReport};
+use tes_runtime::clock::monotonic_ns;
+use tes_runtime::latency::{LatencyRecorder, LatencyReport};
 
 /// `ipc::Service` with semaphore events instead of Unix datagrams (every other concept as in
 /// iceoryx2 0.10's `ipc::Service`).
@@ -117,7 +117,7 @@ const VARIANTS: [(Events, Wait); 6] = [
     (Events::Semaphore, Wait::Timed),
 ];
 
-/// The timeout of the timed waits: the stop-flag poll of `tes_topics::channel`.
+/// The timeout of the timed waits: the stop-flag poll of `tes_runtime::channel`.
 const TIMED: Duration = Duration::from_millis(50);
 
 #[derive(Parser, Debug)]
@@ -213,7 +213,7 @@ fn parent(args: &Args) -> Result<()> {
     if args.round_trips == 0 {
         bail!("--round-trips must be at least 1");
     }
-    let cleaned = tes_topics::channel::clean_stale_resources()?;
+    let cleaned = tes_runtime::channel::clean_stale_resources()?;
     if cleaned > 0 {
         eprintln!("removed the resources of {cleaned} dead iceoryx2 nodes");
     }
@@ -344,7 +344,7 @@ fn child(args: &Args, role: Role, events: Events, wait: Wait, prefix: &str) -> R
     // Die with the parent (a killed benchmark leaves no relay behind).
     nix::sys::prctl::set_pdeathsig(nix::sys::signal::Signal::SIGKILL).context("pdeathsig")?;
     if let Some(cpu) = args.hop_cpu {
-        tes_topics::affinity::pin_this_thread(cpu)?;
+        tes_runtime::affinity::pin_this_thread(cpu)?;
     }
     let run = Relay {
         role,

@@ -12,9 +12,9 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use rand::{RngExt, SeedableRng};
-use tes_controller::mdagl::Features;
-use tes_controller::plan::{PlannedModel, PlannerParams};
 use tes_controller::realtime::SlicedPlanner;
+use tes_learning::mdagl::Features;
+use tes_learning::plan::{PlannedModel, PlannerParams};
 
 fn main() -> anyhow::Result<()> {
     let slice: usize = match std::env::args().nth(1) {

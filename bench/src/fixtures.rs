@@ -4,9 +4,9 @@
 use anyhow::{Context, Result};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use tes_controller::cmdp::CmdpStructure;
-use tes_controller::library::{ActionOutcome, LibraryParams, ViewLibrary, Winner};
-use tes_controller::mdagl::{Features, Mdagl, MdaglParams};
+use tes_learning::cmdp::CmdpStructure;
+use tes_learning::library::{ActionOutcome, LibraryParams, ViewLibrary, Winner};
+use tes_learning::mdagl::{Features, Mdagl, MdaglParams};
 use tes_perception_sim::arena::{Arena, ArenaId};
 
 /// The paper's §5.2 view settings: λ = 0.05, α = 0.5.

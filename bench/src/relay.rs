@@ -24,11 +24,12 @@ use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
-use tes_topics::channel::{
-    self, Idle, Inbox, IpcError, LatestInbox, LatestOutbox, Outbox, WaitStrategy, monotonic_ns,
+use tes_runtime::channel::{
+    self, Idle, Inbox, IpcError, LatestInbox, LatestOutbox, Outbox, WaitStrategy,
 };
-use tes_topics::latency::{LatencyRecorder, LatencyReport};
-use tes_topics::settings::{self, SettingError};
+use tes_runtime::clock::monotonic_ns;
+use tes_runtime::latency::{LatencyRecorder, LatencyReport};
+use tes_runtime::settings::{self, SettingError};
 use tes_topics::{Command, FeatureBits, MotorState, Observation, observation_flags, service};
 
 /// The roles, as `tes child` names them.
@@ -139,7 +140,7 @@ pub enum RelayError {
     Role(String),
     /// The hop could not be pinned to `hop_cpu`.
     #[error("relay-hop: {0}")]
-    Affinity(#[from] tes_topics::affinity::AffinityError),
+    Affinity(#[from] tes_runtime::affinity::AffinityError),
 }
 
 /// Runs one relay role until its messages are done or `stop` is raised. The sink returns its
@@ -240,7 +241,7 @@ fn hop(
         &cfg.name(service::COMMAND_EVENT),
     )?;
     if let Some(cpu) = cfg.hop_cpu {
-        tes_topics::affinity::pin_this_thread(cpu)?;
+        tes_runtime::affinity::pin_this_thread(cpu)?;
     }
     loop {
         let obs = match observations.next(idle, stop)? {

@@ -13,13 +13,13 @@ use anyhow::{Context, Result};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
-use tes_controller::agents::{Agent, Tes, TesParams};
-use tes_controller::plan::PlannerParams;
 use tes_controller::realtime::PlannerThread;
-use tes_topics::latency::{LatencyRecorder, LatencyReport};
+use tes_learning::agents::{Agent, Tes, TesParams};
+use tes_learning::plan::PlannerParams;
+use tes_runtime::latency::{LatencyRecorder, LatencyReport};
 
 use crate::fixtures;
-use crate::svg::{BandPoint, LineChart, Series};
+use tes_experiments::svg::{BandPoint, LineChart, Series};
 
 /// The feature counts of the sweep (the arena has 312).
 pub const FEATURES: [usize; 4] = [52, 312, 1000, 5000];

@@ -255,7 +255,7 @@ impl IpcConfig {
     /// bad name set in code).
     pub fn wait_strategy(
         &self,
-    ) -> Result<tes_topics::channel::WaitStrategy, tes_topics::channel::BadWaitStrategy> {
+    ) -> Result<tes_runtime::channel::WaitStrategy, tes_runtime::channel::BadWaitStrategy> {
         self.wait.parse()
     }
 }
@@ -441,7 +441,7 @@ impl BridgeConfig {
         if raw.ipc.service_prefix.len() > 64 {
             return Err(invalid("ipc.service_prefix", "must be at most 64 bytes"));
         }
-        if let Err(e) = raw.ipc.wait.parse::<tes_topics::channel::WaitStrategy>() {
+        if let Err(e) = raw.ipc.wait.parse::<tes_runtime::channel::WaitStrategy>() {
             return Err(invalid("ipc.wait", e.to_string()));
         }
         if raw.ipc.latency_window == 0 {

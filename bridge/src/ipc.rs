@@ -31,8 +31,8 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
-use tes_topics::channel::{Idle, LatestInbox, Outbox, WaitStrategy};
-use tes_topics::latency::{LatencyRecorder, LatencyReport};
+use tes_runtime::channel::{Idle, LatestInbox, Outbox, WaitStrategy};
+use tes_runtime::latency::{LatencyRecorder, LatencyReport};
 use tes_topics::{Command, MotorState, service};
 
 use crate::bridge::{Bridge, BridgeError};
@@ -107,8 +107,9 @@ pub struct RunSummary {
     pub latency: LatencyReport,
 }
 
-use tes_topics::channel::ipc_err;
-pub use tes_topics::channel::{IpcError, monotonic_ns};
+pub use tes_runtime::channel::IpcError;
+use tes_runtime::channel::ipc_err;
+pub use tes_runtime::clock::monotonic_ns;
 
 /// Runs the bridge until a signal (if handled) or the stop flag; brakes any motion on exit.
 ///
@@ -146,7 +147,7 @@ pub fn run_with<T: Transport, C: Clock>(
             signal_hook::flag::register(signal, stop.clone()).map_err(ipc_err("handle signals"))?;
         }
     }
-    let node = tes_topics::channel::node(false)?;
+    let node = tes_runtime::channel::node(false)?;
     let mut commands: LatestInbox<Command> =
         LatestInbox::open(&node, &names.command, &names.command_event, wait)?;
     let states: Outbox<MotorState> =

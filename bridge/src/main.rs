@@ -68,7 +68,7 @@ fn load(config: Option<&Path>) -> anyhow::Result<BridgeConfig> {
 }
 
 fn main() -> anyhow::Result<()> {
-    tes_topics::logging::init("info");
+    tes_runtime::logging::init("info");
     match Cli::parse().command {
         Cmd::Run { config, time_scale } => {
             let mut cfg = load(config.as_deref())?;

@@ -25,7 +25,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
-use tes_topics::latency::LatencyRecorder;
+use tes_runtime::latency::LatencyRecorder;
 use thiserror::Error;
 
 use crate::brick::{BrickConfigError, SimBrick};
@@ -46,7 +46,7 @@ pub enum ProcessError {
     Ipc(#[from] IpcError),
     /// `[ipc] wait` names no strategy.
     #[error("ipc.wait: {0}")]
-    Wait(#[from] tes_topics::channel::BadWaitStrategy),
+    Wait(#[from] tes_runtime::channel::BadWaitStrategy),
     /// The latency report could not be written.
     #[error("cannot write the latency report {}: {error}", path.display())]
     Report {
@@ -131,7 +131,7 @@ pub fn run(cfg: &BridgeConfig, opts: &RunOptions) -> Result<RunSummary, ProcessE
             })?;
     }
     if let Some(path) = &cfg.ipc.latency_windows {
-        tes_topics::latency::LatencyReport::save_windows_csv(latency.windows(), path).map_err(
+        tes_runtime::latency::LatencyReport::save_windows_csv(latency.windows(), path).map_err(
             |error| ProcessError::Report {
                 path: path.clone(),
                 error,

@@ -82,11 +82,11 @@ fn config(args: &RunArgs) -> anyhow::Result<ControllerConfig> {
 
 /// Counts the acting loop's allocations for the run's report.
 #[global_allocator]
-static ALLOCATOR: tes_controller::alloc_count::CountingAllocator =
-    tes_controller::alloc_count::CountingAllocator;
+static ALLOCATOR: tes_runtime::alloc_count::CountingAllocator =
+    tes_runtime::alloc_count::CountingAllocator;
 
 fn main() -> ExitCode {
-    tes_topics::logging::init("info");
+    tes_runtime::logging::init("info");
     let Cmd::Run(args) = Cli::parse().command;
     let result = config(&args).and_then(|cfg| {
         let stop = process::stop_on_signals().context("cannot install signal handlers")?;

@@ -24,20 +24,21 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use serde::Deserialize;
-use tes_topics::affinity::Placement;
-use tes_topics::channel::{self, Idle, Inbox, IpcError, LatestOutbox, WaitStrategy, monotonic_ns};
-use tes_topics::latency::{LatencyRecorder, LatencyReport};
+use tes_runtime::affinity::Placement;
+use tes_runtime::channel::{self, Idle, Inbox, IpcError, LatestOutbox, WaitStrategy};
+use tes_runtime::clock::monotonic_ns;
+use tes_runtime::latency::{LatencyRecorder, LatencyReport};
 use tes_topics::{Command, KEEP_ALIVE_ACTION, Observation, WorldMap, observation_flags, service};
 use thiserror::Error;
 
-use crate::agents::{Agent, AgentError, Tes, TesParams};
-use crate::alloc_count;
-use crate::cmdp::{CmdpError, CmdpStructure};
-use crate::library::store::{self, StoreError, StoredLibrary};
-use crate::library::{LibraryError, LibraryParams, ViewLibrary};
-use crate::mdagl::MdaglParams;
-use crate::plan::PlannerParams;
 use crate::realtime::{Planner, PlannerThread, PlannerThreadError, SlicedPlanner};
+use tes_learning::agents::{Agent, AgentError, Tes, TesParams};
+use tes_learning::cmdp::{CmdpError, CmdpStructure};
+use tes_learning::library::store::{self, StoreError, StoredLibrary};
+use tes_learning::library::{LibraryError, LibraryParams, ViewLibrary};
+use tes_learning::mdagl::MdaglParams;
+use tes_learning::plan::PlannerParams;
+use tes_runtime::alloc_count;
 
 /// Settings of the controller process (TOML: the `[controller]` table of a launch file, or a
 /// file of its own). Every key is optional.
@@ -165,14 +166,14 @@ impl Default for ControllerConfig {
 }
 
 /// A setting that is out of range, named by its key.
-pub type ConfigError = tes_topics::settings::SettingError;
+pub type ConfigError = tes_runtime::settings::SettingError;
 
 const PROCESS: &str = "controller";
 
 impl ControllerConfig {
     /// Parses a TOML document holding these keys (unknown keys are refused).
     pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
-        let cfg: Self = tes_topics::settings::parse(PROCESS, text)?;
+        let cfg: Self = tes_runtime::settings::parse(PROCESS, text)?;
         cfg.check()?;
         Ok(cfg)
     }
@@ -215,7 +216,7 @@ impl ControllerConfig {
         if self.plan_slice == 0 {
             return bad("plan_slice", "must be at least 1");
         }
-        let strategy = tes_topics::settings::wait_strategy(PROCESS, &self.wait)?;
+        let strategy = tes_runtime::settings::wait_strategy(PROCESS, &self.wait)?;
         let planning = self.planning_for(strategy)?;
         self.placement(strategy, planning)?;
         Ok(strategy)
@@ -229,7 +230,7 @@ impl ControllerConfig {
         strategy: WaitStrategy,
         planning: Planning,
     ) -> Result<ThreadPlacement, ConfigError> {
-        let pair = tes_topics::affinity::auto_pair();
+        let pair = tes_runtime::affinity::auto_pair();
         let acting = match self.acting_cpu {
             Placement::Cpu(c) => Some(c),
             Placement::Unpinned => None,
@@ -241,13 +242,13 @@ impl ControllerConfig {
             (Planning::Thread, Placement::Cpu(c)) => Some(c),
             (Planning::Thread, Placement::Unpinned) => None,
             (Planning::Thread, Placement::Auto) => acting.and_then(|a| {
-                tes_topics::affinity::allowed_cpus()
+                tes_runtime::affinity::allowed_cpus()
                     .into_iter()
                     .find(|&c| c != a)
             }),
         };
-        tes_topics::settings::cpu(PROCESS, "acting_cpu", acting)?;
-        tes_topics::settings::cpu(PROCESS, "planner_cpu", planner)?;
+        tes_runtime::settings::cpu(PROCESS, "acting_cpu", acting)?;
+        tes_runtime::settings::cpu(PROCESS, "planner_cpu", planner)?;
         Ok(ThreadPlacement { acting, planner })
     }
 
@@ -346,7 +347,7 @@ pub enum ControllerError {
     SaverThread(std::io::Error),
     /// The acting thread could not be pinned to `acting_cpu`.
     #[error("acting thread: {0}")]
-    Affinity(#[from] tes_topics::affinity::AffinityError),
+    Affinity(#[from] tes_runtime::affinity::AffinityError),
     /// The run's report could not be written.
     #[error("cannot write the report {}: {error}", path.display())]
     Report {
@@ -378,7 +379,7 @@ pub struct ControllerSummary {
     pub compute: LatencyReport,
     /// Heap allocations on the acting path (observation received → command published) after
     /// the warm-up; `None` if the process does not count them (no
-    /// [`CountingAllocator`](crate::alloc_count::CountingAllocator)).
+    /// [`CountingAllocator`](tes_runtime::alloc_count::CountingAllocator)).
     pub allocations: Option<u64>,
     /// Of `allocations`, those made inside iceoryx2 sending the command (0 since commands go
     /// through a blackboard entry; iceoryx2 0.10's publisher allocated one object per sample).
@@ -768,7 +769,7 @@ pub fn run(
     });
     let mut last_sent = std::time::Instant::now();
     if let Some(cpu) = placement.acting {
-        tes_topics::affinity::pin_this_thread(cpu)?;
+        tes_runtime::affinity::pin_this_thread(cpu)?;
     }
     // When to wake the planner with the new model: before the command when the bridge sleeps
     // on events, after it when the bridge busy-polls. A bridge woken while this CPU is busy
@@ -968,13 +969,13 @@ fn empty_summary() -> ControllerSummary {
     }
 }
 
-pub use tes_topics::channel::stop_on_signals;
+pub use tes_runtime::signals::stop_on_signals;
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use tes_runtime::channel::{LatestInbox, Outbox};
     use tes_topics::StateAttributes;
-    use tes_topics::channel::{LatestInbox, Outbox};
 
     /// A 3×3 arena-like map: 4 orientations, effects 0 = forward (east when o = 0), 1 = stay,
     /// 2 = turn left.
@@ -1263,7 +1264,7 @@ mod tests {
         );
         assert_eq!(summary.failed_saves, 0, "{summary:?}");
         // Blocking, with the default placement: pinned where two CPUs allow it.
-        let pinned = tes_topics::affinity::auto_pair().map(|(a, p)| (Some(a), Some(p)));
+        let pinned = tes_runtime::affinity::auto_pair().map(|(a, p)| (Some(a), Some(p)));
         assert_eq!(
             (summary.placement.acting, summary.placement.planner),
             pinned.unwrap_or((None, None)),
@@ -1454,7 +1455,7 @@ mod tests {
     /// first other one; spinning, between polls, with one CPU, or when told, it does not.
     #[test]
     fn threads_are_placed_by_the_wait_and_the_keys() {
-        let allowed = tes_topics::affinity::allowed_cpus();
+        let allowed = tes_runtime::affinity::allowed_cpus();
         let placed = |text: &str| {
             let cfg = ControllerConfig::from_toml(text).unwrap();
             let strategy = cfg.check().unwrap();

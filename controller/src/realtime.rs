@@ -21,8 +21,8 @@
 //!
 //! ```
 //! use std::sync::Arc;
-//! use tes_controller::cmdp::CmdpStructure;
-//! use tes_controller::plan::{PlannedModel, PlannerParams};
+//! use tes_learning::cmdp::CmdpStructure;
+//! use tes_learning::plan::{PlannedModel, PlannerParams};
 //! use tes_controller::realtime::PlannerThread;
 //!
 //! let features: [&[u32]; 2] = [&[0], &[0]];
@@ -50,11 +50,11 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use crossbeam::channel::{self, Receiver, RecvTimeoutError, Sender, TryRecvError};
-use tes_topics::affinity::{AffinityError, check_cpu, pin_this_thread};
+use tes_runtime::affinity::{AffinityError, check_cpu, pin_this_thread};
 use thiserror::Error;
 
-use crate::cmdp::{CmdpError, CmdpStructure};
-use crate::plan::{
+use tes_learning::cmdp::{CmdpError, CmdpStructure};
+use tes_learning::plan::{
     ChangeError, ModelChanges, Pieces, PlanError, PlanStats, PlannedModel, PlannerParams,
 };
 
@@ -266,8 +266,8 @@ impl PlannerThread {
 ///
 /// ```
 /// use std::sync::Arc;
-/// use tes_controller::cmdp::CmdpStructure;
-/// use tes_controller::plan::{PlannedModel, PlannerParams};
+/// use tes_learning::cmdp::CmdpStructure;
+/// use tes_learning::plan::{PlannedModel, PlannerParams};
 /// use tes_controller::realtime::SlicedPlanner;
 ///
 /// let features: [&[u32]; 2] = [&[0], &[0]];
@@ -526,7 +526,7 @@ impl Drop for PlannerThread {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cmdp::tests::corridor;
+    use tes_learning::cmdp::examples::corridor;
 
     /// Every way of planning elsewhere: the thread, and between polls in slices of 1 state
     /// (the finest cut), 7 (cuts falling anywhere) and more than a whole sweep.
@@ -602,8 +602,8 @@ mod tests {
 
     #[test]
     fn views_refreshed_elsewhere_plan_like_views_refreshed_inline() {
-        use crate::cmdp::EffectTable;
-        use crate::mdagl::{Features, Mdagl, MdaglParams};
+        use tes_learning::cmdp::EffectTable;
+        use tes_learning::mdagl::{Features, Mdagl, MdaglParams};
         let c = Arc::new(corridor(9, &[3, 4]));
         let params = PlannerParams {
             max_sweeps: 10_000,

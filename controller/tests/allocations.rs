@@ -7,8 +7,8 @@
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 
-use tes_controller::mdagl::synthetic::{SparseMultinomialStream, SyntheticSpec};
-use tes_controller::mdagl::{Features, Mdagl, MdaglParams};
+use tes_learning::mdagl::synthetic::{SparseMultinomialStream, SyntheticSpec};
+use tes_learning::mdagl::{Features, Mdagl, MdaglParams};
 
 struct CountingAllocator;
 
@@ -141,7 +141,7 @@ fn mdagl_dense_updates_allocate_nothing() {
 
 /// A 10×10 open grid, 4 moves, 5 effects (4 moves + stay), 60 features: bias, a "mud"
 /// marker on a third of the cells, and random irrelevant ones.
-fn mud_grid() -> std::sync::Arc<tes_controller::cmdp::CmdpStructure> {
+fn mud_grid() -> std::sync::Arc<tes_learning::cmdp::CmdpStructure> {
     let (w, n) = (10usize, 100usize);
     let features: Vec<Vec<u32>> = (0..n)
         .map(|s| {
@@ -168,7 +168,7 @@ fn mud_grid() -> std::sync::Arc<tes_controller::cmdp::CmdpStructure> {
         }
     };
     std::sync::Arc::new(
-        tes_controller::cmdp::CmdpStructure::new(n, 4, 5, 60, step, reward, terminal, |s| {
+        tes_learning::cmdp::CmdpStructure::new(n, 4, 5, 60, step, reward, terminal, |s| {
             &features[s]
         })
         .unwrap(),
@@ -178,8 +178,8 @@ fn mud_grid() -> std::sync::Arc<tes_controller::cmdp::CmdpStructure> {
 /// Runs `steps` act/observe steps of `agent` on the mud grid from `*s`: mud cells stall one
 /// move in three.
 fn run_on_mud_grid(
-    agent: &mut dyn tes_controller::agents::Agent,
-    structure: &tes_controller::cmdp::CmdpStructure,
+    agent: &mut dyn tes_learning::agents::Agent,
+    structure: &tes_learning::cmdp::CmdpStructure,
     s: &mut usize,
     steps: usize,
 ) {
@@ -202,7 +202,7 @@ fn run_on_mud_grid(
 /// effect, refresh the model — allocates nothing after construction.
 #[test]
 fn lore_rl_steps_allocate_nothing() {
-    use tes_controller::agents::{LoreRl, LoreRlParams};
+    use tes_learning::agents::{LoreRl, LoreRlParams};
 
     let structure = mud_grid();
     let mut agent = LoreRl::new(structure.clone(), LoreRlParams::default(), 9).unwrap();
@@ -214,8 +214,8 @@ fn lore_rl_steps_allocate_nothing() {
 }
 
 /// A 9-view library for the mud grid: three tasks whose fresh views won (4 + 4 + 1 views).
-fn nine_view_library() -> tes_controller::library::ViewLibrary {
-    use tes_controller::library::{ActionOutcome, LibraryParams, ViewLibrary, Winner};
+fn nine_view_library() -> tes_learning::library::ViewLibrary {
+    use tes_learning::library::{ActionOutcome, LibraryParams, ViewLibrary, Winner};
 
     let mut library = ViewLibrary::new(4, 5, 60, LibraryParams::default()).unwrap();
     for (task, actions) in [(0usize, 4usize), (1, 4), (2, 1)] {
@@ -249,7 +249,7 @@ fn nine_view_library() -> tes_controller::library::ViewLibrary {
 /// allocates nothing after construction.
 #[test]
 fn tes_steps_with_a_nine_view_library_allocate_nothing() {
-    use tes_controller::agents::{Tes, TesParams};
+    use tes_learning::agents::{Tes, TesParams};
 
     let structure = mud_grid();
     let mut agent = Tes::new(
@@ -276,9 +276,9 @@ fn tes_steps_with_a_nine_view_library_allocate_nothing() {
 /// polls) do slices of planning — allocates nothing on the acting thread.
 #[test]
 fn the_real_time_acting_loop_allocates_nothing() {
-    use tes_controller::agents::{Agent, Tes, TesParams};
-    use tes_controller::plan::PlannerParams;
     use tes_controller::realtime::{Planner, PlannerThread, SlicedPlanner};
+    use tes_learning::agents::{Agent, Tes, TesParams};
+    use tes_learning::plan::PlannerParams;
 
     let structure = mud_grid();
     let params = PlannerParams::default();

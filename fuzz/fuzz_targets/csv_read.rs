@@ -8,8 +8,8 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use tes_controller::labelled_csv::{MAX_LABEL, is_blank, parse_row};
-use tes_controller::mdagl::{Features, Mdagl, MdaglParams};
+use tes_learning::labelled_csv::{MAX_LABEL, is_blank, parse_row};
+use tes_learning::mdagl::{Features, Mdagl, MdaglParams};
 
 /// Models bigger than this (classes × features) are not built: fuzzing is about the reader,
 /// and `tes fit` would simply need the memory.

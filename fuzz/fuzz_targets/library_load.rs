@@ -5,8 +5,8 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use tes_controller::library::store::{FORMAT_VERSION, MAGIC, decode, encode};
-use tes_controller::mdagl::Features;
+use tes_learning::library::store::{FORMAT_VERSION, MAGIC, decode, encode};
+use tes_learning::mdagl::Features;
 
 fuzz_target!(|data: &[u8]| {
     check(data);

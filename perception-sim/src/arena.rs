@@ -78,7 +78,7 @@
 //!
 //! # Building the agent's CMDP
 //!
-//! Everything `tes_controller::cmdp::CmdpStructure::new` needs is here:
+//! Everything `tes_learning::cmdp::CmdpStructure::new` needs is here:
 //!
 //! ```text
 //! let arena = Arena::new(ArenaId::Env3);

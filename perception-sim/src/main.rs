@@ -75,11 +75,11 @@ fn config(args: &RunArgs) -> anyhow::Result<PerceptionConfig> {
 }
 
 fn main() -> ExitCode {
-    tes_topics::logging::init("info");
+    tes_runtime::logging::init("info");
     let Cmd::Run(args) = Cli::parse().command;
     let result = config(&args).and_then(|cfg| {
         let stop =
-            tes_topics::channel::stop_on_signals().context("cannot install signal handlers")?;
+            tes_runtime::signals::stop_on_signals().context("cannot install signal handlers")?;
         let s = process::run(&cfg, &stop)?;
         println!(
             "perception-sim: {} episodes, {} observations ({} re-published), total reward {:.2}",

@@ -20,7 +20,8 @@ use std::time::Duration;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::Deserialize;
-use tes_topics::channel::{self, Idle, Inbox, IpcError, Outbox, WaitStrategy, monotonic_ns};
+use tes_runtime::channel::{self, Idle, Inbox, IpcError, Outbox, WaitStrategy};
+use tes_runtime::clock::monotonic_ns;
 use tes_topics::{
     FeatureBits, MAX_STATES, MotorState, Observation, StateAttributes, WorldMap, motor_flags,
     observation_flags, service,
@@ -82,14 +83,14 @@ impl Default for PerceptionConfig {
 }
 
 /// A setting that is out of range, named by its key.
-pub type ConfigError = tes_topics::settings::SettingError;
+pub type ConfigError = tes_runtime::settings::SettingError;
 
 const PROCESS: &str = "perception";
 
 impl PerceptionConfig {
     /// Parses a TOML document with these keys (unknown keys are refused) and checks it.
     pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
-        let cfg: Self = tes_topics::settings::parse(PROCESS, text)?;
+        let cfg: Self = tes_runtime::settings::parse(PROCESS, text)?;
         cfg.check()?;
         Ok(cfg)
     }
@@ -124,7 +125,7 @@ impl PerceptionConfig {
                 "left_port and right_port must be different ports 0-2",
             );
         }
-        tes_topics::settings::wait_strategy(PROCESS, &self.wait)
+        tes_runtime::settings::wait_strategy(PROCESS, &self.wait)
     }
 }
 

@@ -27,11 +27,11 @@ use clap::{Args, Subcommand};
 use serde::Serialize;
 use tes_bench::relay::{self, RelayConfig};
 use tes_bench::{fixtures, scaling};
-use tes_controller::library::store::{self, StoredLibrary};
 use tes_controller::process::{ControllerConfig, ControllerSummary, ThreadPlacement};
-use tes_topics::affinity::Placement;
-use tes_topics::channel::WaitStrategy;
-use tes_topics::latency::LatencyReport;
+use tes_learning::library::store::{self, StoredLibrary};
+use tes_runtime::affinity::Placement;
+use tes_runtime::channel::WaitStrategy;
+use tes_runtime::latency::LatencyReport;
 
 use crate::launch::{self, ChildSpec, LaunchFile, LaunchSection, Running};
 

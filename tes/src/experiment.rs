@@ -6,10 +6,10 @@ use std::path::PathBuf;
 use anyhow::{Result, bail};
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use tes_bench::experiment::grid::{self, GridConfig};
-use tes_bench::experiment::robot::{self, RobotConfig};
-use tes_bench::experiment::transfer::{self, TransferConfig};
-use tes_controller::agents::ExampleStore;
+use tes_experiments::grid::{self, GridConfig};
+use tes_experiments::robot::{self, RobotConfig};
+use tes_experiments::transfer::{self, TransferConfig};
+use tes_learning::agents::ExampleStore;
 
 /// Arguments of `tes experiment`.
 #[derive(Debug, Args)]
@@ -109,7 +109,7 @@ struct GridArgs {
     #[arg(long)]
     threads: Option<usize>,
     /// Plan every re-plan to the tolerance, instead of stopping it once no value moves by
-    /// more than the model change that triggered it (see `tes_controller::plan`).
+    /// more than the model change that triggered it (see `tes_learning::plan`).
     #[arg(long)]
     converge_plans: bool,
     /// RL-DT keeps per-state effect counts instead of the list of all examples: the same

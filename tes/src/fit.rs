@@ -14,8 +14,8 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use tes_controller::labelled_csv::{is_blank, parse_row, row_text};
-use tes_controller::mdagl::{Features, Mdagl, MdaglParams};
+use tes_learning::labelled_csv::{is_blank, parse_row, row_text};
+use tes_learning::mdagl::{Features, Mdagl, MdaglParams};
 
 /// Rows parsed before each timed batch of updates.
 const CHUNK_ROWS: usize = 4096;

@@ -35,7 +35,7 @@ use serde::Deserialize;
 use tes_bridge::config::BridgeConfig;
 use tes_controller::process::{ControllerConfig, default_data_dir};
 use tes_perception_sim::process::PerceptionConfig;
-use tes_topics::channel::{self, WaitStrategy};
+use tes_runtime::channel::{self, WaitStrategy};
 
 /// Arguments of `tes launch`.
 #[derive(Debug, Args)]

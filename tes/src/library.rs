@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::{Args, Subcommand};
 use serde::Serialize;
-use tes_controller::library::store::{self, FORMAT_VERSION, StoredLibrary};
+use tes_learning::library::store::{self, FORMAT_VERSION, StoredLibrary};
 
 /// Arguments of `tes library`.
 #[derive(Debug, Args)]

@@ -45,13 +45,13 @@ enum Command {
 /// Children log to stderr (the launcher's terminal), level from `RUST_LOG` (default: warnings
 /// and errors only; the launcher prints the per-episode lines).
 fn init_child_logging() {
-    tes_topics::logging::init("warn");
+    tes_runtime::logging::init("warn");
 }
 
 /// Counts the controller child's acting-path allocations for its report.
 #[global_allocator]
-static ALLOCATOR: tes_controller::alloc_count::CountingAllocator =
-    tes_controller::alloc_count::CountingAllocator;
+static ALLOCATOR: tes_runtime::alloc_count::CountingAllocator =
+    tes_runtime::alloc_count::CountingAllocator;
 
 fn main() -> ExitCode {
     // Die quietly on a closed pipe (`tes library show … | head`), as command-line tools do,

@@ -54,7 +54,7 @@ fn latency_runs_both_paths_and_reports_every_key() {
     let out = dir.path().join("run");
     // The default placement, as a user gets it: blocking, on two or more CPUs, the acting
     // thread (and the floor's hop) on the last allowed CPU and the planner on the first.
-    let allowed = tes_topics::affinity::allowed_cpus();
+    let allowed = tes_runtime::affinity::allowed_cpus();
     let (acting, planner) = match (allowed.first(), allowed.last()) {
         (Some(&first), Some(&last)) if first != last => (json!(last), json!(first)),
         _ => (json!(null), json!(null)),

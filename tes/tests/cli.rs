@@ -225,9 +225,9 @@ fn experiment_rejects_zero_runs() {
 
 /// A library grown by this test process over two tasks, saved with names.
 fn saved_library(dir: &tempfile::TempDir) -> PathBuf {
-    use tes_controller::library::store::{self, StoredLibrary};
-    use tes_controller::library::{ActionOutcome, LibraryParams, ViewLibrary, Winner};
-    use tes_controller::mdagl::Features;
+    use tes_learning::library::store::{self, StoredLibrary};
+    use tes_learning::library::{ActionOutcome, LibraryParams, ViewLibrary, Winner};
+    use tes_learning::mdagl::Features;
 
     let mut lib = ViewLibrary::new(2, 3, 6, LibraryParams::default()).expect("valid settings");
     for task in 0..2 {

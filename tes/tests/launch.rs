@@ -164,7 +164,7 @@ impl Drop for Group {
             let _ = self.launcher.wait();
             std::thread::sleep(Duration::from_millis(300));
         }
-        let _ = tes_topics::channel::clean_stale_resources();
+        let _ = tes_runtime::channel::clean_stale_resources();
     }
 }
 
@@ -298,7 +298,7 @@ fn a_launched_group_runs_its_episodes_and_saves_the_library() {
     );
     // The library is on disk and loads, for the arena's shape.
     let library = dir.path().join("data/library.tesl");
-    let stored = tes_controller::library::store::load_for(&library, 3, 20, 312)
+    let stored = tes_learning::library::store::load_for(&library, 3, 20, 312)
         .expect("the saved library loads");
     assert!(!stored.library.is_empty());
     assert!(!group.children_alive());
@@ -408,7 +408,7 @@ fn ctrl_c_stops_the_group_cleanly_leaving_no_child_or_service() {
     let mut group = Group::start(dir.path(), &toml, 10_000);
     group.wait_for_episodes(2, Duration::from_secs(60));
     assert!(
-        !tes_topics::channel::services_with_prefix(&prefix)
+        !tes_runtime::channel::services_with_prefix(&prefix)
             .expect("list")
             .is_empty(),
         "the group's services exist while it runs"
@@ -423,10 +423,10 @@ fn ctrl_c_stops_the_group_cleanly_leaving_no_child_or_service() {
         "{out:?}"
     );
     assert!(!group.children_alive(), "no child outlives the launcher");
-    let left = tes_topics::channel::services_with_prefix(&prefix).expect("list");
+    let left = tes_runtime::channel::services_with_prefix(&prefix).expect("list");
     assert!(left.is_empty(), "services left behind: {left:?}");
     // The controller saved the library on its way out.
-    tes_controller::library::store::load_for(&dir.path().join("data/library.tesl"), 3, 20, 312)
+    tes_learning::library::store::load_for(&dir.path().join("data/library.tesl"), 3, 20, 312)
         .expect("the library loads");
 }
 
@@ -476,9 +476,9 @@ fn every_process_survives_twenty_kills_and_the_library_always_loads() {
                 Duration::from_secs(30),
             );
             if role == "controller" && library.exists() {
-                tes_controller::library::store::load_for(&library, 3, 20, 312).unwrap_or_else(
-                    |e| panic!("round {round}: the library on disk does not load: {e}"),
-                );
+                tes_learning::library::store::load_for(&library, 3, 20, 312).unwrap_or_else(|e| {
+                    panic!("round {round}: the library on disk does not load: {e}")
+                });
             }
         }
     }
@@ -491,7 +491,7 @@ fn every_process_survives_twenty_kills_and_the_library_always_loads() {
         err.iter().any(|l| l.contains("stop requested")),
         "{out:?}\n{err:?}"
     );
-    tes_controller::library::store::load_for(&library, 3, 20, 312)
+    tes_learning::library::store::load_for(&library, 3, 20, 312)
         .expect("the library saved at shutdown loads");
     assert!(!group.children_alive());
 }
@@ -502,7 +502,7 @@ fn every_process_survives_twenty_kills_and_the_library_always_loads() {
 #[test]
 fn the_bridge_brakes_within_its_deadline_when_the_controller_vanishes_mid_move() {
     use std::sync::atomic::AtomicBool;
-    use tes_topics::channel::{Inbox, WaitStrategy};
+    use tes_runtime::channel::{Inbox, WaitStrategy};
     use tes_topics::{MotorState, motor_flags, service};
 
     let dir = tempfile::tempdir().expect("temp dir");
@@ -529,7 +529,7 @@ fn the_bridge_brakes_within_its_deadline_when_the_controller_vanishes_mid_move()
             .and_then(|n| n.to_str())
             .unwrap_or("x"),
     );
-    let node = tes_topics::channel::node(false).expect("node");
+    let node = tes_runtime::channel::node(false).expect("node");
     let states = Inbox::<MotorState>::open(
         &node,
         &format!("{prefix}{}", service::MOTOR_STATE),

@@ -12,8 +12,9 @@
 //!
 //! Every payload here is `#[repr(C)]`, `Copy`, pointer-free and of fixed size, so it is written
 //! straight into shared memory — by a publisher (`loan_uninit().write_payload(..)`) or, for
-//! the controller's `Command`, into a blackboard entry ([`channel::LatestOutbox`], which unlike
-//! iceoryx2 0.10's publisher allocates nothing per message) — and no process serialises one.
+//! the controller's `Command`, into a blackboard entry (`tes_runtime::board::LatestOutbox`,
+//! which allocates nothing per message) — and no process serialises one. This crate holds only
+//! the messages and the services' names; the channels that carry them are in `tes-runtime`.
 //!
 //! ```
 //! use tes_topics::{FeatureBits, Observation, StateAttributes};
@@ -32,11 +33,6 @@
 
 use iceoryx2::prelude::ZeroCopySend;
 
-pub mod affinity;
-pub mod channel;
-pub mod latency;
-pub mod logging;
-pub mod settings;
 mod world_map;
 
 pub use world_map::{MAX_ACTIONS, MAX_EFFECTS, MAX_STATES, WorldMap};

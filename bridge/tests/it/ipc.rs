@@ -13,7 +13,7 @@ use tes_bridge::config::BridgeConfig;
 use tes_bridge::ipc::{self as bridge_ipc, RunOptions, RunSummary, ServiceNames};
 use tes_bridge::nxt::Port;
 use tes_bridge::transport::SimTransport;
-use tes_topics::channel::LatestOutbox;
+use tes_runtime::channel::LatestOutbox;
 use tes_topics::{Command, MotorState, motor_flags};
 
 /// Runs the bridge loop on a thread; stops and joins it on drop, even if the test panics.
@@ -99,7 +99,7 @@ fn bridge_loop_turns_commands_into_motor_states() {
     let commands =
         retry(|| LatestOutbox::<Command>::open(&node, &names.command, &names.command_event));
     let state_service =
-        retry(|| tes_topics::channel::pubsub::<MotorState>(&node, &names.motor_state, 0));
+        retry(|| tes_runtime::channel::pubsub::<MotorState>(&node, &names.motor_state, 0));
     let subscriber = state_service
         .subscriber_builder()
         .create()

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use tes_bridge::config::BridgeConfig;
 use tes_bridge::ipc::RunOptions;
-use tes_topics::channel::{self, Inbox, LatestOutbox, WaitStrategy};
+use tes_runtime::channel::{self, Inbox, LatestOutbox, WaitStrategy};
 use tes_topics::{Command, MotorState, motor_flags, service};
 
 /// Runs a bridge at `time_scale` through [`tes_bridge::process::run`], sends action 0 (both

@@ -1,0 +1,510 @@
+//! The paper's §5.2 robot study on the simulated arenas: Fig. 8, Fig. 9, Tables 5 and 6.
+//!
+//! In-process (the same agent code as the controller process, without IPC, so many repeats
+//! run quickly); `tes launch` is the multi-process path. Each step the agent acts in the
+//! discretised state, the arena moves the simulated robot by that action's wheel rotations
+//! (with motor noise and surface slip), and the agent learns the effect derived from the state
+//! change — exactly what the controller derives from perception's observations.
+//!
+//! Scenarios (the paper's Table 4), all tested on Env 3:
+//!
+//! * **loreRL** — no experience;
+//! * **LWT** — experienced Env 2; its best view per action, frozen;
+//! * **TES-woRi** — experienced Env 2; TES;
+//! * **TES** — experienced Env 1, then Env 2; TES;
+//!
+//! plus, for Fig. 8, **fRmax** and **fEpsG** (true DBN contexts: orientation × governing mark)
+//! and **man-loreRL** (loreRL on the 12 hand-picked features: 8 orientations + 4 mark bits).
+//! Paper settings: α = 0.5, λ = 0.05, γ = 0.95, ε = 0.05, m = 10.
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::Serialize;
+use tes_learning::agents::{
+    Agent, Contexts, CountingAgent, LoreRl, LoreRlParams, Tes, TesParams, ViewPolicy,
+};
+use tes_learning::cmdp::CmdpStructure;
+use tes_learning::library::{LibraryParams, ViewLibrary};
+use tes_learning::mdagl::MdaglParams;
+use tes_learning::plan::PlannerParams;
+use tes_perception_sim::arena::{Arena, ArenaId, Episode as ArenaEpisode, EpisodeStatus};
+
+use crate::episode::{Episode, write_episodes_csv, write_file};
+use crate::stats::{Summary, summarise};
+use crate::svg::{BandPoint, LineChart, Series};
+
+/// Settings of `tes experiment robot`.
+#[derive(Debug, Clone, Serialize)]
+pub struct RobotConfig {
+    /// Independent repeats (paper: 20 for Fig. 8, 10 for Table 5).
+    pub runs: usize,
+    /// Episodes on Env 3 (paper: 50).
+    pub episodes: usize,
+    /// Episodes in each earlier arena the transfer agents experience first.
+    pub train_episodes: usize,
+    /// Actions after which an episode is cut off (besides terminal states and being stuck).
+    pub step_cap: usize,
+    /// Base seed; run `r` uses `seed + r`.
+    pub seed: u64,
+    /// Whether this is the reduced `--quick` configuration.
+    pub quick: bool,
+}
+
+impl RobotConfig {
+    /// The paper's setting: 20 runs, 50 episodes on Env 3, 50 in each earlier arena.
+    pub fn paper() -> Self {
+        Self {
+            runs: 20,
+            episodes: 50,
+            train_episodes: 50,
+            step_cap: 100,
+            seed: 1,
+            quick: false,
+        }
+    }
+
+    /// A first look in seconds: 3 runs, 15 episodes, 15 training episodes per arena.
+    pub fn quick() -> Self {
+        Self {
+            runs: 3,
+            episodes: 15,
+            train_episodes: 15,
+            quick: true,
+            ..Self::paper()
+        }
+    }
+}
+
+/// The compared methods.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum RobotMethod {
+    /// TES after Env 1 and Env 2.
+    Tes,
+    /// TES after Env 2 only.
+    TesWoRi,
+    /// LWT after Env 2.
+    Lwt,
+    /// loreRL, no experience.
+    LoreRl,
+    /// loreRL on the 12 hand-picked features.
+    ManLoreRl,
+    /// Factored R-max, true contexts, m = 10.
+    FRmax,
+    /// Factored ε-greedy, true contexts.
+    FEpsG,
+}
+
+impl RobotMethod {
+    /// Every method, in report order.
+    pub const ALL: [RobotMethod; 7] = [
+        RobotMethod::Tes,
+        RobotMethod::TesWoRi,
+        RobotMethod::Lwt,
+        RobotMethod::LoreRl,
+        RobotMethod::ManLoreRl,
+        RobotMethod::FRmax,
+        RobotMethod::FEpsG,
+    ];
+
+    /// The name used in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            RobotMethod::Tes => "TES",
+            RobotMethod::TesWoRi => "TES-woRi",
+            RobotMethod::Lwt => "LWT",
+            RobotMethod::LoreRl => "loreRL",
+            RobotMethod::ManLoreRl => "man-loreRL",
+            RobotMethod::FRmax => "fRmax",
+            RobotMethod::FEpsG => "fEpsG",
+        }
+    }
+
+    /// The arenas experienced before Env 3.
+    fn experience(self) -> &'static [ArenaId] {
+        match self {
+            RobotMethod::Tes => &[ArenaId::Env1, ArenaId::Env2],
+            RobotMethod::TesWoRi | RobotMethod::Lwt => &[ArenaId::Env2],
+            _ => &[],
+        }
+    }
+}
+
+/// An arena with its agent-known CMDP structures (all 312 features, and the 12 hand-picked).
+struct World {
+    arena: Arena,
+    full: Arc<CmdpStructure>,
+    manual: Arc<CmdpStructure>,
+    contexts: Contexts,
+}
+
+impl World {
+    fn new(id: ArenaId) -> Result<Self> {
+        let arena = Arena::new(id);
+        let n = arena.n_states();
+        let full = CmdpStructure::new(
+            n,
+            arena.n_actions(),
+            arena.n_effects(),
+            arena.n_features(),
+            |s, e| arena.apply_effect(s, e),
+            arena.rewards().to_vec(),
+            arena.terminals().to_vec(),
+            |s| arena.features(s),
+        )
+        .with_context(|| format!("{id} does not form a CMDP"))?;
+        let manual = CmdpStructure::new(
+            n,
+            arena.n_actions(),
+            arena.n_effects(),
+            12,
+            |s, e| arena.apply_effect(s, e),
+            arena.rewards().to_vec(),
+            arena.terminals().to_vec(),
+            |s| arena.man_features(s),
+        )
+        .with_context(|| format!("{id}'s hand-picked features do not form a CMDP"))?;
+        let of_state = (0..n)
+            .map(|s| arena.oracle_context(s).unwrap_or(0) as u32)
+            .collect();
+        let contexts = Contexts::new(of_state, arena.n_oracle_contexts())
+            .context("the arena's oracle contexts are out of range")?;
+        Ok(Self {
+            arena,
+            full: Arc::new(full),
+            manual: Arc::new(manual),
+            contexts,
+        })
+    }
+}
+
+/// Runs one episode of `agent` in `world` from a random start.
+fn run_episode(
+    agent: &mut dyn Agent,
+    world: &World,
+    step_cap: usize,
+    rng: &mut ChaCha8Rng,
+) -> Result<Episode> {
+    let arena = &world.arena;
+    let mut pose = arena.random_start(rng);
+    let mut state = arena.discretise(pose);
+    let mut tracker = ArenaEpisode::new(arena, state)?;
+    agent.begin_episode(state);
+    let mut agent_time = std::time::Duration::ZERO;
+    let mut episode = Episode {
+        reward: 0.0,
+        steps: 0,
+        finished: false,
+        agent_seconds: 0.0,
+    };
+    while (episode.steps as usize) < step_cap {
+        let t = Instant::now();
+        let action = agent.act(state)?;
+        agent_time += t.elapsed();
+        let outcome = arena.step(pose, action, rng)?;
+        let effect = arena.effect_between(state, outcome.state);
+        let t = Instant::now();
+        agent.observe(state, action, effect)?;
+        agent_time += t.elapsed();
+        pose = outcome.pose;
+        state = outcome.state;
+        let step = tracker.observe(arena, state)?;
+        episode.reward += step.reward;
+        episode.steps += 1;
+        match step.status {
+            EpisodeStatus::Continuing => {}
+            EpisodeStatus::Terminal => {
+                episode.finished = true;
+                break;
+            }
+            EpisodeStatus::Stuck => break,
+        }
+    }
+    episode.agent_seconds = agent_time.as_secs_f64();
+    Ok(episode)
+}
+
+fn library_params() -> LibraryParams {
+    LibraryParams {
+        mdagl: mdagl_params(),
+        ..LibraryParams::default()
+    }
+}
+
+/// The paper's §5.2 view settings: λ = 0.05, α = 0.5.
+fn mdagl_params() -> MdaglParams {
+    MdaglParams {
+        lambda: 0.05,
+        alpha: 0.5,
+        intercept: false,
+    }
+}
+
+/// One (method, run) job: experience the earlier arenas (transfer methods), then Env 3.
+fn run_job(
+    config: &RobotConfig,
+    worlds: &BTreeMap<u32, World>,
+    method: RobotMethod,
+    run: usize,
+    tick: &(dyn Fn() + Sync),
+) -> Result<Vec<Episode>> {
+    let seed = config.seed + run as u64;
+    let test = &worlds[&ArenaId::Env3.number()];
+    let s = &test.full;
+    let mut library = ViewLibrary::new(
+        s.n_actions(),
+        s.n_effects(),
+        s.n_features(),
+        library_params(),
+    )?;
+    for (i, id) in method.experience().iter().enumerate() {
+        let world = &worlds[&id.number()];
+        let agent_seed = seed.wrapping_mul(97).wrapping_add(i as u64);
+        let mut agent = Tes::new(
+            world.full.clone(),
+            library,
+            TesParams::default(),
+            agent_seed,
+        )?;
+        let mut rng = ChaCha8Rng::seed_from_u64(agent_seed ^ 0xA2E4A);
+        for _ in 0..config.train_episodes {
+            run_episode(&mut agent, world, config.step_cap, &mut rng)?;
+            tick();
+        }
+        library = agent.finish_task()?.0;
+    }
+    let lore = LoreRlParams {
+        mdagl: mdagl_params(),
+        ..LoreRlParams::default()
+    };
+    let planner = PlannerParams::default();
+    let agent_seed = seed.wrapping_mul(97).wrapping_add(100);
+    let transfer = |policy| {
+        let params = TesParams {
+            policy,
+            ..TesParams::default()
+        };
+        Tes::new(s.clone(), library.clone(), params, agent_seed)
+            .map(|a| Box::new(a) as Box<dyn Agent>)
+    };
+    let mut agent: Box<dyn Agent> = match method {
+        RobotMethod::Tes | RobotMethod::TesWoRi => transfer(ViewPolicy::Tes)?,
+        RobotMethod::Lwt => transfer(ViewPolicy::Lwt)?,
+        RobotMethod::LoreRl => Box::new(LoreRl::new(s.clone(), lore, agent_seed)?),
+        RobotMethod::ManLoreRl => Box::new(LoreRl::new(test.manual.clone(), lore, agent_seed)?),
+        RobotMethod::FRmax => Box::new(CountingAgent::factored_rmax(
+            s.clone(),
+            test.contexts.clone(),
+            10,
+            planner,
+            agent_seed,
+        )?),
+        RobotMethod::FEpsG => Box::new(CountingAgent::factored_epsilon_greedy(
+            s.clone(),
+            test.contexts.clone(),
+            0.05,
+            planner,
+            agent_seed,
+        )?),
+    };
+    // Every method of a run faces the same start and slip stream.
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x007E_57E3);
+    let mut episodes = Vec::with_capacity(config.episodes);
+    for _ in 0..config.episodes {
+        episodes.push(run_episode(
+            agent.as_mut(),
+            test,
+            config.step_cap,
+            &mut rng,
+        )?);
+        tick();
+    }
+    Ok(episodes)
+}
+
+/// The summary written to `summary.json`.
+#[derive(Debug, Serialize)]
+pub struct RobotReport {
+    /// The settings, seeds included.
+    pub config: RobotConfig,
+    /// Wall-clock seconds.
+    pub wall_seconds: f64,
+    /// Accumulated reward after the last Env 3 episode, per method (Fig. 8, Fig. 9's end).
+    pub accumulated: BTreeMap<String, Summary>,
+    /// Accumulated-reward difference to TES after the last episode, per method (Fig. 9).
+    pub difference_to_tes: BTreeMap<String, Summary>,
+    /// First-episode reward of every run, per method (Table 5).
+    pub first_episode: BTreeMap<String, Vec<f64>>,
+    /// Agent seconds per episode, per method (Table 6 / Table 3).
+    pub seconds_per_episode: BTreeMap<String, Summary>,
+    /// Whether TES ≥ TES-woRi ≥ loreRL > LWT in mean accumulated reward.
+    pub ordering_holds: bool,
+}
+
+/// Runs the robot experiment, writes its files into `out`, and returns the summary.
+pub fn run(
+    config: &RobotConfig,
+    out: &Path,
+    progress: &(dyn Fn(u64, u64) + Sync),
+) -> Result<RobotReport> {
+    if config.runs == 0 || config.episodes == 0 || config.step_cap == 0 {
+        bail!("runs, episodes and the step cap must all be at least 1");
+    }
+    let started = Instant::now();
+    fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let worlds: BTreeMap<u32, World> = ArenaId::ALL
+        .into_iter()
+        .map(|id| Ok((id.number(), World::new(id)?)))
+        .collect::<Result<_>>()?;
+    let jobs: Vec<(RobotMethod, usize)> = RobotMethod::ALL
+        .into_iter()
+        .flat_map(|m| (0..config.runs).map(move |r| (m, r)))
+        .collect();
+    let total: u64 = jobs
+        .iter()
+        .map(|(m, _)| (config.episodes + m.experience().len() * config.train_episodes) as u64)
+        .sum();
+    let done = AtomicU64::new(0);
+    let tick = || progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
+    let results: Vec<((RobotMethod, usize), Vec<Episode>)> = jobs
+        .par_iter()
+        .map(|&(m, r)| {
+            run_job(config, &worlds, m, r, &tick)
+                .with_context(|| format!("{} run {r}", m.name()))
+                .map(|e| ((m, r), e))
+        })
+        .collect::<Result<_>>()?;
+    let by: BTreeMap<(RobotMethod, usize), Vec<Episode>> = results.into_iter().collect();
+    let runs_of = |m: RobotMethod| -> Vec<&Vec<Episode>> {
+        (0..config.runs).filter_map(|r| by.get(&(m, r))).collect()
+    };
+    let total_reward = |eps: &[Episode]| eps.iter().map(|e| e.reward).sum::<f64>();
+
+    let mut accumulated = BTreeMap::new();
+    let mut difference_to_tes = BTreeMap::new();
+    let mut first_episode = BTreeMap::new();
+    let mut seconds_per_episode = BTreeMap::new();
+    for m in RobotMethod::ALL {
+        let runs = runs_of(m);
+        accumulated.insert(
+            m.name().to_owned(),
+            summarise(&runs.iter().map(|e| total_reward(e)).collect::<Vec<_>>()),
+        );
+        first_episode.insert(
+            m.name().to_owned(),
+            runs.iter()
+                .map(|e| e.first().map_or(f64::NAN, |x| x.reward))
+                .collect(),
+        );
+        seconds_per_episode.insert(
+            m.name().to_owned(),
+            summarise(
+                &runs
+                    .iter()
+                    .map(|e| e.iter().map(|x| x.agent_seconds).sum::<f64>() / e.len() as f64)
+                    .collect::<Vec<_>>(),
+            ),
+        );
+        if m != RobotMethod::Tes {
+            let diffs: Vec<f64> = (0..config.runs)
+                .filter_map(|r| {
+                    Some(
+                        total_reward(by.get(&(m, r))?)
+                            - total_reward(by.get(&(RobotMethod::Tes, r))?),
+                    )
+                })
+                .collect();
+            difference_to_tes.insert(m.name().to_owned(), summarise(&diffs));
+        }
+    }
+    let mean = |name: &str| accumulated.get(name).map_or(f64::NAN, |s: &Summary| s.mean);
+    let ordering_holds = mean("TES") >= mean("TES-woRi")
+        && mean("TES-woRi") >= mean("loreRL")
+        && mean("loreRL") > mean("LWT");
+
+    // Fig. 8: accumulated reward of the single-environment learners.
+    let curve = |m: RobotMethod, minus: Option<RobotMethod>| -> Vec<BandPoint> {
+        let mut acc = vec![0.0; config.runs];
+        (0..config.episodes)
+            .map(|e| {
+                for (r, a) in acc.iter_mut().enumerate() {
+                    let mine = by.get(&(m, r)).map_or(0.0, |x| x[e].reward);
+                    let base = minus
+                        .and_then(|b| by.get(&(b, r)))
+                        .map_or(0.0, |x| x[e].reward);
+                    *a += mine - base;
+                }
+                let s = summarise(&acc);
+                BandPoint {
+                    x: (e + 1) as f64,
+                    y: s.mean,
+                    lo: s.lo,
+                    hi: s.hi,
+                }
+            })
+            .collect()
+    };
+    let fig8 = LineChart {
+        title: "Fig. 8 — accumulated reward on Env 3 (simulated arena)".into(),
+        x_label: "episode".into(),
+        y_label: "accumulated reward".into(),
+        series: [
+            RobotMethod::LoreRl,
+            RobotMethod::ManLoreRl,
+            RobotMethod::FRmax,
+            RobotMethod::FEpsG,
+        ]
+        .into_iter()
+        .map(|m| Series {
+            name: m.name().into(),
+            points: curve(m, None),
+            colour: Some(m as usize),
+        })
+        .collect(),
+        markers: false,
+    };
+    write_file(&out.join("fig8.svg"), &fig8.to_svg())?;
+    let fig9 = LineChart {
+        title: "Fig. 9 — accumulated reward minus TES's on Env 3".into(),
+        x_label: "episode".into(),
+        y_label: "difference to TES".into(),
+        series: [RobotMethod::Lwt, RobotMethod::TesWoRi, RobotMethod::LoreRl]
+            .into_iter()
+            .map(|m| Series {
+                name: m.name().into(),
+                points: curve(m, Some(RobotMethod::Tes)),
+                colour: Some(m as usize),
+            })
+            .collect(),
+        markers: false,
+    };
+    write_file(&out.join("fig9.svg"), &fig9.to_svg())?;
+    write_episodes_csv(
+        &out.join("episodes.csv"),
+        "method,run,seed",
+        by.iter().map(|((m, r), eps)| {
+            let key = format!("{},{},{}", m.name(), r, config.seed + *r as u64);
+            (key, eps.as_slice())
+        }),
+    )?;
+    let report = RobotReport {
+        config: config.clone(),
+        wall_seconds: started.elapsed().as_secs_f64(),
+        accumulated,
+        difference_to_tes,
+        first_episode,
+        seconds_per_episode,
+        ordering_holds,
+    };
+    let json = serde_json::to_string_pretty(&report).context("cannot encode the summary")?;
+    write_file(&out.join("summary.json"), &json)?;
+    Ok(report)
+}

@@ -1,0 +1,563 @@
+//! The paper's §5.1.2–5.1.3 transfer experiment: Table 2 (jumpstart) and Figure 4b.
+//!
+//! Leave-one-out over the 15 grid tasks: for every held-out *test* task and run, a TES agent
+//! lives through the other 14 tasks (100 episodes each, in a seeded random order), growing its
+//! view library; then, on the test task, each method runs from scratch for 50 episodes:
+//!
+//! * **TES** — the trained library, scored and switched online;
+//! * **LWT** — the library's best-track-record view per action, frozen;
+//! * **Rands 1–5** — a random library view per action, learning but never switched;
+//! * **loreRL** — no transfer;
+//! * **fEpsG** — no transfer, the true DBN structure given (an oracle).
+//!
+//! Reported per test task and method: the reward of the first test episode (Table 2's
+//! jumpstart), the accumulated reward over the test episodes, and the accumulated-reward
+//! difference to TES episode by episode (Fig. 4b), each as mean and 95 % interval over runs.
+//! All methods of a run face the same world random stream (start states and dynamics draws
+//! line up while their actions do).
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use rand::SeedableRng;
+use rand::seq::SliceRandom;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::Serialize;
+use tes_learning::agents::{Agent, Tes, TesParams, ViewPolicy};
+use tes_learning::library::store::{self, StoredLibrary};
+use tes_learning::library::{LibraryParams, ViewLibrary};
+use tes_perception_sim::grid::GridSuite;
+
+use crate::episode::{
+    Algorithm, Episode, EpisodicTask, run_episode, write_episodes_csv, write_file,
+};
+use crate::grid::GridEnv;
+use crate::stats::{Summary, summarise};
+use crate::svg::{BandPoint, LineChart, Series};
+
+/// Settings of `tes experiment transfer`.
+#[derive(Debug, Clone, Serialize)]
+pub struct TransferConfig {
+    /// Independent runs per test task (paper: 20).
+    pub runs: usize,
+    /// Episodes on each training task (paper: 100).
+    pub train_episodes: usize,
+    /// Episodes on the test task (Fig. 4b: 50).
+    pub test_episodes: usize,
+    /// The held-out tasks (paper: all 15).
+    pub test_tasks: Vec<usize>,
+    /// How many of the other tasks to train on (paper: all 14).
+    pub training_tasks: usize,
+    /// Irrelevant features per cell (paper: 200).
+    pub irrelevant: usize,
+    /// How many random view combinations ("Rands") to compare (paper: 5).
+    pub random_combinations: usize,
+    /// The view library's settings (paper: M = 20, c = ln 300, μ = 0, λ = 0.05, α = 1.5).
+    #[serde(skip)]
+    pub library: LibraryParams,
+    /// Seed of the grid suite.
+    pub world_seed: u64,
+    /// Base agent seed; see [`job_seed`].
+    pub seed: u64,
+    /// Whether this is the reduced `--quick` configuration.
+    pub quick: bool,
+}
+
+impl TransferConfig {
+    /// The paper's setting: 20 runs, train 14 × 100 episodes, test 50, all 15 tasks.
+    pub fn paper() -> Self {
+        Self {
+            runs: 20,
+            train_episodes: 100,
+            test_episodes: 50,
+            test_tasks: (0..GridSuite::TASKS).collect(),
+            training_tasks: GridSuite::TASKS - 1,
+            irrelevant: 200,
+            random_combinations: 5,
+            library: LibraryParams::default(),
+            world_seed: 2017,
+            seed: 1,
+            quick: false,
+        }
+    }
+
+    /// A first look in under two minutes on two cores: 3 test tasks, 2 runs, training on 4
+    /// other tasks × 25 episodes, 12 test episodes, 2 random combinations.
+    pub fn quick() -> Self {
+        Self {
+            runs: 2,
+            train_episodes: 25,
+            test_episodes: 12,
+            test_tasks: vec![1, 2, 10],
+            training_tasks: 4,
+            random_combinations: 2,
+            quick: true,
+            ..Self::paper()
+        }
+    }
+
+    fn check(&self) -> Result<()> {
+        if self.runs == 0 || self.train_episodes == 0 || self.test_episodes == 0 {
+            bail!("runs, training episodes and test episodes must all be at least 1");
+        }
+        if self.test_tasks.is_empty() {
+            bail!("no test task given");
+        }
+        if let Some(&t) = self.test_tasks.iter().find(|&&t| t >= GridSuite::TASKS) {
+            bail!(
+                "test task {t} does not exist (the suite has tasks 0..{})",
+                GridSuite::TASKS
+            );
+        }
+        if self.training_tasks == 0 || self.training_tasks >= GridSuite::TASKS {
+            bail!(
+                "training tasks must be between 1 and {}",
+                GridSuite::TASKS - 1
+            );
+        }
+        Ok(())
+    }
+
+    /// The methods compared, in report order.
+    pub fn methods(&self) -> Vec<Method> {
+        let mut m = vec![Method::Tes, Method::Lwt, Method::LoreRl, Method::FEpsG];
+        m.extend((1..=self.random_combinations).map(Method::Rands));
+        m
+    }
+}
+
+/// The seed of (test task, run): everything random in that job derives from it.
+pub fn job_seed(config: &TransferConfig, task: usize, run: usize) -> u64 {
+    config
+        .seed
+        .wrapping_add(1_000 * run as u64)
+        .wrapping_add(task as u64)
+}
+
+/// A method compared on the test task.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Method {
+    /// TES with the trained library.
+    Tes,
+    /// LWT: best-track-record library view per action, frozen.
+    Lwt,
+    /// loreRL, no transfer.
+    LoreRl,
+    /// fEpsG, no transfer, oracle structure.
+    FEpsG,
+    /// The i-th random view combination.
+    Rands(usize),
+}
+
+impl Method {
+    /// The name used in reports and files.
+    pub fn name(self) -> String {
+        match self {
+            Method::Tes => "TES".into(),
+            Method::Lwt => "LWT".into(),
+            Method::LoreRl => "loreRL".into(),
+            Method::FEpsG => "fEpsG".into(),
+            Method::Rands(i) => format!("Rands {i}"),
+        }
+    }
+
+    fn colour(self) -> usize {
+        match self {
+            Method::Tes => 0,
+            Method::Lwt => 1,
+            Method::LoreRl => 2,
+            Method::FEpsG => 3,
+            Method::Rands(i) => 3 + i,
+        }
+    }
+}
+
+/// One (test task, run) job's results.
+#[derive(Debug, Clone)]
+struct JobResult {
+    task: usize,
+    run: usize,
+    seed: u64,
+    training_order: Vec<usize>,
+    library_views: usize,
+    episodes: BTreeMap<Method, Vec<Episode>>,
+}
+
+/// Per test task, what `summary.json` records.
+#[derive(Debug, Serialize)]
+pub struct TaskSummary {
+    /// Index in the suite (the paper numbers tasks from 1: task `i` is the paper's `i + 1`).
+    pub task: usize,
+    /// Width × height.
+    pub size: String,
+    /// Reward of the first test episode, per method (Table 2).
+    pub jumpstart: BTreeMap<String, Summary>,
+    /// Accumulated reward over all test episodes, per method.
+    pub accumulated: BTreeMap<String, Summary>,
+    /// Accumulated-reward difference to TES after the last test episode, per method (Fig. 4b's
+    /// right end).
+    pub difference_to_tes: BTreeMap<String, Summary>,
+    /// Views in the trained library, over runs.
+    pub library_views: Summary,
+    /// Training order and seed of each run.
+    pub runs: Vec<RunRecord>,
+}
+
+/// What one run of a test task did.
+#[derive(Debug, Serialize)]
+pub struct RunRecord {
+    /// Run index.
+    pub run: usize,
+    /// Its seed.
+    pub seed: u64,
+    /// The training tasks, in the order lived.
+    pub training_order: Vec<usize>,
+}
+
+/// The summary written to `summary.json`.
+#[derive(Debug, Serialize)]
+pub struct TransferReport {
+    /// The settings, seeds included.
+    pub config: TransferConfig,
+    /// Wall-clock seconds.
+    pub wall_seconds: f64,
+    /// Per test task.
+    pub tasks: Vec<TaskSummary>,
+    /// Test tasks where TES's mean jumpstart beats loreRL's (target: ≥ 12 of 15).
+    pub tes_beats_lore_rl: usize,
+    /// Test tasks where TES's mean jumpstart beats LWT's (target: ≥ 10 of 15).
+    pub tes_beats_lwt: usize,
+    /// Test tasks where TES's mean accumulated reward beats every random combination's.
+    pub tes_beats_all_rands: usize,
+    /// Agent seconds per test episode, per method.
+    pub seconds_per_episode: BTreeMap<String, Summary>,
+}
+
+/// Runs the transfer experiment, writes its files into `out`, and returns the summary.
+///
+/// `progress(done, total)` is called as episodes finish (from worker threads).
+pub fn run(
+    config: &TransferConfig,
+    out: &Path,
+    progress: &(dyn Fn(u64, u64) + Sync),
+) -> Result<TransferReport> {
+    config.check()?;
+    let started = Instant::now();
+    fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let envs: Vec<GridEnv> = GridSuite::paper(config.world_seed, config.irrelevant)
+        .into_iter()
+        .map(GridEnv::new)
+        .collect::<Result<_>>()?;
+    let methods = config.methods();
+    let per_job =
+        config.training_tasks * config.train_episodes + methods.len() * config.test_episodes;
+    let jobs: Vec<(usize, usize)> = config
+        .test_tasks
+        .iter()
+        .flat_map(|&t| (0..config.runs).map(move |r| (t, r)))
+        .collect();
+    let total = (jobs.len() * per_job) as u64;
+    let done = AtomicU64::new(0);
+    let tick = || progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
+    let mut results: Vec<JobResult> = jobs
+        .par_iter()
+        .map(|&(task, run)| run_job(config, &envs, &methods, task, run, out, &tick))
+        .collect::<Result<_>>()?;
+    results.sort_by_key(|r| (r.task, r.run));
+
+    write_episodes_csv(
+        &out.join("episodes.csv"),
+        "test_task,run,seed,method",
+        results.iter().flat_map(|r| {
+            r.episodes.iter().map(move |(m, eps)| {
+                let key = format!("{},{},{},{}", r.task, r.run, r.seed, m.name());
+                (key, eps.as_slice())
+            })
+        }),
+    )?;
+    let mut tasks = Vec::new();
+    for &task in &config.test_tasks {
+        let runs: Vec<&JobResult> = results.iter().filter(|r| r.task == task).collect();
+        let env = &envs[task];
+        tasks.push(summarise_task(task, env, &runs, &methods));
+        write_fig4b(out, task, env, &runs, &methods, config.test_episodes)?;
+    }
+    write_jumpstart_chart(out, &tasks)?;
+
+    let mean = |t: &TaskSummary, m: Method| t.jumpstart.get(&m.name()).map(|s| s.mean);
+    let beats = |other: Method| {
+        tasks
+            .iter()
+            .filter(
+                |t| matches!((mean(t, Method::Tes), mean(t, other)), (Some(a), Some(b)) if a > b),
+            )
+            .count()
+    };
+    let tes_beats_lore_rl = beats(Method::LoreRl);
+    let tes_beats_lwt = beats(Method::Lwt);
+    let tes_beats_all_rands = tasks
+        .iter()
+        .filter(|t| {
+            t.difference_to_tes
+                .iter()
+                .filter(|(name, _)| name.starts_with("Rands"))
+                .all(|(_, d)| d.mean < 0.0)
+        })
+        .count();
+    let mut seconds_per_episode = BTreeMap::new();
+    for &m in &methods {
+        let per_run: Vec<f64> = results
+            .iter()
+            .filter_map(|r| r.episodes.get(&m))
+            .map(|eps| eps.iter().map(|e| e.agent_seconds).sum::<f64>() / eps.len().max(1) as f64)
+            .collect();
+        seconds_per_episode.insert(m.name(), summarise(&per_run));
+    }
+    let report = TransferReport {
+        config: config.clone(),
+        wall_seconds: started.elapsed().as_secs_f64(),
+        tasks,
+        tes_beats_lore_rl,
+        tes_beats_lwt,
+        tes_beats_all_rands,
+        seconds_per_episode,
+    };
+    let json = serde_json::to_string_pretty(&report).context("cannot encode the summary")?;
+    write_file(&out.join("summary.json"), &json)?;
+    Ok(report)
+}
+
+/// Trains a library on the other tasks, then runs every method on the test task.
+fn run_job(
+    config: &TransferConfig,
+    envs: &[GridEnv],
+    methods: &[Method],
+    task: usize,
+    run: usize,
+    out: &Path,
+    tick: &(dyn Fn() + Sync),
+) -> Result<JobResult> {
+    let seed = job_seed(config, task, run);
+    let mut order_rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut order: Vec<usize> = (0..envs.len()).filter(|&t| t != task).collect();
+    order.shuffle(&mut order_rng);
+    order.truncate(config.training_tasks);
+
+    let test = &envs[task];
+    let structure = test.structure();
+    let mut library = ViewLibrary::new(
+        structure.n_actions(),
+        structure.n_effects(),
+        structure.n_features(),
+        config.library,
+    )?;
+    let context = |what: &str| format!("test task {task}, run {run}: {what}");
+    for (i, &t) in order.iter().enumerate() {
+        let env = &envs[t];
+        let agent_seed = seed.wrapping_mul(31).wrapping_add(i as u64);
+        let mut agent = Tes::new(env.structure(), library, TesParams::default(), agent_seed)
+            .with_context(|| context(&format!("training on task {t}")))?;
+        let mut world = ChaCha8Rng::seed_from_u64(agent_seed ^ 0x7EA1_D0A1);
+        let s = env.structure();
+        for _ in 0..config.train_episodes {
+            run_episode(&mut agent, env, &s, &mut world)
+                .with_context(|| context(&format!("training on task {t}")))?;
+            tick();
+        }
+        library = agent
+            .finish_task()
+            .with_context(|| context(&format!("ending training task {t}")))?
+            .0;
+    }
+
+    if run == 0 {
+        // Run 0's trained library, for `tes library show`.
+        let path = out.join(format!("library-task{task}.tesl"));
+        let stored = StoredLibrary {
+            library: library.clone(),
+            world: format!(
+                "grid suite (world seed {}), trained for test task {task}",
+                config.world_seed
+            ),
+            action_names: ["north", "east", "south", "west"]
+                .map(String::from)
+                .to_vec(),
+            feature_names: (0..structure.n_features())
+                .map(|i| test.task().feature_name(i))
+                .collect(),
+        };
+        store::save(&path, &stored)?;
+    }
+    let mut episodes = BTreeMap::new();
+    for &m in methods {
+        let agent_seed = seed
+            .wrapping_mul(31)
+            .wrapping_add(1_000 + m.colour() as u64);
+        let transfer = |policy| {
+            let params = TesParams {
+                policy,
+                ..TesParams::default()
+            };
+            Tes::new(structure.clone(), library.clone(), params, agent_seed)
+                .map(|a| Box::new(a) as Box<dyn Agent + Send>)
+        };
+        let mut agent: Box<dyn Agent + Send> = match m {
+            Method::Tes => transfer(ViewPolicy::Tes),
+            Method::Lwt => transfer(ViewPolicy::Lwt),
+            Method::Rands(_) => transfer(ViewPolicy::RandomFixed),
+            Method::LoreRl => Algorithm::LoreRl.build(test, agent_seed),
+            Method::FEpsG => Algorithm::FEpsG.build(test, agent_seed),
+        }
+        .with_context(|| context(&m.name()))?;
+        // The same world stream for every method of the run.
+        let mut world = ChaCha8Rng::seed_from_u64(seed ^ 0x7E57_7A5C);
+        let mut eps = Vec::with_capacity(config.test_episodes);
+        for _ in 0..config.test_episodes {
+            eps.push(
+                run_episode(agent.as_mut(), test, &structure, &mut world)
+                    .with_context(|| context(&m.name()))?,
+            );
+            tick();
+        }
+        episodes.insert(m, eps);
+    }
+    Ok(JobResult {
+        task,
+        run,
+        seed,
+        training_order: order,
+        library_views: library.len(),
+        episodes,
+    })
+}
+
+fn summarise_task(
+    task: usize,
+    env: &GridEnv,
+    runs: &[&JobResult],
+    methods: &[Method],
+) -> TaskSummary {
+    let mut jumpstart = BTreeMap::new();
+    let mut accumulated = BTreeMap::new();
+    let mut difference_to_tes = BTreeMap::new();
+    let total = |eps: &[Episode]| eps.iter().map(|e| e.reward).sum::<f64>();
+    for &m in methods {
+        let of = |f: &dyn Fn(&JobResult, &[Episode]) -> f64| -> Vec<f64> {
+            runs.iter()
+                .filter_map(|r| r.episodes.get(&m).map(|eps| f(r, eps)))
+                .collect()
+        };
+        jumpstart.insert(
+            m.name(),
+            summarise(&of(&|_, eps| eps.first().map_or(f64::NAN, |e| e.reward))),
+        );
+        accumulated.insert(m.name(), summarise(&of(&|_, eps| total(eps))));
+        if m != Method::Tes {
+            difference_to_tes.insert(
+                m.name(),
+                summarise(&of(&|r, eps| total(eps) - total(&r.episodes[&Method::Tes]))),
+            );
+        }
+    }
+    let views: Vec<f64> = runs.iter().map(|r| r.library_views as f64).collect();
+    TaskSummary {
+        task,
+        size: format!("{}x{}", env.task().width(), env.task().height()),
+        jumpstart,
+        accumulated,
+        difference_to_tes,
+        library_views: summarise(&views),
+        runs: runs
+            .iter()
+            .map(|r| RunRecord {
+                run: r.run,
+                seed: r.seed,
+                training_order: r.training_order.clone(),
+            })
+            .collect(),
+    }
+}
+
+/// Fig. 4b for one test task: accumulated reward minus TES's, episode by episode.
+fn write_fig4b(
+    out: &Path,
+    task: usize,
+    env: &GridEnv,
+    runs: &[&JobResult],
+    methods: &[Method],
+    episodes: usize,
+) -> Result<()> {
+    let mut series = Vec::new();
+    for &m in methods.iter().filter(|&&m| m != Method::Tes) {
+        let mut acc = vec![0.0; runs.len()];
+        let mut points = Vec::with_capacity(episodes);
+        for e in 0..episodes {
+            for (a, r) in acc.iter_mut().zip(runs) {
+                let (Some(mine), Some(tes)) = (r.episodes.get(&m), r.episodes.get(&Method::Tes))
+                else {
+                    continue;
+                };
+                *a += mine[e].reward - tes[e].reward;
+            }
+            let s = summarise(&acc);
+            points.push(BandPoint {
+                x: (e + 1) as f64,
+                y: s.mean,
+                lo: s.lo,
+                hi: s.hi,
+            });
+        }
+        series.push(Series {
+            name: m.name(),
+            points,
+            colour: Some(m.colour()),
+        });
+    }
+    let chart = LineChart {
+        title: format!(
+            "Fig. 4b — task {task} ({}x{}): accumulated reward minus TES's",
+            env.task().width(),
+            env.task().height()
+        ),
+        x_label: "test episode".into(),
+        y_label: "difference to TES".into(),
+        series,
+        markers: false,
+    };
+    write_file(&out.join(format!("fig4b-task{task}.svg")), &chart.to_svg())
+}
+
+/// Table 2 as a chart: first-episode reward per test task for TES, LWT and loreRL.
+fn write_jumpstart_chart(out: &Path, tasks: &[TaskSummary]) -> Result<()> {
+    let series = [Method::Tes, Method::Lwt, Method::LoreRl, Method::FEpsG]
+        .into_iter()
+        .map(|m| Series {
+            name: m.name(),
+            points: tasks
+                .iter()
+                .filter_map(|t| {
+                    t.jumpstart.get(&m.name()).map(|s| BandPoint {
+                        x: t.task as f64,
+                        y: s.mean,
+                        lo: s.lo,
+                        hi: s.hi,
+                    })
+                })
+                .collect(),
+            colour: Some(m.colour()),
+        })
+        .collect();
+    let chart = LineChart {
+        title: "Table 2 — reward of the first test episode (jumpstart)".into(),
+        x_label: "test task".into(),
+        y_label: "first-episode reward".into(),
+        series,
+        markers: true,
+    };
+    write_file(&out.join("table2.svg"), &chart.to_svg())
+}

@@ -1,0 +1,258 @@
+//! One-way channels between the TES processes: an iceoryx2 publish–subscribe service for the
+//! payload plus an event service to wake the receiver, and the [`WaitStrategy`] the receiver
+//! waits by.
+//!
+//! * [`Outbox`] — publishes a payload (written straight into shared memory) and notifies.
+//! * [`Inbox`] — receives the next payload, waiting by its strategy:
+//!   * `block` (default) — sleep on the event listener until notified: no CPU burnt while idle;
+//!   * `spin` — busy-poll the subscriber: lowest latency, one core fully used;
+//!   * `spin-then-block` — busy-poll for a bounded time, then sleep.
+//! * [`LatestOutbox`] / [`LatestInbox`] — the same over a one-entry iceoryx2 blackboard: the
+//!   receiver sees the latest value, each once. Sending allocates nothing (the publisher of
+//!   0.10 allocates one small object per sample), so the controller sends its commands this
+//!   way.
+//!
+//! Ports of `ipc::Service` are not `Send`: keep each channel on the thread that made it.
+
+use std::fmt;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use iceoryx2::port::update_connections::UpdateConnections;
+use iceoryx2::prelude::*;
+
+pub use crate::board::{LatestInbox, LatestOutbox};
+pub use crate::ipc::{
+    IpcError, clean_stale_resources, ipc_err, node, pubsub, services_with_prefix,
+};
+use crate::ipc::{listener, notifier};
+pub use crate::wait::{BadWaitStrategy, WaitStrategy};
+
+/// The sending end: a publisher and a notifier.
+pub struct Outbox<T: ZeroCopySend + Copy + fmt::Debug + 'static> {
+    publisher: iceoryx2::port::publisher::Publisher<ipc::Service, T, ()>,
+    notifier: iceoryx2::port::notifier::Notifier<ipc::Service>,
+}
+
+impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Outbox<T> {
+    /// Opens (or creates) the payload service `name` and its event service `event`.
+    /// `history` samples are kept for subscribers that join later (0 for none).
+    pub fn open(
+        node: &Node<ipc::Service>,
+        name: &str,
+        event: &str,
+        history: usize,
+    ) -> Result<Self, IpcError> {
+        let service = pubsub::<T>(node, name, history)?;
+        let publisher = service
+            .publisher_builder()
+            .create()
+            .map_err(ipc_err("create a publisher"))?;
+        let notifier = notifier(node, event)?;
+        publisher
+            .update_connections()
+            .map_err(ipc_err("connect a publisher"))?;
+        Ok(Self {
+            publisher,
+            notifier,
+        })
+    }
+
+    /// Publishes `value` and wakes the receivers. Nothing of ours allocates; iceoryx2 0.10's
+    /// `loan_uninit` allocates one small shared-state object per sample (see
+    /// `runtime/tests/allocations.rs` and docs/performance.md).
+    pub fn send(&self, value: T) -> Result<(), IpcError> {
+        let sample = self
+            .publisher
+            .loan_uninit()
+            .map_err(ipc_err("loan a sample"))?;
+        sample
+            .write_payload(value)
+            .send()
+            .map_err(ipc_err("publish a sample"))?;
+        self.notifier.notify().map_err(ipc_err("notify"))?;
+        Ok(())
+    }
+
+    /// Connects subscribers that appeared since the last call (call after peers start).
+    pub fn update_connections(&self) -> Result<(), IpcError> {
+        self.publisher
+            .update_connections()
+            .map_err(ipc_err("connect a publisher"))
+    }
+}
+
+/// Why [`Inbox::next`] returned without a sample.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Idle {
+    /// The timeout passed.
+    Timeout,
+    /// The stop flag was raised.
+    Stopped,
+}
+
+/// The receiving end: a subscriber, a listener, and the strategy to wait by.
+pub struct Inbox<T: ZeroCopySend + Copy + fmt::Debug + 'static> {
+    subscriber: iceoryx2::port::subscriber::Subscriber<ipc::Service, T, ()>,
+    listener: Listener,
+    strategy: WaitStrategy,
+}
+
+/// Samples a subscriber can hold before the oldest is dropped. The control loop has one sample
+/// in flight; the slack absorbs a receiver descheduled on a loaded machine, and receivers
+/// detect any loss by the payloads' sequence numbers.
+pub const BUFFER: usize = 16;
+
+/// How often a blocking wait looks at the stop flag.
+const STOP_POLL: Duration = Duration::from_millis(50);
+
+impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Inbox<T> {
+    /// Opens (or creates) the payload service `name` and its event service `event`.
+    pub fn open(
+        node: &Node<ipc::Service>,
+        name: &str,
+        event: &str,
+        history: usize,
+        strategy: WaitStrategy,
+    ) -> Result<Self, IpcError> {
+        let service = pubsub::<T>(node, name, history)?;
+        let subscriber = service
+            .subscriber_builder()
+            .create()
+            .map_err(ipc_err("create a subscriber"))?;
+        let listener = listener(node, event)?;
+        subscriber
+            .update_connections()
+            .map_err(ipc_err("connect a subscriber"))?;
+        Ok(Self {
+            subscriber,
+            listener,
+            strategy,
+        })
+    }
+
+    /// The strategy it waits by.
+    pub fn strategy(&self) -> WaitStrategy {
+        self.strategy
+    }
+
+    /// The next payload if one is waiting, without waiting.
+    pub fn try_next(&self) -> Result<Option<T>, IpcError> {
+        Ok(self
+            .subscriber
+            .receive()
+            .map_err(ipc_err("receive a sample"))?
+            .map(|sample| *sample))
+    }
+
+    /// Waits, by the inbox's strategy, for the next payload, at most `timeout`, and returns
+    /// early when `stop` is raised. Allocation-free in `spin`; `block` sleeps in the kernel.
+    pub fn next(&self, timeout: Duration, stop: &AtomicBool) -> Result<Result<T, Idle>, IpcError> {
+        self.next_or_work(timeout, stop, || false)
+    }
+
+    /// [`next`](Self::next), calling `work` between polls while it spins (`spin`, and the
+    /// spinning part of `spin-then-block`): a waiting acting loop can do bounded pieces of
+    /// background work (a slice of planning) instead of only spinning. `work` returns
+    /// whether it has more to do; while it has, polls follow each other without a pause.
+    /// How long one call takes is what an arriving payload may wait.
+    pub fn next_or_work(
+        &self,
+        timeout: Duration,
+        stop: &AtomicBool,
+        work: impl FnMut() -> bool,
+    ) -> Result<Result<T, Idle>, IpcError> {
+        wait_next(
+            &self.listener,
+            self.strategy,
+            timeout,
+            stop,
+            || self.try_next(),
+            work,
+        )
+    }
+
+    /// Connects publishers that appeared since the last call.
+    pub fn update_connections(&self) -> Result<(), IpcError> {
+        self.subscriber
+            .update_connections()
+            .map_err(ipc_err("connect a subscriber"))
+    }
+}
+
+pub(crate) type Listener = iceoryx2::port::listener::Listener<ipc::Service>;
+
+/// Polls `try_next` and waits between polls by `strategy` on `listener`, at most `timeout`,
+/// calling `work` between polls while spinning; returns early when `stop` is raised. Allocation-free in `spin`; `block` sleeps in the kernel.
+pub(crate) fn wait_next<T>(
+    listener: &Listener,
+    strategy: WaitStrategy,
+    timeout: Duration,
+    stop: &AtomicBool,
+    mut try_next: impl FnMut() -> Result<Option<T>, IpcError>,
+    mut work: impl FnMut() -> bool,
+) -> Result<Result<T, Idle>, IpcError> {
+    let start = Instant::now();
+    let spin_for = match strategy {
+        WaitStrategy::Block => Duration::ZERO,
+        WaitStrategy::Spin => timeout,
+        WaitStrategy::SpinThenBlock(d) => d.min(timeout),
+    };
+    let mut polls: u32 = 0;
+    loop {
+        if let Some(v) = try_next()? {
+            return Ok(Ok(v));
+        }
+        let waited = start.elapsed();
+        if waited >= spin_for {
+            break;
+        }
+        polls = polls.wrapping_add(1);
+        if polls.is_multiple_of(1024) && stop.load(Ordering::Relaxed) {
+            return Ok(Err(Idle::Stopped));
+        }
+        if !work() {
+            std::hint::spin_loop();
+        }
+    }
+    loop {
+        if stop.load(Ordering::Relaxed) {
+            return Ok(Err(Idle::Stopped));
+        }
+        let left = timeout.saturating_sub(start.elapsed());
+        if left.is_zero() {
+            return Ok(Err(Idle::Timeout));
+        }
+        // Sleep until the listener's socket is readable or the time is up, then drain
+        // every pending notification and look again: a value sent between the last look
+        // and the wait still wakes us, because its notification is pending.
+        wait_readable(listener, left.min(STOP_POLL))?;
+        listener
+            .try_wait(|_| {})
+            .map_err(ipc_err("drain the listener"))?;
+        if let Some(v) = try_next()? {
+            return Ok(Ok(v));
+        }
+    }
+}
+
+/// Blocks until the listener's socket is readable or `timeout` passes, by `ppoll(2)`:
+/// timer-precise, unlike iceoryx2 0.10's `Listener::timed_wait` (a socket receive
+/// timeout, which the kernel rounds up to its tick — measured 8 ms here for any timeout
+/// from 20 µs to 3 ms). A signal ends the wait early (the caller looks at its stop flag).
+pub(crate) fn wait_readable(listener: &Listener, timeout: Duration) -> Result<(), IpcError> {
+    use iceoryx2::prelude::FileDescriptorBased;
+    use nix::poll::{PollFd, PollFlags, ppoll};
+    use std::os::fd::BorrowedFd;
+    // SAFETY: the descriptor belongs to `listener`, which outlives this call.
+    let fd = unsafe { BorrowedFd::borrow_raw(listener.file_descriptor().native_handle()) };
+    let mut fds = [PollFd::new(fd, PollFlags::POLLIN)];
+    match ppoll(
+        &mut fds,
+        Some(nix::sys::time::TimeSpec::from_duration(timeout)),
+        None,
+    ) {
+        Ok(_) | Err(nix::errno::Errno::EINTR) => Ok(()),
+        Err(e) => Err(ipc_err("wait on the listener")(e)),
+    }
+}

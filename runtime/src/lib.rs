@@ -1,0 +1,28 @@
+//! What the TES processes share at run time, apart from their messages (those are in
+//! `tes-topics`):
+//!
+//! * [`channel`] — one-way channels over iceoryx2 publish–subscribe plus an event to wake the
+//!   receiver ([`channel::Outbox`], [`channel::Inbox`]); [`board`] — latest-value channels over
+//!   a blackboard, which allocate nothing per message ([`board::LatestOutbox`],
+//!   [`board::LatestInbox`]);
+//! * [`wait`] — how a receiver waits: block, spin, or spin then block;
+//! * [`ipc`] — the node, the service settings every opener must share, stale-resource clean-up;
+//! * [`affinity`] — CPU placement of threads;
+//! * [`latency`] — latency histograms against a budget;
+//! * [`settings`] — the one error type for a bad settings key, and the TOML parsing every
+//!   process shares;
+//! * [`clock`], [`signals`], [`logging`] — the monotonic stamp, SIGINT/SIGTERM as a stop flag,
+//!   `tracing` set-up;
+//! * [`alloc_count`] — a counting global allocator, to prove a loop allocates nothing.
+
+pub mod affinity;
+pub mod alloc_count;
+pub mod board;
+pub mod channel;
+pub mod clock;
+pub mod ipc;
+pub mod latency;
+pub mod logging;
+pub mod settings;
+pub mod signals;
+pub mod wait;

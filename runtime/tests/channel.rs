@@ -1,0 +1,127 @@
+//! An Outbox → Inbox round trip over real iceoryx2 services, for every wait strategy.
+
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+
+use tes_runtime::channel::{self, Idle, Inbox, Outbox, WaitStrategy};
+use tes_topics::Command;
+
+fn names(tag: &str) -> (String, String) {
+    let base = format!("tes-test/{}/{tag}", std::process::id());
+    (format!("{base}/payload"), format!("{base}/event"))
+}
+
+fn round_trip(strategy: WaitStrategy, tag: &str) {
+    let (payload, event) = names(tag);
+    let node = channel::node(false).unwrap();
+    let inbox: Inbox<Command> = Inbox::open(&node, &payload, &event, 0, strategy).unwrap();
+    let stop = AtomicBool::new(false);
+    // Nothing sent yet: the wait times out.
+    assert_eq!(
+        inbox.next(Duration::from_millis(20), &stop).unwrap(),
+        Err(Idle::Timeout)
+    );
+    let sender = {
+        let (payload, event) = (payload.clone(), event.clone());
+        std::thread::spawn(move || {
+            // Ports are not Send: the sender has its own node and ports on its thread.
+            let node = channel::node(false).unwrap();
+            let outbox: Outbox<Command> = Outbox::open(&node, &payload, &event, 0).unwrap();
+            for seq in 1..=50u64 {
+                outbox
+                    .send(Command {
+                        seq,
+                        ..Command::default()
+                    })
+                    .unwrap();
+                std::thread::sleep(Duration::from_micros(300));
+            }
+        })
+    };
+    let mut seen = Vec::new();
+    while seen.len() < 50 {
+        match inbox.next(Duration::from_secs(5), &stop).unwrap() {
+            Ok(cmd) => seen.push(cmd.seq),
+            Err(idle) => panic!("{strategy}: no command within 5 s ({idle:?}) after {seen:?}"),
+        }
+        inbox.update_connections().unwrap();
+    }
+    sender.join().unwrap();
+    // Every command once, in order (the subscriber connects before the first send, since the
+    // publisher's creation connects to existing subscribers).
+    assert_eq!(seen, (1..=50).collect::<Vec<_>>(), "{strategy}");
+    // A raised stop flag ends a wait at once.
+    let stop = AtomicBool::new(true);
+    assert_eq!(
+        inbox.next(Duration::from_secs(5), &stop).unwrap(),
+        Err(Idle::Stopped)
+    );
+}
+
+#[test]
+fn block_round_trip() {
+    round_trip(WaitStrategy::Block, "block");
+}
+
+#[test]
+fn spin_round_trip() {
+    round_trip(WaitStrategy::Spin, "spin");
+}
+
+#[test]
+fn spin_then_block_round_trip() {
+    round_trip(
+        WaitStrategy::SpinThenBlock(Duration::from_micros(100)),
+        "spin-then-block",
+    );
+}
+
+/// `next_or_work` does the caller's work between polls while it spins, never while it
+/// blocks, and still returns a payload that arrives meanwhile.
+#[test]
+fn work_is_done_between_polls_only_while_spinning() {
+    let stop = AtomicBool::new(false);
+    let node = channel::node(false).unwrap();
+    for (strategy, tag) in [
+        (WaitStrategy::Block, "work-block"),
+        (WaitStrategy::Spin, "work-spin"),
+        (
+            WaitStrategy::SpinThenBlock(Duration::from_millis(2)),
+            "work-spin-then-block",
+        ),
+    ] {
+        let (payload, event) = names(tag);
+        let inbox: Inbox<Command> = Inbox::open(&node, &payload, &event, 0, strategy).unwrap();
+        let mut slices = 0u32;
+        // Work for 100 slices, then none left.
+        let idle = inbox
+            .next_or_work(Duration::from_millis(20), &stop, || {
+                slices += 1;
+                slices < 100
+            })
+            .unwrap();
+        assert_eq!(idle, Err(Idle::Timeout), "{strategy}");
+        if strategy == WaitStrategy::Block {
+            assert_eq!(slices, 0, "{strategy}: no work while blocked");
+        } else {
+            // Called on every poll: more than 100 times in a spin of 2 ms or more.
+            assert!(slices > 100, "{strategy}: {slices} calls");
+        }
+        if strategy != WaitStrategy::Spin {
+            continue;
+        }
+        // Work that never runs out does not keep a payload from being taken.
+        let outbox: Outbox<Command> = Outbox::open(&node, &payload, &event, 0).unwrap();
+        inbox.update_connections().unwrap();
+        outbox
+            .send(Command {
+                seq: 7,
+                ..Command::default()
+            })
+            .unwrap();
+        let got = inbox
+            .next_or_work(Duration::from_secs(5), &stop, || true)
+            .unwrap();
+        assert_eq!(got.map(|c| c.seq), Ok(7));
+    }
+}
