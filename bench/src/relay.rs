@@ -30,7 +30,7 @@ use tes_runtime::channel::{
 use tes_runtime::clock::monotonic_ns;
 use tes_runtime::latency::{LatencyRecorder, LatencyReport};
 use tes_runtime::settings::{self, SettingError};
-use tes_topics::{Command, FeatureBits, MotorState, Observation, observation_flags, service};
+use tes_topics::{Command, FeatureBits, MotorState, Observation, ServiceNames, observation_flags};
 
 /// The roles, as `tes child` names them.
 pub const ROLES: [&str; 3] = ["relay-source", "relay-hop", "relay-sink"];
@@ -110,8 +110,8 @@ impl RelayConfig {
         settings::wait_strategy(PROCESS, &self.wait)
     }
 
-    fn name(&self, service: &str) -> String {
-        format!("{}{service}", self.service_prefix)
+    fn names(&self) -> ServiceNames {
+        ServiceNames::with_prefix(&self.service_prefix)
     }
 }
 
@@ -169,16 +169,13 @@ fn source(
     idle: Duration,
     stop: &AtomicBool,
 ) -> Result<(), RelayError> {
-    let out: Outbox<Observation> = Outbox::open(
-        node,
-        &cfg.name(service::OBSERVATION),
-        &cfg.name(service::OBSERVATION_EVENT),
-        0,
-    )?;
+    let names = cfg.names();
+    let out: Outbox<Observation> =
+        Outbox::open(node, &names.observation, &names.observation_event, 0)?;
     let acks: Inbox<MotorState> = Inbox::open(
         node,
-        &cfg.name(service::MOTOR_STATE),
-        &cfg.name(service::MOTOR_STATE_EVENT),
+        &names.motor_state,
+        &names.motor_state_event,
         0,
         WaitStrategy::Block,
     )?;
@@ -228,18 +225,11 @@ fn hop(
     idle: Duration,
     stop: &AtomicBool,
 ) -> Result<(), RelayError> {
-    let observations: Inbox<Observation> = Inbox::open(
-        node,
-        &cfg.name(service::OBSERVATION),
-        &cfg.name(service::OBSERVATION_EVENT),
-        0,
-        wait,
-    )?;
-    let out: LatestOutbox<Command> = LatestOutbox::open(
-        node,
-        &cfg.name(service::COMMAND),
-        &cfg.name(service::COMMAND_EVENT),
-    )?;
+    let names = cfg.names();
+    let observations: Inbox<Observation> =
+        Inbox::open(node, &names.observation, &names.observation_event, 0, wait)?;
+    let out: LatestOutbox<Command> =
+        LatestOutbox::open(node, &names.command, &names.command_event)?;
     if let Some(cpu) = cfg.hop_cpu {
         tes_runtime::affinity::pin_this_thread(cpu)?;
     }
@@ -269,18 +259,11 @@ fn sink(
     idle: Duration,
     stop: &AtomicBool,
 ) -> Result<LatencyReport, RelayError> {
-    let commands: LatestInbox<Command> = LatestInbox::open(
-        node,
-        &cfg.name(service::COMMAND),
-        &cfg.name(service::COMMAND_EVENT),
-        wait,
-    )?;
-    let acks: Outbox<MotorState> = Outbox::open(
-        node,
-        &cfg.name(service::MOTOR_STATE),
-        &cfg.name(service::MOTOR_STATE_EVENT),
-        0,
-    )?;
+    let names = cfg.names();
+    let commands: LatestInbox<Command> =
+        LatestInbox::open(node, &names.command, &names.command_event, wait)?;
+    let acks: Outbox<MotorState> =
+        Outbox::open(node, &names.motor_state, &names.motor_state_event, 0)?;
     let mut latency = LatencyRecorder::new(cfg.budget_us, cfg.warmup);
     let mut first_hop = LatencyRecorder::new(cfg.budget_us, cfg.warmup);
     let mut last_seq = 0;

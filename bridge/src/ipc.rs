@@ -33,42 +33,13 @@ use std::time::Duration;
 
 use tes_runtime::channel::{Idle, LatestInbox, Outbox, WaitStrategy};
 use tes_runtime::latency::{LatencyRecorder, LatencyReport};
-use tes_topics::{Command, MotorState, service};
+use tes_topics::{Command, MotorState};
 
 use crate::bridge::{Bridge, BridgeError};
 use crate::clock::Clock;
 use crate::transport::Transport;
 
-/// The iceoryx2 service names the bridge uses.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct ServiceNames {
-    /// Commands from the controller.
-    pub command: String,
-    /// The controller's "command published" event.
-    pub command_event: String,
-    /// Motor states to perception.
-    pub motor_state: String,
-    /// The "motor state published" event.
-    pub motor_state_event: String,
-}
-
-impl Default for ServiceNames {
-    fn default() -> Self {
-        Self::with_prefix("")
-    }
-}
-
-impl ServiceNames {
-    /// The shared names from [`tes_topics::service`], each prefixed by `prefix`.
-    pub fn with_prefix(prefix: &str) -> Self {
-        Self {
-            command: format!("{prefix}{}", service::COMMAND),
-            command_event: format!("{prefix}{}", service::COMMAND_EVENT),
-            motor_state: format!("{prefix}{}", service::MOTOR_STATE),
-            motor_state_event: format!("{prefix}{}", service::MOTOR_STATE_EVENT),
-        }
-    }
-}
+pub use tes_topics::ServiceNames;
 
 /// How [`run`] ends.
 #[derive(Debug, Clone, Default)]

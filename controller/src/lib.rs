@@ -5,7 +5,9 @@
 //!
 //! * [`realtime`] — the planner hand-over: planning on its own thread, or in slices between
 //!   the acting loop's polls, so acting never waits for a plan;
+//! * [`config`] — its settings, checked once;
 //! * [`process`] — the controller process's loop over iceoryx2.
 
+pub mod config;
 pub mod process;
 pub mod realtime;

@@ -10,7 +10,8 @@ use std::process::ExitCode;
 
 use anyhow::Context as _;
 use clap::{Parser, Subcommand};
-use tes_controller::process::{self, ControllerConfig};
+use tes_controller::config::ControllerConfig;
+use tes_controller::process;
 
 #[derive(Debug, Parser)]
 #[command(
@@ -89,7 +90,8 @@ fn main() -> ExitCode {
     tes_runtime::logging::init("info");
     let Cmd::Run(args) = Cli::parse().command;
     let result = config(&args).and_then(|cfg| {
-        let stop = process::stop_on_signals().context("cannot install signal handlers")?;
+        let stop =
+            tes_runtime::signals::stop_on_signals().context("cannot install signal handlers")?;
         let summary = process::run_to_end(&cfg, &stop)?;
         if summary.failed_saves > 0 {
             anyhow::bail!("{} library saves failed", summary.failed_saves);

@@ -12,7 +12,7 @@ use std::time::Duration;
 
 use libfuzzer_sys::fuzz_target;
 use tes_bridge::config::{BridgeConfig, ConfigError};
-use tes_controller::process::ControllerConfig;
+use tes_controller::config::ControllerConfig;
 use tes_perception_sim::process::PerceptionConfig;
 
 fuzz_target!(|data: &[u8]| {

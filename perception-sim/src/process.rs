@@ -23,8 +23,8 @@ use serde::Deserialize;
 use tes_runtime::channel::{self, Idle, Inbox, IpcError, Outbox, WaitStrategy};
 use tes_runtime::clock::monotonic_ns;
 use tes_topics::{
-    FeatureBits, MAX_STATES, MotorState, Observation, StateAttributes, WorldMap, motor_flags,
-    observation_flags, service,
+    FeatureBits, MAX_STATES, MotorState, Observation, ServiceNames, StateAttributes, WorldMap,
+    motor_flags, observation_flags,
 };
 use thiserror::Error;
 
@@ -232,24 +232,15 @@ pub fn run(
 ) -> Result<PerceptionSummary, PerceptionError> {
     let strategy = config.check()?;
     let arena = Arena::new(ArenaId::from_number(config.arena).map_err(PerceptionError::Arena)?);
-    let p = &config.service_prefix;
+    let names = ServiceNames::with_prefix(&config.service_prefix);
     let node = channel::node(false)?;
-    let maps: Outbox<WorldMap> = Outbox::open(
-        &node,
-        &format!("{p}{}", service::WORLD_MAP),
-        &format!("{p}{}", service::WORLD_MAP_EVENT),
-        1,
-    )?;
-    let observations: Outbox<Observation> = Outbox::open(
-        &node,
-        &format!("{p}{}", service::OBSERVATION),
-        &format!("{p}{}", service::OBSERVATION_EVENT),
-        0,
-    )?;
+    let maps: Outbox<WorldMap> = Outbox::open(&node, &names.world_map, &names.world_map_event, 1)?;
+    let observations: Outbox<Observation> =
+        Outbox::open(&node, &names.observation, &names.observation_event, 0)?;
     let motors: Inbox<MotorState> = Inbox::open(
         &node,
-        &format!("{p}{}", service::MOTOR_STATE),
-        &format!("{p}{}", service::MOTOR_STATE_EVENT),
+        &names.motor_state,
+        &names.motor_state_event,
         0,
         strategy,
     )?;
@@ -428,24 +419,19 @@ mod tests {
             service_prefix: prefix.clone(),
             ..PerceptionConfig::default()
         };
-        let name = |s: &str| format!("{prefix}{s}");
+        let names = ServiceNames::with_prefix(&prefix);
         let node = channel::node(false).unwrap();
         // Subscribed before perception's publisher exists, so no observation is missed.
         let observations: Inbox<Observation> = Inbox::open(
             &node,
-            &name(service::OBSERVATION),
-            &name(service::OBSERVATION_EVENT),
+            &names.observation,
+            &names.observation_event,
             0,
             WaitStrategy::Block,
         )
         .unwrap();
-        let motors: Outbox<MotorState> = Outbox::open(
-            &node,
-            &name(service::MOTOR_STATE),
-            &name(service::MOTOR_STATE_EVENT),
-            0,
-        )
-        .unwrap();
+        let motors: Outbox<MotorState> =
+            Outbox::open(&node, &names.motor_state, &names.motor_state_event, 0).unwrap();
         let stop = AtomicBool::new(false);
         let never = AtomicBool::new(false);
         let next = || match observations.next(Duration::from_secs(10), &never).unwrap() {

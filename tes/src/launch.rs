@@ -33,7 +33,7 @@ use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 use serde::Deserialize;
 use tes_bridge::config::BridgeConfig;
-use tes_controller::process::{ControllerConfig, default_data_dir};
+use tes_controller::config::{ControllerConfig, default_data_dir};
 use tes_perception_sim::process::PerceptionConfig;
 use tes_runtime::channel::{self, WaitStrategy};
 
@@ -676,7 +676,7 @@ pub fn run_child(role: &str, config: &Path) -> Result<()> {
     match role {
         "controller" => {
             let cfg = ControllerConfig::from_toml(&text)?;
-            let stop = tes_controller::process::stop_on_signals()?;
+            let stop = tes_runtime::signals::stop_on_signals()?;
             let summary = tes_controller::process::run_to_end(&cfg, &stop)?;
             if summary.failed_saves > 0 {
                 bail!("{} library saves failed", summary.failed_saves);
@@ -685,13 +685,13 @@ pub fn run_child(role: &str, config: &Path) -> Result<()> {
         }
         "perception-sim" => {
             let cfg = PerceptionConfig::from_toml(&text)?;
-            let stop = tes_controller::process::stop_on_signals()?;
+            let stop = tes_runtime::signals::stop_on_signals()?;
             tes_perception_sim::process::run(&cfg, &stop)?;
             Ok(())
         }
         "bridge" => {
             let cfg = BridgeConfig::from_toml_str(&text)?;
-            let stop = tes_controller::process::stop_on_signals()?;
+            let stop = tes_runtime::signals::stop_on_signals()?;
             let opts = tes_bridge::ipc::RunOptions {
                 handle_signals: false,
                 stop: Some(stop),
@@ -701,7 +701,7 @@ pub fn run_child(role: &str, config: &Path) -> Result<()> {
         }
         relay if tes_bench::relay::ROLES.contains(&relay) => {
             let cfg = tes_bench::relay::RelayConfig::from_toml(&text)?;
-            let stop = tes_controller::process::stop_on_signals()?;
+            let stop = tes_runtime::signals::stop_on_signals()?;
             tes_bench::relay::run(relay, &cfg, &stop)?;
             Ok(())
         }

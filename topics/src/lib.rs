@@ -68,6 +68,58 @@ pub mod service {
     pub const WORLD_MAP_EVENT: &str = "tes/world-map/event";
 }
 
+/// Every service name of one process group, each [`service`] name behind the group's prefix
+/// (so that groups with different prefixes never share a service). The one place a prefixed
+/// name is built.
+///
+/// ```
+/// let names = tes_topics::ServiceNames::with_prefix("run-42/");
+/// assert_eq!(names.command, "run-42/tes/command");
+/// assert_eq!(names.observation_event, "run-42/tes/observation/event");
+/// ```
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ServiceNames {
+    /// [`service::OBSERVATION`].
+    pub observation: String,
+    /// [`service::OBSERVATION_EVENT`].
+    pub observation_event: String,
+    /// [`service::COMMAND`].
+    pub command: String,
+    /// [`service::COMMAND_EVENT`].
+    pub command_event: String,
+    /// [`service::MOTOR_STATE`].
+    pub motor_state: String,
+    /// [`service::MOTOR_STATE_EVENT`].
+    pub motor_state_event: String,
+    /// [`service::WORLD_MAP`].
+    pub world_map: String,
+    /// [`service::WORLD_MAP_EVENT`].
+    pub world_map_event: String,
+}
+
+impl Default for ServiceNames {
+    fn default() -> Self {
+        Self::with_prefix("")
+    }
+}
+
+impl ServiceNames {
+    /// The names of [`service`], each prefixed by `prefix`.
+    pub fn with_prefix(prefix: &str) -> Self {
+        let name = |n: &str| format!("{prefix}{n}");
+        Self {
+            observation: name(service::OBSERVATION),
+            observation_event: name(service::OBSERVATION_EVENT),
+            command: name(service::COMMAND),
+            command_event: name(service::COMMAND_EVENT),
+            motor_state: name(service::MOTOR_STATE),
+            motor_state_event: name(service::MOTOR_STATE_EVENT),
+            world_map: name(service::WORLD_MAP),
+            world_map_event: name(service::WORLD_MAP_EVENT),
+        }
+    }
+}
+
 /// A fixed-capacity set of binary features, stored as a little bitset.
 ///
 /// Bit `i` of word `i / 64` is feature `i`. Bits at or beyond the observation's

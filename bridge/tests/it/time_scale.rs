@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use tes_bridge::config::BridgeConfig;
 use tes_bridge::ipc::RunOptions;
 use tes_runtime::channel::{self, Inbox, LatestOutbox, WaitStrategy};
-use tes_topics::{Command, MotorState, motor_flags, service};
+use tes_topics::{Command, MotorState, motor_flags};
 
 /// Runs a bridge at `time_scale` through [`tes_bridge::process::run`], sends action 0 (both
 /// wheels 246°, about 0.5 s of physical motion) and returns the wall time until a SETTLED
@@ -31,21 +31,17 @@ fn settle_time(time_scale: f64, tag: &str, limit: Duration) -> Option<Duration> 
     };
     let bridge = std::thread::spawn(move || tes_bridge::process::run(&cfg, &opts));
     let node = channel::node(false).expect("node");
-    let name = |s: &str| format!("{prefix}{s}");
+    let names = tes_topics::ServiceNames::with_prefix(&prefix);
     let states: Inbox<MotorState> = Inbox::open(
         &node,
-        &name(service::MOTOR_STATE),
-        &name(service::MOTOR_STATE_EVENT),
+        &names.motor_state,
+        &names.motor_state_event,
         0,
         WaitStrategy::Block,
     )
     .expect("motor states");
-    let commands: LatestOutbox<Command> = LatestOutbox::open(
-        &node,
-        &name(service::COMMAND),
-        &name(service::COMMAND_EVENT),
-    )
-    .expect("commands");
+    let commands: LatestOutbox<Command> =
+        LatestOutbox::open(&node, &names.command, &names.command_event).expect("commands");
     let never = AtomicBool::new(false);
     // Wait for the bridge's first heartbeat, so it is connected.
     let up = Instant::now();

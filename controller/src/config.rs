@@ -1,0 +1,370 @@
+//! The controller's settings: the `[controller]` table of a launch file (or a file of its
+//! own), checked once into the values the process runs with.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use serde::Deserialize;
+use tes_runtime::affinity::Placement;
+use tes_runtime::channel::WaitStrategy;
+
+/// Settings of the controller process (TOML: the `[controller]` table of a launch file, or a
+/// file of its own). Every key is optional.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ControllerConfig {
+    /// `library`: the view library file (default: [`default_library_path`]). Created on the
+    /// first save if missing; a file that exists but cannot be read stops the controller.
+    pub library: Option<PathBuf>,
+    /// `budget_us`: the per-action latency budget, µs (default 1000).
+    pub budget_us: u64,
+    /// `wait`: `block` (default), `spin`, `spin-then-block` or `spin-then-block:<µs>`.
+    pub wait: String,
+    /// `seed`: exploration seed (default 1).
+    pub seed: u64,
+    /// `epsilon`: probability of a random action (paper §5.2: 0.05).
+    pub epsilon: f64,
+    /// `lambda`: mDAGL's group-lasso strength for fresh views (paper: 0.05).
+    pub lambda: f64,
+    /// `alpha`: mDAGL's step scale for fresh views (paper §5.2: 0.5).
+    pub alpha: f64,
+    /// `max_views`: the library's size limit M (paper: 20).
+    pub max_views: usize,
+    /// `service_prefix`: prefixed to every iceoryx2 service name (to run groups side by side).
+    pub service_prefix: String,
+    /// `map_timeout_s`: how long to wait for perception's world map (default 30 s).
+    pub map_timeout_s: f64,
+    /// `save_interval_s`: save the library at an episode's end only if this long has passed
+    /// since the last save (default 10 s; 0 = after every episode). It is always saved at
+    /// shutdown. Taking the snapshot costs the acting loop a copy of every working view, so at
+    /// the simulator's fastest pace (dozens of episodes a second) saving every episode would
+    /// put that copy in front of every episode's first decision.
+    pub save_interval_s: f64,
+    /// `plan_sweeps`: the most value-iteration sweeps the planner thread makes per hand-over
+    /// of the model (default 500; an unfinished plan continues at the next hand-over). Fewer
+    /// sweeps leave more CPU to the loop on a small machine at the cost of staler plans.
+    pub plan_sweeps: usize,
+    /// `warmup_actions`: actions left out of the latency and allocation figures (default 0).
+    pub warmup_actions: u64,
+    /// `report`: where to write the run's summary as JSON at exit (default: nowhere).
+    pub report: Option<PathBuf>,
+    /// `keepalive_ms`: while a command's move is under way, send the bridge a keep-alive this
+    /// often (default 250 ms; 0 = never). The bridge's watchdog brakes the motors when neither
+    /// commands nor keep-alives arrive within its deadline, so with keep-alives it acts as a
+    /// dead man's switch: a long move goes on while the controller lives and is braked within
+    /// the deadline once it is gone. Keep it well below the bridge's `watchdog.deadline_ms`.
+    pub keepalive_ms: u64,
+    /// `acting_cpu`: the CPU the acting loop's thread runs on — a CPU number, `"none"`
+    /// (unpinned) or `"auto"` (the default): with `wait = "block"` on two or more CPUs, the
+    /// last CPU this process may run on, else unpinned. Pinned, a blocking acting thread is
+    /// woken where its memory is warm instead of wherever the scheduler finds room: on the
+    /// project's 2-core VM that halved its compute and cut its wake-up from ~57 to ~13 µs
+    /// at the median (docs/performance.md, "Thread placement"). A spinning thread never
+    /// sleeps, so `auto` leaves it unpinned.
+    pub acting_cpu: Placement,
+    /// `planner_cpu`: the planner thread's CPU — a number, `"none"` or `"auto"` (the default:
+    /// where the acting thread is pinned, the first allowed CPU other than its own, so that
+    /// planning never runs on the acting thread's CPU; else unpinned).
+    pub planner_cpu: Placement,
+    /// `planning`: who plans — `thread` (a planner thread under `SCHED_IDLE`),
+    /// `between-polls` (the acting thread itself, in slices, while it spins waiting for the
+    /// next observation; needs `wait = "spin"` or `"spin-then-block"`) or `auto` (the default:
+    /// between polls with `wait = "spin"`, else the thread). Spinning on two cores leaves a
+    /// planner thread almost no time; between polls, the spin does the planning.
+    pub planning: String,
+    /// `plan_slice`: with `planning = "between-polls"`, the states' worth of planning work done
+    /// between two polls (default 32: ~0.3 µs on the arena, ~1 µs for the slice that starts
+    /// an action's refresh or adopts the plan — what an observation arriving mid-slice waits
+    /// at most).
+    pub plan_slice: usize,
+}
+
+/// Where the controller's threads run: CPUs, or `None` for unpinned
+/// ([`ControllerConfig::placement`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct ThreadPlacement {
+    /// The acting loop's thread.
+    pub acting: Option<usize>,
+    /// The planner thread (never pinned with between-polls planning: there is none).
+    pub planner: Option<usize>,
+}
+
+/// Who plans for the acting loop ([`ControllerConfig::planning`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Planning {
+    /// A planner thread.
+    Thread,
+    /// The acting thread, between the polls of its spinning wait.
+    BetweenPolls,
+}
+
+impl std::fmt::Display for Planning {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Planning::Thread => "thread",
+            Planning::BetweenPolls => "between-polls",
+        })
+    }
+}
+
+impl Default for ControllerConfig {
+    fn default() -> Self {
+        Self {
+            library: None,
+            budget_us: 1000,
+            wait: "block".into(),
+            seed: 1,
+            epsilon: 0.05,
+            lambda: 0.05,
+            alpha: 0.5,
+            max_views: 20,
+            service_prefix: String::new(),
+            map_timeout_s: 30.0,
+            save_interval_s: 10.0,
+            plan_sweeps: 500,
+            warmup_actions: 0,
+            report: None,
+            keepalive_ms: 250,
+            acting_cpu: Placement::Auto,
+            planner_cpu: Placement::Auto,
+            planning: "auto".into(),
+            plan_slice: 32,
+        }
+    }
+}
+
+/// A setting that is out of range, named by its key.
+pub type ConfigError = tes_runtime::settings::SettingError;
+
+const PROCESS: &str = "controller";
+
+impl ControllerConfig {
+    /// Parses a TOML document holding these keys (unknown keys are refused).
+    pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
+        let cfg: Self = tes_runtime::settings::parse(PROCESS, text)?;
+        cfg.check()?;
+        Ok(cfg)
+    }
+
+    /// Checks every key; the first bad one is reported.
+    pub fn check(&self) -> Result<WaitStrategy, ConfigError> {
+        let bad = |key, reason: &str| Err(ConfigError::new(PROCESS, key, reason));
+        if self.budget_us == 0 {
+            return bad("budget_us", "must be at least 1");
+        }
+        if !(0.0..=1.0).contains(&self.epsilon) {
+            return bad("epsilon", "must be in [0, 1]");
+        }
+        if !(self.lambda.is_finite() && self.lambda >= 0.0) {
+            return bad("lambda", "must be a finite number >= 0");
+        }
+        if !(self.alpha.is_finite() && self.alpha > 0.0) {
+            return bad("alpha", "must be a finite number > 0");
+        }
+        if self.max_views == 0 {
+            return bad("max_views", "must be at least 1");
+        }
+        if self.plan_sweeps == 0 {
+            return bad("plan_sweeps", "must be at least 1");
+        }
+        if !(self.save_interval_s >= 0.0
+            && Duration::try_from_secs_f64(self.save_interval_s).is_ok())
+        {
+            return bad(
+                "save_interval_s",
+                "must be a number of seconds >= 0 that fits a duration",
+            );
+        }
+        if !(self.map_timeout_s > 0.0 && Duration::try_from_secs_f64(self.map_timeout_s).is_ok()) {
+            return bad(
+                "map_timeout_s",
+                "must be a number of seconds > 0 that fits a duration",
+            );
+        }
+        if self.plan_slice == 0 {
+            return bad("plan_slice", "must be at least 1");
+        }
+        let strategy = tes_runtime::settings::wait_strategy(PROCESS, &self.wait)?;
+        let planning = self.planning_for(strategy)?;
+        self.placement(strategy, planning)?;
+        Ok(strategy)
+    }
+
+    /// Where the acting and planner threads run, `auto` resolved (see
+    /// [`ControllerConfig::acting_cpu`]); a CPU this process may not run on is refused,
+    /// naming its key.
+    pub fn placement(
+        &self,
+        strategy: WaitStrategy,
+        planning: Planning,
+    ) -> Result<ThreadPlacement, ConfigError> {
+        let pair = tes_runtime::affinity::auto_pair();
+        let acting = match self.acting_cpu {
+            Placement::Cpu(c) => Some(c),
+            Placement::Unpinned => None,
+            Placement::Auto if strategy == WaitStrategy::Block => pair.map(|(rt, _)| rt),
+            Placement::Auto => None,
+        };
+        let planner = match (planning, self.planner_cpu) {
+            (Planning::BetweenPolls, _) => None,
+            (Planning::Thread, Placement::Cpu(c)) => Some(c),
+            (Planning::Thread, Placement::Unpinned) => None,
+            (Planning::Thread, Placement::Auto) => acting.and_then(|a| {
+                tes_runtime::affinity::allowed_cpus()
+                    .into_iter()
+                    .find(|&c| c != a)
+            }),
+        };
+        tes_runtime::settings::cpu(PROCESS, "acting_cpu", acting)?;
+        tes_runtime::settings::cpu(PROCESS, "planner_cpu", planner)?;
+        Ok(ThreadPlacement { acting, planner })
+    }
+
+    /// Who plans, given the wait strategy (checked: `between-polls` needs a spinning wait, and
+    /// has no planner thread to pin).
+    pub fn planning_for(&self, strategy: WaitStrategy) -> Result<Planning, ConfigError> {
+        let bad = |reason: &str| Err(ConfigError::new(PROCESS, "planning", reason));
+        let planning = match self.planning.as_str() {
+            "auto" if strategy == WaitStrategy::Spin => Planning::BetweenPolls,
+            "auto" | "thread" => Planning::Thread,
+            "between-polls" => Planning::BetweenPolls,
+            _ => return bad("expected auto, thread or between-polls"),
+        };
+        if planning == Planning::BetweenPolls {
+            if strategy == WaitStrategy::Block {
+                return bad(
+                    "between-polls needs wait = \"spin\" or \"spin-then-block\": a loop that \
+                     blocks never polls",
+                );
+            }
+            if let Placement::Cpu(_) = self.planner_cpu {
+                return bad(
+                    "planner_cpu pins the planner thread, and between-polls planning has none \
+                     (it runs on the acting thread: see acting_cpu)",
+                );
+            }
+        }
+        Ok(planning)
+    }
+
+    /// The library file: the configured one or [`default_library_path`].
+    pub fn library_path(&self) -> PathBuf {
+        self.library.clone().unwrap_or_else(default_library_path)
+    }
+}
+
+/// The default data directory: `$TES_DATA_DIR`, else `$XDG_DATA_HOME/tes`, else
+/// `$HOME/.local/share/tes`, else `./tes-data`.
+pub fn default_data_dir() -> PathBuf {
+    let env = |k: &str| {
+        std::env::var_os(k)
+            .filter(|v| !v.is_empty())
+            .map(PathBuf::from)
+    };
+    env("TES_DATA_DIR")
+        .or_else(|| env("XDG_DATA_HOME").map(|d| d.join("tes")))
+        .or_else(|| env("HOME").map(|h| h.join(".local/share/tes")))
+        .unwrap_or_else(|| PathBuf::from("tes-data"))
+}
+
+/// The default view library file: `library.tesl` in [`default_data_dir`].
+pub fn default_library_path() -> PathBuf {
+    default_data_dir().join("library.tesl")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settings_are_checked_by_key() {
+        assert!(ControllerConfig::default().check().is_ok());
+        let cfg = ControllerConfig::from_toml("budget_us = 500\nwait = \"spin\"\n").unwrap();
+        assert_eq!(cfg.budget_us, 500);
+        assert_eq!(cfg.check(), Ok(WaitStrategy::Spin));
+        for (text, key) in [
+            ("budget_us = 0", "budget_us"),
+            ("epsilon = 2.0", "epsilon"),
+            ("alpha = 0.0", "alpha"),
+            ("wait = \"nap\"", "wait"),
+            ("max_views = 0", "max_views"),
+            ("map_timeout_s = 1e300", "map_timeout_s"),
+            ("map_timeout_s = nan", "map_timeout_s"),
+            ("save_interval_s = -1.0", "save_interval_s"),
+            ("acting_cpu = 100000", "acting_cpu"),
+            ("planner_cpu = 100000", "planner_cpu"),
+            ("plan_slice = 0", "plan_slice"),
+            ("planning = \"later\"", "planning"),
+            // Contradictions: a blocking loop never polls; no planner thread to pin.
+            ("planning = \"between-polls\"", "planning"),
+            (
+                "planning = \"between-polls\"\nwait = \"spin\"\nplanner_cpu = 0",
+                "planning",
+            ),
+        ] {
+            let err = ControllerConfig::from_toml(text).unwrap_err();
+            assert_eq!(err.key, key, "{text}");
+        }
+        // Who plans, by default and when asked.
+        for (text, planning) in [
+            ("", Planning::Thread),
+            ("wait = \"spin\"", Planning::BetweenPolls),
+            ("wait = \"spin-then-block\"", Planning::Thread),
+            ("wait = \"spin\"\nplanning = \"thread\"", Planning::Thread),
+            (
+                "wait = \"spin-then-block\"\nplanning = \"between-polls\"",
+                Planning::BetweenPolls,
+            ),
+        ] {
+            let cfg = ControllerConfig::from_toml(text).unwrap();
+            let strategy = cfg.check().unwrap();
+            assert_eq!(cfg.planning_for(strategy), Ok(planning), "{text}");
+        }
+        let err = ControllerConfig::from_toml("budjet_us = 5").unwrap_err();
+        assert!(err.reason.contains("budjet_us"), "{err}");
+        let err = ControllerConfig::from_toml("acting_cpu = \"fast\"").unwrap_err();
+        assert!(err.reason.contains("\"none\""), "{err}");
+    }
+
+    /// `auto` pins a blocking acting thread to the last allowed CPU and the planner to the
+    /// first other one; spinning, between polls, with one CPU, or when told, it does not.
+    #[test]
+    fn threads_are_placed_by_the_wait_and_the_keys() {
+        let allowed = tes_runtime::affinity::allowed_cpus();
+        let placed = |text: &str| {
+            let cfg = ControllerConfig::from_toml(text).unwrap();
+            let strategy = cfg.check().unwrap();
+            let planning = cfg.planning_for(strategy).unwrap();
+            let p = cfg.placement(strategy, planning).unwrap();
+            (p.acting, p.planner)
+        };
+        let (first, last) = (allowed.first().copied(), allowed.last().copied());
+        let pair = (allowed.len() >= 2).then_some((last, first));
+        assert_eq!(placed(""), pair.unwrap_or((None, None)));
+        assert_eq!(placed("wait = \"spin\""), (None, None));
+        assert_eq!(
+            placed("wait = \"spin\"\nplanning = \"thread\""),
+            (None, None)
+        );
+        assert_eq!(placed("wait = \"spin-then-block\""), (None, None));
+        assert_eq!(placed("acting_cpu = \"none\""), (None, None));
+        assert_eq!(
+            placed("planner_cpu = \"none\""),
+            (pair.and_then(|(a, _)| a), None)
+        );
+        // Told where, the planner goes elsewhere by itself.
+        let cpu = allowed[0];
+        let other = allowed.iter().copied().find(|&c| c != cpu);
+        assert_eq!(placed(&format!("acting_cpu = {cpu}")), (Some(cpu), other));
+        assert_eq!(
+            placed(&format!(
+                "acting_cpu = {cpu}\nwait = \"spin\"\nplanner_cpu = \"auto\""
+            )),
+            (Some(cpu), None)
+        );
+        assert_eq!(
+            placed(&format!("acting_cpu = \"none\"\nplanner_cpu = {cpu}")),
+            (None, Some(cpu))
+        );
+    }
+}
