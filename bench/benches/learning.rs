@@ -112,7 +112,7 @@ fn bench_planner(c: &mut Criterion) {
         // what an observation arriving mid-slice waits at most. Each plan is one learning
         // step's (as above), offered untimed; every slice of it is timed, the adoption too.
         let mut acting = warm.clone();
-        acting.set_inline_planning(false);
+        acting.plan_elsewhere();
         let mut planner = SlicedPlanner::new(structure.clone(), PlannerParams::default(), 32)
             .expect("valid settings");
         let mut views = views.clone();
@@ -163,7 +163,7 @@ fn bench_tes(c: &mut Criterion) {
 
     let mut agent = Tes::new(structure.clone(), lib.clone(), TesParams::default(), SEED)
         .expect("a valid agent");
-    agent.model_mut().set_inline_planning(false);
+    agent.model_mut().plan_elsewhere();
     let mut i = 0;
     group.bench_function(
         BenchmarkId::new("score_update", format!("{name}/9_views")),
@@ -178,7 +178,7 @@ fn bench_tes(c: &mut Criterion) {
 
     let mut agent =
         Tes::new(structure.clone(), lib, TesParams::default(), SEED).expect("a valid agent");
-    agent.model_mut().set_inline_planning(false);
+    agent.model_mut().plan_elsewhere();
     let mut planner = PlannerThread::spawn(structure.clone(), PlannerParams::default())
         .expect("a planner thread");
     let mut i = 0;

@@ -33,7 +33,7 @@ fn main() -> anyhow::Result<()> {
         acting.refresh(a, v)?;
     }
     while acting.replan().is_some() {}
-    acting.set_inline_planning(false);
+    acting.plan_elsewhere();
     let mut planner = SlicedPlanner::new(structure.clone(), params, slice)?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
     let (mut slices, mut plans) = (Vec::new(), Vec::new());

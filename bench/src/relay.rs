@@ -42,7 +42,7 @@ pub struct RelayConfig {
     /// Prefixed to the services (each run its own).
     pub service_prefix: String,
     /// `block`, `spin` or `spin-then-block[:µs]`.
-    pub wait: String,
+    pub wait: WaitStrategy,
     /// Round trips in all, warm-up included.
     pub messages: u64,
     /// Round trips left out of the report.
@@ -67,7 +67,7 @@ impl Default for RelayConfig {
     fn default() -> Self {
         Self {
             service_prefix: "relay/".into(),
-            wait: "block".into(),
+            wait: WaitStrategy::Block,
             messages: 10_000,
             warmup: 1_000,
             budget_us: 1000,
@@ -80,18 +80,43 @@ impl Default for RelayConfig {
     }
 }
 
-const PROCESS: &str = "relay";
+/// The process name [`SettingError`]s of these settings carry.
+pub const PROCESS: &str = "relay";
+
+/// A [`RelayConfig`] that passed [`RelayConfig::check`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct CheckedRelay {
+    config: RelayConfig,
+}
+
+impl CheckedRelay {
+    /// The settings.
+    pub fn config(&self) -> &RelayConfig {
+        &self.config
+    }
+
+    /// How every relay process waits (`wait`).
+    pub fn wait(&self) -> WaitStrategy {
+        self.config.wait
+    }
+}
 
 impl RelayConfig {
-    /// Parses and checks a TOML document of these keys.
+    /// Parses and checks a TOML document of these keys; an error names the key and its line.
     pub fn from_toml(text: &str) -> Result<Self, SettingError> {
-        let cfg: Self = settings::parse(PROCESS, text)?;
-        cfg.check()?;
+        Self::from_toml_in(text, settings::Origin::Text)
+    }
+
+    /// [`from_toml`](Self::from_toml) for a document from `origin`, which an error names.
+    pub fn from_toml_in(text: &str, origin: settings::Origin) -> Result<Self, SettingError> {
+        let cfg: Self = settings::parse_in(PROCESS, text, origin.clone())?;
+        cfg.check()
+            .map_err(|e| e.in_file(origin, None, Some(text)))?;
         Ok(cfg)
     }
 
-    /// Checks every key; returns the wait strategy.
-    pub fn check(&self) -> Result<WaitStrategy, SettingError> {
+    /// Checks every key; the first bad one is reported.
+    pub fn check(&self) -> Result<CheckedRelay, SettingError> {
         if self.messages == 0 || self.warmup >= self.messages {
             return Err(SettingError::new(
                 PROCESS,
@@ -107,7 +132,9 @@ impl RelayConfig {
             ));
         }
         settings::cpu(PROCESS, "hop_cpu", self.hop_cpu)?;
-        settings::wait_strategy(PROCESS, &self.wait)
+        Ok(CheckedRelay {
+            config: self.clone(),
+        })
     }
 
     fn names(&self) -> ServiceNames {
@@ -150,7 +177,7 @@ pub fn run(
     cfg: &RelayConfig,
     stop: &AtomicBool,
 ) -> Result<Option<LatencyReport>, RelayError> {
-    let wait = cfg.check()?;
+    let wait = cfg.check()?.wait();
     let node = channel::node(false)?;
     let idle = Duration::from_millis(cfg.idle_timeout_ms);
     match role {
@@ -320,12 +347,23 @@ mod tests {
         );
         assert_eq!(
             RelayConfig::from_toml("mesages = 5").unwrap_err().key,
-            "(file)"
+            "mesages"
         );
         assert_eq!(
             RelayConfig::from_toml("hop_cpu = 100000").unwrap_err().key,
             "hop_cpu"
         );
+    }
+
+    #[test]
+    fn the_wait_key_is_a_strategy() {
+        let cfg = RelayConfig::from_toml("wait = \"spin-then-block:15\"").unwrap();
+        assert_eq!(
+            cfg.check().map(|c| c.wait()),
+            Ok(WaitStrategy::SpinThenBlock(Duration::from_micros(15)))
+        );
+        let err = RelayConfig::from_toml("gap_us = 1\nwait = \"doze\"").unwrap_err();
+        assert_eq!((err.key.as_str(), err.line()), ("wait", Some(2)));
     }
 
     #[test]

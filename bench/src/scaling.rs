@@ -48,7 +48,7 @@ pub fn measure(
     let structure = Arc::new(fixtures::arena_like(features, seed)?);
     let library = fixtures::library_for(&structure, views, seed)?;
     let mut agent = Tes::new(structure.clone(), library, TesParams::default(), seed)?;
-    agent.model_mut().set_inline_planning(false);
+    agent.model_mut().plan_elsewhere();
     let mut planner = PlannerThread::spawn(
         structure.clone(),
         PlannerParams {

@@ -3,6 +3,10 @@
 //! Every key is optional; the defaults are the simulated brick and the paper's three actions.
 //! Switching to a real NXT is one line: `transport = "serial:/dev/rfcomm0"`.
 //!
+//! The file's keys are [`BridgeSettings`] (read and written with serde, unknown keys refused);
+//! [`BridgeSettings::check`] validates them once into the [`BridgeConfig`] the bridge runs
+//! with. A bad key is a [`SettingError`] naming the key, and its line when read from text.
+//!
 //! ```
 //! use tes_bridge::config::{BridgeConfig, TransportKind};
 //!
@@ -20,7 +24,9 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
+use tes_runtime::channel::WaitStrategy;
+use tes_runtime::settings::{Origin, SettingError};
 
 use crate::actions::{ActionConfig, ActionMap, ActionSpec, MotorsConfig, paper_actions};
 use crate::brick::SimBrickConfig;
@@ -60,6 +66,41 @@ impl std::fmt::Display for TransportKind {
     }
 }
 
+/// Written as its string form: `"sim"` or `"serial:PATH"`.
+impl Serialize for TransportKind {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        match self {
+            TransportKind::Sim => serializer.serialize_str("sim"),
+            TransportKind::Serial(p) => match p.to_str() {
+                Some(p) => serializer.serialize_str(&format!("serial:{p}")),
+                None => Err(serde::ser::Error::custom(format!(
+                    "the serial device {} is not UTF-8",
+                    p.display()
+                ))),
+            },
+        }
+    }
+}
+
+/// Read from its string form: `"sim"` or `"serial:PATH"`.
+impl<'de> Deserialize<'de> for TransportKind {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl serde::de::Visitor<'_> for Visitor {
+            type Value = TransportKind;
+
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("a transport: \"sim\" or \"serial:PATH\"")
+            }
+
+            fn visit_str<E: serde::de::Error>(self, s: &str) -> Result<TransportKind, E> {
+                s.parse().map_err(E::custom)
+            }
+        }
+        deserializer.deserialize_str(Visitor)
+    }
+}
+
 /// A configuration that could not be loaded.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
@@ -71,29 +112,18 @@ pub enum ConfigError {
         /// The error (part of the message, so not also chained as a source).
         error: std::io::Error,
     },
-    /// The TOML is malformed or has an unknown key or a wrongly typed value.
-    #[error("config {origin}: {message}")]
-    Parse {
-        /// The file, or `<string>`.
-        origin: String,
-        /// The parser's message (it names the key and line).
-        message: String,
-    },
-    /// A value is out of range.
-    #[error("config key {key}: {reason}")]
-    Invalid {
-        /// The key, e.g. `watchdog.deadline_ms`.
-        key: String,
-        /// What is wrong.
-        reason: String,
-    },
+    /// A key is unknown, of the wrong type or out of range, or the TOML is malformed: the
+    /// error every process reports for a bad key (with the file and line when read from
+    /// one).
+    #[error(transparent)]
+    Setting(#[from] SettingError),
 }
 
-fn invalid(key: &str, reason: impl Into<String>) -> ConfigError {
-    ConfigError::Invalid {
-        key: key.to_owned(),
-        reason: reason.into(),
-    }
+/// The process name [`SettingError`]s of these settings carry.
+pub const PROCESS: &str = "bridge";
+
+fn invalid(key: &str, reason: impl Into<String>) -> SettingError {
+    SettingError::new(PROCESS, key, reason)
 }
 
 /// The range of `[brick] time_scale`. The bridge adds its periods to a clock running
@@ -103,7 +133,7 @@ fn invalid(key: &str, reason: impl Into<String>) -> ConfigError {
 pub const TIME_SCALE_RANGE: std::ops::RangeInclusive<f64> = 0.001..=10_000.0;
 
 /// The simulated brick's settings, `time_scale` within [`TIME_SCALE_RANGE`] included.
-fn check_brick(brick: &SimBrickConfig) -> Result<(), ConfigError> {
+fn check_brick(brick: &SimBrickConfig) -> Result<(), SettingError> {
     brick
         .check()
         .map_err(|e| invalid(&format!("brick.{}", e.key), e.reason))?;
@@ -122,7 +152,7 @@ fn check_brick(brick: &SimBrickConfig) -> Result<(), ConfigError> {
 }
 
 /// The simulated Bluetooth link delay (the `[link_delay]` table).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct LinkDelayConfig {
     /// Delay each reply of the `sim` transport (and of `bridge brick --pty`).
@@ -144,7 +174,7 @@ impl Default for LinkDelayConfig {
 }
 
 /// Serial settings (the `[serial]` table).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SerialSection {
     /// Line speed (ignored by rfcomm and pseudo-terminals).
@@ -172,7 +202,7 @@ impl Default for SerialSection {
 }
 
 /// How the bridge polls the brick (the `[poll]` table).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PollConfig {
     /// Poll period while a wheel moves, ms.
@@ -214,13 +244,13 @@ impl PollConfig {
 }
 
 /// iceoryx2 settings (the `[ipc]` table).
-#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct IpcConfig {
     /// Prefix for every service name (to run several systems side by side, or in tests).
     pub service_prefix: String,
     /// How to wait for commands: `block` (default), `spin`, `spin-then-block[:<µs>]`.
-    pub wait: String,
+    pub wait: WaitStrategy,
     /// The per-action budget the observation → command latency is held to, µs (default
     /// 1000): overruns are counted in the latency report.
     pub budget_us: u64,
@@ -240,7 +270,7 @@ impl Default for IpcConfig {
     fn default() -> Self {
         Self {
             service_prefix: String::new(),
-            wait: "block".to_owned(),
+            wait: WaitStrategy::Block,
             budget_us: 1000,
             warmup_commands: 0,
             latency_report: None,
@@ -251,50 +281,70 @@ impl Default for IpcConfig {
 }
 
 impl IpcConfig {
-    /// The wait strategy `wait` names (also checked when the config is read; this refuses a
-    /// bad name set in code).
-    pub fn wait_strategy(
-        &self,
-    ) -> Result<tes_runtime::channel::WaitStrategy, tes_runtime::channel::BadWaitStrategy> {
-        self.wait.parse()
+    /// The wait strategy (`wait`). It is typed, so this no longer fails; kept for callers
+    /// written when `wait` was a string.
+    pub fn wait_strategy(&self) -> Result<WaitStrategy, tes_runtime::channel::BadWaitStrategy> {
+        Ok(self.wait)
     }
 }
 
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct RawConfig {
-    #[serde(default = "default_transport")]
-    transport: String,
-    #[serde(default)]
-    seed: u64,
-    #[serde(default)]
-    use_command_degrees: bool,
-    #[serde(default)]
-    link_delay: LinkDelayConfig,
-    #[serde(default)]
-    serial: SerialSection,
-    #[serde(default)]
-    watchdog: WatchdogSection,
-    #[serde(default)]
-    poll: PollConfig,
-    #[serde(default)]
-    ipc: IpcConfig,
-    #[serde(default)]
-    brick: SimBrickConfig,
-    #[serde(default)]
-    motors: MotorsConfig,
-    #[serde(default = "paper_actions")]
-    actions: Vec<ActionSpec>,
-}
-
-fn default_transport() -> String {
-    "sim".to_owned()
-}
-
-#[derive(Debug, Clone, Copy, Deserialize)]
+/// The bridge's settings file as written: every key, typed, with its default (TOML: a file of
+/// the bridge's own, or the `[bridge]` table of a launch file). [`check`](Self::check) turns
+/// it into the [`BridgeConfig`] the bridge runs with. Written back with serde
+/// (`toml::to_string`), it reads back the same.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(default, deny_unknown_fields)]
-struct WatchdogSection {
-    deadline_ms: u64,
+pub struct BridgeSettings {
+    /// `transport`: `"sim"` (default) or `"serial:PATH"`.
+    pub transport: TransportKind,
+    /// `seed`: seeds the simulated brick and the simulated link delay (default 0).
+    pub seed: u64,
+    /// `use_command_degrees`: drive the wheels by the command's `left_deg`/`right_deg`
+    /// (default false).
+    pub use_command_degrees: bool,
+    /// `[link_delay]`.
+    pub link_delay: LinkDelayConfig,
+    /// `[serial]`.
+    pub serial: SerialSection,
+    /// `[watchdog]`.
+    pub watchdog: WatchdogSection,
+    /// `[poll]`.
+    pub poll: PollConfig,
+    /// `[ipc]`.
+    pub ipc: IpcConfig,
+    /// `[brick]`.
+    pub brick: SimBrickConfig,
+    /// `[motors]`.
+    pub motors: MotorsConfig,
+    /// `[[actions]]` (default: the paper's three).
+    pub actions: Vec<ActionSpec>,
+}
+
+impl Default for BridgeSettings {
+    fn default() -> Self {
+        Self {
+            transport: TransportKind::Sim,
+            seed: 0,
+            use_command_degrees: false,
+            link_delay: LinkDelayConfig::default(),
+            serial: SerialSection::default(),
+            watchdog: WatchdogSection::default(),
+            poll: PollConfig::default(),
+            ipc: IpcConfig::default(),
+            brick: SimBrickConfig::default(),
+            motors: MotorsConfig::default(),
+            actions: paper_actions(),
+        }
+    }
+}
+
+/// The dead man's switch (the `[watchdog]` table).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct WatchdogSection {
+    /// Brake the motors when no command or keep-alive arrives within this long while one
+    /// runs, ms (default 1000, at least 50; brick time).
+    pub deadline_ms: u64,
 }
 
 impl Default for WatchdogSection {
@@ -347,30 +397,17 @@ impl Default for BridgeConfig {
     }
 }
 
-impl BridgeConfig {
-    /// Reads and validates a TOML file.
-    pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Read {
-            path: path.to_owned(),
-            error,
-        })?;
-        Self::parse(&text, &path.display().to_string())
+impl BridgeSettings {
+    /// Parses TOML text with these keys (unknown keys refused); an error names the key and
+    /// its line in `origin`.
+    pub fn from_toml_in(text: &str, origin: Origin) -> Result<Self, SettingError> {
+        tes_runtime::settings::parse_in(PROCESS, text, origin)
     }
 
-    /// Parses and validates TOML text.
-    pub fn from_toml_str(text: &str) -> Result<Self, ConfigError> {
-        Self::parse(text, "<string>")
-    }
-
-    fn parse(text: &str, origin: &str) -> Result<Self, ConfigError> {
-        let raw: RawConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
-            origin: origin.to_owned(),
-            message: e.to_string(),
-        })?;
-        let transport = raw
-            .transport
-            .parse::<TransportKind>()
-            .map_err(|r| invalid("transport", r))?;
+    /// Checks every key; the first bad one is reported (its key dotted: `poll.settle_polls`).
+    /// Returns the configuration the bridge runs with.
+    pub fn check(&self) -> Result<BridgeConfig, SettingError> {
+        let raw = self;
         let ms = Duration::from_millis;
         if raw.watchdog.deadline_ms < 50 {
             return Err(invalid(
@@ -434,15 +471,12 @@ impl BridgeConfig {
         }
         check_brick(&raw.brick)?;
         let actions = ActionMap::new(ActionConfig {
-            motors: raw.motors,
-            actions: raw.actions,
+            motors: raw.motors.clone(),
+            actions: raw.actions.clone(),
         })
         .map_err(|e| invalid(&e.key, e.reason))?;
         if raw.ipc.service_prefix.len() > 64 {
             return Err(invalid("ipc.service_prefix", "must be at most 64 bytes"));
-        }
-        if let Err(e) = raw.ipc.wait.parse::<tes_runtime::channel::WaitStrategy>() {
-            return Err(invalid("ipc.wait", e.to_string()));
         }
         if raw.ipc.latency_window == 0 {
             return Err(invalid("ipc.latency_window", "must be at least 1"));
@@ -450,18 +484,43 @@ impl BridgeConfig {
         if raw.ipc.budget_us == 0 {
             return Err(invalid("ipc.budget_us", "must be at least 1"));
         }
-        Ok(Self {
-            transport,
+        Ok(BridgeConfig {
+            transport: raw.transport.clone(),
             seed: raw.seed,
             use_command_degrees: raw.use_command_degrees,
             link_delay: d.enabled.then(|| (ms(d.mean_ms), ms(d.jitter_ms))),
             serial: s,
             watchdog_deadline: ms(raw.watchdog.deadline_ms),
             poll: p,
-            ipc: raw.ipc,
-            brick: raw.brick,
+            ipc: raw.ipc.clone(),
+            brick: raw.brick.clone(),
             actions,
         })
+    }
+}
+
+impl BridgeConfig {
+    /// Reads and validates a TOML file; an error names the file, the line and the key.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Read {
+            path: path.to_owned(),
+            error,
+        })?;
+        Self::from_toml_in(&text, Origin::File(path.to_owned()))
+    }
+
+    /// Parses and validates TOML text (an error's origin is `<string>`).
+    pub fn from_toml_str(text: &str) -> Result<Self, ConfigError> {
+        Self::from_toml_in(text, Origin::Text)
+    }
+
+    /// Parses and validates TOML text from `origin`, which an error names with the line of
+    /// the key.
+    pub fn from_toml_in(text: &str, origin: Origin) -> Result<Self, ConfigError> {
+        let settings = BridgeSettings::from_toml_in(text, origin.clone())?;
+        Ok(settings
+            .check()
+            .map_err(|e| e.in_file(origin, None, Some(text)))?)
     }
 
     /// Sets `seed` (the simulated brick's and the link delay's).
@@ -474,7 +533,7 @@ impl BridgeConfig {
     pub fn with_service_prefix(mut self, prefix: impl Into<String>) -> Result<Self, ConfigError> {
         let prefix = prefix.into();
         if prefix.len() > 64 {
-            return Err(invalid("ipc.service_prefix", "must be at most 64 bytes"));
+            return Err(invalid("ipc.service_prefix", "must be at most 64 bytes").into());
         }
         self.ipc.service_prefix = prefix;
         Ok(self)
@@ -600,7 +659,7 @@ mod tests {
     #[test]
     fn contradictory_settings_name_the_key_and_reason() {
         let invalid = |s: &str| match BridgeConfig::from_toml_str(s) {
-            Err(ConfigError::Invalid { key, reason }) => (key, reason),
+            Err(ConfigError::Setting(e)) => (e.key, e.reason),
             other => panic!("{s:?}: expected an invalid key, got {other:?}"),
         };
         let cases = [
@@ -626,6 +685,11 @@ mod tests {
                 "duplicate action id 4",
             ),
             ("[ipc]\nwait = \"nap\"", "ipc.wait", "nap"),
+            (
+                "transport = \"usb\"",
+                "transport",
+                "expected \"sim\" or \"serial:PATH\"",
+            ),
             ("[ipc]\nbudget_us = 0", "ipc.budget_us", "at least 1"),
             (
                 "[ipc]\nlatency_window = 0",
@@ -710,6 +774,105 @@ mod tests {
                 .with_time_scale(bad)
                 .expect_err("bad scale");
             assert!(err.to_string().contains("brick.time_scale"), "{bad}: {err}");
+        }
+    }
+
+    /// The string-valued keys are enums: `transport` and `[ipc] wait` read their words, and
+    /// refuse anything else naming the key and its line.
+    #[test]
+    fn every_enum_key_parses_and_refuses_a_bad_value_naming_the_key() {
+        for (text, transport) in [
+            ("sim", TransportKind::Sim),
+            (
+                "serial:/dev/rfcomm0",
+                TransportKind::Serial("/dev/rfcomm0".into()),
+            ),
+        ] {
+            let cfg = BridgeConfig::from_toml_str(&format!("transport = \"{text}\"")).unwrap();
+            assert_eq!(cfg.transport, transport);
+            assert_eq!(transport.to_string(), text);
+        }
+        for text in ["block", "spin", "spin-then-block", "spin-then-block:25"] {
+            let cfg = BridgeConfig::from_toml_str(&format!("[ipc]\nwait = \"{text}\"")).unwrap();
+            assert_eq!(cfg.ipc.wait.to_string(), text);
+            assert_eq!(cfg.ipc.wait_strategy(), Ok(cfg.ipc.wait));
+        }
+        for (text, key, line) in [
+            ("seed = 1\ntransport = \"usb\"", "transport", 2),
+            ("transport = \"serial:\"", "transport", 1),
+            ("transport = 5", "transport", 1),
+            ("[poll]\n[ipc]\nwait = \"nap\"", "ipc.wait", 3),
+            ("[ipc]\nwait = \"spin-then-block:0\"", "ipc.wait", 2),
+            ("[motors]\nregulation = \"fast\"", "motors.regulation", 2),
+        ] {
+            let err = BridgeSettings::from_toml_in(text, Origin::Text).unwrap_err();
+            assert_eq!((err.process, err.key.as_str()), (PROCESS, key), "{text}");
+            assert_eq!(err.line(), Some(line), "{text}");
+        }
+    }
+
+    /// A bad key of a bridge file, unknown or out of range, is reported with the file, the
+    /// line and the key.
+    #[test]
+    fn a_bad_key_names_the_file_line_and_key() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bridge.toml");
+        for (text, line, key) in [
+            (
+                "seed = 1\n[watchdog]\ndeadline = 10\n",
+                3,
+                "watchdog.deadline",
+            ),
+            (
+                "seed = 1\n[watchdog]\ndeadline_ms = 10\n",
+                3,
+                "watchdog.deadline_ms",
+            ),
+            (
+                "[[actions]]\nid = 1\nleft_deg = 1\nright_deg = 1\n\
+                 [[actions]]\nid = 1\nleft_deg = 1\nright_deg = 2\n",
+                6,
+                "actions[1].id",
+            ),
+        ] {
+            std::fs::write(&path, text).unwrap();
+            let err = BridgeConfig::load(&path).unwrap_err();
+            let ConfigError::Setting(e) = &err else {
+                panic!("{err}")
+            };
+            assert_eq!((e.key.as_str(), e.line()), (key, Some(line)), "{text}");
+            let shown = err.to_string();
+            let prefix = format!("{}:{line}:1: {key}: ", path.display());
+            assert!(shown.starts_with(&prefix), "{shown}");
+        }
+    }
+
+    /// Written with serde and read back, the settings are the same, and so is the
+    /// configuration they check into.
+    #[test]
+    fn settings_round_trip_through_toml() {
+        let example: BridgeSettings =
+            toml::from_str(include_str!("../bridge.example.toml")).expect("valid");
+        assert_eq!(example, BridgeSettings::default());
+        let mut busy = BridgeSettings {
+            transport: TransportKind::Serial("/dev/rfcomm1".into()),
+            seed: 7,
+            use_command_degrees: true,
+            ..BridgeSettings::default()
+        };
+        busy.link_delay.enabled = true;
+        busy.watchdog.deadline_ms = 200_000;
+        busy.ipc.wait = WaitStrategy::SpinThenBlock(Duration::from_micros(80));
+        busy.ipc.service_prefix = "tes/9/".into();
+        busy.ipc.latency_report = Some("/tmp/bridge.json".into());
+        busy.brick.time_scale = 200.0;
+        busy.actions.truncate(1);
+        for settings in [BridgeSettings::default(), busy] {
+            let text = toml::to_string(&settings).expect("serialises");
+            let back = BridgeSettings::from_toml_in(&text, Origin::Text).expect("reads back");
+            assert_eq!(back, settings, "{text}");
+            assert_eq!(back.check(), settings.check());
+            assert!(settings.check().is_ok());
         }
     }
 }

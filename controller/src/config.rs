@@ -1,16 +1,32 @@
 //! The controller's settings: the `[controller]` table of a launch file (or a file of its
-//! own), checked once into the values the process runs with.
+//! own), checked once into the values the process runs with ([`CheckedController`]).
+//!
+//! ```
+//! use tes_controller::config::{ControllerConfig, Planning, PlanningMode};
+//! use tes_runtime::channel::WaitStrategy;
+//!
+//! let cfg = ControllerConfig::from_toml("wait = \"spin\"\nbudget_us = 500")?;
+//! assert_eq!((cfg.wait, cfg.planning), (WaitStrategy::Spin, PlanningMode::Auto));
+//! let checked = cfg.check()?;
+//! assert_eq!(checked.planning(), Planning::BetweenPolls);
+//! assert_eq!(checked.placement().acting, None); // a spinning thread is not pinned
+//! let err = ControllerConfig::from_toml("# settings\nplanning = \"later\"").unwrap_err();
+//! assert_eq!((err.key.as_str(), err.line()), ("planning", Some(2)));
+//! # Ok::<(), tes_controller::config::ConfigError>(())
+//! ```
 
 use std::path::PathBuf;
 use std::time::Duration;
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use tes_runtime::affinity::Placement;
 use tes_runtime::channel::WaitStrategy;
+use tes_runtime::settings::Origin;
 
 /// Settings of the controller process (TOML: the `[controller]` table of a launch file, or a
-/// file of its own). Every key is optional.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+/// file of its own). Every key is optional. Written back with serde (`toml::to_string`), it
+/// reads back the same.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ControllerConfig {
     /// `library`: the view library file (default: [`default_library_path`]). Created on the
@@ -19,7 +35,7 @@ pub struct ControllerConfig {
     /// `budget_us`: the per-action latency budget, µs (default 1000).
     pub budget_us: u64,
     /// `wait`: `block` (default), `spin`, `spin-then-block` or `spin-then-block:<µs>`.
-    pub wait: String,
+    pub wait: WaitStrategy,
     /// `seed`: exploration seed (default 1).
     pub seed: u64,
     /// `epsilon`: probability of a random action (paper §5.2: 0.05).
@@ -57,10 +73,9 @@ pub struct ControllerConfig {
     /// `acting_cpu`: the CPU the acting loop's thread runs on — a CPU number, `"none"`
     /// (unpinned) or `"auto"` (the default): with `wait = "block"` on two or more CPUs, the
     /// last CPU this process may run on, else unpinned. Pinned, a blocking acting thread is
-    /// woken where its memory is warm instead of wherever the scheduler finds room: on the
-    /// project's 2-core VM that halved its compute and cut its wake-up from ~57 to ~13 µs
-    /// at the median (docs/performance.md, "Thread placement"). A spinning thread never
-    /// sleeps, so `auto` leaves it unpinned.
+    /// woken where its memory is warm instead of wherever the scheduler finds room, which
+    /// shortens both its wake-up and its compute (docs/performance.md). A spinning thread
+    /// never sleeps, so `auto` leaves it unpinned.
     pub acting_cpu: Placement,
     /// `planner_cpu`: the planner thread's CPU — a number, `"none"` or `"auto"` (the default:
     /// where the acting thread is pinned, the first allowed CPU other than its own, so that
@@ -70,12 +85,13 @@ pub struct ControllerConfig {
     /// `between-polls` (the acting thread itself, in slices, while it spins waiting for the
     /// next observation; needs `wait = "spin"` or `"spin-then-block"`) or `auto` (the default:
     /// between polls with `wait = "spin"`, else the thread). Spinning on two cores leaves a
-    /// planner thread almost no time; between polls, the spin does the planning.
-    pub planning: String,
+    /// planner thread almost no time; between polls, the spin does the planning. Resolved by
+    /// [`ControllerConfig::check`] (or [`ControllerConfig::planning_for`]) into [`Planning`].
+    pub planning: PlanningMode,
     /// `plan_slice`: with `planning = "between-polls"`, the states' worth of planning work done
-    /// between two polls (default 32: ~0.3 µs on the arena, ~1 µs for the slice that starts
-    /// an action's refresh or adopts the plan — what an observation arriving mid-slice waits
-    /// at most).
+    /// between two polls (default 32). One slice is what an observation arriving mid-slice
+    /// waits at most; the slice that starts an action's refresh or adopts the plan is the
+    /// longest.
     pub plan_slice: usize,
 }
 
@@ -89,7 +105,50 @@ pub struct ThreadPlacement {
     pub planner: Option<usize>,
 }
 
-/// Who plans for the acting loop ([`ControllerConfig::planning`]).
+/// The `planning` key: who plans, as asked (`auto`, `thread` or `between-polls`);
+/// [`Planning`] is what it resolves to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PlanningMode {
+    /// Between polls with `wait = "spin"`, else a planner thread (the default).
+    #[default]
+    Auto,
+    /// A planner thread.
+    Thread,
+    /// The acting thread, between the polls of its spinning wait.
+    BetweenPolls,
+}
+
+impl std::fmt::Display for PlanningMode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            PlanningMode::Auto => "auto",
+            PlanningMode::Thread => "thread",
+            PlanningMode::BetweenPolls => "between-polls",
+        })
+    }
+}
+
+/// A `planning` value that is not `auto`, `thread` or `between-polls`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown planning {0:?}: expected auto, thread or between-polls")]
+pub struct BadPlanningMode(pub String);
+
+impl std::str::FromStr for PlanningMode {
+    type Err = BadPlanningMode;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "auto" => Ok(PlanningMode::Auto),
+            "thread" => Ok(PlanningMode::Thread),
+            "between-polls" => Ok(PlanningMode::BetweenPolls),
+            _ => Err(BadPlanningMode(s.to_owned())),
+        }
+    }
+}
+
+/// Who plans for the acting loop: [`ControllerConfig::planning`] resolved for the wait
+/// strategy.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Planning {
     /// A planner thread.
@@ -112,7 +171,7 @@ impl Default for ControllerConfig {
         Self {
             library: None,
             budget_us: 1000,
-            wait: "block".into(),
+            wait: WaitStrategy::Block,
             seed: 1,
             epsilon: 0.05,
             lambda: 0.05,
@@ -127,27 +186,87 @@ impl Default for ControllerConfig {
             keepalive_ms: 250,
             acting_cpu: Placement::Auto,
             planner_cpu: Placement::Auto,
-            planning: "auto".into(),
+            planning: PlanningMode::Auto,
             plan_slice: 32,
         }
     }
 }
 
-/// A setting that is out of range, named by its key.
+/// A setting that is unknown, mistyped or out of range, named by its key (and, read from a
+/// file, by the file and line).
 pub type ConfigError = tes_runtime::settings::SettingError;
 
-const PROCESS: &str = "controller";
+/// The process name [`ConfigError`]s of these settings carry.
+pub const PROCESS: &str = "controller";
+
+/// A [`ControllerConfig`] that passed [`ControllerConfig::check`], with what its keys resolve
+/// to on this machine: the wait strategy, who plans, where the threads run, the durations.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CheckedController {
+    config: ControllerConfig,
+    planning: Planning,
+    placement: ThreadPlacement,
+    map_timeout: Duration,
+    save_interval: Duration,
+}
+
+impl CheckedController {
+    /// The settings as given.
+    pub fn config(&self) -> &ControllerConfig {
+        &self.config
+    }
+
+    /// The settings as given, taken out.
+    pub fn into_config(self) -> ControllerConfig {
+        self.config
+    }
+
+    /// How the acting loop waits for observations (`wait`).
+    pub fn wait(&self) -> WaitStrategy {
+        self.config.wait
+    }
+
+    /// Who plans (`planning` resolved: [`ControllerConfig::planning_for`]).
+    pub fn planning(&self) -> Planning {
+        self.planning
+    }
+
+    /// Where the threads run (`acting_cpu`, `planner_cpu` resolved:
+    /// [`ControllerConfig::placement`]).
+    pub fn placement(&self) -> ThreadPlacement {
+        self.placement
+    }
+
+    /// How long to wait for the world map (`map_timeout_s`).
+    pub fn map_timeout(&self) -> Duration {
+        self.map_timeout
+    }
+
+    /// The least time between two library saves at an episode's end (`save_interval_s`).
+    pub fn save_interval(&self) -> Duration {
+        self.save_interval
+    }
+}
 
 impl ControllerConfig {
-    /// Parses a TOML document holding these keys (unknown keys are refused).
+    /// Parses a TOML document holding these keys (unknown keys are refused) and checks it;
+    /// an error names the key and its line.
     pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
-        let cfg: Self = tes_runtime::settings::parse(PROCESS, text)?;
-        cfg.check()?;
+        Self::from_toml_in(text, Origin::Text)
+    }
+
+    /// [`from_toml`](Self::from_toml) for a document from `origin` (the file the user gave),
+    /// which an error names.
+    pub fn from_toml_in(text: &str, origin: Origin) -> Result<Self, ConfigError> {
+        let cfg: Self = tes_runtime::settings::parse_in(PROCESS, text, origin.clone())?;
+        cfg.check()
+            .map_err(|e| e.in_file(origin, None, Some(text)))?;
         Ok(cfg)
     }
 
-    /// Checks every key; the first bad one is reported.
-    pub fn check(&self) -> Result<WaitStrategy, ConfigError> {
+    /// Checks every key; the first bad one is reported. Returns the settings with what they
+    /// resolve to (see [`CheckedController`]).
+    pub fn check(&self) -> Result<CheckedController, ConfigError> {
         let bad = |key, reason: &str| Err(ConfigError::new(PROCESS, key, reason));
         if self.budget_us == 0 {
             return bad("budget_us", "must be at least 1");
@@ -167,27 +286,36 @@ impl ControllerConfig {
         if self.plan_sweeps == 0 {
             return bad("plan_sweeps", "must be at least 1");
         }
-        if !(self.save_interval_s >= 0.0
-            && Duration::try_from_secs_f64(self.save_interval_s).is_ok())
-        {
-            return bad(
-                "save_interval_s",
-                "must be a number of seconds >= 0 that fits a duration",
-            );
-        }
-        if !(self.map_timeout_s > 0.0 && Duration::try_from_secs_f64(self.map_timeout_s).is_ok()) {
-            return bad(
-                "map_timeout_s",
-                "must be a number of seconds > 0 that fits a duration",
-            );
-        }
+        let save_interval = match Duration::try_from_secs_f64(self.save_interval_s) {
+            Ok(d) if self.save_interval_s >= 0.0 => d,
+            _ => {
+                return bad(
+                    "save_interval_s",
+                    "must be a number of seconds >= 0 that fits a duration",
+                );
+            }
+        };
+        let map_timeout = match Duration::try_from_secs_f64(self.map_timeout_s) {
+            Ok(d) if self.map_timeout_s > 0.0 => d,
+            _ => {
+                return bad(
+                    "map_timeout_s",
+                    "must be a number of seconds > 0 that fits a duration",
+                );
+            }
+        };
         if self.plan_slice == 0 {
             return bad("plan_slice", "must be at least 1");
         }
-        let strategy = tes_runtime::settings::wait_strategy(PROCESS, &self.wait)?;
-        let planning = self.planning_for(strategy)?;
-        self.placement(strategy, planning)?;
-        Ok(strategy)
+        let planning = self.planning_for(self.wait)?;
+        let placement = self.placement(self.wait, planning)?;
+        Ok(CheckedController {
+            config: self.clone(),
+            planning,
+            placement,
+            map_timeout,
+            save_interval,
+        })
     }
 
     /// Where the acting and planner threads run, `auto` resolved (see
@@ -224,11 +352,10 @@ impl ControllerConfig {
     /// has no planner thread to pin).
     pub fn planning_for(&self, strategy: WaitStrategy) -> Result<Planning, ConfigError> {
         let bad = |reason: &str| Err(ConfigError::new(PROCESS, "planning", reason));
-        let planning = match self.planning.as_str() {
-            "auto" if strategy == WaitStrategy::Spin => Planning::BetweenPolls,
-            "auto" | "thread" => Planning::Thread,
-            "between-polls" => Planning::BetweenPolls,
-            _ => return bad("expected auto, thread or between-polls"),
+        let planning = match self.planning {
+            PlanningMode::Auto if strategy == WaitStrategy::Spin => Planning::BetweenPolls,
+            PlanningMode::Auto | PlanningMode::Thread => Planning::Thread,
+            PlanningMode::BetweenPolls => Planning::BetweenPolls,
         };
         if planning == Planning::BetweenPolls {
             if strategy == WaitStrategy::Block {
@@ -281,7 +408,7 @@ mod tests {
         assert!(ControllerConfig::default().check().is_ok());
         let cfg = ControllerConfig::from_toml("budget_us = 500\nwait = \"spin\"\n").unwrap();
         assert_eq!(cfg.budget_us, 500);
-        assert_eq!(cfg.check(), Ok(WaitStrategy::Spin));
+        assert_eq!(cfg.check().map(|c| c.wait()), Ok(WaitStrategy::Spin));
         for (text, key) in [
             ("budget_us = 0", "budget_us"),
             ("epsilon = 2.0", "epsilon"),
@@ -317,13 +444,124 @@ mod tests {
             ),
         ] {
             let cfg = ControllerConfig::from_toml(text).unwrap();
-            let strategy = cfg.check().unwrap();
-            assert_eq!(cfg.planning_for(strategy), Ok(planning), "{text}");
+            let checked = cfg.check().unwrap();
+            assert_eq!(checked.planning(), planning, "{text}");
+            assert_eq!(cfg.planning_for(checked.wait()), Ok(planning), "{text}");
         }
         let err = ControllerConfig::from_toml("budjet_us = 5").unwrap_err();
         assert!(err.reason.contains("budjet_us"), "{err}");
         let err = ControllerConfig::from_toml("acting_cpu = \"fast\"").unwrap_err();
         assert!(err.reason.contains("\"none\""), "{err}");
+    }
+
+    /// The string-valued keys are enums: each of their words reads, and anything else is
+    /// refused naming the key and its line.
+    #[test]
+    fn every_enum_key_parses_and_refuses_a_bad_value_naming_the_key() {
+        for (text, wait) in [
+            ("block", WaitStrategy::Block),
+            ("spin", WaitStrategy::Spin),
+            (
+                "spin-then-block",
+                WaitStrategy::SpinThenBlock(WaitStrategy::DEFAULT_SPIN),
+            ),
+            (
+                "spin-then-block:70",
+                WaitStrategy::SpinThenBlock(Duration::from_micros(70)),
+            ),
+        ] {
+            let cfg = ControllerConfig::from_toml(&format!("wait = \"{text}\"")).unwrap();
+            assert_eq!(cfg.wait, wait, "{text}");
+        }
+        for (text, mode) in [
+            ("auto", PlanningMode::Auto),
+            ("thread", PlanningMode::Thread),
+            ("between-polls", PlanningMode::BetweenPolls),
+        ] {
+            let cfg =
+                ControllerConfig::from_toml(&format!("wait = \"spin\"\nplanning = \"{text}\""))
+                    .unwrap();
+            assert_eq!(cfg.planning, mode, "{text}");
+            assert_eq!(text.parse(), Ok(mode));
+            assert_eq!(mode.to_string(), text);
+        }
+        for (text, key, reason) in [
+            ("wait = \"nap\"", "wait", "unknown wait strategy \"nap\""),
+            ("wait = 3", "wait", "a wait strategy"),
+            (
+                "planning = \"later\"",
+                "planning",
+                "unknown variant `later`",
+            ),
+            ("planning = \"Thread\"", "planning", "expected one of"),
+            ("acting_cpu = \"fast\"", "acting_cpu", "\"none\""),
+            ("planner_cpu = -1", "planner_cpu", "\"auto\""),
+        ] {
+            let err = ControllerConfig::from_toml(&format!("seed = 2\n{text}\n")).unwrap_err();
+            assert_eq!((err.process, err.key.as_str()), (PROCESS, key), "{text}");
+            assert_eq!(err.line(), Some(2), "{text}");
+            assert!(err.reason.contains(reason), "{text}: {err}");
+        }
+        assert!("later".parse::<PlanningMode>().is_err());
+    }
+
+    /// What `check` finds wrong is placed at the key's line of the file it came from.
+    #[test]
+    fn a_range_error_names_the_file_and_line() {
+        let origin = Origin::File("/etc/tes/controller.toml".into());
+        let err = ControllerConfig::from_toml_in("seed = 3\n\nepsilon = 2.0\n", origin.clone())
+            .unwrap_err();
+        assert_eq!((err.key.as_str(), err.line()), ("epsilon", Some(3)));
+        assert_eq!(
+            err.to_string(),
+            "/etc/tes/controller.toml:3:1: epsilon: must be in [0, 1]"
+        );
+        // A contradiction involving a default: placed at the key that is in the file.
+        let err =
+            ControllerConfig::from_toml_in("planning = \"between-polls\"", origin).unwrap_err();
+        assert_eq!((err.key.as_str(), err.line()), ("planning", Some(1)));
+    }
+
+    /// Written with serde and read back, settings are the same, and so is what they resolve
+    /// to.
+    #[test]
+    fn settings_round_trip_through_toml() {
+        let cpu = tes_runtime::affinity::allowed_cpus()[0];
+        let cfgs = [
+            ControllerConfig::default(),
+            ControllerConfig {
+                library: Some("/data/tes/library.tesl".into()),
+                budget_us: 700,
+                wait: WaitStrategy::SpinThenBlock(Duration::from_micros(35)),
+                seed: u64::try_from(i64::MAX).unwrap(),
+                epsilon: 0.25,
+                lambda: 0.0,
+                alpha: 1e-3,
+                max_views: 3,
+                service_prefix: "group/7/".into(),
+                map_timeout_s: 2.5,
+                save_interval_s: 0.0,
+                plan_sweeps: 9,
+                warmup_actions: 11,
+                report: Some("/tmp/report.json".into()),
+                keepalive_ms: 0,
+                acting_cpu: Placement::Cpu(cpu),
+                planner_cpu: Placement::Unpinned,
+                planning: PlanningMode::BetweenPolls,
+                plan_slice: 5,
+            },
+            ControllerConfig {
+                wait: WaitStrategy::Spin,
+                planning: PlanningMode::Thread,
+                ..ControllerConfig::default()
+            },
+        ];
+        for cfg in cfgs {
+            let text = toml::to_string(&cfg).expect("serialises");
+            let back = ControllerConfig::from_toml(&text).expect("reads back");
+            assert_eq!(back, cfg, "{text}");
+            assert_eq!(back.check(), cfg.check(), "{text}");
+        }
     }
 
     /// `auto` pins a blocking acting thread to the last allowed CPU and the planner to the
@@ -333,9 +571,10 @@ mod tests {
         let allowed = tes_runtime::affinity::allowed_cpus();
         let placed = |text: &str| {
             let cfg = ControllerConfig::from_toml(text).unwrap();
-            let strategy = cfg.check().unwrap();
-            let planning = cfg.planning_for(strategy).unwrap();
-            let p = cfg.placement(strategy, planning).unwrap();
+            let checked = cfg.check().unwrap();
+            let planning = cfg.planning_for(checked.wait()).unwrap();
+            let p = cfg.placement(checked.wait(), planning).unwrap();
+            assert_eq!(p, checked.placement(), "{text}");
             (p.acting, p.planner)
         };
         let (first, last) = (allowed.first().copied(), allowed.last().copied());

@@ -69,7 +69,7 @@ fn config(args: &RunArgs) -> anyhow::Result<ControllerConfig> {
         cfg.budget_us = v;
     }
     if let Some(v) = &args.wait {
-        cfg.wait.clone_from(v);
+        cfg.wait = v.parse().with_context(|| "--wait")?;
     }
     if let Some(v) = args.seed {
         cfg.seed = v;

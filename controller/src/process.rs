@@ -1,46 +1,33 @@
-//! The controller process: the central processor of the paper's Fig. 7.
+//! The controller process: the [`ActingLoop`] between iceoryx2 services.
 //!
 //! It receives the world's structure once ([`WorldMap`], from perception), loads the view
-//! library, and then, for every [`Observation`] perception publishes when the robot comes to
-//! rest:
-//!
-//! 1. derives the effect the last action had (the map's effect whose known outcome matches
-//!    the state change; the nearest one when the robot moved further than any effect says);
-//! 2. scores and updates the views of that action (TES — with an empty library this is
-//!    loreRL);
-//! 3. adopts the planner thread's latest policy;
-//! 4. picks the next action (ε-greedy) and publishes the [`Command`];
-//! 5. hands the planner thread the updated model.
-//!
-//! Steps 1–5 allocate nothing after warm-up — the command goes out through a blackboard entry
-//! ([`LatestOutbox`]), since iceoryx2 0.10's publisher allocates per loaned sample — and steps 1–4 are timed from the observation's stamp to the
-//! command's publication against a budget (default 1 ms); misses are counted. At an
-//! episode's end, at most every `save_interval_s`, the library — as it would be if the task
-//! ended now — is saved atomically on a thread of its own, and again on shutdown. One line per episode goes to stdout; diagnostics go to `tracing`.
+//! library, starts the planner and the library saver, and then hands every [`Observation`] to
+//! the acting loop and publishes the [`Command`] it decides — through a blackboard entry
+//! ([`LatestOutbox`]), which allocates nothing per message. While no observation comes it
+//! sends the bridge keep-alives, and when spinning it lets the acting loop plan between polls.
+//! One line per episode goes to the caller; at an episode's end, at most every
+//! `save_interval_s`, the library is saved on the saver's thread, and again at shutdown.
+//! Diagnostics go to `tracing`, outside the acting path.
 
-use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
-use tes_runtime::channel::{self, Idle, Inbox, IpcError, LatestOutbox, WaitStrategy};
-use tes_runtime::clock::monotonic_ns;
-use tes_runtime::latency::{LatencyRecorder, LatencyReport};
-use tes_topics::{
-    Command, KEEP_ALIVE_ACTION, Observation, ServiceNames, WorldMap, observation_flags,
-};
-use thiserror::Error;
-
-use crate::config::{ConfigError, ControllerConfig, Planning, ThreadPlacement};
-
-use crate::realtime::{Planner, PlannerThread, PlannerThreadError, SlicedPlanner};
-use tes_learning::agents::{Agent, AgentError, Tes, TesParams};
-use tes_learning::cmdp::{CmdpError, CmdpStructure};
-use tes_learning::library::store::{self, StoreError, StoredLibrary};
+use tes_learning::library::store::{self, StoreError};
 use tes_learning::library::{LibraryError, LibraryParams, ViewLibrary};
 use tes_learning::mdagl::MdaglParams;
 use tes_learning::plan::PlannerParams;
 use tes_runtime::alloc_count;
+use tes_runtime::channel::{self, Idle, Inbox, IpcError, LatestOutbox, WaitStrategy};
+use tes_runtime::clock::{Clock, MonotonicClock};
+use tes_topics::{Command, Observation, ServiceNames, WorldMap};
+use thiserror::Error;
+
+use crate::acting::{ActingError, ActingLoop, ActingSettings, Refusal, Step};
+use crate::config::{ConfigError, ControllerConfig, Planning};
+use crate::realtime::{Planner, PlannerThread, PlannerThreadError, SlicedPlanner};
+use crate::saver::{SaveError, Saver, save_library};
+pub use crate::summary::{ControllerSummary, EpisodeLine};
 
 /// Why the controller stopped with an error.
 #[derive(Debug, Error)]
@@ -54,35 +41,21 @@ pub enum ControllerError {
     /// No world map arrived in time.
     #[error("no world map from perception within {0:?} (is perception-sim running?)")]
     NoMap(Duration),
-    /// The world map is malformed.
-    #[error("the world map is malformed: {0}")]
-    BadMap(String),
-    /// The map does not form a CMDP.
-    #[error("the world map does not form a CMDP: {0}")]
-    Cmdp(#[from] CmdpError),
+    /// The acting loop failed.
+    #[error(transparent)]
+    Acting(#[from] ActingError),
     /// The library file cannot be used.
     #[error(transparent)]
     Store(#[from] StoreError),
-    /// The library's directory cannot be created.
-    #[error("cannot create the data directory {}: {error}", path.display())]
-    DataDir {
-        /// The directory.
-        path: PathBuf,
-        /// Why.
-        error: std::io::Error,
-    },
     /// The library cannot be built or updated.
     #[error("view library: {0}")]
     Library(#[from] LibraryError),
-    /// The agent refused its settings or a step.
-    #[error("agent: {0}")]
-    Agent(#[from] AgentError),
     /// The planner thread failed.
     #[error(transparent)]
     Planner(#[from] PlannerThreadError),
-    /// The library saver thread could not start.
-    #[error("cannot start the library saver thread: {0}")]
-    SaverThread(std::io::Error),
+    /// The library saver could not start.
+    #[error(transparent)]
+    Saver(#[from] SaveError),
     /// The acting thread could not be pinned to `acting_cpu`.
     #[error("acting thread: {0}")]
     Affinity(#[from] tes_runtime::affinity::AffinityError),
@@ -96,253 +69,31 @@ pub enum ControllerError {
     },
 }
 
-/// What a controller run did.
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct ControllerSummary {
-    /// Episodes that ended.
-    pub episodes: u64,
-    /// Commands published.
-    pub actions: u64,
-    /// Decisions over the latency budget (after the warm-up).
-    pub misses: u64,
-    /// Decision latency (observation stamped → command published), after the warm-up.
-    pub latency: LatencyReport,
-    /// The decision's first part: observation stamped → received by the acting loop (the
-    /// publication and this process's wake-up; the operating system's share).
-    #[serde(default)]
-    pub wake: LatencyReport,
-    /// The decision's second part: observation received → command published (the acting
-    /// path's own work), against the same budget.
-    #[serde(default)]
-    pub compute: LatencyReport,
-    /// Heap allocations on the acting path (observation received → command published) after
-    /// the warm-up; `None` if the process does not count them (no
-    /// [`CountingAllocator`](tes_runtime::alloc_count::CountingAllocator)).
-    pub allocations: Option<u64>,
-    /// Of `allocations`, those made inside iceoryx2 sending the command (0 since commands go
-    /// through a blackboard entry; iceoryx2 0.10's publisher allocated one object per sample).
-    pub ipc_allocations: Option<u64>,
-    /// Observations refused (stale or duplicate sequence number, unknown state, bad reward).
-    pub refused: u64,
-    /// Library saves that failed (each is also logged).
-    pub failed_saves: u64,
-    /// Plans adopted from the planner.
-    pub plans: u64,
-    /// Who planned: `thread` or `between-polls` ([`Planning`]).
-    #[serde(default)]
-    pub planning: String,
-    /// Keep-alives sent to the bridge's watchdog while moves were under way
-    /// ([`ControllerConfig::keepalive_ms`]).
-    #[serde(default)]
-    pub keepalives: u64,
-    /// Where the acting and planner threads ran ([`ControllerConfig::placement`]).
-    #[serde(default)]
-    pub placement: ThreadPlacement,
-}
-
-impl std::fmt::Display for ControllerSummary {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let l = &self.latency;
-        write!(
-            f,
-            "{} episodes, {} actions, decision latency p50 {} us p99 {} us max {} us, {} over the {} us budget \
-             (wake-up p50 {} p99 {} max {} us; compute p50 {} p99 {} max {} us, {} over), ",
-            self.episodes,
-            self.actions,
-            l.p50_us,
-            l.p99_us,
-            l.max_us,
-            self.misses,
-            l.budget_us,
-            self.wake.p50_us,
-            self.wake.p99_us,
-            self.wake.max_us,
-            self.compute.p50_us,
-            self.compute.p99_us,
-            self.compute.max_us,
-            self.compute.misses,
-        )?;
-        match self.allocations {
-            Some(n) => write!(
-                f,
-                "{n} allocations on the acting path ({} inside iceoryx2's send), ",
-                self.ipc_allocations.unwrap_or(0)
-            )?,
-            None => f.write_str("allocations not counted, ")?,
-        }
-        write!(
-            f,
-            "{} observations refused, {} plans ({}), {} keep-alives; acting thread {}, planner {}",
-            self.refused,
-            self.plans,
-            self.planning,
-            self.keepalives,
-            on_cpu(self.placement.acting),
-            on_cpu(self.placement.planner),
-        )
-    }
-}
-
-/// "CPU n" or "unpinned".
-fn on_cpu(cpu: Option<usize>) -> String {
-    cpu.map_or("unpinned".to_owned(), |c| format!("CPU {c}"))
-}
-
-/// One finished episode, as printed.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct EpisodeLine {
-    /// Episode index (from perception).
-    pub episode: u32,
-    /// Reward collected.
-    pub reward: f64,
-    /// Actions taken.
-    pub steps: u32,
-    /// Decision latency p50 / p99, µs.
-    pub p50_us: u64,
-    /// 99th percentile.
-    pub p99_us: u64,
-    /// Decisions over budget in the episode.
-    pub misses: u64,
-}
-
-impl std::fmt::Display for EpisodeLine {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "episode {}: reward {:.2}, {} steps, decision latency p50 {} us p99 {} us, {} over budget",
-            self.episode, self.reward, self.steps, self.p50_us, self.p99_us, self.misses
-        )
-    }
-}
-
-/// Builds the agent-known CMDP from a world map.
-pub fn structure_from_map(map: &WorldMap) -> Result<CmdpStructure, ControllerError> {
-    map.check().map_err(ControllerError::BadMap)?;
-    let n = map.n_states as usize;
-    let features: Vec<Vec<u32>> = map.features[..n]
-        .iter()
-        .map(|f| f.iter_ones().map(|i| i as u32).collect())
-        .collect();
-    Ok(CmdpStructure::new(
-        n,
+/// The library to start from: the file at `path` if it exists, else an empty one with the
+/// configured parameters.
+fn load_library(
+    config: &ControllerConfig,
+    path: &std::path::Path,
+    map: &WorldMap,
+) -> Result<ViewLibrary, ControllerError> {
+    let (actions, effects, features) = (
         map.n_actions as usize,
         map.n_effects as usize,
         map.n_features as usize,
-        |s, e| usize::from(map.next_state[s][e]),
-        map.reward[..n].iter().map(|&r| f64::from(r)).collect(),
-        map.terminal[..n].iter().map(|&t| t != 0).collect(),
-        |s| &features[s],
-    )?)
-}
-
-/// The effect that took the robot from `from` to `to`: the lowest effect whose known outcome
-/// is `to`; if none (the robot moved further than any effect says), the one whose outcome is
-/// nearest — fewest cells away (Chebyshev), then least turned. Allocation-free.
-pub fn derive_effect(map: &WorldMap, from: usize, to: usize) -> usize {
-    let e = map.n_effects as usize;
-    if let Some(exact) = (0..e).find(|&k| usize::from(map.next_state[from][k]) == to) {
-        return exact;
+    );
+    if path.exists() {
+        return Ok(store::load_for(path, actions, effects, features)?.library);
     }
-    let target = map.attributes(to);
-    let o = i32::from(map.orientations.max(1));
-    let distance = |k: usize| {
-        let a = map.attributes(usize::from(map.next_state[from][k]));
-        if a.x == u16::MAX || target.x == u16::MAX {
-            // One of the two is "out of the area": as far as it gets.
-            let same = (a.x == u16::MAX) == (target.x == u16::MAX);
-            return (if same { 0 } else { i32::MAX }, 0);
-        }
-        let cells = (i32::from(a.x) - i32::from(target.x))
-            .abs()
-            .max((i32::from(a.y) - i32::from(target.y)).abs());
-        let turn = (i32::from(a.orientation) - i32::from(target.orientation)).rem_euclid(o);
-        (cells, turn.min(o - turn))
-    };
-    (0..e).min_by_key(|&k| distance(k)).unwrap_or(0)
-}
-
-/// The library as it would be if the task ended now, saved atomically.
-fn save_library(agent: Tes, path: &Path, world: u32) -> Result<(), ControllerError> {
-    let (library, _) = agent.finish_task()?;
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(|error| ControllerError::DataDir {
-            path: dir.to_owned(),
-            error,
-        })?;
-    }
-    store::save(
-        path,
-        &StoredLibrary {
-            library,
-            world: format!("arena {world}"),
-            action_names: Vec::new(),
-            feature_names: Vec::new(),
+    let params = LibraryParams {
+        max_views: config.max_views,
+        mdagl: MdaglParams {
+            lambda: config.lambda,
+            alpha: config.alpha,
+            intercept: false,
         },
-    )?;
-    Ok(())
-}
-
-/// Saves libraries on a thread of its own, so that encoding and `fsync` never delay the
-/// acting loop (the next episode's first observation arrives right after the last one's).
-struct Saver {
-    jobs: Option<crossbeam::channel::Sender<Box<Tes>>>,
-    failures: Arc<std::sync::atomic::AtomicU64>,
-    handle: Option<std::thread::JoinHandle<()>>,
-}
-
-impl Saver {
-    fn spawn(path: PathBuf, world: u32) -> Result<Self, ControllerError> {
-        let (jobs, queue) = crossbeam::channel::bounded::<Box<Tes>>(1);
-        let failures = Arc::new(std::sync::atomic::AtomicU64::new(0));
-        let failed = failures.clone();
-        let handle = std::thread::Builder::new()
-            .name("library-saver".into())
-            .spawn(move || {
-                crate::realtime::lower_this_threads_priority();
-                while let Ok(agent) = queue.recv() {
-                    if let Err(e) = save_library(*agent, &path, world) {
-                        failed.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                        tracing::error!(error = %e, "the library was not saved; the previous file is intact");
-                    }
-                }
-            })
-            .map_err(ControllerError::SaverThread)?;
-        Ok(Self {
-            jobs: Some(jobs),
-            failures,
-            handle: Some(handle),
-        })
-    }
-
-    /// Queues a save of `agent`'s library as it would be if the task ended now, unless one
-    /// is already waiting (the next episode's save will carry this one's learning).
-    fn offer(&self, agent: &Tes) {
-        if let Some(jobs) = self.jobs.as_ref().filter(|j| j.is_empty()) {
-            let _ = jobs.try_send(Box::new(agent.clone()));
-        }
-    }
-
-    /// Waits for the queued saves; returns how many failed.
-    fn finish(mut self) -> u64 {
-        self.jobs = None;
-        if let Some(h) = self.handle.take() {
-            let _ = h.join();
-        }
-        self.failures.load(std::sync::atomic::Ordering::Relaxed)
-    }
-}
-
-/// Completes an ended episode's line with its decision-latency percentiles, hands it to
-/// `on_episode`, and starts the next episode's latency record.
-fn report_episode(
-    mut line: EpisodeLine,
-    episode_latency: &mut LatencyRecorder,
-    on_episode: &mut impl FnMut(&EpisodeLine),
-) {
-    line.p50_us = episode_latency.quantile_us(0.5);
-    line.p99_us = episode_latency.quantile_us(0.99);
-    on_episode(&line);
-    episode_latency.reset();
+        ..LibraryParams::default()
+    };
+    Ok(ViewLibrary::new(actions, effects, features, params)?)
 }
 
 /// Runs the controller until `stop` is raised. `on_episode` receives each finished episode
@@ -352,12 +103,11 @@ pub fn run(
     stop: &AtomicBool,
     mut on_episode: impl FnMut(&EpisodeLine),
 ) -> Result<ControllerSummary, ControllerError> {
-    let strategy = config.check()?;
-    let planning = config.planning_for(strategy)?;
-    let placement = config.placement(strategy, planning)?;
+    let checked = config.check()?;
+    let (strategy, planning, placement) = (checked.wait(), checked.planning(), checked.placement());
     tracing::info!(
-        acting = %on_cpu(placement.acting),
-        planner = %on_cpu(placement.planner),
+        acting = %crate::summary::on_cpu(placement.acting),
+        planner = %crate::summary::on_cpu(placement.planner),
         %planning,
         "thread placement"
     );
@@ -365,7 +115,6 @@ pub fn run(
         && planning == Planning::Thread
         && std::thread::available_parallelism().is_ok_and(|n| n.get() <= 2)
     {
-        // Measured on two cores (docs/performance.md): one plan per ~100 actions.
         tracing::warn!(
             "wait = \"spin\" with planning = \"thread\" on 2 CPUs: the busy-polling acting \
              loop and bridge leave the planner thread, which yields to everything, almost no \
@@ -393,259 +142,185 @@ pub fn run(
         LatestOutbox::open(&node, &names.command, &names.command_event)?;
 
     tracing::info!(service = %names.world_map, "waiting for the world map");
-    let map_timeout = Duration::from_secs_f64(config.map_timeout_s);
+    let map_timeout = checked.map_timeout();
     // A boxed map: it is ~90 kB, too big to pass around on the stack comfortably.
     let map: Box<WorldMap> = match maps.next(map_timeout, stop)? {
         Ok(m) => Box::new(m),
         Err(Idle::Timeout) => return Err(ControllerError::NoMap(map_timeout)),
-        Err(Idle::Stopped) => return Ok(empty_summary()),
+        Err(Idle::Stopped) => return Ok(ControllerSummary::default()),
     };
-    let structure = Arc::new(structure_from_map(&map)?);
     let library_path = config.library_path();
-    let library = if library_path.exists() {
-        store::load_for(
-            &library_path,
-            structure.n_actions(),
-            structure.n_effects(),
-            structure.n_features(),
-        )?
-        .library
-    } else {
-        let params = LibraryParams {
-            max_views: config.max_views,
-            mdagl: MdaglParams {
-                lambda: config.lambda,
-                alpha: config.alpha,
-                intercept: false,
-            },
-            ..LibraryParams::default()
-        };
-        ViewLibrary::new(
-            structure.n_actions(),
-            structure.n_effects(),
-            structure.n_features(),
-            params,
-        )?
-    };
+    let library = load_library(config, &library_path, &map)?;
     tracing::info!(
         library = %library_path.display(),
         views = library.len(),
-        states = structure.n_states(),
+        states = map.n_states,
         "controller ready"
     );
-    let params = TesParams {
-        epsilon: config.epsilon,
-        ..TesParams::default()
-    };
-    let mut agent = Tes::new(structure.clone(), library, params, config.seed)?;
-    agent.model_mut().set_inline_planning(false);
     let planner_params = PlannerParams {
         max_sweeps: config.plan_sweeps,
         ..PlannerParams::default()
     };
-    let mut planner = match planning {
-        Planning::Thread => Planner::Thread(PlannerThread::spawn_on(
-            structure.clone(),
-            planner_params,
-            placement.planner,
-        )?),
-        Planning::BetweenPolls => Planner::BetweenPolls(Box::new(SlicedPlanner::new(
-            structure.clone(),
-            planner_params,
-            config.plan_slice,
-        )?)),
+    let planner = |structure| -> Result<Planner, PlannerThreadError> {
+        Ok(match planning {
+            Planning::Thread => Planner::Thread(PlannerThread::spawn_on(
+                structure,
+                planner_params,
+                placement.planner,
+            )?),
+            Planning::BetweenPolls => Planner::BetweenPolls(Box::new(SlicedPlanner::new(
+                structure,
+                planner_params,
+                config.plan_slice,
+            )?)),
+        })
     };
-    // The first policy before the first action.
-    planner.offer(agent.model_mut())?;
-    planner.wait(agent.model_mut(), Duration::from_secs(10))?;
-
-    let saver = Saver::spawn(library_path.clone(), map.world)?;
-    let save_interval = Duration::from_secs_f64(config.save_interval_s);
-    let mut last_save = std::time::Instant::now();
-    let mut all = LatencyRecorder::new(config.budget_us, config.warmup_actions);
-    let mut wake = LatencyRecorder::new(config.budget_us, config.warmup_actions);
-    let mut compute = LatencyRecorder::new(config.budget_us, config.warmup_actions);
-    let mut episode_latency = LatencyRecorder::new(config.budget_us, 0);
-    let mut summary = empty_summary();
-    // Allocations on the acting path before the warm-up ended, to subtract.
-    let mut warmup_allocations = None;
-    let mut ipc_allocations = 0u64;
-    let mut last_seq = 0u64;
-    // From the monotonic clock, so a respawned controller's commands are newer than its
-    // predecessor's (perception and the bridge ignore stale command numbers).
-    let mut command_seq = monotonic_ns();
-    // (state, action) of the command in flight, and the episode's running totals.
-    let mut pending: Option<(usize, usize)> = None;
-    let (mut reward, mut steps, mut episode_misses) = (0.0f64, 0u32, 0u64);
-    // The episode that just ended, reported (and the library saved, if due) only once the
-    // next command is out: perception publishes the next episode's first observation right
-    // after the last one, so reporting before answering it would delay that action (measured:
-    // wake-up p50 39 µs for episode starts against 1 µs for other observations, spinning).
-    let mut ended: Option<EpisodeLine> = None;
     let keepalive = (config.keepalive_ms > 0).then(|| Duration::from_millis(config.keepalive_ms));
+    let settings = ActingSettings {
+        budget_us: config.budget_us,
+        warmup_actions: config.warmup_actions,
+        epsilon: config.epsilon,
+        seed: config.seed,
+        keepalive,
+        save_interval: checked.save_interval(),
+        offer_before_command: offers_before_command(strategy),
+        first_plan_timeout: Duration::from_secs(10),
+    };
+    let clock = MonotonicClock;
+    let world = map.world;
+    // Command numbers from the monotonic clock, so a respawned controller's commands are newer
+    // than its predecessor's (perception and the bridge ignore stale command numbers).
+    let now = clock.now_ns();
+    let mut acting = ActingLoop::starting_at(map, library, settings, planner, now, now)?;
+    let saver = Saver::spawn(library_path.clone(), world)?;
     let idle_timeout = keepalive.map_or(Duration::from_millis(100), |k| {
         k.min(Duration::from_millis(100))
     });
-    let mut last_sent = std::time::Instant::now();
     if let Some(cpu) = placement.acting {
         tes_runtime::affinity::pin_this_thread(cpu)?;
     }
-    // When to wake the planner with the new model: before the command when the bridge sleeps
-    // on events, after it when the bridge busy-polls. A bridge woken while this CPU is busy
-    // goes to the other, idle CPU; in a VM whose idle vCPUs halt, it ran there ~30 µs later
-    // (its hop 34-36 µs p50 against the floor's 14-15). Waking the planner first (~5 µs on
-    // the acting path) gets that CPU out of halt while the command is sent, and the
-    // SCHED_IDLE planner gives way to the bridge at once (its hop 10-14 µs; docs/
-    // performance.md, "A new machine"). A spinning bridge needs no wake-up.
-    let offer_before_command = strategy != WaitStrategy::Spin;
+    let mut ipc_allocations = 0u64;
+    // Allocations on the acting path before the warm-up ended, to subtract.
+    let mut warmup_allocations = None;
     loop {
         // Spinning, the wait does the planner's slices and adopts its plan (a planner thread
         // needs none).
-        let work = || planner.work(agent.model_mut());
-        let obs = match observations.next_or_work(idle_timeout, stop, work)? {
-            Ok(o) => o,
-            Err(Idle::Stopped) => break,
-            Err(Idle::Timeout) => {
-                // A move is under way: tell the bridge's watchdog we are still here.
-                if let Some(period) = keepalive
-                    && pending.is_some()
-                    && last_sent.elapsed() >= period
-                {
-                    command_seq += 1;
-                    commands.send(Command {
-                        seq: command_seq,
-                        action: KEEP_ALIVE_ACTION,
-                        stamp_ns: monotonic_ns(),
-                        ..Command::default()
-                    })?;
-                    last_sent = std::time::Instant::now();
-                    summary.keepalives += 1;
+        let obs =
+            match observations.next_or_work(idle_timeout, stop, || acting.plan_between_polls())? {
+                Ok(o) => o,
+                Err(Idle::Stopped) => break,
+                Err(Idle::Timeout) => {
+                    // A move is under way: tell the bridge's watchdog we are still here.
+                    if let Some(keepalive) = acting.on_idle(&clock) {
+                        commands.send(keepalive)?;
+                    }
+                    continue;
+                }
+            };
+        // The acting path, from here to the command's publication.
+        let counting = alloc_count::count_here();
+        if warmup_allocations.is_none() && acting.warmed_up() {
+            warmup_allocations = Some(alloc_count::counted());
+        }
+        let command = match acting.on_observation(&obs, &clock)? {
+            Step::Act {
+                command,
+                lost_outcome,
+            } => {
+                if lost_outcome {
+                    tracing::warn!(
+                        seq = obs.seq,
+                        "the last command's outcome was lost; not learning from it"
+                    );
+                }
+                command
+            }
+            Step::EpisodeEnded { report } => {
+                drop(counting);
+                if let Some(line) = report {
+                    on_episode(&line);
                 }
                 continue;
             }
-        };
-        let received_ns = monotonic_ns();
-        // The acting path, from here to the command's publication.
-        let counting = alloc_count::count_here();
-        if warmup_allocations.is_none() && all.warmed_up() {
-            warmup_allocations = Some(alloc_count::counted());
-        }
-        let Some(state) = map
-            .state_index(obs.state)
-            .filter(|&s| s < structure.n_states())
-        else {
-            summary.refused += 1;
-            tracing::warn!(seq = obs.seq, state = ?obs.state, "observation of an unknown state refused");
-            continue;
-        };
-        if obs.seq <= last_seq || !obs.reward.is_finite() {
-            summary.refused += 1;
-            tracing::warn!(
-                seq = obs.seq,
-                last_seq,
-                "stale, duplicate or non-finite observation refused"
-            );
-            continue;
-        }
-        last_seq = obs.seq;
-        if obs.flags & observation_flags::EPISODE_START != 0 {
-            pending = None;
-            (reward, steps, episode_misses) = (0.0, 0, 0);
-        } else if obs.flags & observation_flags::RESYNC != 0 {
-            if pending.take().is_some() {
-                tracing::warn!(
-                    seq = obs.seq,
-                    "the last command's outcome was lost; not learning from it"
-                );
+            Step::Refused(why) => {
+                drop(counting);
+                log_refusal(&obs, why);
+                continue;
             }
-        } else if let Some((from, action)) = pending.take() {
-            let effect = derive_effect(&map, from, state);
-            agent.observe(from, action, effect)?;
-            reward += f64::from(obs.reward);
-        }
-        planner.collect(agent.model_mut())?;
-        if obs.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0 {
-            planner.offer(agent.model_mut())?;
-            summary.episodes += 1;
-            drop(counting);
-            if let Some(line) = ended.take() {
-                // Two episode ends in a row (no command between): report the first now.
-                report_episode(line, &mut episode_latency, &mut on_episode);
-            }
-            ended = Some(EpisodeLine {
-                episode: obs.episode,
-                reward,
-                steps,
-                p50_us: 0,
-                p99_us: 0,
-                misses: episode_misses,
-            });
-            continue;
-        }
-        let action = agent.act(state)?;
-        if offer_before_command {
-            planner.offer(agent.model_mut())?;
-        }
-        let [left_deg, right_deg] = map.action_wheels[action];
-        command_seq += 1;
-        let now = monotonic_ns();
+        };
         let before_send = alloc_count::counted();
-        commands.send(Command {
-            seq: command_seq,
-            answers: obs.seq,
-            stamp_ns: now,
-            observed_ns: obs.stamp_ns,
-            action: action as u32,
-            left_deg,
-            right_deg,
-            reserved: 0,
-        })?;
+        commands.send(command)?;
         if warmup_allocations.is_some() {
             ipc_allocations += alloc_count::counted() - before_send;
         }
-        last_sent = std::time::Instant::now();
-        if !offer_before_command {
-            planner.offer(agent.model_mut())?;
-        }
+        let sent = acting.command_sent(&clock)?;
         drop(counting);
-        // Reporting and saving are not on the acting path: the command is out.
-        if let Some(line) = ended.take() {
-            report_episode(line, &mut episode_latency, &mut on_episode);
-            if last_save.elapsed() >= save_interval {
-                saver.offer(&agent);
-                last_save = std::time::Instant::now();
-            }
+        if let Some(line) = sent.report {
+            on_episode(&line);
         }
-        pending = Some((state, action));
-        steps += 1;
-        summary.actions += 1;
-        let latency_ns = now.saturating_sub(obs.stamp_ns);
-        let misses_before = episode_latency.misses();
-        all.record_ns(latency_ns);
-        wake.record_ns(received_ns.saturating_sub(obs.stamp_ns));
-        compute.record_ns(now.saturating_sub(received_ns));
-        episode_latency.record_ns(latency_ns);
-        episode_misses += episode_latency.misses() - misses_before;
+        if sent.save_due {
+            saver.offer(acting.agent());
+        }
     }
-    if let Some(line) = ended.take() {
-        report_episode(line, &mut episode_latency, &mut on_episode);
+    let counts = acting.counts();
+    let latencies = acting.latencies();
+    let plans = acting.plans();
+    let (last, agent) = acting.finish();
+    if let Some(line) = last {
+        on_episode(&line);
     }
-    summary.latency = all.report();
-    summary.wake = wake.report();
-    summary.compute = compute.report();
-    summary.misses = summary.latency.misses;
-    summary.allocations = alloc_count::installed()
-        .then(|| alloc_count::counted() - warmup_allocations.unwrap_or(alloc_count::counted()));
-    summary.ipc_allocations = alloc_count::installed().then_some(ipc_allocations);
-    summary.plans = planner.plans();
-    summary.planning = planning.to_string();
-    summary.placement = placement;
-    summary.failed_saves += saver.finish();
-    if let Err(e) = save_library(agent, &library_path, map.world) {
+    let mut summary = ControllerSummary {
+        episodes: counts.episodes,
+        actions: counts.actions,
+        misses: latencies.decision.misses,
+        latency: latencies.decision,
+        wake: latencies.wake,
+        compute: latencies.compute,
+        allocations: alloc_count::installed()
+            .then(|| alloc_count::counted() - warmup_allocations.unwrap_or(alloc_count::counted())),
+        ipc_allocations: alloc_count::installed().then_some(ipc_allocations),
+        refused: counts.refused,
+        failed_saves: saver.finish(),
+        plans,
+        planning: planning.to_string(),
+        keepalives: counts.keepalives,
+        placement,
+    };
+    if let Err(e) = save_library(agent, &library_path, world) {
         summary.failed_saves += 1;
         tracing::error!(error = %e, "the library was not saved at shutdown; the previous file is intact");
     }
     Ok(summary)
+}
+
+/// When to wake the planner with the new model: before the command when the bridge sleeps on
+/// events, after it when the bridge busy-polls. A bridge woken while this CPU is busy goes to
+/// the other, idle CPU, and in a VM whose idle vCPUs halt it runs there only once that vCPU is
+/// back; waking the planner first gets that CPU out of halt while the command is sent, and the
+/// `SCHED_IDLE` planner gives way to the bridge at once. A spinning bridge needs no wake-up.
+fn offers_before_command(strategy: WaitStrategy) -> bool {
+    strategy != WaitStrategy::Spin
+}
+
+fn log_refusal(obs: &Observation, why: Refusal) {
+    match why {
+        Refusal::UnknownState => {
+            tracing::warn!(seq = obs.seq, state = ?obs.state, "observation of an unknown state refused");
+        }
+        Refusal::Stale { last_seq } => {
+            tracing::warn!(
+                seq = obs.seq,
+                last_seq,
+                "stale or duplicate observation refused"
+            );
+        }
+        Refusal::NonFiniteReward => {
+            tracing::warn!(
+                seq = obs.seq,
+                "observation with a non-finite reward refused"
+            );
+        }
+    }
 }
 
 /// [`run`] as a process runs it: episode lines and the final summary on stdout, the
@@ -669,30 +344,14 @@ pub fn run_to_end(
     Ok(summary)
 }
 
-fn empty_summary() -> ControllerSummary {
-    ControllerSummary {
-        episodes: 0,
-        actions: 0,
-        misses: 0,
-        latency: LatencyReport::default(),
-        wake: LatencyReport::default(),
-        compute: LatencyReport::default(),
-        allocations: None,
-        ipc_allocations: None,
-        refused: 0,
-        failed_saves: 0,
-        plans: 0,
-        planning: String::new(),
-        keepalives: 0,
-        placement: ThreadPlacement::default(),
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::ThreadPlacement;
     use tes_runtime::channel::{LatestInbox, Outbox};
+    use tes_runtime::clock::monotonic_ns;
     use tes_topics::StateAttributes;
+    use tes_topics::observation_flags;
 
     /// A 3×3 arena-like map: 4 orientations, effects 0 = forward (east when o = 0), 1 = stay,
     /// 2 = turn left.
@@ -746,23 +405,23 @@ mod tests {
     fn effects_are_derived_exactly_or_by_the_nearest_outcome() {
         let m = map();
         let s = at(&m, 0, 1, 0);
-        assert_eq!(derive_effect(&m, s, at(&m, 1, 1, 0)), 0, "forward");
-        assert_eq!(derive_effect(&m, s, s), 1, "stayed");
-        assert_eq!(derive_effect(&m, s, at(&m, 0, 1, 1)), 2, "turned left");
+        assert_eq!(m.effect_between(s, at(&m, 1, 1, 0)), 0, "forward");
+        assert_eq!(m.effect_between(s, s), 1, "stayed");
+        assert_eq!(m.effect_between(s, at(&m, 0, 1, 1)), 2, "turned left");
         // Two cells forward: nearest to "forward".
-        assert_eq!(derive_effect(&m, s, at(&m, 2, 1, 0)), 0);
+        assert_eq!(m.effect_between(s, at(&m, 2, 1, 0)), 0);
         // Turned right (no such effect): "stay" and "turn left" are both one cell away (0),
         // then one turn each way; the lowest such effect wins.
-        assert_eq!(derive_effect(&m, s, at(&m, 0, 1, 3)), 1);
+        assert_eq!(m.effect_between(s, at(&m, 0, 1, 3)), 1);
         // Out of the area from the east edge going east.
         let edge = at(&m, 2, 1, 0);
-        assert_eq!(derive_effect(&m, edge, m.out_state()), 0);
+        assert_eq!(m.effect_between(edge, m.out_state()), 0);
     }
 
     #[test]
     fn the_map_becomes_a_cmdp() {
         let m = map();
-        let c = structure_from_map(&m).unwrap();
+        let c = crate::acting::structure_from_map(&m).unwrap();
         assert_eq!((c.n_states(), c.n_actions(), c.n_effects()), (37, 2, 3));
         let s = at(&m, 1, 1, 2);
         assert_eq!(c.features(s), &[2]);
@@ -770,8 +429,8 @@ mod tests {
         let mut bad = map();
         bad.next_state[3][1] = 99;
         assert!(matches!(
-            structure_from_map(&bad),
-            Err(ControllerError::BadMap(_))
+            crate::acting::structure_from_map(&bad),
+            Err(ActingError::BadMap(_))
         ));
     }
 
@@ -1082,7 +741,7 @@ mod tests {
         use std::sync::atomic::Ordering;
 
         let mut rig = Rig::new("controller-between-polls");
-        rig.config.wait = "spin".into();
+        rig.config.wait = WaitStrategy::Spin;
         let (config, observations) = (&rig.config, &rig.observations);
         let m = map();
         let (a, b) = (at(&m, 0, 1, 0), at(&m, 1, 1, 0));

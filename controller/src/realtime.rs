@@ -12,8 +12,8 @@
 //! expensive part of learning. On Linux the planner thread runs under `SCHED_IDLE` (else at
 //! nice +19): any other thread that wakes — the acting loop, the bridge, perception —
 //! preempts it at once, so on a machine with few cores background planning never delays an
-//! action. (At nice +10 the kernel let it finish its time slice first: measured ~0.5 ms
-//! added to the observation → bridge latency on 2 busy cores.)
+//! action. (A merely niced thread is let finish its time slice first, which delays the
+//! action behind it.)
 //!
 //! An acting loop that spins instead of sleeping can do the same work itself, in slices
 //! between its polls ([`SlicedPlanner`]; [`Planner`] is either): on two cores a spinning loop
@@ -34,7 +34,7 @@
 //!     |s| features[s],
 //! )?);
 //! let mut model = PlannedModel::new(structure.clone(), PlannerParams::default())?;
-//! model.set_inline_planning(false);
+//! model.plan_elsewhere();
 //! model.set(0, 0, &[0.1, 0.9]);
 //! model.set(1, 0, &[0.8, 0.2]);
 //! let mut planner = PlannerThread::spawn(structure, PlannerParams::default())?;
@@ -257,7 +257,7 @@ impl PlannerThread {
 ///
 /// With `wait = "spin"` the acting thread polls for the next observation without sleeping,
 /// and on two cores the busy-polling acting loop and bridge leave a planner thread that
-/// yields to everything almost no time (measured: one plan per ~100 actions). Planning
+/// yields to everything almost no time, so the policy lags far behind learning. Planning
 /// between polls turns the spinning into the planning: each [`work`](Self::work) call does
 /// about `slice` states' worth of it (a few microseconds), so an observation that arrives
 /// mid-slice waits at most one slice. The work and its order are the planner thread's
@@ -279,7 +279,7 @@ impl PlannerThread {
 ///     |s| features[s],
 /// )?);
 /// let mut model = PlannedModel::new(structure.clone(), PlannerParams::default())?;
-/// model.set_inline_planning(false);
+/// model.plan_elsewhere();
 /// model.set(0, 0, &[0.1, 0.9]);
 /// model.set(1, 0, &[0.8, 0.2]);
 /// let mut planner = SlicedPlanner::new(structure, PlannerParams::default(), 1)?;
@@ -571,7 +571,7 @@ mod tests {
         };
         for mut planner in planners(&c, params) {
             let mut offloaded = PlannedModel::new(c.clone(), params).unwrap();
-            offloaded.set_inline_planning(false);
+            offloaded.plan_elsewhere();
             let mut inline = PlannedModel::new(c.clone(), params).unwrap();
             for round in 0..5 {
                 let p = 0.5 + 0.1 * round as f64;
@@ -611,7 +611,7 @@ mod tests {
         };
         for mut planner in planners(&c, params) {
             let mut offloaded = PlannedModel::new(c.clone(), params).unwrap();
-            offloaded.set_inline_planning(false);
+            offloaded.plan_elsewhere();
             let mut inline = PlannedModel::new(c.clone(), params).unwrap();
             let mut views = [0, 1].map(|_| Mdagl::new(3, 2, MdaglParams::default()).unwrap());
             for round in 0..6 {

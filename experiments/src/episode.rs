@@ -264,3 +264,10 @@ pub(crate) fn write_file(path: &std::path::Path, text: &str) -> anyhow::Result<(
     use anyhow::Context;
     std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
 }
+
+/// Writes an experiment's report as `summary.json` in `out`.
+pub(crate) fn write_summary(out: &std::path::Path, report: &impl Serialize) -> anyhow::Result<()> {
+    use anyhow::Context;
+    let json = serde_json::to_string_pretty(report).context("cannot encode the summary")?;
+    write_file(&out.join("summary.json"), &json)
+}

@@ -29,6 +29,7 @@ use tes_perception_sim::grid::{GridSuite, GridTask};
 
 use crate::episode::{
     AgentSettings, Algorithm, Episode, EpisodicTask, run_agent, write_episodes_csv, write_file,
+    write_summary,
 };
 pub use crate::stats::Summary;
 use crate::stats::summarise;
@@ -480,8 +481,7 @@ pub fn run(
         lore_over_fepsg_time,
         rldt_over_lore_time,
     };
-    let json = serde_json::to_string_pretty(&report).context("cannot encode the summary")?;
-    write_file(&out.join("summary.json"), &json)?;
+    write_summary(out, &report)?;
     Ok(report)
 }
 

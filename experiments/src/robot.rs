@@ -38,7 +38,7 @@ use tes_learning::mdagl::MdaglParams;
 use tes_learning::plan::PlannerParams;
 use tes_perception_sim::arena::{Arena, ArenaId, Episode as ArenaEpisode, EpisodeStatus};
 
-use crate::episode::{Episode, write_episodes_csv, write_file};
+use crate::episode::{Episode, write_episodes_csv, write_file, write_summary};
 use crate::stats::{Summary, summarise};
 use crate::svg::{BandPoint, LineChart, Series};
 
@@ -504,7 +504,6 @@ pub fn run(
         seconds_per_episode,
         ordering_holds,
     };
-    let json = serde_json::to_string_pretty(&report).context("cannot encode the summary")?;
-    write_file(&out.join("summary.json"), &json)?;
+    write_summary(out, &report)?;
     Ok(report)
 }

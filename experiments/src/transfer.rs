@@ -34,7 +34,7 @@ use tes_learning::library::{LibraryParams, ViewLibrary};
 use tes_perception_sim::grid::GridSuite;
 
 use crate::episode::{
-    Algorithm, Episode, EpisodicTask, run_episode, write_episodes_csv, write_file,
+    Algorithm, Episode, EpisodicTask, run_episode, write_episodes_csv, write_file, write_summary,
 };
 use crate::grid::GridEnv;
 use crate::stats::{Summary, summarise};
@@ -327,8 +327,7 @@ pub fn run(
         tes_beats_all_rands,
         seconds_per_episode,
     };
-    let json = serde_json::to_string_pretty(&report).context("cannot encode the summary")?;
-    write_file(&out.join("summary.json"), &json)?;
+    write_summary(out, &report)?;
     Ok(report)
 }
 

@@ -3,9 +3,10 @@
 //! file). `tes launch`'s own `[launch]` table is parsed in the `tes` binary crate, which has
 //! no library to link, so it is not fuzzed here.
 //!
-//! A parser must never panic; an error must name a key and a reason; a settings value it
-//! accepts must pass its own check and be usable as the process uses it at start (the
-//! durations it computes from it must exist).
+//! A parser must never panic; an error must name a key and a reason, and be placed in the
+//! text it came from (at a line whenever the text sets the key); a settings value it accepts
+//! must pass its own check and be usable as the process uses it at start (the durations it
+//! computes from it must exist).
 #![no_main]
 
 use std::time::Duration;
@@ -15,26 +16,36 @@ use tes_bridge::config::{BridgeConfig, ConfigError};
 use tes_controller::config::ControllerConfig;
 use tes_perception_sim::process::PerceptionConfig;
 
+/// Every refusal names its process, a key and a reason, and is placed in the text.
+macro_rules! assert_named {
+    ($e:expr, $process:expr) => {{
+        let e = &$e;
+        assert_eq!(e.process, $process, "{e}");
+        assert!(!e.key.is_empty() && !e.reason.is_empty(), "{e}");
+        assert!(e.location.is_some(), "not placed: {e}");
+    }};
+}
+
 fuzz_target!(|data: &[u8]| {
     let text = String::from_utf8_lossy(data);
     match ControllerConfig::from_toml(&text) {
         Ok(cfg) => {
-            assert!(cfg.check().is_ok());
+            let checked = cfg.check().expect("accepted settings pass their own check");
             // `controller::process::run` waits this long for the world map.
             assert!(
-                Duration::try_from_secs_f64(cfg.map_timeout_s).is_ok(),
+                Duration::try_from_secs_f64(cfg.map_timeout_s) == Ok(checked.map_timeout()),
                 "controller map_timeout_s = {} accepted but is no duration",
                 cfg.map_timeout_s
             );
         }
-        Err(e) => {
-            assert_eq!(e.process, "controller");
-            assert!(!e.key.is_empty() && !e.reason.is_empty(), "{e}");
-        }
+        Err(e) => assert_named!(e, "controller"),
     }
     match PerceptionConfig::from_toml(&text) {
         Ok(cfg) => {
-            assert!(cfg.check().is_ok());
+            assert!(
+                cfg.check().is_ok(),
+                "accepted settings pass their own check"
+            );
             // `perception_sim::process::run` settles for settle_ms × real_time_factor.
             let settle = Duration::from_millis(cfg.settle_ms).as_secs_f64() * cfg.real_time_factor;
             assert!(
@@ -44,10 +55,7 @@ fuzz_target!(|data: &[u8]| {
                 cfg.real_time_factor
             );
         }
-        Err(e) => {
-            assert_eq!(e.process, "perception");
-            assert!(!e.key.is_empty() && !e.reason.is_empty(), "{e}");
-        }
+        Err(e) => assert_named!(e, "perception"),
     }
     match BridgeConfig::from_toml_str(&text) {
         Ok(cfg) => {
@@ -66,10 +74,7 @@ fuzz_target!(|data: &[u8]| {
             );
             assert!(!cfg.actions.config().actions.is_empty());
         }
-        Err(ConfigError::Invalid { key, reason }) => {
-            assert!(!key.is_empty() && !reason.is_empty(), "{key}: {reason}");
-        }
-        Err(ConfigError::Parse { message, .. }) => assert!(!message.is_empty()),
+        Err(ConfigError::Setting(e)) => assert_named!(e, "bridge"),
         Err(e @ ConfigError::Read { .. }) => panic!("no file was read: {e}"),
     }
 });

@@ -125,13 +125,26 @@ use std::f64::consts::{FRAC_PI_4, PI, TAU};
 use std::fmt;
 
 pub use glam::DVec2;
+
+mod layout;
+pub use layout::{ArenaError, ArenaId, ArenaLayout, MarkColour};
+#[cfg(test)]
+use layout::{ENV1_MAP, ENV2_MAP, ENV3_MAP};
+mod motion;
+pub use motion::{Pose, StepOutcome, Surface};
+
+mod effects;
+pub use effects::{Effect, Move, Turn};
+mod episode;
+pub use episode::{Episode, EpisodeStatus, EpisodeStep};
+
 use rand::{Rng, RngExt};
 use thiserror::Error;
 
 /// One foot in cm.
 pub const FOOT_CM: f64 = 30.48;
 /// Orientations per cell (45° sectors).
-pub const N_ORIENTATIONS: usize = 8;
+pub const N_ORIENTATIONS: usize = tes_topics::arena_features::ORIENTATIONS;
 /// Actions: both wheels 246°; left 90° and right −90°; left 90°.
 pub const N_ACTIONS: usize = 3;
 /// Relative moves an effect can have (forward, forward-left, forward-right, did not move).
@@ -140,27 +153,10 @@ pub const N_MOVES: usize = 4;
 pub const N_TURNS: usize = 5;
 /// Effects: [`N_MOVES`] × [`N_TURNS`].
 pub const N_EFFECTS: usize = N_MOVES * N_TURNS;
-/// Distance rings per kind of object (green marks, blue marks, the ball).
-pub const RINGS: usize = 100;
-/// Binary features per state (the paper's 312; `tes_topics::ARENA_FEATURES`).
-pub const ARENA_FEATURES: usize = 312;
-/// First green-ring feature: `GREEN_RINGS + i` is on iff a green mark is `i` to `i + 1`
-/// units from the cell's centre.
-pub const GREEN_RINGS: usize = 0;
-/// First blue-ring feature.
-pub const BLUE_RINGS: usize = GREEN_RINGS + RINGS;
-/// First ball-ring feature.
-pub const BALL_RINGS: usize = BLUE_RINGS + RINGS;
-/// First orientation indicator: `ORIENTATION_FEATURES + k` is on iff the orientation is `k`.
-pub const ORIENTATION_FEATURES: usize = BALL_RINGS + RINGS;
-/// On iff the cell holds a green mark.
-pub const GREEN_IN_CELL: usize = ORIENTATION_FEATURES + N_ORIENTATIONS;
-/// On iff the cell holds no green mark.
-pub const NO_GREEN_IN_CELL: usize = GREEN_IN_CELL + 1;
-/// On iff the cell holds a blue mark.
-pub const BLUE_IN_CELL: usize = GREEN_IN_CELL + 2;
-/// On iff the cell holds no blue mark.
-pub const NO_BLUE_IN_CELL: usize = GREEN_IN_CELL + 3;
+pub use tes_topics::arena_features::{
+    ARENA_FEATURES, BALL_RINGS, BLUE_IN_CELL, BLUE_RINGS, GREEN_IN_CELL, GREEN_RINGS,
+    NO_BLUE_IN_CELL, NO_GREEN_IN_CELL, ORIENTATION_FEATURES, RINGS,
+};
 /// The 12 features man-loreRL is given (8 orientation indicators, then the 4 mark bits), as
 /// indices into the 312; [`Arena::man_features`] numbers them 0..12 in this order.
 pub const MAN_FEATURES: [u32; 12] = [
@@ -222,353 +218,8 @@ const FLAG_BLUE: u8 = 2;
 const FLAG_DEATH: u8 = 4;
 const FLAG_BALL: u8 = 8;
 
-/// One of the paper's three arenas.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum ArenaId {
-    /// Environment 1: 6×6 ft, 10×10 cells, blue marks on beans.
-    Env1,
-    /// Environment 2: 5×5 ft, 8×8 cells, green marks on a slope.
-    Env2,
-    /// Environment 3: like Env 1's surfaces, with the ball, death spots and green marks moved.
-    Env3,
-}
-
-impl ArenaId {
-    /// All three, in order.
-    pub const ALL: [ArenaId; 3] = [ArenaId::Env1, ArenaId::Env2, ArenaId::Env3];
-
-    /// The paper's number, 1–3.
-    pub fn number(self) -> u32 {
-        match self {
-            ArenaId::Env1 => 1,
-            ArenaId::Env2 => 2,
-            ArenaId::Env3 => 3,
-        }
-    }
-
-    /// The arena with the paper's number `n` (1–3).
-    pub fn from_number(n: u32) -> Result<Self, ArenaError> {
-        match n {
-            1 => Ok(ArenaId::Env1),
-            2 => Ok(ArenaId::Env2),
-            3 => Ok(ArenaId::Env3),
-            other => Err(ArenaError::UnknownArena(other)),
-        }
-    }
-}
-
-impl fmt::Display for ArenaId {
-    /// "Env 1", "Env 2" or "Env 3".
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "Env {}", self.number())
-    }
-}
-
-/// The colour of a mark drawn on the floor.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum MarkColour {
-    /// Green.
-    Green,
-    /// Blue.
-    Blue,
-}
-
-impl MarkColour {
-    /// The other colour.
-    pub fn other(self) -> MarkColour {
-        match self {
-            MarkColour::Green => MarkColour::Blue,
-            MarkColour::Blue => MarkColour::Green,
-        }
-    }
-
-    /// The feature "a mark of this colour is in the cell".
-    pub fn in_cell_feature(self) -> usize {
-        match self {
-            MarkColour::Green => GREEN_IN_CELL,
-            MarkColour::Blue => BLUE_IN_CELL,
-        }
-    }
-
-    /// The feature "no mark of this colour is in the cell".
-    pub fn not_in_cell_feature(self) -> usize {
-        self.in_cell_feature() + 1
-    }
-
-    fn flag(self) -> u8 {
-        match self {
-            MarkColour::Green => FLAG_GREEN,
-            MarkColour::Blue => FLAG_BLUE,
-        }
-    }
-}
-
-/// What the floor of a cell is made of; it sets how the wheels slip (see the module docs).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Surface {
-    /// Plain carpet: firm grip, little noise.
-    Carpet,
-    /// Smooth paper board: both wheels skid, so moves and turns fall short.
-    Board,
-    /// Loose beans: both wheels lose traction, and in the deep middle of the cell they often
-    /// spin in place.
-    Beans,
-    /// Hay on a ramp falling to the south: the right wheel drags, climbing is harder, and the
-    /// robot slides downhill.
-    Slope,
-}
-
-impl Surface {
-    /// Lower-case name.
-    pub fn name(self) -> &'static str {
-        match self {
-            Surface::Carpet => "carpet",
-            Surface::Board => "board",
-            Surface::Beans => "beans",
-            Surface::Slope => "slope",
-        }
-    }
-
-    /// Draws this surface's slip for one move that starts at `offset` (cells from the cell's
-    /// centre, each coordinate in [−0.5, 0.5)) with `heading`, and wheel rotations of
-    /// `left_deg`, `right_deg`.
-    fn slip<R: Rng + ?Sized>(
-        self,
-        offset: DVec2,
-        heading: f64,
-        left_deg: f64,
-        right_deg: f64,
-        rng: &mut R,
-    ) -> Slip {
-        match self {
-            Surface::Carpet => Slip {
-                left: (1.0 + 0.03 * normal(rng)).clamp(0.85, 1.15),
-                right: (1.0 + 0.03 * normal(rng)).clamp(0.85, 1.15),
-                slide: DVec2::ZERO,
-                heading_noise: 1.5_f64.to_radians() * normal(rng),
-            },
-            Surface::Board => {
-                let common = (0.65 + 0.08 * normal(rng)).clamp(0.45, 0.85);
-                Slip {
-                    left: common * (1.0 + 0.08 * normal(rng)).clamp(0.75, 1.25),
-                    right: common * (1.0 + 0.08 * normal(rng)).clamp(0.75, 1.25),
-                    slide: DVec2::ZERO,
-                    heading_noise: 5.0_f64.to_radians() * normal(rng),
-                }
-            }
-            Surface::Beans => {
-                let deep = offset.x.abs() < 0.3 && offset.y.abs() < 0.3;
-                let spin_probability = if deep { 0.4 } else { 0.12 };
-                let common = if rng.random::<f64>() < spin_probability {
-                    0.1 * rng.random::<f64>()
-                } else {
-                    (0.6 + 0.1 * normal(rng)).clamp(0.3, 0.9)
-                };
-                Slip {
-                    left: common * (1.0 + 0.12 * normal(rng)).clamp(0.6, 1.4),
-                    right: common * (1.0 + 0.12 * normal(rng)).clamp(0.6, 1.4),
-                    slide: DVec2::ZERO,
-                    heading_noise: 4.0_f64.to_radians() * normal(rng),
-                }
-            }
-            Surface::Slope => {
-                let uphill = if heading.sin() > 0.5 { 0.6 } else { 1.0 };
-                let activity = ((left_deg.abs() + right_deg.abs()) / (2.0 * ACTIONS[0].0)).min(1.5);
-                Slip {
-                    left: uphill * (0.95 + 0.04 * normal(rng)).clamp(0.8, 1.1),
-                    right: uphill * (0.5 + 0.08 * normal(rng)).clamp(0.25, 0.75),
-                    slide: DVec2::new(0.0, -2.5 * activity),
-                    heading_noise: 3.0_f64.to_radians() * normal(rng),
-                }
-            }
-        }
-    }
-}
-
-/// How one move slips: traction per wheel, a slide (cm, world frame) and extra heading (rad).
-struct Slip {
-    left: f64,
-    right: f64,
-    slide: DVec2,
-    heading_noise: f64,
-}
-
-/// A standard normal draw (Box–Muller).
-fn normal<R: Rng + ?Sized>(rng: &mut R) -> f64 {
-    let u1 = 1.0 - rng.random::<f64>(); // (0, 1]: ln is finite
-    let u2 = rng.random::<f64>();
-    (-2.0 * u1.ln()).sqrt() * (TAU * u2).cos()
-}
-
-/// `sin(x) / x`, 1 at 0.
-fn sinc(x: f64) -> f64 {
-    if x.abs() < 1e-9 { 1.0 } else { x.sin() / x }
-}
-
-/// The robot's continuous pose.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Pose {
-    /// Position of the point between the two driven wheels, cm from the south-west corner
-    /// (`x` east, `y` north).
-    pub position: DVec2,
-    /// Heading, rad, counter-clockwise from east; [`Arena::move_robot`] keeps it in [0, 2π].
-    pub heading: f64,
-}
-
-impl Pose {
-    /// A pose from coordinates in cm and a heading in rad.
-    pub fn new(x: f64, y: f64, heading: f64) -> Self {
-        Self {
-            position: DVec2::new(x, y),
-            heading,
-        }
-    }
-}
-
-/// The attributes of a state: the discretised pose (the fields of `tes_topics::StateAttributes`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub struct StateAttributes {
-    /// Column of the cell, from the west (`u16::MAX` for the out state).
-    pub x: u16,
-    /// Row of the cell, from the south (`u16::MAX` for the out state).
-    pub y: u16,
-    /// Heading sector 0..8, counter-clockwise from east (0 for the out state).
-    pub orientation: u16,
-}
-
-impl StateAttributes {
-    /// The attributes of the "out of the area" state.
-    pub const OUT: StateAttributes = StateAttributes {
-        x: u16::MAX,
-        y: u16::MAX,
-        orientation: 0,
-    };
-
-    /// Whether these are the out state's attributes.
-    pub fn is_out(self) -> bool {
-        self.x == u16::MAX && self.y == u16::MAX
-    }
-}
-
-/// How an effect moves the robot, relative to its orientation.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Move {
-    /// To the neighbouring cell straight ahead.
-    Forward = 0,
-    /// To the neighbouring cell 45° to the left of ahead.
-    ForwardLeft = 1,
-    /// To the neighbouring cell 45° to the right of ahead.
-    ForwardRight = 2,
-    /// Stays in the cell.
-    Stay = 3,
-}
-
-impl Move {
-    /// All moves, in effect order.
-    pub const ALL: [Move; N_MOVES] = [
-        Move::Forward,
-        Move::ForwardLeft,
-        Move::ForwardRight,
-        Move::Stay,
-    ];
-
-    /// The orientation change (in 45° steps, left positive) of the direction moved, if any.
-    fn direction(self) -> Option<i32> {
-        match self {
-            Move::Forward => Some(0),
-            Move::ForwardLeft => Some(1),
-            Move::ForwardRight => Some(-1),
-            Move::Stay => None,
-        }
-    }
-
-    fn name(self) -> &'static str {
-        match self {
-            Move::Forward => "forward",
-            Move::ForwardLeft => "forward-left",
-            Move::ForwardRight => "forward-right",
-            Move::Stay => "no move",
-        }
-    }
-}
-
-/// How an effect turns the robot.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Turn {
-    /// Keeps its orientation.
-    None = 0,
-    /// To the next orientation on the left (+45°).
-    Left = 1,
-    /// Two orientations to the left (+90°).
-    Left2 = 2,
-    /// To the next orientation on the right (−45°).
-    Right = 3,
-    /// Two orientations to the right (−90°).
-    Right2 = 4,
-}
-
-impl Turn {
-    /// All turns, in effect order.
-    pub const ALL: [Turn; N_TURNS] = [
-        Turn::None,
-        Turn::Left,
-        Turn::Left2,
-        Turn::Right,
-        Turn::Right2,
-    ];
-
-    /// The orientation change in 45° steps, counter-clockwise (left) positive.
-    pub fn delta(self) -> i32 {
-        match self {
-            Turn::None => 0,
-            Turn::Left => 1,
-            Turn::Left2 => 2,
-            Turn::Right => -1,
-            Turn::Right2 => -2,
-        }
-    }
-
-    fn name(self) -> &'static str {
-        match self {
-            Turn::None => "no turn",
-            Turn::Left => "1 left",
-            Turn::Left2 => "2 left",
-            Turn::Right => "1 right",
-            Turn::Right2 => "2 right",
-        }
-    }
-}
-
-/// One of the 20 effects: a move and a turn, both relative to the robot's orientation.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub struct Effect {
-    /// Where the robot went.
-    pub movement: Move,
-    /// How it turned.
-    pub turn: Turn,
-}
-
-impl Effect {
-    /// The effect with index `i` (< 20): move `i / 5`, turn `i % 5`.
-    pub fn from_index(i: usize) -> Option<Effect> {
-        Some(Effect {
-            movement: *Move::ALL.get(i / N_TURNS)?,
-            turn: Turn::ALL[i % N_TURNS],
-        })
-    }
-
-    /// The effect's index, `move · 5 + turn`.
-    pub fn index(self) -> usize {
-        self.movement as usize * N_TURNS + self.turn as usize
-    }
-}
-
-impl fmt::Display for Effect {
-    /// E.g. "forward-left, 1 right".
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}, {}", self.movement.name(), self.turn.name())
-    }
-}
+/// The attributes of a state: the discretised pose, as the messages carry it.
+pub use tes_topics::StateAttributes;
 
 /// A readable name for feature `i` (< 312): "green ring 12", "blue ring 0", "ball ring 99",
 /// "orientation 3", "green mark in cell", "no green mark in cell", "blue mark in cell",
@@ -585,255 +236,6 @@ pub fn feature_name(i: usize) -> Option<String> {
         NO_BLUE_IN_CELL => "no blue mark in cell".to_owned(),
         _ => return None,
     })
-}
-
-/// Why an arena (or a request to one) is invalid.
-#[derive(Debug, Clone, PartialEq, Error)]
-pub enum ArenaError {
-    /// No arena has this number.
-    #[error("arena {0} does not exist (1, 2 or 3)")]
-    UnknownArena(u32),
-    /// No such action.
-    #[error("action {0} does not exist (0, 1 or 2)")]
-    BadAction(usize),
-    /// No such state.
-    #[error("state {state} does not exist ({states} states)")]
-    BadState {
-        /// The state given.
-        state: usize,
-        /// Number of states.
-        states: usize,
-    },
-    /// The episode already ended.
-    #[error("the episode is over")]
-    EpisodeOver,
-    /// Cells per side outside 2..=32.
-    #[error("{0} cells per side is outside 2..=32")]
-    BadSize(usize),
-    /// The side length is not a positive finite number of cm.
-    #[error("side length {0} cm is not positive and finite")]
-    BadSide(f64),
-    /// A mark or the ball lies outside the area (or is not finite).
-    #[error("{what} at ({x}, {y}) cm lies outside the area")]
-    OutsideArea {
-        /// "green mark", "blue mark" or "ball".
-        what: &'static str,
-        /// East coordinate, cm.
-        x: f64,
-        /// North coordinate, cm.
-        y: f64,
-    },
-    /// A death spot lies outside the grid.
-    #[error("death spot ({x}, {y}) lies outside the grid")]
-    DeathOutside {
-        /// Column.
-        x: usize,
-        /// Row.
-        y: usize,
-    },
-    /// The ball is on a death spot.
-    #[error("the ball lies on a death spot")]
-    BallOnDeath,
-    /// Every cell is terminal: nowhere to start.
-    #[error("every cell is a death spot or the ball: nowhere to start")]
-    NoStartCell,
-    /// A hand-drawn map is malformed.
-    #[error("map: {0}")]
-    BadMap(String),
-}
-
-/// The full description of an arena, from which [`Arena::from_layout`] derives everything.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ArenaLayout {
-    /// Cells per side (the grid is square), 2..=32.
-    pub cells: usize,
-    /// Side length, cm.
-    pub side_cm: f64,
-    /// The colour of the marks on the surface that changes the dynamics.
-    pub governing: MarkColour,
-    /// The surface under every governing-colour mark.
-    pub governing_surface: Surface,
-    /// The floor everywhere else (carpet unless set; paper board in the paper's Env 2).
-    pub floor: Surface,
-    /// Green mark positions, cm.
-    pub green_marks: Vec<DVec2>,
-    /// Blue mark positions, cm.
-    pub blue_marks: Vec<DVec2>,
-    /// Ball position, cm; its cell is the goal.
-    pub ball: DVec2,
-    /// Death spot cells `(x, y)`.
-    pub death_cells: Vec<(usize, usize)>,
-}
-
-/// Env 1 (north row first): `b` blue mark, `g` green mark, `+` both, `O` ball, `X` death.
-const ENV1_MAP: &str = "
-    . . . . . . . . . .
-    . . . g . . . . O .
-    . X . . . b b . . .
-    . . . . b b b . X .
-    . g . b b + . . . .
-    . . . b b . . g . .
-    . . . . . . X . . .
-    . . g . . . . . . .
-    . X . . . . . . g .
-    . . . . . . . . . .
-";
-
-/// Env 2: the green marks lie on the slope, the blue ones are decoys.
-const ENV2_MAP: &str = "
-    . . . . . . . .
-    . b . . X . O .
-    . . . g g g . .
-    . X . g + g b .
-    . . . g g . . .
-    . b . . . . X .
-    . . . . b . . .
-    X . . . . . . .
-";
-
-/// Env 3: Env 1's blue marks (and beans); ball, deaths and green marks elsewhere.
-const ENV3_MAP: &str = "
-    . . . . . . . . . .
-    . O . . . . g . . .
-    . . . . . b b . X .
-    . . X . b b b . . .
-    . . . b b b . g . .
-    g . . b b . . . . .
-    . . . . . . . . X .
-    . . . . g . X . . .
-    . . . . . . . . . .
-    . . . g . . . . . g
-";
-
-impl ArenaLayout {
-    /// The paper's arena `id`, as reconstructed here (the maps, north row first; `b` blue,
-    /// `g` green, `+` both, `O` ball, `X` death spot):
-    ///
-    /// ```text
-    ///  Env 1 (6 ft, beans)    Env 2 (5 ft, slope)    Env 3 (6 ft, beans)
-    ///  . . . . . . . . . .    . . . . . . . .        . . . . . . . . . .
-    ///  . . . g . . . . O .    . b . . X . O .        . O . . . . g . . .
-    ///  . X . . . b b . . .    . . . g g g . .        . . . . . b b . X .
-    ///  . . . . b b b . X .    . X . g + g b .        . . X . b b b . . .
-    ///  . g . b b + . . . .    . . . g g . . .        . . . b b b . g . .
-    ///  . . . b b . . g . .    . b . . . . X .        g . . b b . . . . .
-    ///  . . . . . . X . . .    . . . . b . . .        . . . . . . . . X .
-    ///  . . g . . . . . . .    X . . . . . . .        . . . . g . X . . .
-    ///  . X . . . . . . g .                           . . . . . . . . . .
-    ///  . . . . . . . . . .                           . . . g . . . . . g
-    /// ```
-    ///
-    /// The blue cells of Env 1 and Env 3 coincide (the same bean patch); green marks, ball and
-    /// death spots differ. Env 1 and Env 3 have a carpet floor, Env 2 paper board. Marks sit at fixed offsets from their cell's centre (see
-    /// [`ArenaLayout::from_map`]); the ball sits at its cell's centre.
-    pub fn paper(id: ArenaId) -> Self {
-        let (map, feet, governing, surface) = match id {
-            ArenaId::Env1 => (ENV1_MAP, 6.0, MarkColour::Blue, Surface::Beans),
-            ArenaId::Env2 => (ENV2_MAP, 5.0, MarkColour::Green, Surface::Slope),
-            ArenaId::Env3 => (ENV3_MAP, 6.0, MarkColour::Blue, Surface::Beans),
-        };
-        let mut layout = Self::from_map(map, feet * FOOT_CM, governing, surface)
-            .expect("the paper's maps are well-formed");
-        if id == ArenaId::Env2 {
-            layout.floor = Surface::Board;
-        }
-        layout
-    }
-
-    /// Parses a square map, north row first, one character per cell (whitespace ignored):
-    /// `.` plain, `g` green mark, `b` blue mark, `+` both, `O` the ball (exactly one), `X` a
-    /// death spot. A mark in cell `(x, y)` sits at the cell's centre shifted by a fixed
-    /// offset, `(0, 0)`, `(0.2, −0.15)`, `(−0.2, 0.1)` or `(0.15, 0.2)` cells for
-    /// `(x + 2y) % 4` = 0, 1, 2, 3; the ball at its cell's centre. The floor is carpet
-    /// (set [`ArenaLayout::floor`] for another).
-    pub fn from_map(
-        map: &str,
-        side_cm: f64,
-        governing: MarkColour,
-        governing_surface: Surface,
-    ) -> Result<Self, ArenaError> {
-        let rows: Vec<Vec<char>> = map
-            .lines()
-            .map(|l| {
-                l.chars()
-                    .filter(|c| !c.is_whitespace())
-                    .collect::<Vec<char>>()
-            })
-            .filter(|r| !r.is_empty())
-            .collect();
-        let cells = rows.len();
-        if !(2..=32).contains(&cells) {
-            return Err(ArenaError::BadSize(cells));
-        }
-        if !(side_cm.is_finite() && side_cm > 0.0) {
-            return Err(ArenaError::BadSide(side_cm));
-        }
-        let cell_cm = side_cm / cells as f64;
-        let mut layout = Self {
-            cells,
-            side_cm,
-            governing,
-            governing_surface,
-            floor: Surface::Carpet,
-            green_marks: Vec::new(),
-            blue_marks: Vec::new(),
-            ball: DVec2::ZERO,
-            death_cells: Vec::new(),
-        };
-        let mut balls = 0;
-        for (row, line) in rows.iter().enumerate() {
-            if line.len() != cells {
-                return Err(ArenaError::BadMap(format!(
-                    "row {row} has {} cells, the map has {cells} rows",
-                    line.len()
-                )));
-            }
-            let y = cells - 1 - row;
-            for (x, &c) in line.iter().enumerate() {
-                let centre = DVec2::new((x as f64 + 0.5) * cell_cm, (y as f64 + 0.5) * cell_cm);
-                let (ox, oy) = MARK_OFFSETS[(x + 2 * y) % 4];
-                let mark = centre + DVec2::new(ox, oy) * cell_cm;
-                match c {
-                    '.' => {}
-                    'g' => layout.green_marks.push(mark),
-                    'b' => layout.blue_marks.push(mark),
-                    '+' => {
-                        layout.green_marks.push(mark);
-                        layout.blue_marks.push(mark);
-                    }
-                    'O' => {
-                        layout.ball = centre;
-                        balls += 1;
-                    }
-                    'X' => layout.death_cells.push((x, y)),
-                    other => {
-                        return Err(ArenaError::BadMap(format!(
-                            "unknown cell {other:?} in row {row}"
-                        )));
-                    }
-                }
-            }
-        }
-        if balls != 1 {
-            return Err(ArenaError::BadMap(format!("{balls} balls, expected one")));
-        }
-        Ok(layout)
-    }
-}
-
-/// What one action did (see [`Arena::step`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct StepOutcome {
-    /// The wheel rotations (left, right; degrees) the motors actually made — the tacho deltas.
-    pub wheels_deg: (f64, f64),
-    /// The robot's new pose.
-    pub pose: Pose,
-    /// The state it is in.
-    pub state: usize,
-    /// The reward for entering `state`.
-    pub reward: f64,
-    /// Whether `state` ends the episode.
-    pub terminal: bool,
 }
 
 /// One arena: layout, physics, discretisation, effects, rewards and features.
@@ -1089,11 +491,11 @@ impl Arena {
         }
         let cell = state / N_ORIENTATIONS;
         let n = self.layout.cells;
-        Some(StateAttributes {
-            x: (cell % n) as u16,
-            y: (cell / n) as u16,
-            orientation: (state % N_ORIENTATIONS) as u16,
-        })
+        Some(StateAttributes::at(
+            (cell % n) as u16,
+            (cell / n) as u16,
+            (state % N_ORIENTATIONS) as u16,
+        ))
     }
 
     /// The cell `(x, y)` a position lies in, or `None` outside the area (or not finite).
@@ -1129,11 +531,9 @@ impl Arena {
     /// The discretised pose's attributes ([`StateAttributes::OUT`] outside the area).
     pub fn discretise_attributes(&self, pose: Pose) -> StateAttributes {
         match self.cell_of(pose.position) {
-            Some((x, y)) => StateAttributes {
-                x: x as u16,
-                y: y as u16,
-                orientation: Self::orientation_of(pose.heading),
-            },
+            Some((x, y)) => {
+                StateAttributes::at(x as u16, y as u16, Self::orientation_of(pose.heading))
+            }
             None => StateAttributes::OUT,
         }
     }
@@ -1197,105 +597,6 @@ impl Arena {
         self.layout.ball
     }
 
-    /// The floor of cell `(x, y)`: the governing surface under a governing-colour mark,
-    /// the arena's floor elsewhere (and outside the grid).
-    pub fn surface(&self, x: usize, y: usize) -> Surface {
-        if self.has_mark(self.layout.governing, x, y) {
-            self.layout.governing_surface
-        } else {
-            self.layout.floor
-        }
-    }
-
-    /// Moves the robot from `pose` by the wheel rotations `left_deg` and `right_deg` (degrees,
-    /// forward positive: the tacho deltas the brick reports), with the slip of the surface of
-    /// the cell it starts in (see the module docs), drawn from `rng`.
-    ///
-    /// A pose outside the area (including a non-finite position) is returned unchanged: the
-    /// robot has left and the out state is absorbing. A non-finite rotation counts as 0 and
-    /// rotations are clamped to ±[`MAX_WHEEL_DEG`]; a non-finite heading counts as 0. The
-    /// heading of the result is in [0, 2π].
-    pub fn move_robot<R: Rng + ?Sized>(
-        &self,
-        pose: Pose,
-        left_deg: f64,
-        right_deg: f64,
-        rng: &mut R,
-    ) -> Pose {
-        let Some((x, y)) = self.cell_of(pose.position) else {
-            return pose;
-        };
-        let clean = |d: f64| {
-            if d.is_finite() {
-                d.clamp(-MAX_WHEEL_DEG, MAX_WHEEL_DEG)
-            } else {
-                0.0
-            }
-        };
-        let (left_deg, right_deg) = (clean(left_deg), clean(right_deg));
-        let heading = if pose.heading.is_finite() {
-            pose.heading.rem_euclid(TAU)
-        } else {
-            0.0
-        };
-        let offset = (pose.position - self.cell_centre(x, y)) / self.cell_cm;
-        let slip = self
-            .surface(x, y)
-            .slip(offset, heading, left_deg, right_deg, rng);
-        let cm_per_deg = PI * WHEEL_DIAMETER_CM / 360.0;
-        let left = left_deg * cm_per_deg * slip.left;
-        let right = right_deg * cm_per_deg * slip.right;
-        // Exact differential-drive arc: the chord has length ds·sinc(dθ/2) along θ + dθ/2.
-        let d_theta = (right - left) / TRACK_WIDTH_CM;
-        let ds = 0.5 * (left + right);
-        let mid = heading + 0.5 * d_theta;
-        let chord = ds * sinc(0.5 * d_theta);
-        Pose {
-            position: pose.position + DVec2::new(mid.cos(), mid.sin()) * chord + slip.slide,
-            heading: (heading + d_theta + slip.heading_noise).rem_euclid(TAU),
-        }
-    }
-
-    /// Takes `action` from `pose`: the motors turn the wheels to the action's targets
-    /// ([`ACTIONS`]) with ±2 % motor noise (a wheel with target 0 stays still), then
-    /// [`Arena::move_robot`] moves the robot; the result is discretised.
-    pub fn step<R: Rng + ?Sized>(
-        &self,
-        pose: Pose,
-        action: usize,
-        rng: &mut R,
-    ) -> Result<StepOutcome, ArenaError> {
-        let &(l, r) = ACTIONS.get(action).ok_or(ArenaError::BadAction(action))?;
-        let mut motor = |target: f64| target * (1.0 + 0.02 * normal(rng));
-        let wheels_deg = (motor(l), motor(r));
-        let next = self.move_robot(pose, wheels_deg.0, wheels_deg.1, rng);
-        let state = self.discretise(next);
-        Ok(StepOutcome {
-            wheels_deg,
-            pose: next,
-            state,
-            reward: self.reward[state],
-            terminal: self.terminal[state],
-        })
-    }
-
-    /// A random start: a uniformly random non-terminal cell and orientation; the pose at the
-    /// cell's centre ± [`START_JITTER_CM`] on each axis, heading `orientation · 45°` ±
-    /// [`START_JITTER_DEG`] (uniform).
-    pub fn random_start<R: Rng + ?Sized>(&self, rng: &mut R) -> Pose {
-        let cell = self.starts[rng.random_range(0..self.starts.len())] as usize;
-        let n = self.layout.cells;
-        let o = rng.random_range(0..N_ORIENTATIONS);
-        let jitter = |rng: &mut R, half: f64| (2.0 * rng.random::<f64>() - 1.0) * half;
-        let dx = jitter(rng, START_JITTER_CM);
-        let dy = jitter(rng, START_JITTER_CM);
-        let dh = jitter(rng, START_JITTER_DEG.to_radians());
-        Pose {
-            position: self.cell_centre(cell % n, cell / n) + DVec2::new(dx, dy),
-            heading: (o as f64 * FRAC_PI_4 + dh).rem_euclid(TAU),
-        }
-    }
-
     /// Where `effect` takes the robot from `state` (the effects' known meaning): the move's
     /// neighbour cell and the turned orientation; the out state if the move leaves the grid;
     /// the out state stays out.
@@ -1329,7 +630,7 @@ impl Arena {
 
     /// The effect that explains a transition from `prev` to `next`.
     ///
-    /// The rule (the controller's `derive_effect` uses the same): the lowest-numbered effect
+    /// The rule ([`tes_topics::effect_between`], which the controller uses too): the lowest-numbered effect
     /// `e` with `apply_effect(prev, e) == next` if there is one; otherwise the effect whose
     /// destination is nearest to `next` — fewest cells away (Chebyshev distance), then least
     /// turned (circular distance between orientations), then lowest-numbered. A destination
@@ -1343,29 +644,9 @@ impl Arena {
     pub fn effect_between(&self, prev: usize, next: usize) -> usize {
         let out = self.out_state();
         assert!(next <= out, "state {next} does not exist");
-        let mut best = (0, (i64::MAX, i64::MAX));
-        let target = self.attributes(next).unwrap_or(StateAttributes::OUT);
-        for e in 0..N_EFFECTS {
-            let to = self.apply_effect(prev, e);
-            if to == next {
-                return e;
-            }
-            let a = self.attributes(to).unwrap_or(StateAttributes::OUT);
-            let distance = if a.is_out() || target.is_out() {
-                (i64::MAX, 0)
-            } else {
-                let cells = (i64::from(a.x) - i64::from(target.x))
-                    .abs()
-                    .max((i64::from(a.y) - i64::from(target.y)).abs());
-                let turn = (i64::from(a.orientation) - i64::from(target.orientation))
-                    .rem_euclid(N_ORIENTATIONS as i64);
-                (cells, turn.min(N_ORIENTATIONS as i64 - turn))
-            };
-            if distance < best.1 {
-                best = (e, distance);
-            }
-        }
-        best.0
+        let pose = |s: usize| self.attributes(s).unwrap_or(StateAttributes::OUT);
+        let outcomes = (0..N_EFFECTS).map(|e| pose(self.apply_effect(prev, e)));
+        tes_topics::effect_between(outcomes, pose(next), N_ORIENTATIONS as u16)
     }
 
     /// The reward for entering `state`: +2 the ball's cell, −1 a death spot or the out state,
@@ -1486,139 +767,6 @@ impl fmt::Display for Arena {
             writeln!(f, "{}", row.join(" "))?;
         }
         Ok(())
-    }
-}
-
-/// How an episode stands after an action.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum EpisodeStatus {
-    /// The episode goes on.
-    Continuing,
-    /// A terminal state was entered (the ball, a death spot or the out state).
-    Terminal,
-    /// The state did not change for [`STUCK_ACTIONS`] consecutive actions.
-    Stuck,
-}
-
-/// What one action meant for the episode.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct EpisodeStep {
-    /// The reward for entering the new state.
-    pub reward: f64,
-    /// Whether the episode goes on.
-    pub status: EpisodeStatus,
-}
-
-/// Tracks one episode's states: rewards, terminal states and the stuck rule (the episode also
-/// ends after [`STUCK_ACTIONS`] consecutive actions that did not change the state).
-///
-/// ```
-/// use tes_perception_sim::arena::{Arena, ArenaId, Episode, EpisodeStatus, StateAttributes};
-///
-/// let arena = Arena::new(ArenaId::Env2);
-/// let start = arena
-///     .state_index(StateAttributes { x: 0, y: 3, orientation: 0 })
-///     .ok_or("no such state")?;
-/// let mut episode = Episode::new(&arena, start)?;
-/// for _ in 0..3 {
-///     assert_eq!(episode.observe(&arena, start)?.status, EpisodeStatus::Continuing);
-/// }
-/// assert_eq!(episode.observe(&arena, start)?.status, EpisodeStatus::Stuck);
-/// # Ok::<(), Box<dyn std::error::Error>>(())
-/// ```
-#[derive(Debug, Clone, PartialEq)]
-pub struct Episode {
-    state: usize,
-    unchanged: usize,
-    actions: usize,
-    total_reward: f64,
-    status: EpisodeStatus,
-}
-
-impl Episode {
-    /// Starts an episode in `start` (an episode started in a terminal state is over at once).
-    pub fn new(arena: &Arena, start: usize) -> Result<Self, ArenaError> {
-        if start >= arena.n_states() {
-            return Err(ArenaError::BadState {
-                state: start,
-                states: arena.n_states(),
-            });
-        }
-        Ok(Self {
-            state: start,
-            unchanged: 0,
-            actions: 0,
-            total_reward: 0.0,
-            status: if arena.is_terminal(start) {
-                EpisodeStatus::Terminal
-            } else {
-                EpisodeStatus::Continuing
-            },
-        })
-    }
-
-    /// Records that the last action led to `next`: its reward and whether the episode ends
-    /// (a terminal state wins over being stuck).
-    pub fn observe(&mut self, arena: &Arena, next: usize) -> Result<EpisodeStep, ArenaError> {
-        if next >= arena.n_states() {
-            return Err(ArenaError::BadState {
-                state: next,
-                states: arena.n_states(),
-            });
-        }
-        if self.status != EpisodeStatus::Continuing {
-            return Err(ArenaError::EpisodeOver);
-        }
-        let reward = arena.reward(next);
-        self.unchanged = if next == self.state {
-            self.unchanged + 1
-        } else {
-            0
-        };
-        self.state = next;
-        self.actions += 1;
-        self.total_reward += reward;
-        self.status = if arena.is_terminal(next) {
-            EpisodeStatus::Terminal
-        } else if self.unchanged >= STUCK_ACTIONS {
-            EpisodeStatus::Stuck
-        } else {
-            EpisodeStatus::Continuing
-        };
-        Ok(EpisodeStep {
-            reward,
-            status: self.status,
-        })
-    }
-
-    /// The current state.
-    pub fn state(&self) -> usize {
-        self.state
-    }
-
-    /// Actions observed so far.
-    pub fn actions(&self) -> usize {
-        self.actions
-    }
-
-    /// Sum of the rewards so far.
-    pub fn total_reward(&self) -> f64 {
-        self.total_reward
-    }
-
-    /// Consecutive actions, up to now, that left the state unchanged.
-    pub fn unchanged_streak(&self) -> usize {
-        self.unchanged
-    }
-
-    /// How the episode stands.
-    pub fn status(&self) -> EpisodeStatus {
-        self.status
-    }
-
-    /// Whether the episode has ended (terminal or stuck).
-    pub fn is_over(&self) -> bool {
-        self.status != EpisodeStatus::Continuing
     }
 }
 

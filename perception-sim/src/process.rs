@@ -19,8 +19,7 @@ use std::time::Duration;
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use serde::Deserialize;
-use tes_runtime::channel::{self, Idle, Inbox, IpcError, Outbox, WaitStrategy};
+use tes_runtime::channel::{self, Idle, Inbox, IpcError, Outbox};
 use tes_runtime::clock::monotonic_ns;
 use tes_topics::{
     FeatureBits, MAX_STATES, MotorState, Observation, ServiceNames, StateAttributes, WorldMap,
@@ -30,104 +29,8 @@ use thiserror::Error;
 
 use crate::arena::{Arena, ArenaError, ArenaId, Episode, EpisodeStatus};
 
-/// Settings of the perception-sim process (TOML; every key optional).
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct PerceptionConfig {
-    /// `arena`: 1, 2 or 3 (default 3).
-    pub arena: u32,
-    /// `episodes`: how many to run before exiting (default 20).
-    pub episodes: u32,
-    /// `actions`: stop after this many actions in all, ending the episode then as truncated
-    /// (default 0: no limit; for benchmarks that run a fixed number of actions).
-    pub actions: u64,
-    /// `seed`: start poses and slip (default 1).
-    pub seed: u64,
-    /// `real_time_factor`: 1.0 = the paper's physical 200 ms settle; 0 = none (default).
-    pub real_time_factor: f64,
-    /// `settle_ms`: the idle time after a motion at real-time factor 1 (default 200).
-    pub settle_ms: u64,
-    /// `step_cap`: actions after which an episode is cut off (default 100).
-    pub step_cap: u32,
-    /// `wait`: `block` (default), `spin`, `spin-then-block` or `spin-then-block:<µs>`.
-    pub wait: String,
-    /// `service_prefix`: prefixed to every iceoryx2 service name.
-    pub service_prefix: String,
-    /// `motor_timeout_ms`: re-publish an observation (flagged RESYNC) when no motion report
-    /// follows it within this time (default 5000).
-    pub motor_timeout_ms: u64,
-    /// `left_port`, `right_port`: which NXT output ports (0 = A, 1 = B, 2 = C) drive the left
-    /// and right wheels (defaults 1 and 2, as the bridge's).
-    pub left_port: usize,
-    /// See `left_port`.
-    pub right_port: usize,
-}
-
-impl Default for PerceptionConfig {
-    fn default() -> Self {
-        Self {
-            arena: 3,
-            episodes: 20,
-            actions: 0,
-            seed: 1,
-            real_time_factor: 0.0,
-            settle_ms: 200,
-            step_cap: 100,
-            wait: "block".into(),
-            service_prefix: String::new(),
-            motor_timeout_ms: 5000,
-            left_port: 1,
-            right_port: 2,
-        }
-    }
-}
-
-/// A setting that is out of range, named by its key.
-pub type ConfigError = tes_runtime::settings::SettingError;
-
-const PROCESS: &str = "perception";
-
-impl PerceptionConfig {
-    /// Parses a TOML document with these keys (unknown keys are refused) and checks it.
-    pub fn from_toml(text: &str) -> Result<Self, ConfigError> {
-        let cfg: Self = tes_runtime::settings::parse(PROCESS, text)?;
-        cfg.check()?;
-        Ok(cfg)
-    }
-
-    /// Checks every key; returns the wait strategy.
-    pub fn check(&self) -> Result<WaitStrategy, ConfigError> {
-        let bad = |key, reason: &str| Err(ConfigError::new(PROCESS, key, reason));
-        if ArenaId::from_number(self.arena).is_err() {
-            return bad("arena", "must be 1, 2 or 3");
-        }
-        if self.episodes == 0 {
-            return bad("episodes", "must be at least 1");
-        }
-        if !(self.real_time_factor.is_finite() && self.real_time_factor >= 0.0)
-            || Duration::try_from_secs_f64(self.settle_ms as f64 / 1000.0 * self.real_time_factor)
-                .is_err()
-        {
-            return bad(
-                "real_time_factor",
-                "must be a finite number >= 0 (and settle_ms x real_time_factor a duration)",
-            );
-        }
-        if self.step_cap == 0 {
-            return bad("step_cap", "must be at least 1");
-        }
-        if self.motor_timeout_ms == 0 {
-            return bad("motor_timeout_ms", "must be at least 1");
-        }
-        if self.left_port > 2 || self.right_port > 2 || self.left_port == self.right_port {
-            return bad(
-                "left_port",
-                "left_port and right_port must be different ports 0-2",
-            );
-        }
-        tes_runtime::settings::wait_strategy(PROCESS, &self.wait)
-    }
-}
+pub mod config;
+pub use config::{CheckedPerception, ConfigError, PerceptionConfig};
 
 /// Why perception stopped with an error.
 #[derive(Debug, Error)]
@@ -198,31 +101,7 @@ fn bits(features: &[u32]) -> FeatureBits {
 }
 
 fn attributes(arena: &Arena, state: usize) -> StateAttributes {
-    arena.attributes(state).map_or(
-        StateAttributes {
-            x: u16::MAX,
-            y: u16::MAX,
-            orientation: 0,
-            reserved: 0,
-        },
-        |a| {
-            if a.is_out() {
-                StateAttributes {
-                    x: u16::MAX,
-                    y: u16::MAX,
-                    orientation: 0,
-                    reserved: 0,
-                }
-            } else {
-                StateAttributes {
-                    x: a.x,
-                    y: a.y,
-                    orientation: a.orientation,
-                    reserved: 0,
-                }
-            }
-        },
-    )
+    arena.attributes(state).unwrap_or(StateAttributes::OUT)
 }
 
 /// Runs perception for the configured episodes, or until `stop` is raised.
@@ -230,7 +109,7 @@ pub fn run(
     config: &PerceptionConfig,
     stop: &AtomicBool,
 ) -> Result<PerceptionSummary, PerceptionError> {
-    let strategy = config.check()?;
+    let strategy = config.check()?.wait();
     let arena = Arena::new(ArenaId::from_number(config.arena).map_err(PerceptionError::Arena)?);
     let names = ServiceNames::with_prefix(&config.service_prefix);
     let node = channel::node(false)?;
@@ -369,6 +248,7 @@ pub fn run(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use tes_runtime::channel::WaitStrategy;
 
     #[test]
     fn the_world_map_matches_the_arena() {
@@ -507,31 +387,5 @@ mod tests {
         });
         assert_eq!(summary.episodes, 2);
         assert!(summary.resyncs >= 3, "{summary:?}");
-    }
-
-    #[test]
-    fn settings_are_checked_by_key() {
-        assert!(PerceptionConfig::default().check().is_ok());
-        for (text, key) in [
-            ("arena = 4", "arena"),
-            ("episodes = 0", "episodes"),
-            ("real_time_factor = 1e300", "real_time_factor"),
-            ("real_time_factor = -1.0", "real_time_factor"),
-            ("step_cap = 0", "step_cap"),
-            ("wait = \"doze\"", "wait"),
-            ("left_port = 2", "left_port"),
-        ] {
-            assert_eq!(
-                PerceptionConfig::from_toml(text).unwrap_err().key,
-                key,
-                "{text}"
-            );
-        }
-        assert!(
-            PerceptionConfig::from_toml("arenna = 1")
-                .unwrap_err()
-                .reason
-                .contains("arenna")
-        );
     }
 }

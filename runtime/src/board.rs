@@ -53,7 +53,7 @@ fn board<T: ZeroCopySend + Copy + Default + fmt::Debug + 'static>(
 /// The sending end of a latest-value channel: an iceoryx2 blackboard entry holding one `T`,
 /// overwritten in place by each [`send`](Self::send), and an event to wake the reader.
 ///
-/// Unlike [`Outbox`], sending allocates nothing at all (iceoryx2 0.10's publisher allocates
+/// Unlike [`Outbox`](crate::channel::Outbox), sending allocates nothing at all (iceoryx2 0.10's publisher allocates
 /// one shared-state object per loaned sample; a blackboard entry is a lock-free store into
 /// shared memory). The reader sees only the latest value: use it where the sender waits for
 /// the receiver's answer before sending again (the controller's commands), so nothing is
@@ -111,7 +111,7 @@ impl<T: ZeroCopySend + Copy + Default + fmt::Debug + 'static> LatestOutbox<T> {
 }
 
 /// The receiving end of a latest-value channel ([`LatestOutbox`]): yields each new value of
-/// the board once, waiting by its [`WaitStrategy`] like [`Inbox`].
+/// the board once, waiting by its [`WaitStrategy`] like [`Inbox`](crate::channel::Inbox).
 pub struct LatestInbox<T: ZeroCopySend + Copy + PartialEq + fmt::Debug + 'static> {
     /// `None` only between letting an abandoned board go and opening the next.
     reading: Option<BoardReader<T>>,

@@ -238,8 +238,8 @@ pub(crate) fn wait_next<T>(
 
 /// Blocks until the listener's socket is readable or `timeout` passes, by `ppoll(2)`:
 /// timer-precise, unlike iceoryx2 0.10's `Listener::timed_wait` (a socket receive
-/// timeout, which the kernel rounds up to its tick — measured 8 ms here for any timeout
-/// from 20 µs to 3 ms). A signal ends the wait early (the caller looks at its stop flag).
+/// timeout, which the kernel rounds up to its scheduler tick, milliseconds for any shorter
+/// timeout). A signal ends the wait early (the caller looks at its stop flag).
 pub(crate) fn wait_readable(listener: &Listener, timeout: Duration) -> Result<(), IpcError> {
     use iceoryx2::prelude::FileDescriptorBased;
     use nix::poll::{PollFd, PollFlags, ppoll};

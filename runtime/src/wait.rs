@@ -4,6 +4,22 @@
 //! * `block` (default) — sleep on the event listener until notified: no CPU burnt while idle;
 //! * `spin` — busy-poll the subscriber: lowest latency, one core fully used;
 //! * `spin-then-block` — busy-poll for a bounded time, then sleep.
+//!
+//! In a settings file a strategy is its string form (serde reads and writes it as the
+//! [`FromStr`] and [`Display`](fmt::Display) forms below):
+//!
+//! ```
+//! use tes_runtime::wait::WaitStrategy;
+//!
+//! #[derive(serde::Deserialize, serde::Serialize)]
+//! struct Settings {
+//!     wait: WaitStrategy,
+//! }
+//! let s: Settings = toml::from_str("wait = \"spin-then-block:50\"").unwrap();
+//! assert_eq!(s.wait.to_string(), "spin-then-block:50");
+//! assert_eq!(toml::to_string(&s).unwrap(), "wait = \"spin-then-block:50\"\n");
+//! assert!(toml::from_str::<Settings>("wait = \"nap\"").is_err());
+//! ```
 
 use std::fmt;
 use std::str::FromStr;
@@ -64,6 +80,32 @@ impl FromStr for WaitStrategy {
     }
 }
 
+impl serde::Serialize for WaitStrategy {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.collect_str(self)
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for WaitStrategy {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl serde::de::Visitor<'_> for Visitor {
+            type Value = WaitStrategy;
+
+            fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str(
+                    "a wait strategy: block, spin, spin-then-block or spin-then-block:<microseconds>",
+                )
+            }
+
+            fn visit_str<E: serde::de::Error>(self, s: &str) -> Result<WaitStrategy, E> {
+                s.parse().map_err(E::custom)
+            }
+        }
+        deserializer.deserialize_str(Visitor)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -95,5 +137,29 @@ mod tests {
             let err = bad.parse::<WaitStrategy>().unwrap_err();
             assert!(err.to_string().contains("expected block, spin"), "{err}");
         }
+    }
+
+    #[derive(Debug, PartialEq, serde::Deserialize, serde::Serialize)]
+    struct Settings {
+        wait: WaitStrategy,
+    }
+
+    #[test]
+    fn wait_strategies_are_read_and_written_as_their_string_form() {
+        for text in ["block", "spin", "spin-then-block", "spin-then-block:50"] {
+            let doc = format!("wait = \"{text}\"\n");
+            let s: Settings = toml::from_str(&doc).expect(text);
+            assert_eq!(s.wait, text.parse().expect(text));
+            assert_eq!(toml::to_string(&s).expect(text), doc);
+        }
+        for bad in ["nap", "spin-then-block:0", "Block", ""] {
+            let err = toml::from_str::<Settings>(&format!("wait = \"{bad}\"")).expect_err(bad);
+            // The same reason as `FromStr`'s, about the `wait` value.
+            let reason = bad.parse::<WaitStrategy>().unwrap_err().to_string();
+            assert_eq!(err.message(), reason, "{bad}");
+            assert!(err.span().is_some(), "{bad}");
+        }
+        let err = toml::from_str::<Settings>("wait = 5").expect_err("a number");
+        assert!(err.message().contains("a wait strategy"), "{err}");
     }
 }

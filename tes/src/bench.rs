@@ -27,7 +27,7 @@ use clap::{Args, Subcommand};
 use serde::Serialize;
 use tes_bench::relay::{self, RelayConfig};
 use tes_bench::{fixtures, scaling};
-use tes_controller::config::{ControllerConfig, ThreadPlacement};
+use tes_controller::config::{ControllerConfig, PlanningMode, ThreadPlacement};
 use tes_controller::process::ControllerSummary;
 use tes_learning::library::store::{self, StoredLibrary};
 use tes_runtime::affinity::Placement;
@@ -183,10 +183,10 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         bail!("--actions, --budget-us and --views must be at least 1");
     }
     let settings = ControllerConfig {
-        wait: args.wait.clone(),
+        wait,
         acting_cpu: args.acting_cpu,
         planner_cpu: args.planner_cpu,
-        planning: args.planning.clone().unwrap_or_else(|| "auto".into()),
+        planning: planning_mode(args)?,
         ..ControllerConfig::default()
     };
     let planning = settings
@@ -363,6 +363,15 @@ impl RunFiles {
     }
 }
 
+/// `--planning`, or `auto` without it.
+fn planning_mode(args: &LatencyArgs) -> Result<PlanningMode> {
+    args.planning
+        .as_deref()
+        .map_or(Ok(PlanningMode::Auto), |p| {
+            p.parse().map_err(|e| anyhow::anyhow!("--planning: {e}"))
+        })
+}
+
 fn group_file(
     dir: &Path,
     prefix: &str,
@@ -371,15 +380,13 @@ fn group_file(
     placement: ThreadPlacement,
     files: &RunFiles,
 ) -> Result<LaunchFile> {
-    let path = |p: &Path| toml::Value::String(p.display().to_string());
-    let int = |n: u64| toml::Value::Integer(i64::try_from(n).unwrap_or(i64::MAX));
     let total = args.actions + args.warmup;
     let mut file = LaunchFile {
         launch: LaunchSection {
             episodes: u32::MAX,
             arena: 3,
             real_time_factor: 0.0,
-            wait: wait.to_string(),
+            wait,
             service_prefix: prefix.to_owned(),
             run_dir: Some(dir.join("run")),
             seed: args.seed,
@@ -387,36 +394,26 @@ fn group_file(
         },
         ..LaunchFile::default()
     };
-    file.perception.insert("actions".into(), int(total));
+    file.perception.actions = total;
     // The return path (robot motion) is not measured: block, as the floor's source does.
-    file.perception
-        .insert("wait".into(), toml::Value::String("block".into()));
-    file.controller
-        .insert("library".into(), path(&files.library));
-    file.controller
-        .insert("budget_us".into(), int(args.budget_us));
-    file.controller
-        .insert("warmup_actions".into(), int(args.warmup));
-    file.controller
-        .insert("report".into(), path(&files.controller_report));
+    file.perception.wait = WaitStrategy::Block;
+    file.keep("perception", "wait");
+    let c = &mut file.controller;
+    c.library = Some(files.library.clone());
+    c.budget_us = args.budget_us;
+    c.warmup_actions = args.warmup;
+    c.report = Some(files.controller_report.clone());
     // Resolved CPUs or "none", never "auto": the floor's hop was given the same CPU.
-    for (key, cpu) in [
-        ("acting_cpu", placement.acting),
-        ("planner_cpu", placement.planner),
-    ] {
-        let value = cpu.map_or(Placement::Unpinned, Placement::Cpu);
-        file.controller
-            .insert(key.into(), toml::Value::try_from(value)?);
-    }
-    if let Some(planning) = &args.planning {
-        file.controller
-            .insert("planning".into(), toml::Value::String(planning.clone()));
-    }
-    let mut ipc = toml::Table::new();
-    ipc.insert("budget_us".into(), int(args.budget_us));
-    ipc.insert("warmup_commands".into(), int(args.warmup));
-    ipc.insert("latency_report".into(), path(&files.bridge_report));
-    file.bridge.insert("ipc".into(), toml::Value::Table(ipc));
+    c.acting_cpu = placement.acting.map_or(Placement::Unpinned, Placement::Cpu);
+    c.planner_cpu = placement
+        .planner
+        .map_or(Placement::Unpinned, Placement::Cpu);
+    c.planning = planning_mode(args)?;
+    // The bridge's [ipc] table as the bench writes it: the launch-wide prefix and wait go in.
+    let ipc = &mut file.bridge.ipc;
+    ipc.budget_us = args.budget_us;
+    ipc.warmup_commands = args.warmup;
+    ipc.latency_report = Some(files.bridge_report.clone());
     Ok(file)
 }
 
@@ -434,7 +431,7 @@ fn run_floor(
     let hop_report = dir.join("floor-first-hop.json");
     let cfg = RelayConfig {
         service_prefix: format!("{prefix}floor/"),
-        wait: wait.to_string(),
+        wait,
         messages: args.actions + args.warmup,
         warmup: args.warmup,
         budget_us: args.budget_us,

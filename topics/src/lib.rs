@@ -37,9 +37,38 @@ mod world_map;
 
 pub use world_map::{MAX_ACTIONS, MAX_EFFECTS, MAX_STATES, WorldMap};
 
-/// Number of binary state features the robot arenas of the paper's §5.2.1 extract
-/// (100 green-mark, 100 blue-mark, 100 ball-distance, 8 orientation and 4 mark bits).
-pub const ARENA_FEATURES: usize = 312;
+pub use arena_features::ARENA_FEATURES;
+
+/// The layout of the robot arenas' binary state features (the paper's §5.2.1): which bit of an
+/// [`Observation`]'s [`FeatureBits`] means what. The one definition; perception extracts them
+/// by it and libraries name them by it.
+pub mod arena_features {
+    /// Distance rings per kind of object (green marks, blue marks, the ball).
+    pub const RINGS: usize = 100;
+    /// Orientation indicators: one per heading sector of 45°.
+    pub const ORIENTATIONS: usize = 8;
+    /// First green-ring feature: `GREEN_RINGS + i` is on iff a green mark is `i` to `i + 1`
+    /// units from the cell's centre.
+    pub const GREEN_RINGS: usize = 0;
+    /// First blue-ring feature.
+    pub const BLUE_RINGS: usize = GREEN_RINGS + RINGS;
+    /// First ball-ring feature.
+    pub const BALL_RINGS: usize = BLUE_RINGS + RINGS;
+    /// First orientation indicator: `ORIENTATION_FEATURES + k` is on iff the orientation is `k`.
+    pub const ORIENTATION_FEATURES: usize = BALL_RINGS + RINGS;
+    /// On iff the cell holds a green mark.
+    pub const GREEN_IN_CELL: usize = ORIENTATION_FEATURES + ORIENTATIONS;
+    /// On iff the cell holds no green mark.
+    pub const NO_GREEN_IN_CELL: usize = GREEN_IN_CELL + 1;
+    /// On iff the cell holds a blue mark.
+    pub const BLUE_IN_CELL: usize = GREEN_IN_CELL + 2;
+    /// On iff the cell holds no blue mark.
+    pub const NO_BLUE_IN_CELL: usize = GREEN_IN_CELL + 3;
+    /// Binary features per state: 100 green-mark, 100 blue-mark and 100 ball-distance rings,
+    /// 8 orientation indicators and 4 mark bits — the paper's 312.
+    pub const ARENA_FEATURES: usize = NO_BLUE_IN_CELL + 1;
+    const _: () = assert!(ARENA_FEATURES == 312);
+}
 
 /// Capacity, in bits, of a [`FeatureBits`] vector: [`ARENA_FEATURES`] rounded up to whole words.
 pub const FEATURE_CAPACITY: usize = FEATURE_WORDS * 64;
@@ -201,8 +230,9 @@ impl FeatureBits {
     }
 }
 
-/// The state attributes that identify a state in the robot arenas: the discretised pose.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
+/// The state attributes that identify a state in the robot arenas: the discretised pose. The
+/// "out of the area" state has [`StateAttributes::OUT`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, ZeroCopySend)]
 #[type_name("tes::StateAttributes")]
 #[repr(C)]
 pub struct StateAttributes {
@@ -214,6 +244,83 @@ pub struct StateAttributes {
     pub orientation: u16,
     /// Padding; always 0.
     pub reserved: u16,
+}
+
+impl StateAttributes {
+    /// The attributes of the "out of the area" state.
+    pub const OUT: Self = Self {
+        x: u16::MAX,
+        y: u16::MAX,
+        orientation: 0,
+        reserved: 0,
+    };
+
+    /// The pose in cell (`x`, `y`) with heading sector `orientation`.
+    pub const fn at(x: u16, y: u16, orientation: u16) -> Self {
+        Self {
+            x,
+            y,
+            orientation,
+            reserved: 0,
+        }
+    }
+
+    /// Whether these are the out state's attributes.
+    pub fn is_out(self) -> bool {
+        self.x == u16::MAX && self.y == u16::MAX
+    }
+
+    /// How far `self` is from `other` by the effect rule ([`effect_between`]): cells apart
+    /// (Chebyshev distance), then heading sectors apart (circular, out of `orientations`).
+    /// The out state is as far as it gets from any state inside the area and none from itself.
+    pub fn distance(self, other: Self, orientations: u16) -> (u32, u32) {
+        match (self.is_out(), other.is_out()) {
+            (true, true) => (0, 0),
+            (true, false) | (false, true) => (u32::MAX, 0),
+            (false, false) => {
+                let cells = self.x.abs_diff(other.x).max(self.y.abs_diff(other.y));
+                let o = i32::from(orientations.max(1));
+                let turn =
+                    (i32::from(self.orientation) - i32::from(other.orientation)).rem_euclid(o);
+                (u32::from(cells), turn.min(o - turn) as u32)
+            }
+        }
+    }
+}
+
+/// The effect that explains a move: given each effect's known outcome from the state the robot
+/// left (in effect order) and the pose it `reached`, the lowest-numbered effect whose outcome
+/// is that pose; if none (real motion can skip cells or turn further than any effect says),
+/// the one whose outcome is nearest ([`StateAttributes::distance`]), the lowest-numbered on a
+/// tie. Reaching the out state where no effect leads out gives effect 0. The one home of this
+/// rule: the worlds and the controller both use it. Allocation-free.
+///
+/// ```
+/// use tes_topics::{StateAttributes, effect_between};
+///
+/// let from = StateAttributes::at(2, 2, 0);
+/// // Effects: 0 forward (east), 1 stay, 2 turn left.
+/// let outcomes = [StateAttributes::at(3, 2, 0), from, StateAttributes::at(2, 2, 1)];
+/// assert_eq!(effect_between(outcomes, StateAttributes::at(2, 2, 1), 8), 2);
+/// // Two cells forward: nearest to "forward".
+/// assert_eq!(effect_between(outcomes, StateAttributes::at(4, 2, 0), 8), 0);
+/// ```
+pub fn effect_between(
+    outcomes: impl IntoIterator<Item = StateAttributes>,
+    reached: StateAttributes,
+    orientations: u16,
+) -> usize {
+    let mut best = (0, (u32::MAX, u32::MAX));
+    for (e, outcome) in outcomes.into_iter().enumerate() {
+        let d = outcome.distance(reached, orientations);
+        if d == (0, 0) {
+            return e;
+        }
+        if d < best.1 {
+            best = (e, d);
+        }
+    }
+    best.0
 }
 
 /// Bit flags of an [`Observation`].

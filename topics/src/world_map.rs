@@ -83,7 +83,7 @@ impl WorldMap {
 
     /// The index of the state with these attributes, if it is one of the map's.
     pub fn state_index(&self, s: StateAttributes) -> Option<usize> {
-        if s.x == u16::MAX && s.y == u16::MAX {
+        if s.is_out() {
             return Some(self.out_state()).filter(|&i| i < self.n_states as usize);
         }
         if s.x >= self.width || s.y >= self.height || s.orientation >= self.orientations {
@@ -97,12 +97,7 @@ impl WorldMap {
     pub fn attributes(&self, index: usize) -> StateAttributes {
         let o = usize::from(self.orientations.max(1));
         if index >= self.out_state() {
-            return StateAttributes {
-                x: u16::MAX,
-                y: u16::MAX,
-                orientation: 0,
-                reserved: 0,
-            };
+            return StateAttributes::OUT;
         }
         let cell = index / o;
         let w = usize::from(self.width.max(1));
@@ -112,6 +107,18 @@ impl WorldMap {
             orientation: (index % o) as u16,
             reserved: 0,
         }
+    }
+
+    /// The effect that took the robot from state `from` to state `to`, by the rule of
+    /// [`effect_between`](crate::effect_between) over this map's known outcomes.
+    /// Allocation-free.
+    pub fn effect_between(&self, from: usize, to: usize) -> usize {
+        let row = self.next_state.get(from).map_or(&[][..], |r| &r[..]);
+        let outcomes = row
+            .iter()
+            .take(self.n_effects as usize)
+            .map(|&next| self.attributes(usize::from(next)));
+        crate::effect_between(outcomes, self.attributes(to), self.orientations)
     }
 
     /// Whether the counts fit the fixed capacities and every next state exists.

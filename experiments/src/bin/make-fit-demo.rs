@@ -1,6 +1,6 @@
 //! Writes the demo stream `tes fit` runs on in the README: `data/fit-demo.csv`.
 //!
-//! `cargo run -p tes-bench --bin make-fit-demo -- [--seed 2017] [--rows 4000] [--out PATH]`
+//! `cargo run -p tes-experiments --bin make-fit-demo -- [--seed 2017] [--rows 4000] [--out PATH]`
 
 use std::fs::File;
 use std::io::BufWriter;

@@ -5,7 +5,7 @@ use rand_chacha::ChaCha8Rng;
 
 fn at(arena: &Arena, x: u16, y: u16, orientation: u16) -> usize {
     arena
-        .state_index(StateAttributes { x, y, orientation })
+        .state_index(StateAttributes::at(x, y, orientation))
         .unwrap()
 }
 

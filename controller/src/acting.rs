@@ -1,0 +1,693 @@
+//! The acting loop: what the controller does with each [`Observation`], as a plain struct with
+//! no ports, threads of its own or clock inside — [`crate::process`] wraps it in iceoryx2, and
+//! tests drive it directly.
+//!
+//! For every observation ([`ActingLoop::on_observation`]) it:
+//!
+//! 1. refuses what it cannot use (a stale or duplicate sequence number, a state outside the
+//!    map, a non-finite reward) — nothing is learned from or answered;
+//! 2. derives the effect the last action had ([`WorldMap::effect_between`]) and hands it to the
+//!    agent, which scores and updates the views of that action (TES — with an empty library
+//!    this is loreRL);
+//! 3. adopts the planner's latest finished policy;
+//! 4. picks the next action (ε-greedy) and returns the [`Command`] to publish; with a blocking
+//!    bridge it hands the planner the new model first (see [`ActingSettings::offer_before_command`]).
+//!
+//! Once the caller has published the command it calls [`ActingLoop::command_sent`], which hands
+//! the planner the model (unless that was done before the command), records the decision's
+//! latency against the budget, and reports an episode that ended before this command.
+//! Everything from the observation to the command allocates nothing after warm-up
+//! (`controller/tests/allocations.rs` drives this struct to show it).
+//!
+//! ```
+//! use tes_controller::acting::{ActingLoop, ActingSettings, Step};
+//! use tes_controller::realtime::{Planner, SlicedPlanner};
+//! use tes_learning::library::{LibraryParams, ViewLibrary};
+//! use tes_learning::plan::PlannerParams;
+//! use tes_runtime::clock::ManualClock;
+//! use tes_topics::{Observation, StateAttributes, WorldMap, observation_flags};
+//!
+//! // A corridor of 3 cells facing east: effect 0 moves one cell on, effect 1 stays.
+//! let mut map = WorldMap::EMPTY;
+//! (map.width, map.height, map.orientations) = (3, 1, 1);
+//! (map.n_states, map.n_actions, map.n_effects, map.n_features) = (4, 2, 2, 1);
+//! for s in 0..3 {
+//!     map.next_state[s][..2].copy_from_slice(&[s as u16 + 1, s as u16]);
+//!     map.reward[s] = -0.05;
+//! }
+//! map.next_state[3][..2].copy_from_slice(&[3, 3]);
+//! (map.terminal[3], map.reward[3]) = (1, 1.0);
+//! map.action_wheels[0] = [246, 246];
+//!
+//! let library = ViewLibrary::new(2, 2, 1, LibraryParams::default())?;
+//! let planner = |structure| {
+//!     let planner = SlicedPlanner::new(structure, PlannerParams::default(), 32)?;
+//!     Ok(Planner::BetweenPolls(Box::new(planner)))
+//! };
+//! let clock = ManualClock::new(1_000_000);
+//! let mut acting = ActingLoop::new(Box::new(map), library, ActingSettings::default(), planner)?;
+//!
+//! let obs = Observation {
+//!     seq: 1,
+//!     stamp_ns: 1_000_000,
+//!     state: StateAttributes::at(0, 0, 0),
+//!     n_features: 1,
+//!     flags: observation_flags::EPISODE_START,
+//!     ..Observation::default()
+//! };
+//! clock.advance(3_000);
+//! let Step::Act { command, .. } = acting.on_observation(&obs, &clock)? else {
+//!     panic!("a good observation is answered")
+//! };
+//! assert_eq!(command.answers, 1);
+//! acting.command_sent(&clock)?;
+//! assert_eq!(acting.counts().actions, 1);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use tes_learning::agents::{Agent, AgentError, Tes, TesParams};
+use tes_learning::cmdp::{CmdpError, CmdpStructure};
+use tes_learning::library::ViewLibrary;
+use tes_runtime::clock::Clock;
+use tes_runtime::latency::{LatencyRecorder, LatencyReport};
+use tes_topics::{Command, KEEP_ALIVE_ACTION, Observation, WorldMap, observation_flags};
+use thiserror::Error;
+
+use crate::realtime::{Planner, PlannerThreadError};
+use crate::summary::EpisodeLine;
+
+/// Why the acting loop cannot go on.
+#[derive(Debug, Error)]
+pub enum ActingError {
+    /// The world map is malformed.
+    #[error("the world map is malformed: {0}")]
+    BadMap(String),
+    /// The map does not form a CMDP.
+    #[error("the world map does not form a CMDP: {0}")]
+    Cmdp(#[from] CmdpError),
+    /// The agent refused its settings or a step.
+    #[error("agent: {0}")]
+    Agent(#[from] AgentError),
+    /// The planner failed.
+    #[error(transparent)]
+    Planner(#[from] PlannerThreadError),
+}
+
+/// What the acting loop is told once, at start.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ActingSettings {
+    /// The per-action latency budget, µs: decisions slower than this are counted as misses.
+    pub budget_us: u64,
+    /// Actions left out of the latency figures at the start.
+    pub warmup_actions: u64,
+    /// Probability of a random action.
+    pub epsilon: f64,
+    /// Exploration seed.
+    pub seed: u64,
+    /// While a command's move is under way, a keep-alive for the bridge's watchdog this often
+    /// (`None`: never).
+    pub keepalive: Option<Duration>,
+    /// At an episode's end, say a library save is due if this long has passed since the last.
+    pub save_interval: Duration,
+    /// Whether the planner gets the new model before the command is published (with a bridge
+    /// that sleeps on events: waking the idle planner gets the other CPU out of halt for the
+    /// bridge's wake-up) rather than after it (with a bridge that busy-polls).
+    pub offer_before_command: bool,
+    /// How long to wait for the first plan at start.
+    pub first_plan_timeout: Duration,
+}
+
+impl Default for ActingSettings {
+    fn default() -> Self {
+        Self {
+            budget_us: 1000,
+            warmup_actions: 0,
+            epsilon: 0.05,
+            seed: 1,
+            keepalive: None,
+            save_interval: Duration::from_secs(10),
+            offer_before_command: true,
+            first_plan_timeout: Duration::from_secs(10),
+        }
+    }
+}
+
+/// Why an observation was refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Refusal {
+    /// Its state is not on the map.
+    UnknownState,
+    /// Its sequence number is not newer than the last accepted one.
+    Stale {
+        /// The last accepted sequence number.
+        last_seq: u64,
+    },
+    /// Its reward is NaN or infinite.
+    NonFiniteReward,
+}
+
+/// What the caller does with an observation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Step {
+    /// Publish this command, then call [`ActingLoop::command_sent`].
+    Act {
+        /// The command answering the observation.
+        command: Command,
+        /// The observation said the outcome of the command in flight was lost, so nothing was
+        /// learned from it.
+        lost_outcome: bool,
+    },
+    /// The episode ended with this observation: no command. An episode that had ended
+    /// before it without a command since is reported now.
+    EpisodeEnded {
+        /// The earlier ended episode, now reported.
+        report: Option<EpisodeLine>,
+    },
+    /// The observation was refused; nothing was learned from it and nothing answers it.
+    Refused(Refusal),
+}
+
+/// What follows a published command.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Sent {
+    /// An episode that ended before this command, reported now that the command is out.
+    pub report: Option<EpisodeLine>,
+    /// Whether a library save is due (an episode ended and `save_interval` has passed).
+    pub save_due: bool,
+}
+
+/// The loop's counters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Counts {
+    /// Episodes that ended.
+    pub episodes: u64,
+    /// Commands published (keep-alives aside).
+    pub actions: u64,
+    /// Observations refused.
+    pub refused: u64,
+    /// Keep-alives sent.
+    pub keepalives: u64,
+}
+
+/// The loop's latency figures, after the warm-up: whole decisions (observation stamped →
+/// command stamped) and their two parts.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Latencies {
+    /// Observation stamped → command stamped.
+    pub decision: LatencyReport,
+    /// Observation stamped → received by the loop (publication and wake-up).
+    pub wake: LatencyReport,
+    /// Observation received → command stamped (the loop's own work).
+    pub compute: LatencyReport,
+}
+
+/// A decision between [`ActingLoop::on_observation`] and [`ActingLoop::command_sent`].
+#[derive(Debug, Clone, Copy)]
+struct InFlight {
+    state: usize,
+    action: usize,
+    observed_ns: u64,
+    received_ns: u64,
+    decided_ns: u64,
+}
+
+/// The running episode.
+#[derive(Debug, Clone, Copy, Default)]
+struct EpisodeTally {
+    reward: f64,
+    steps: u32,
+    misses: u64,
+}
+
+/// The acting loop of the controller (see the [module docs](self)).
+pub struct ActingLoop {
+    map: Box<WorldMap>,
+    n_states: usize,
+    agent: Tes,
+    planner: Planner,
+    settings: ActingSettings,
+    decision: LatencyRecorder,
+    wake: LatencyRecorder,
+    compute: LatencyRecorder,
+    episode_latency: LatencyRecorder,
+    counts: Counts,
+    last_seq: u64,
+    command_seq: u64,
+    /// (state, action) of the command whose outcome the next observation tells.
+    pending: Option<(usize, usize)>,
+    in_flight: Option<InFlight>,
+    episode: EpisodeTally,
+    /// The episode that just ended, reported once the next command is out: perception
+    /// publishes the next episode's first observation right after the last one, so reporting
+    /// first would delay that action.
+    ended: Option<EpisodeLine>,
+    last_sent_ns: u64,
+    last_save_ns: u64,
+}
+
+impl ActingLoop {
+    /// A loop on `map` starting from `library`, planning with the planner `planner` makes
+    /// for the map's CMDP; waits for the first plan.
+    pub fn new(
+        map: Box<WorldMap>,
+        library: ViewLibrary,
+        settings: ActingSettings,
+        planner: impl FnOnce(Arc<CmdpStructure>) -> Result<Planner, PlannerThreadError>,
+    ) -> Result<Self, ActingError> {
+        Self::starting_at(map, library, settings, planner, 0, 0)
+    }
+
+    /// [`new`](Self::new), with command sequence numbers continuing from `command_seq` (a
+    /// respawned controller starts from the monotonic clock, so that its commands are newer
+    /// than its predecessor's) and `now_ns` as the time of the last save.
+    pub fn starting_at(
+        map: Box<WorldMap>,
+        library: ViewLibrary,
+        settings: ActingSettings,
+        planner: impl FnOnce(Arc<CmdpStructure>) -> Result<Planner, PlannerThreadError>,
+        command_seq: u64,
+        now_ns: u64,
+    ) -> Result<Self, ActingError> {
+        let structure = Arc::new(structure_from_map(&map)?);
+        let n_states = structure.n_states();
+        let mut planner = planner(structure.clone())?;
+        let params = TesParams {
+            epsilon: settings.epsilon,
+            ..TesParams::default()
+        };
+        let mut agent = Tes::new(structure, library, params, settings.seed)?;
+        agent.model_mut().plan_elsewhere();
+        // The first policy before the first action.
+        planner.offer(agent.model_mut())?;
+        planner.wait(agent.model_mut(), settings.first_plan_timeout)?;
+        let recorder = |warmup| LatencyRecorder::new(settings.budget_us, warmup);
+        Ok(Self {
+            map,
+            n_states,
+            agent,
+            planner,
+            decision: recorder(settings.warmup_actions),
+            wake: recorder(settings.warmup_actions),
+            compute: recorder(settings.warmup_actions),
+            episode_latency: recorder(0),
+            settings,
+            counts: Counts::default(),
+            last_seq: 0,
+            command_seq,
+            pending: None,
+            in_flight: None,
+            episode: EpisodeTally::default(),
+            ended: None,
+            last_sent_ns: now_ns,
+            last_save_ns: now_ns,
+        })
+    }
+
+    /// Takes an observation: learns from the last command's outcome and decides the next
+    /// action (see the [module docs](self)). `clock` stamps the receipt and the command.
+    pub fn on_observation(
+        &mut self,
+        obs: &Observation,
+        clock: &impl Clock,
+    ) -> Result<Step, ActingError> {
+        let received_ns = clock.now_ns();
+        let Some(state) = self
+            .map
+            .state_index(obs.state)
+            .filter(|&s| s < self.n_states)
+        else {
+            self.counts.refused += 1;
+            return Ok(Step::Refused(Refusal::UnknownState));
+        };
+        if obs.seq <= self.last_seq {
+            self.counts.refused += 1;
+            return Ok(Step::Refused(Refusal::Stale {
+                last_seq: self.last_seq,
+            }));
+        }
+        if !obs.reward.is_finite() {
+            self.counts.refused += 1;
+            return Ok(Step::Refused(Refusal::NonFiniteReward));
+        }
+        self.last_seq = obs.seq;
+        let mut lost_outcome = false;
+        if obs.flags & observation_flags::EPISODE_START != 0 {
+            self.pending = None;
+            self.episode = EpisodeTally::default();
+        } else if obs.flags & observation_flags::RESYNC != 0 {
+            lost_outcome = self.pending.take().is_some();
+        } else if let Some((from, action)) = self.pending.take() {
+            let effect = self.map.effect_between(from, state);
+            self.agent.observe(from, action, effect)?;
+            self.episode.reward += f64::from(obs.reward);
+        }
+        self.planner.collect(self.agent.model_mut())?;
+        if obs.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0 {
+            self.planner.offer(self.agent.model_mut())?;
+            self.counts.episodes += 1;
+            // Two episode ends in a row (no command between): report the first now.
+            let report = self.ended.take().map(|line| self.report(line));
+            self.ended = Some(EpisodeLine {
+                episode: obs.episode,
+                reward: self.episode.reward,
+                steps: self.episode.steps,
+                p50_us: 0,
+                p99_us: 0,
+                misses: self.episode.misses,
+            });
+            return Ok(Step::EpisodeEnded { report });
+        }
+        let action = self.agent.act(state)?;
+        if self.settings.offer_before_command {
+            self.planner.offer(self.agent.model_mut())?;
+        }
+        let [left_deg, right_deg] = self.map.action_wheels[action];
+        self.command_seq += 1;
+        let decided_ns = clock.now_ns();
+        self.in_flight = Some(InFlight {
+            state,
+            action,
+            observed_ns: obs.stamp_ns,
+            received_ns,
+            decided_ns,
+        });
+        Ok(Step::Act {
+            command: Command {
+                seq: self.command_seq,
+                answers: obs.seq,
+                stamp_ns: decided_ns,
+                observed_ns: obs.stamp_ns,
+                action: action as u32,
+                left_deg,
+                right_deg,
+                reserved: 0,
+            },
+            lost_outcome,
+        })
+    }
+
+    /// The command [`on_observation`](Self::on_observation) returned is out: hands the planner
+    /// the model (if not done before the command), records the decision's latency, and
+    /// reports an episode that ended before it. A call without a command in flight does
+    /// nothing.
+    pub fn command_sent(&mut self, clock: &impl Clock) -> Result<Sent, ActingError> {
+        let Some(decided) = self.in_flight.take() else {
+            return Ok(Sent::default());
+        };
+        let now_ns = clock.now_ns();
+        self.last_sent_ns = now_ns;
+        if !self.settings.offer_before_command {
+            self.planner.offer(self.agent.model_mut())?;
+        }
+        // Reporting is not on the acting path: the command is out.
+        let mut sent = Sent::default();
+        if let Some(line) = self.ended.take() {
+            sent.report = Some(self.report(line));
+            let since_save = Duration::from_nanos(now_ns.saturating_sub(self.last_save_ns));
+            if since_save >= self.settings.save_interval {
+                sent.save_due = true;
+                self.last_save_ns = now_ns;
+            }
+        }
+        self.pending = Some((decided.state, decided.action));
+        self.episode.steps += 1;
+        self.counts.actions += 1;
+        let latency_ns = decided.decided_ns.saturating_sub(decided.observed_ns);
+        let misses_before = self.episode_latency.misses();
+        self.decision.record_ns(latency_ns);
+        self.wake
+            .record_ns(decided.received_ns.saturating_sub(decided.observed_ns));
+        self.compute
+            .record_ns(decided.decided_ns.saturating_sub(decided.received_ns));
+        self.episode_latency.record_ns(latency_ns);
+        self.episode.misses += self.episode_latency.misses() - misses_before;
+        Ok(sent)
+    }
+
+    /// No observation came for a while: a keep-alive for the bridge's watchdog if a move is
+    /// under way and the last command is older than the keep-alive period.
+    pub fn on_idle(&mut self, clock: &impl Clock) -> Option<Command> {
+        let period = self.settings.keepalive?;
+        let now_ns = clock.now_ns();
+        if self.pending.is_none()
+            || Duration::from_nanos(now_ns.saturating_sub(self.last_sent_ns)) < period
+        {
+            return None;
+        }
+        self.command_seq += 1;
+        self.counts.keepalives += 1;
+        self.last_sent_ns = now_ns;
+        Some(Command {
+            seq: self.command_seq,
+            action: KEEP_ALIVE_ACTION,
+            stamp_ns: now_ns,
+            ..Command::default()
+        })
+    }
+
+    /// One slice of planning while waiting, when planning between polls (a planner thread
+    /// needs none); returns whether work is left.
+    pub fn plan_between_polls(&mut self) -> bool {
+        self.planner.work(self.agent.model_mut())
+    }
+
+    /// Whether the warm-up actions are behind (the latency figures count from here).
+    pub fn warmed_up(&self) -> bool {
+        self.decision.warmed_up()
+    }
+
+    /// The agent, e.g. to save its library.
+    pub fn agent(&self) -> &Tes {
+        &self.agent
+    }
+
+    /// The counters so far.
+    pub fn counts(&self) -> Counts {
+        self.counts
+    }
+
+    /// Plans adopted so far.
+    pub fn plans(&self) -> u64 {
+        self.planner.plans()
+    }
+
+    /// The latency figures so far.
+    pub fn latencies(&self) -> Latencies {
+        Latencies {
+            decision: self.decision.report(),
+            wake: self.wake.report(),
+            compute: self.compute.report(),
+        }
+    }
+
+    /// Ends the run: the last ended episode, if not yet reported, and the agent.
+    pub fn finish(mut self) -> (Option<EpisodeLine>, Tes) {
+        let last = self.ended.take().map(|line| self.report(line));
+        (last, self.agent)
+    }
+
+    /// Completes an ended episode's line with its decision-latency percentiles and starts the
+    /// next episode's latency record.
+    fn report(&mut self, mut line: EpisodeLine) -> EpisodeLine {
+        line.p50_us = self.episode_latency.quantile_us(0.5);
+        line.p99_us = self.episode_latency.quantile_us(0.99);
+        self.episode_latency.reset();
+        line
+    }
+}
+
+/// Builds the agent-known CMDP from a world map.
+pub fn structure_from_map(map: &WorldMap) -> Result<CmdpStructure, ActingError> {
+    map.check().map_err(ActingError::BadMap)?;
+    let n = map.n_states as usize;
+    let features: Vec<Vec<u32>> = map.features[..n]
+        .iter()
+        .map(|f| f.iter_ones().map(|i| i as u32).collect())
+        .collect();
+    Ok(CmdpStructure::new(
+        n,
+        map.n_actions as usize,
+        map.n_effects as usize,
+        map.n_features as usize,
+        |s, e| usize::from(map.next_state[s][e]),
+        map.reward[..n].iter().map(|&r| f64::from(r)).collect(),
+        map.terminal[..n].iter().map(|&t| t != 0).collect(),
+        |s| &features[s],
+    )?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::realtime::SlicedPlanner;
+    use tes_learning::library::LibraryParams;
+    use tes_learning::plan::PlannerParams;
+    use tes_runtime::clock::ManualClock;
+    use tes_topics::StateAttributes;
+    use tes_topics::observation_flags::{EPISODE_START, TERMINAL};
+
+    /// A corridor of 4 cells facing east and its exit: effect 0 moves one cell on, effect 1
+    /// stays; 2 actions.
+    fn corridor() -> Box<WorldMap> {
+        let mut map = Box::new(WorldMap::EMPTY);
+        (map.width, map.height, map.orientations) = (4, 1, 1);
+        (map.n_states, map.n_actions, map.n_effects, map.n_features) = (5, 2, 2, 2);
+        for s in 0..4u16 {
+            map.next_state[usize::from(s)][..2].copy_from_slice(&[s + 1, s]);
+            map.reward[usize::from(s)] = -0.05;
+            map.features[usize::from(s)].set(usize::from(s % 2));
+        }
+        map.next_state[4][..2].copy_from_slice(&[4, 4]);
+        (map.terminal[4], map.reward[4]) = (1, 1.0);
+        map.action_wheels = [[246, 246], [90, -90], [0, 0], [0, 0]];
+        map
+    }
+
+    fn acting(settings: ActingSettings) -> ActingLoop {
+        let library = ViewLibrary::new(2, 2, 2, LibraryParams::default()).unwrap();
+        ActingLoop::new(corridor(), library, settings, |s| {
+            Ok(Planner::BetweenPolls(Box::new(SlicedPlanner::new(
+                s,
+                PlannerParams::default(),
+                32,
+            )?)))
+        })
+        .unwrap()
+    }
+
+    fn observation(seq: u64, stamp_ns: u64, x: u16, reward: f32, flags: u32) -> Observation {
+        Observation {
+            seq,
+            stamp_ns,
+            // x = 4 is the exit: the map's out state.
+            state: if x >= 4 {
+                StateAttributes::OUT
+            } else {
+                StateAttributes::at(x, 0, 0)
+            },
+            n_features: 2,
+            reward,
+            flags,
+            ..Observation::default()
+        }
+    }
+
+    /// With a clock that reads 400 µs later each time, every decision's wake-up is the time
+    /// from the stamp to the first reading and its compute one step: latency, its split and
+    /// the budget misses add up to what the clock says, per run and per episode.
+    #[test]
+    fn latency_and_budget_misses_follow_the_clock() {
+        let settings = ActingSettings {
+            budget_us: 1000,
+            warmup_actions: 1,
+            ..ActingSettings::default()
+        };
+        let mut acting = acting(settings);
+        let clock = ManualClock::new(10_000_000).stepping(400_000);
+        // Wake-ups of 100, 100, 700 and 900 µs: decisions of 500, 500, 1100 and 1300 µs.
+        let mut stamps = Vec::new();
+        for (seq, wake_us) in [(1u64, 100u64), (2, 100), (3, 700), (4, 900)] {
+            let reading = clock.now_ns();
+            clock.set(reading);
+            let stamp = reading - wake_us * 1000;
+            stamps.push(stamp);
+            let flags = if seq == 1 { EPISODE_START } else { 0 };
+            let obs = observation(seq, stamp, (seq - 1) as u16, -0.05, flags);
+            let Step::Act { command, .. } = acting.on_observation(&obs, &clock).unwrap() else {
+                panic!("observation {seq} not answered");
+            };
+            assert_eq!(command.answers, seq);
+            assert_eq!(command.observed_ns, stamp);
+            assert_eq!(
+                command.stamp_ns - stamp,
+                (wake_us + 400) * 1000,
+                "{command:?}"
+            );
+            let sent = acting.command_sent(&clock).unwrap();
+            assert_eq!(sent.report, None);
+        }
+        // The first decision is the warm-up: three counted, two over the 1 ms budget.
+        let l = acting.latencies();
+        assert_eq!((l.decision.count, l.decision.warmup), (3, 1), "{l:?}");
+        assert_eq!(l.decision.misses, 2, "{l:?}");
+        assert_eq!((l.compute.misses, l.wake.misses), (0, 0), "{l:?}");
+        assert_eq!(l.compute.max_us, 400, "{l:?}");
+        assert_eq!(l.wake.max_us, 900, "{l:?}");
+        assert!((1290..=1310).contains(&l.decision.max_us), "{l:?}");
+        // The episode ends; it is reported once the next episode's first command is out, with
+        // its own misses (all four decisions count there).
+        let t = clock.now_ns();
+        let end = observation(5, t, 4, 1.0, TERMINAL);
+        assert!(matches!(
+            acting.on_observation(&end, &clock).unwrap(),
+            Step::EpisodeEnded { report: None }
+        ));
+        let t = clock.now_ns();
+        let start = observation(6, t, 0, 0.0, EPISODE_START);
+        assert!(matches!(
+            acting.on_observation(&start, &clock).unwrap(),
+            Step::Act { .. }
+        ));
+        let sent = acting.command_sent(&clock).unwrap();
+        let line = sent.report.expect("the ended episode is reported");
+        assert_eq!((line.steps, line.misses), (4, 2), "{line:?}");
+        assert!((line.reward - (3.0 * -0.05 + 1.0)).abs() < 1e-6, "{line:?}");
+        assert!(line.p50_us >= 500 && line.p99_us >= 1100, "{line:?}");
+        assert_eq!(acting.counts().episodes, 1);
+    }
+
+    /// Stale, duplicate and malformed observations are refused and counted, answer nothing and
+    /// teach nothing; a keep-alive goes out only while a move is under way and the period has
+    /// passed.
+    #[test]
+    fn refusals_and_keepalives() {
+        let settings = ActingSettings {
+            keepalive: Some(Duration::from_millis(250)),
+            ..ActingSettings::default()
+        };
+        let mut acting = acting(settings);
+        let clock = ManualClock::new(1_000_000_000);
+        assert_eq!(acting.on_idle(&clock), None, "no move under way");
+        let first = observation(10, 1, 0, 0.0, EPISODE_START);
+        assert!(matches!(
+            acting.on_observation(&first, &clock).unwrap(),
+            Step::Act { .. }
+        ));
+        acting.command_sent(&clock).unwrap();
+        for (obs, why) in [
+            (
+                observation(10, 2, 1, -0.05, 0),
+                Refusal::Stale { last_seq: 10 },
+            ),
+            (
+                observation(9, 2, 1, -0.05, 0),
+                Refusal::Stale { last_seq: 10 },
+            ),
+            (observation(11, 2, 1, f32::NAN, 0), Refusal::NonFiniteReward),
+            (
+                Observation {
+                    state: StateAttributes::at(0, 3, 0),
+                    ..observation(12, 2, 1, -0.05, 0)
+                },
+                Refusal::UnknownState,
+            ),
+        ] {
+            assert_eq!(
+                acting.on_observation(&obs, &clock).unwrap(),
+                Step::Refused(why)
+            );
+        }
+        assert_eq!(acting.counts().refused, 4);
+        assert_eq!(acting.counts().actions, 1);
+        clock.advance(100_000_000);
+        assert_eq!(acting.on_idle(&clock), None, "within the period");
+        clock.advance(200_000_000);
+        let keepalive = acting.on_idle(&clock).expect("a keep-alive is due");
+        assert_eq!(keepalive.action, KEEP_ALIVE_ACTION);
+        assert_eq!(acting.on_idle(&clock), None, "just sent one");
+        assert_eq!(acting.counts().keepalives, 1);
+    }
+}

@@ -1,0 +1,413 @@
+//! The launch file: read once into each process's typed settings, checked, and written to the
+//! run directory for the children.
+
+use super::*;
+
+/// What to do when a child dies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum Restart {
+    /// Stop the others and exit non-zero.
+    #[default]
+    Never,
+    /// Respawn it (up to `max_restarts` times).
+    OnFailure,
+}
+
+/// The `[launch]` table.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LaunchSection {
+    /// Episodes perception runs before the group stops (default 20).
+    pub episodes: u32,
+    /// The arena: 1, 2 or 3 (default 3, the paper's test arena).
+    pub arena: u8,
+    /// Real-time factor: 1.0 = physical time (the paper's 200 ms settle), 0 = as fast as
+    /// possible (default).
+    pub real_time_factor: f64,
+    /// How every process waits: `block` (default), `spin`, `spin-then-block[:<µs>]`.
+    pub wait: WaitStrategy,
+    /// `never` (default) or `on-failure`.
+    pub restart: Restart,
+    /// Respawns allowed per child with `on-failure` (default 3).
+    pub max_restarts: u32,
+    /// Grace period of each shutdown step, ms (default 3000).
+    pub grace_ms: u64,
+    /// Prefix of every iceoryx2 service (default none; set one per group to run several
+    /// groups side by side).
+    pub service_prefix: String,
+    /// Where each child's settings are written (default: `run` in the data directory).
+    pub run_dir: Option<PathBuf>,
+    /// Seed of the world and the agent (default 1).
+    pub seed: u64,
+}
+
+impl Default for LaunchSection {
+    fn default() -> Self {
+        Self {
+            episodes: 20,
+            arena: 3,
+            real_time_factor: 0.0,
+            wait: WaitStrategy::Block,
+            restart: Restart::Never,
+            max_restarts: 3,
+            grace_ms: 3000,
+            service_prefix: String::new(),
+            run_dir: None,
+            seed: 1,
+        }
+    }
+}
+
+/// The process name of errors about the `[launch]` table (and about the file as a whole).
+pub(crate) const LAUNCH: &str = "launch";
+
+/// Which process a table of a launch file is for.
+pub(crate) fn process_of(table: &str) -> Option<&'static str> {
+    match table {
+        "launch" => Some(LAUNCH),
+        "perception" => Some(tes_perception_sim::process::config::PROCESS),
+        "controller" => Some(tes_controller::config::PROCESS),
+        "bridge" => Some(tes_bridge::config::PROCESS),
+        _ => None,
+    }
+}
+
+/// The launch-wide values the launcher sets in the children's tables, as `(table, key)`:
+/// each is set unless the table sets the key itself.
+pub(crate) const INHERITED: [(&str, &str); 15] = [
+    ("perception", "arena"),
+    ("perception", "episodes"),
+    ("perception", "real_time_factor"),
+    ("perception", "wait"),
+    ("perception", "service_prefix"),
+    ("perception", "seed"),
+    ("controller", "wait"),
+    ("controller", "service_prefix"),
+    ("controller", "seed"),
+    ("bridge", "seed"),
+    ("bridge", "use_command_degrees"),
+    ("bridge", "ipc.service_prefix"),
+    ("bridge", "ipc.wait"),
+    ("bridge", "brick.time_scale"),
+    ("bridge", "watchdog.deadline_ms"),
+];
+
+/// The tables of a launch file, as the parser reads them.
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub(crate) struct Tables {
+    launch: LaunchSection,
+    perception: PerceptionConfig,
+    controller: ControllerConfig,
+    bridge: BridgeSettings,
+}
+
+/// A whole launch file: each table typed as its process reads it, and where it came from.
+#[derive(Debug, Clone)]
+pub(crate) struct LaunchFile {
+    pub(crate) launch: LaunchSection,
+    pub(crate) perception: PerceptionConfig,
+    pub(crate) controller: ControllerConfig,
+    pub(crate) bridge: BridgeSettings,
+    /// The [`INHERITED`] keys the children's tables set themselves, as `table.key`
+    /// (`perception.wait`): the launch-wide values do not replace them.
+    pub(crate) own: BTreeSet<String>,
+    /// Where the file came from (errors name it).
+    pub(crate) origin: Origin,
+    /// The file as the user wrote it (errors give the line of their key in it).
+    pub(crate) text: Option<String>,
+}
+
+impl Default for LaunchFile {
+    fn default() -> Self {
+        let Tables {
+            launch,
+            perception,
+            controller,
+            bridge,
+        } = Tables::default();
+        Self {
+            launch,
+            perception,
+            controller,
+            bridge,
+            own: BTreeSet::new(),
+            origin: Origin::Defaults,
+            text: None,
+        }
+    }
+}
+
+/// The children's settings as they are written to the run directory: the launch file's
+/// tables with the launch-wide values set, each checked.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Children {
+    pub(crate) bridge: BridgeSettings,
+    pub(crate) controller: ControllerConfig,
+    pub(crate) perception: PerceptionConfig,
+}
+
+impl LaunchFile {
+    /// Parses a launch file's text, once, into the typed tables; a key that is unknown, of
+    /// the wrong type or repeated is reported with `origin`, its line and its table and key.
+    pub(crate) fn from_toml(text: &str, origin: Origin) -> Result<Self, SettingError> {
+        let t: Tables = settings::parse_tables(LAUNCH, text, origin.clone(), process_of)?;
+        let own = INHERITED
+            .iter()
+            .filter(|(table, key)| settings::is_set(text, Some(table), key))
+            .map(|(table, key)| format!("{table}.{key}"))
+            .collect();
+        Ok(Self {
+            launch: t.launch,
+            perception: t.perception,
+            controller: t.controller,
+            bridge: t.bridge,
+            own,
+            origin,
+            text: Some(text.to_owned()),
+        })
+    }
+
+    /// Keeps `[table] key` as the table sets it: the launch-wide value does not replace it
+    /// (what writing the key in the table does in a file).
+    pub(crate) fn keep(&mut self, table: &str, key: &str) {
+        self.own.insert(format!("{table}.{key}"));
+    }
+
+    /// Whether the launch-wide value goes into `[table] key`.
+    fn inherits(&self, table: &str, key: &str) -> bool {
+        !self.own.contains(&format!("{table}.{key}"))
+    }
+
+    /// `error`, about a key of `table`, placed at its line in the file.
+    fn place(&self, error: SettingError, table: &str) -> SettingError {
+        error.in_file(self.origin.clone(), Some(table), self.text.as_deref())
+    }
+
+    /// The children's settings: the tables with the launch-wide values set where a table
+    /// does not set its own, every one checked (the first bad key is reported, placed in the
+    /// file).
+    pub(crate) fn children(&self) -> Result<Children, SettingError> {
+        let l = &self.launch;
+        check_launch(l).map_err(|e| self.place(e, "launch"))?;
+        // TOML integers end at i64::MAX; a larger seed set in code is written as that.
+        let seed = l.seed.min(i64::MAX.unsigned_abs());
+
+        let mut perception = self.perception.clone();
+        let inherit = |key| self.inherits("perception", key);
+        if inherit("arena") {
+            perception.arena = u32::from(l.arena);
+        }
+        if inherit("episodes") {
+            perception.episodes = l.episodes;
+        }
+        if inherit("real_time_factor") {
+            perception.real_time_factor = l.real_time_factor;
+        }
+        if inherit("wait") {
+            perception.wait = l.wait;
+        }
+        if inherit("service_prefix") {
+            perception.service_prefix.clone_from(&l.service_prefix);
+        }
+        if inherit("seed") {
+            perception.seed = seed;
+        }
+
+        let mut controller = self.controller.clone();
+        let inherit = |key| self.inherits("controller", key);
+        if inherit("wait") {
+            controller.wait = l.wait;
+        }
+        if inherit("service_prefix") {
+            controller.service_prefix.clone_from(&l.service_prefix);
+        }
+        if inherit("seed") {
+            controller.seed = seed;
+        }
+
+        let mut bridge = self.bridge.clone();
+        let inherit = |key| self.inherits("bridge", key);
+        if inherit("seed") {
+            bridge.seed = seed;
+        }
+        if inherit("use_command_degrees") {
+            bridge.use_command_degrees = true;
+        }
+        if inherit("ipc.service_prefix") {
+            bridge.ipc.service_prefix.clone_from(&l.service_prefix);
+        }
+        if inherit("ipc.wait") {
+            bridge.ipc.wait = l.wait;
+        }
+        let simulated = bridge.transport == TransportKind::Sim;
+        let time_scale = if l.real_time_factor == 0.0 {
+            FASTEST_TIME_SCALE
+        } else {
+            1.0 / l.real_time_factor
+        };
+        if inherit("brick.time_scale") {
+            bridge.brick.time_scale = time_scale;
+        }
+        // The watchdog deadline is in brick time: at a speed-up, give the wall clock the
+        // usual second, so a descheduled bridge on a busy machine does not brake a healthy
+        // run. A real brick (serial transport) runs in physical time whatever the scale.
+        if inherit("watchdog.deadline_ms") {
+            let scale = if simulated { time_scale.max(1.0) } else { 1.0 };
+            // Saturating: a deadline beyond i64::MAX ms is no deadline at all.
+            bridge.watchdog.deadline_ms = ((1000.0 * scale).round() as i64).unsigned_abs();
+        }
+
+        // Every child's settings are checked here, so a bad key stops the launch before any
+        // process starts.
+        let bridge_cfg = bridge.check().map_err(|e| self.place(e, "bridge"))?;
+        controller
+            .check()
+            .map_err(|e| self.place(e, "controller"))?;
+        // The watchdog's deadline is brick time; the keep-alives are wall time.
+        let wall_scale = if simulated {
+            bridge_cfg.brick.time_scale
+        } else {
+            1.0
+        };
+        let deadline_wall_ms = bridge_cfg.watchdog_deadline.as_secs_f64() * 1000.0 / wall_scale;
+        if controller.keepalive_ms as f64 * 2.0 > deadline_wall_ms {
+            let reason = format!(
+                "{} must be at most half the bridge's watchdog deadline ({deadline_wall_ms:.0} \
+                 ms of wall time: watchdog.deadline_ms / brick.time_scale), or the watchdog \
+                 brakes moves of a live controller",
+                controller.keepalive_ms
+            );
+            let error = SettingError::new(tes_controller::config::PROCESS, "keepalive_ms", reason);
+            return Err(self.place(error, "controller"));
+        }
+        perception
+            .check()
+            .map_err(|e| self.place(e, "perception"))?;
+        Ok(Children {
+            bridge,
+            controller,
+            perception,
+        })
+    }
+}
+
+/// Checks the `[launch]` table's own keys.
+pub(crate) fn check_launch(l: &LaunchSection) -> Result<(), SettingError> {
+    let bad = |key, reason: String| Err(SettingError::new(LAUNCH, key, reason));
+    if !(1..=3).contains(&l.arena) {
+        return bad("arena", format!("must be 1, 2 or 3, got {}", l.arena));
+    }
+    if !(l.real_time_factor.is_finite() && l.real_time_factor >= 0.0) {
+        return bad("real_time_factor", "must be a finite number >= 0".into());
+    }
+    if l.episodes == 0 {
+        return bad("episodes", "must be at least 1".into());
+    }
+    if l.service_prefix.len() > 64 {
+        return bad("service_prefix", "must be at most 64 bytes".into());
+    }
+    Ok(())
+}
+
+/// The simulated brick's speed-up at real-time factor 0 ("as fast as possible"): motor
+/// motion runs this many times faster than physical time.
+pub(crate) const FASTEST_TIME_SCALE: f64 = 200.0;
+
+/// A launch file that cannot be used; when one is refused, nothing is started.
+#[derive(Debug)]
+pub(crate) enum LaunchFileError {
+    /// It cannot be read: missing, unreadable, or not UTF-8 text.
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        error: std::io::Error,
+    },
+    /// A key is unknown, of the wrong type, repeated or out of range, the settings contradict
+    /// each other, or the text is not TOML: placed in the file (its origin, line, table and
+    /// key).
+    Setting(SettingError),
+    /// The children's settings cannot be written to the run directory.
+    Write {
+        /// The launch file (or the embedded defaults).
+        origin: Origin,
+        /// Why.
+        error: anyhow::Error,
+    },
+}
+
+impl std::fmt::Display for LaunchFileError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let what = |origin: &Origin| match origin {
+            Origin::File(_) => "launch file",
+            Origin::Text | Origin::Defaults => "launch settings",
+        };
+        match self {
+            LaunchFileError::Read { path, error } => {
+                write!(f, "cannot read the launch file {}: {error}", path.display())?
+            }
+            LaunchFileError::Setting(error) => {
+                let origin = error
+                    .location
+                    .as_ref()
+                    .map_or(&Origin::Defaults, |l| &l.origin);
+                write!(f, "{} {error}", what(origin))?;
+            }
+            LaunchFileError::Write { origin, error } => {
+                write!(f, "{} {origin}: {error:#}", what(origin))?;
+            }
+        }
+        f.write_str("; nothing was started")
+    }
+}
+
+impl std::error::Error for LaunchFileError {}
+
+/// Reads and parses a launch file; a problem is reported with the file, the line and the key.
+pub(crate) fn read_launch_file(path: &Path) -> Result<LaunchFile, LaunchFileError> {
+    let text = std::fs::read_to_string(path).map_err(|error| LaunchFileError::Read {
+        path: path.to_owned(),
+        error,
+    })?;
+    LaunchFile::from_toml(&text, Origin::File(path.to_owned())).map_err(LaunchFileError::Setting)
+}
+
+/// Checks every child's settings and writes them to the run directory.
+pub(crate) fn prepare(file: &LaunchFile) -> Result<Vec<ChildSpec>, LaunchFileError> {
+    let children = file.children().map_err(LaunchFileError::Setting)?;
+    let unwritable = |error: anyhow::Error| LaunchFileError::Write {
+        origin: file.origin.clone(),
+        error,
+    };
+    let run_dir = file
+        .launch
+        .run_dir
+        .clone()
+        .unwrap_or_else(|| default_data_dir().join("run"));
+    std::fs::create_dir_all(&run_dir)
+        .with_context(|| format!("cannot create the run directory {}", run_dir.display()))
+        .map_err(unwritable)?;
+    let texts = [
+        ("bridge", toml::to_string(&children.bridge)),
+        ("controller", toml::to_string(&children.controller)),
+        ("perception-sim", toml::to_string(&children.perception)),
+    ];
+    let mut specs = Vec::new();
+    for (role, text) in texts {
+        let text = text
+            .with_context(|| format!("cannot write the {role}'s settings"))
+            .map_err(unwritable)?;
+        let path = run_dir.join(format!("{role}.toml"));
+        std::fs::write(&path, text)
+            .with_context(|| format!("cannot write {}", path.display()))
+            .map_err(unwritable)?;
+        let role = ROLES
+            .into_iter()
+            .find(|r| *r == role)
+            .unwrap_or("controller");
+        specs.push(ChildSpec { role, config: path });
+    }
+    Ok(specs)
+}
