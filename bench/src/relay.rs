@@ -109,9 +109,7 @@ impl RelayConfig {
 
     /// [`from_toml`](Self::from_toml) for a document from `origin`, which an error names.
     pub fn from_toml_in(text: &str, origin: settings::Origin) -> Result<Self, SettingError> {
-        let cfg: Self = settings::parse_in(PROCESS, text, origin.clone())?;
-        cfg.check()
-            .map_err(|e| e.in_file(origin, None, Some(text)))?;
+        let (cfg, _) = settings::parse_checked(PROCESS, text, origin, Self::check)?;
         Ok(cfg)
     }
 

@@ -517,10 +517,9 @@ impl BridgeConfig {
     /// Parses and validates TOML text from `origin`, which an error names with the line of
     /// the key.
     pub fn from_toml_in(text: &str, origin: Origin) -> Result<Self, ConfigError> {
-        let settings = BridgeSettings::from_toml_in(text, origin.clone())?;
-        Ok(settings
-            .check()
-            .map_err(|e| e.in_file(origin, None, Some(text)))?)
+        let (_, config) =
+            tes_runtime::settings::parse_checked(PROCESS, text, origin, BridgeSettings::check)?;
+        Ok(config)
     }
 
     /// Sets `seed` (the simulated brick's and the link delay's).

@@ -258,9 +258,7 @@ impl ControllerConfig {
     /// [`from_toml`](Self::from_toml) for a document from `origin` (the file the user gave),
     /// which an error names.
     pub fn from_toml_in(text: &str, origin: Origin) -> Result<Self, ConfigError> {
-        let cfg: Self = tes_runtime::settings::parse_in(PROCESS, text, origin.clone())?;
-        cfg.check()
-            .map_err(|e| e.in_file(origin, None, Some(text)))?;
+        let (cfg, _) = tes_runtime::settings::parse_checked(PROCESS, text, origin, Self::check)?;
         Ok(cfg)
     }
 

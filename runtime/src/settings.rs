@@ -177,6 +177,20 @@ pub fn parse<T: DeserializeOwned>(process: &'static str, text: &str) -> Result<T
     parse_in(process, text, Origin::Text)
 }
 
+/// Parses a TOML document from `origin` into `T` ([`parse_in`]) and checks it with `check`;
+/// an error of either names the key and its line in `origin`. What every process's
+/// `from_toml_in` does.
+pub fn parse_checked<T: DeserializeOwned, C>(
+    process: &'static str,
+    text: &str,
+    origin: Origin,
+    check: impl FnOnce(&T) -> Result<C, SettingError>,
+) -> Result<(T, C), SettingError> {
+    let settings: T = parse_in(process, text, origin.clone())?;
+    let checked = check(&settings).map_err(|e| e.in_file(origin, None, Some(text)))?;
+    Ok((settings, checked))
+}
+
 /// [`parse`] for a document from `origin`, which the error names.
 pub fn parse_in<T: DeserializeOwned>(
     process: &'static str,
