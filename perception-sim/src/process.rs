@@ -248,6 +248,26 @@ pub fn run(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The world map the controller derives effects on and the arena itself name the same
+    /// effect for every move, exact or not (one rule: `tes_topics::effect_between`).
+    #[test]
+    fn the_map_and_the_arena_agree_on_every_effect() {
+        for id in [ArenaId::Env1, ArenaId::Env2, ArenaId::Env3] {
+            let arena = Arena::new(id);
+            let map = world_map(&arena).unwrap();
+            let n = arena.n_states();
+            for from in 0..n {
+                for to in (from % 5..n).step_by(5) {
+                    assert_eq!(
+                        map.effect_between(from, to),
+                        arena.effect_between(from, to),
+                        "{id}: {from} -> {to}"
+                    );
+                }
+            }
+        }
+    }
     use tes_runtime::channel::WaitStrategy;
 
     #[test]

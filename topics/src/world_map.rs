@@ -114,10 +114,12 @@ impl WorldMap {
     /// Allocation-free.
     pub fn effect_between(&self, from: usize, to: usize) -> usize {
         let row = self.next_state.get(from).map_or(&[][..], |r| &r[..]);
-        let outcomes = row
-            .iter()
-            .take(self.n_effects as usize)
-            .map(|&next| self.attributes(usize::from(next)));
+        let row = &row[..row.len().min(self.n_effects as usize)];
+        // The common case, by index: the outcome whose state is `to` is the one whose pose is.
+        if let Some(exact) = row.iter().position(|&next| usize::from(next) == to) {
+            return exact;
+        }
+        let outcomes = row.iter().map(|&next| self.attributes(usize::from(next)));
         crate::effect_between(outcomes, self.attributes(to), self.orientations)
     }
 
