@@ -15,10 +15,11 @@
 //! struct Settings {
 //!     wait: WaitStrategy,
 //! }
-//! let s: Settings = toml::from_str("wait = \"spin-then-block:50\"").unwrap();
+//! let s: Settings = toml::from_str("wait = \"spin-then-block:50\"")?;
 //! assert_eq!(s.wait.to_string(), "spin-then-block:50");
-//! assert_eq!(toml::to_string(&s).unwrap(), "wait = \"spin-then-block:50\"\n");
+//! assert_eq!(toml::to_string(&s)?, "wait = \"spin-then-block:50\"\n");
 //! assert!(toml::from_str::<Settings>("wait = \"nap\"").is_err());
+//! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
 use std::fmt;
