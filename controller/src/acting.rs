@@ -57,7 +57,7 @@
 //! };
 //! clock.advance(3_000);
 //! let Step::Act { command, .. } = acting.on_observation(&obs, &clock)? else {
-//!     panic!("a good observation is answered")
+//!     return Err("a good observation is answered".into());
 //! };
 //! assert_eq!(command.answers, 1);
 //! acting.command_sent(&clock)?;

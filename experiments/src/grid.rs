@@ -411,12 +411,7 @@ pub fn run(
                     .entry(a.name().to_owned())
                     .or_default()
                     .insert(level, s);
-                points.push(BandPoint {
-                    x: level as f64,
-                    y: s.mean,
-                    lo: s.lo,
-                    hi: s.hi,
-                });
+                points.push(s.at(level as f64));
             }
         }
         series.push(Series {
@@ -495,12 +490,7 @@ fn accumulated_curve(runs: &[RunResult]) -> Vec<BandPoint> {
             *a += r.episodes[e].reward;
         }
         let s = summarise(&acc);
-        points.push(BandPoint {
-            x: (e + 1) as f64,
-            y: s.mean,
-            lo: s.lo,
-            hi: s.hi,
-        });
+        points.push(s.at((e + 1) as f64));
     }
     points
 }

@@ -443,12 +443,7 @@ pub fn run(
                     *a += mine - base;
                 }
                 let s = summarise(&acc);
-                BandPoint {
-                    x: (e + 1) as f64,
-                    y: s.mean,
-                    lo: s.lo,
-                    hi: s.hi,
-                }
+                s.at((e + 1) as f64)
             })
             .collect()
     };

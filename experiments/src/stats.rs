@@ -86,6 +86,18 @@ pub struct Summary {
     pub n: usize,
 }
 
+impl Summary {
+    /// This summary as a chart point at `x`: the mean with its 95 % interval as the band.
+    pub fn at(&self, x: f64) -> crate::svg::BandPoint {
+        crate::svg::BandPoint {
+            x,
+            y: self.mean,
+            lo: self.lo,
+            hi: self.hi,
+        }
+    }
+}
+
 impl From<MeanCi> for Summary {
     fn from(ci: MeanCi) -> Self {
         Self {

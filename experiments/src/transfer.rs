@@ -38,7 +38,7 @@ use crate::episode::{
 };
 use crate::grid::GridEnv;
 use crate::stats::{Summary, summarise};
-use crate::svg::{BandPoint, LineChart, Series};
+use crate::svg::{LineChart, Series};
 
 /// Settings of `tes experiment transfer`.
 #[derive(Debug, Clone, Serialize)]
@@ -504,12 +504,7 @@ fn write_fig4b(
                 *a += mine[e].reward - tes[e].reward;
             }
             let s = summarise(&acc);
-            points.push(BandPoint {
-                x: (e + 1) as f64,
-                y: s.mean,
-                lo: s.lo,
-                hi: s.hi,
-            });
+            points.push(s.at((e + 1) as f64));
         }
         series.push(Series {
             name: m.name(),
@@ -539,14 +534,7 @@ fn write_jumpstart_chart(out: &Path, tasks: &[TaskSummary]) -> Result<()> {
             name: m.name(),
             points: tasks
                 .iter()
-                .filter_map(|t| {
-                    t.jumpstart.get(&m.name()).map(|s| BandPoint {
-                        x: t.task as f64,
-                        y: s.mean,
-                        lo: s.lo,
-                        hi: s.hi,
-                    })
-                })
+                .filter_map(|t| t.jumpstart.get(&m.name()).map(|s| s.at(t.task as f64)))
                 .collect(),
             colour: Some(m.colour()),
         })
