@@ -30,9 +30,28 @@
 //! consistent (shapes, parameters, ids, histories) before anything is built. Every count is
 //! checked against the bytes left before memory is reserved for it, and a view shape beyond
 //! [`MAX_VIEW_WEIGHTS`] is refused before a model of that shape is allocated.
+//!
+//! # The file on disk
+//!
+//! [`load`] opens the path once, without blocking (a FIFO must not hang the caller), and
+//! refuses anything that is not a regular file — a FIFO, a device such as `/dev/zero`, a
+//! directory, a socket — before reading a byte of it. It reads the header, refuses a body
+//! length the file's size cannot hold, and then reads exactly that much, so no file can make
+//! it allocate more than the file really holds. A symbolic link is followed; a dangling one
+//! is an error naming the link and its missing target.
+//!
+//! [`save`] through a symbolic link writes the link's *target* (atomically, in the target's
+//! directory) and leaves the link in place: whoever made the link meant the library to live
+//! where it points, and renaming over the link itself would silently move the library away
+//! from there. A save through a dangling link, or over something that is not a regular file,
+//! is refused.
+//!
+//! A save killed mid-write leaves its temporary file `.<name>.tmp-<pid>` behind;
+//! [`remove_stale_temp_files`] removes those whose process is gone.
 
-use std::fs::{self, File};
-use std::io::{self, Write};
+use std::fs::{self, File, OpenOptions};
+use std::io::{self, Read, Write};
+use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
 use std::path::{Path, PathBuf};
 
 use thiserror::Error;
@@ -68,6 +87,18 @@ pub enum StoreProblem {
     /// Reading or writing failed.
     #[error("{0}")]
     Io(#[from] io::Error),
+    /// The path names something other than a regular file; nothing was read from it.
+    #[error("is {kind}, not a regular file")]
+    NotARegularFile {
+        /// What it is, e.g. "a FIFO" or "a character device".
+        kind: &'static str,
+    },
+    /// The path is a symbolic link whose target does not exist.
+    #[error("is a symbolic link to {}, which does not exist", target.display())]
+    DanglingSymlink {
+        /// Where the link points.
+        target: PathBuf,
+    },
     /// Not a TES view library.
     #[error("not a TES view library (bad magic bytes)")]
     NotALibrary,
@@ -158,7 +189,9 @@ impl StoreError {
 }
 
 /// Saves `stored` to `path` atomically (see the module docs). On error the previous file at
-/// `path`, if any, is untouched, and no temporary file is left behind.
+/// `path`, if any, is untouched, and no temporary file is left behind. If `path` is a
+/// symbolic link, its target is written and the link stays; a dangling link, or a path that
+/// names something other than a regular file, is refused.
 pub fn save(path: &Path, stored: &StoredLibrary) -> Result<(), StoreError> {
     check_names(stored).map_err(|p| StoreError::new(path, p))?;
     let bytes = encode(stored);
@@ -172,24 +205,15 @@ fn save_bytes(
     write: impl FnOnce(&mut File, &[u8]) -> io::Result<()>,
 ) -> Result<(), StoreError> {
     let err = |e: io::Error| StoreError::new(path, e);
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_owned(),
-        _ => PathBuf::from("."),
-    };
-    let name = path
-        .file_name()
-        .ok_or_else(|| err(io::Error::other("the path names no file")))?;
-    let tmp = dir.join(format!(
-        ".{}.tmp-{}",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
+    let target = save_target(path).map_err(|p| StoreError::new(path, p))?;
+    let (dir, name) = dir_and_name(&target).map_err(err)?;
+    let tmp = dir.join(temp_name(&name, std::process::id()));
     let result = (|| {
         let mut file = File::create(&tmp)?;
         write(&mut file, bytes)?;
         file.sync_all()?;
         drop(file);
-        fs::rename(&tmp, path)?;
+        fs::rename(&tmp, &target)?;
         // The rename is durable once the directory is.
         File::open(&dir)?.sync_all()
     })();
@@ -199,10 +223,199 @@ fn save_bytes(
     result.map_err(err)
 }
 
-/// Loads the library at `path`.
+/// The file a save of `path` replaces: `path` itself, or the target of the symbolic link at
+/// `path` (renaming over the link would replace the link, not the library it points to).
+fn save_target(path: &Path) -> Result<PathBuf, StoreProblem> {
+    let meta = match fs::symlink_metadata(path) {
+        Ok(m) => m,
+        // Nothing there yet (or the directory is unreadable, which the write reports).
+        Err(_) => return Ok(path.to_owned()),
+    };
+    let target = if meta.file_type().is_symlink() {
+        match fs::canonicalize(path) {
+            Ok(t) => t,
+            Err(e) if e.kind() == io::ErrorKind::NotFound => return Err(dangling(path, e)),
+            Err(e) => return Err(e.into()),
+        }
+    } else {
+        path.to_owned()
+    };
+    let meta = fs::metadata(&target)?;
+    if !meta.is_file() {
+        return Err(StoreProblem::NotARegularFile {
+            kind: kind_of(meta.file_type()),
+        });
+    }
+    Ok(target)
+}
+
+/// The directory a file is in (`.` for a bare name) and its name.
+fn dir_and_name(path: &Path) -> io::Result<(PathBuf, String)> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_owned(),
+        _ => PathBuf::from("."),
+    };
+    let name = path
+        .file_name()
+        .ok_or_else(|| io::Error::other("the path names no file"))?;
+    Ok((dir, name.to_string_lossy().into_owned()))
+}
+
+/// The temporary file process `pid` writes a save of the file `name` to.
+fn temp_name(name: &str, pid: u32) -> String {
+    format!("{}{pid}", temp_prefix(name))
+}
+
+/// What the temporary files of saves of the file `name` are called, up to the pid.
+fn temp_prefix(name: &str) -> String {
+    format!(".{name}.tmp-")
+}
+
+/// What a file type is, for [`StoreProblem::NotARegularFile`].
+fn kind_of(t: fs::FileType) -> &'static str {
+    if t.is_dir() {
+        "a directory"
+    } else if t.is_fifo() {
+        "a FIFO"
+    } else if t.is_char_device() {
+        "a character device"
+    } else if t.is_block_device() {
+        "a block device"
+    } else if t.is_socket() {
+        "a socket"
+    } else if t.is_symlink() {
+        "a symbolic link"
+    } else if t.is_file() {
+        "a regular file"
+    } else {
+        "a file of unknown type"
+    }
+}
+
+/// The problem for an open of `path` that failed with `NotFound`: a dangling link if `path`
+/// is a symbolic link, else the plain error (no file there).
+fn dangling(path: &Path, error: io::Error) -> StoreProblem {
+    match fs::read_link(path) {
+        Ok(target) => StoreProblem::DanglingSymlink { target },
+        Err(_) => StoreProblem::Io(error),
+    }
+}
+
+/// Loads the library at `path`. Refuses anything but a regular file without reading from it
+/// (and without blocking on a FIFO), and never allocates more than the file holds.
 pub fn load(path: &Path) -> Result<StoredLibrary, StoreError> {
-    let bytes = fs::read(path).map_err(|e| StoreError::new(path, e))?;
+    let bytes = read_library_file(path).map_err(|p| StoreError::new(path, p))?;
     decode(&bytes).map_err(|p| StoreError::new(path, p))
+}
+
+/// The bytes of the library file at `path`: its header and the body length the header
+/// declares (plus one byte, so a file that grew since is refused as having trailing bytes).
+fn read_library_file(path: &Path) -> Result<Vec<u8>, StoreProblem> {
+    // Opening a device can do things (a serial port's control lines, a tape's rewind): refuse
+    // what is visibly not a regular file before opening it. The check on the opened file
+    // below is the one that counts.
+    if let Ok(meta) = fs::metadata(path)
+        && !meta.is_file()
+    {
+        return Err(StoreProblem::NotARegularFile {
+            kind: kind_of(meta.file_type()),
+        });
+    }
+    // O_NONBLOCK: opening a FIFO without a writer returns at once instead of waiting for one.
+    // Regular files ignore the flag, so it need not be cleared for reading.
+    let mut file = OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK | libc::O_NOCTTY)
+        .open(path)
+        .map_err(|e| match e.kind() {
+            io::ErrorKind::NotFound => dangling(path, e),
+            _ => StoreProblem::Io(e),
+        })?;
+    let meta = file.metadata()?;
+    if !meta.is_file() {
+        return Err(StoreProblem::NotARegularFile {
+            kind: kind_of(meta.file_type()),
+        });
+    }
+    let size = meta.len();
+    let mut bytes = Vec::with_capacity(HEADER_LEN);
+    Read::by_ref(&mut file)
+        .take(HEADER_LEN as u64)
+        .read_to_end(&mut bytes)?;
+    let header = parse_header(&bytes)?;
+    // Refused before anything is reserved: the body must fit the file.
+    check_body_len(header.len, size)?;
+    let len = usize::try_from(header.len).map_err(|_| StoreProblem::Truncated {
+        needed: usize::MAX,
+        got: usize::try_from(size).unwrap_or(usize::MAX),
+    })?;
+    bytes
+        .try_reserve_exact(len)
+        .map_err(|e| io::Error::new(io::ErrorKind::OutOfMemory, e))?;
+    file.take(header.len.saturating_add(1))
+        .read_to_end(&mut bytes)?;
+    Ok(bytes)
+}
+
+/// Removes the temporary files that interrupted saves of the library at `path` left behind
+/// (`.<name>.tmp-<pid>` in its directory, or in its target's if `path` is a symbolic link)
+/// whose process no longer exists, and returns them. A temporary file of a live process —
+/// this one included, whose saver may be writing it — is kept: it may be a save under way
+/// (a process's next save replaces its own leftover anyway). A missing directory holds
+/// nothing to remove.
+pub fn remove_stale_temp_files(path: &Path) -> Result<Vec<PathBuf>, StoreError> {
+    let err = |e: io::Error| StoreError::new(path, e);
+    // Saves through a link write next to its target; a dangling link has nothing to clean.
+    let target = save_target(path).unwrap_or_else(|_| path.to_owned());
+    let (dir, name) = dir_and_name(&target).map_err(err)?;
+    let prefix = temp_prefix(&name);
+    let entries = match fs::read_dir(&dir) {
+        Ok(entries) => entries,
+        Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(err(e)),
+    };
+    let mut removed = Vec::new();
+    for entry in entries {
+        let entry = entry.map_err(err)?;
+        let file_name = entry.file_name();
+        let Some(pid) = file_name
+            .to_string_lossy()
+            .strip_prefix(prefix.as_str())
+            .and_then(parse_pid)
+        else {
+            continue;
+        };
+        // Only regular files: never follow or remove anything else by that name.
+        if !entry.file_type().is_ok_and(|t| t.is_file()) || process_exists(pid) {
+            continue;
+        }
+        let tmp = entry.path();
+        match fs::remove_file(&tmp) {
+            Ok(()) => removed.push(tmp),
+            // Another process cleaned it up first.
+            Err(e) if e.kind() == io::ErrorKind::NotFound => {}
+            Err(e) => return Err(StoreError::new(&tmp, e)),
+        }
+    }
+    removed.sort();
+    Ok(removed)
+}
+
+/// A temporary file's pid suffix: decimal digits only, a positive `pid_t`.
+fn parse_pid(suffix: &str) -> Option<i32> {
+    if suffix.is_empty() || !suffix.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    suffix.parse::<i32>().ok().filter(|&p| p > 0)
+}
+
+/// Whether process `pid` exists: `kill(pid, 0)` fails with `ESRCH` only when it does not
+/// (`EPERM` means it exists under another user). Anything unexpected counts as alive, so a
+/// file is never removed on doubt.
+fn process_exists(pid: i32) -> bool {
+    // SAFETY: kill with signal 0 sends nothing; it only checks that `pid` exists.
+    let sent = unsafe { libc::kill(pid, 0) };
+    sent == 0 || std::io::Error::last_os_error().raw_os_error() != Some(libc::ESRCH)
 }
 
 /// Loads the library at `path` and checks it holds views for a world of this shape.
@@ -294,8 +507,17 @@ pub fn encode(stored: &StoredLibrary) -> Vec<u8> {
     out
 }
 
-/// Decodes and checks a whole file's bytes.
-pub fn decode(bytes: &[u8]) -> Result<StoredLibrary, StoreProblem> {
+/// What the header says about the body.
+struct Header {
+    /// The body's length.
+    len: u64,
+    /// The body's CRC-32.
+    crc: u32,
+}
+
+/// Checks the header at the start of `bytes` (magic, version) and reads the body's length
+/// and checksum.
+fn parse_header(bytes: &[u8]) -> Result<Header, StoreProblem> {
     if bytes.len() < 8 || bytes[..8] != MAGIC {
         if bytes.len() < 8 && MAGIC.starts_with(bytes) {
             return Err(StoreProblem::Truncated {
@@ -319,19 +541,36 @@ pub fn decode(bytes: &[u8]) -> Result<StoredLibrary, StoreProblem> {
     if version == 0 {
         return Err(StoreProblem::Inconsistent("format version 0".into()));
     }
-    let len = header.u64()?;
-    let stored_crc = header.u32()?;
-    let body = &bytes[HEADER_LEN..];
-    let len = usize::try_from(len).unwrap_or(usize::MAX);
-    if body.len() < len {
+    Ok(Header {
+        len: header.u64()?,
+        crc: header.u32()?,
+    })
+}
+
+/// Checks that a file of `size` bytes holds the header and a body of `len` bytes, no more.
+fn check_body_len(len: u64, size: u64) -> Result<(), StoreProblem> {
+    let to_usize = |n: u64| usize::try_from(n).unwrap_or(usize::MAX);
+    let body = size.saturating_sub(HEADER_LEN as u64);
+    if body < len {
         return Err(StoreProblem::Truncated {
-            needed: HEADER_LEN.saturating_add(len),
-            got: bytes.len(),
+            needed: HEADER_LEN.saturating_add(to_usize(len)),
+            got: to_usize(size),
         });
     }
-    if body.len() > len {
-        return Err(StoreProblem::TrailingBytes(body.len() - len));
+    if body > len {
+        return Err(StoreProblem::TrailingBytes(to_usize(body - len)));
     }
+    Ok(())
+}
+
+/// Decodes and checks a whole file's bytes.
+pub fn decode(bytes: &[u8]) -> Result<StoredLibrary, StoreProblem> {
+    let Header {
+        len,
+        crc: stored_crc,
+    } = parse_header(bytes)?;
+    check_body_len(len, bytes.len() as u64)?;
+    let body = &bytes[HEADER_LEN..];
     let computed = crc32fast::hash(body);
     if computed != stored_crc {
         return Err(StoreProblem::Corrupt {
@@ -396,6 +635,20 @@ fn decode_body(r: &mut Reader<'_>) -> Result<StoredLibrary, StoreProblem> {
         let action = r.u32()? as usize;
         let updates = r.u64()?;
         let n_sums = r.count(8)?;
+        // Restoring a model builds one of the full shape first: only for sums that fit it,
+        // so each view's model is paid for by bytes of the file.
+        let expected = usize::try_from(weights).unwrap_or(usize::MAX);
+        if n_sums != expected {
+            return Err(StoreProblem::BadView {
+                id,
+                source: MdaglStateError::WrongLength {
+                    got: n_sums,
+                    expected,
+                    classes: n_effects,
+                    columns: usize::try_from(columns).unwrap_or(usize::MAX),
+                },
+            });
+        }
         let mut sums = Vec::with_capacity(n_sums);
         for _ in 0..n_sums {
             sums.push(r.f64()?);
