@@ -45,7 +45,7 @@ mod wire;
 
 use core::fmt;
 
-pub use frame::{Frame, FrameDecoder, FrameError, MAX_FRAME_LEN};
+pub use frame::{Accept, Frame, FrameDecoder, FrameError, MAX_FRAME_LEN, PARTIAL_FRAME_TIMEOUT};
 pub use reply::{DeviceInfo, OutputState, Reply, Version};
 pub use request::{Request, SetOutputState};
 

@@ -2,7 +2,9 @@
 
 use proptest::prelude::*;
 
-use super::frame::{FrameDecoder, decode_frame};
+use std::time::{Duration, Instant};
+
+use super::frame::{FrameDecoder, PARTIAL_FRAME_TIMEOUT, decode_frame};
 use super::*;
 use crate::brick::{SimBrick, SimBrickConfig};
 
@@ -154,6 +156,76 @@ fn reply() -> impl Strategy<Value = Reply> {
     ]
 }
 
+/// Junk as a stream meets it: random bytes, mixed with the pieces that fool a decoder most —
+/// truncated real frames (an abandoned half frame), plausible headers, zero and oversized lengths.
+fn junk() -> impl Strategy<Value = Vec<u8>> {
+    let piece = prop_oneof![
+        prop::collection::vec(any::<u8>(), 0..40),
+        (request(), any::<bool>(), 0usize..14).prop_map(|(r, rr, cut)| {
+            let f = r.encode(rr).to_frame();
+            let b = f.as_bytes();
+            b[..cut.min(b.len().saturating_sub(1))].to_vec()
+        }),
+        (
+            1u8..=64,
+            prop::sample::select(vec![0x00u8, 0x01, 0x02, 0x80, 0x81])
+        )
+            .prop_map(|(n, ty)| vec![n, 0x00, ty]),
+        Just(vec![0x00, 0x00]),
+        (65u16..).prop_map(|n| n.to_le_bytes().to_vec()),
+    ];
+    prop::collection::vec(piece, 0..12).prop_map(|ps| {
+        let mut v: Vec<u8> = ps.concat();
+        v.truncate(400);
+        v
+    })
+}
+
+/// Feeds `bytes` at `now`; returns the outputs.
+fn feed_at(d: &mut FrameDecoder, bytes: &[u8], now: Instant) -> Vec<Result<Telegram, FrameError>> {
+    bytes.iter().filter_map(|&b| d.push_at(b, now)).collect()
+}
+
+/// Junk, then the frame of `t`: `d` yields exactly `t` — at once, or, if the junk ended inside
+/// a plausible frame's body, when `t` is sent again after the partial-frame timeout.
+fn junk_then_yields(
+    mut d: FrameDecoder,
+    junk: &[u8],
+    t: Telegram,
+) -> Result<(), proptest::test_runner::TestCaseError> {
+    let frame = t.to_frame();
+    let t0 = Instant::now();
+    let _ = feed_at(&mut d, junk, t0);
+    if d.is_in_body() {
+        let _ = feed_at(&mut d, frame.as_bytes(), t0);
+        let retry = t0 + PARTIAL_FRAME_TIMEOUT + Duration::from_millis(1);
+        yields_exactly(&mut d, frame.as_bytes(), t, retry)
+    } else {
+        yields_exactly(&mut d, frame.as_bytes(), t, t0)
+    }
+}
+
+/// Asserts that feeding `frame` yields exactly `t`, at its last byte, and no other telegram.
+fn yields_exactly(
+    d: &mut FrameDecoder,
+    frame: &[u8],
+    t: Telegram,
+    now: Instant,
+) -> Result<(), TestCaseError> {
+    let (last, head) = frame
+        .split_last()
+        .ok_or_else(|| TestCaseError::fail("empty frame"))?;
+    let early = feed_at(d, head, now);
+    prop_assert!(
+        early.iter().all(|r| r.is_err()),
+        "telegram before the frame ended: {:?}",
+        early
+    );
+    prop_assert_eq!(d.push_at(*last, now), Some(Ok(t)));
+    prop_assert!(d.is_idle());
+    Ok(())
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 2000, ..ProptestConfig::default() })]
 
@@ -236,5 +308,42 @@ proptest! {
                 prop_assert_eq!(reply.opcode(), t[1]);
             }
         }
+    }
+
+    /// Any junk, then — after a quiet time longer than the partial-frame timeout, as a client's
+    /// retry or the next client brings — a valid request: the decoder yields exactly that
+    /// request. Holds with the type check (`requests`) and with framing only (`new`).
+    #[test]
+    fn junk_then_a_request_after_the_timeout_yields_the_request(
+        junk in junk(),
+        req in request(),
+        reply_required in any::<bool>(),
+    ) {
+        let t = req.encode(reply_required);
+        let t0 = Instant::now();
+        let later = t0 + PARTIAL_FRAME_TIMEOUT + Duration::from_millis(1);
+        for mut d in [FrameDecoder::requests(), FrameDecoder::new()] {
+            let _ = feed_at(&mut d, &junk, t0);
+            yields_exactly(&mut d, t.to_frame().as_bytes(), t, later)?;
+        }
+    }
+
+    /// Any junk immediately followed by a valid request: unless the junk ended inside the body
+    /// of a plausible frame (which takes the next bytes as its own until the timeout), the
+    /// request decoder yields exactly the request; and in that case the request sent again
+    /// after the timeout is yielded.
+    #[test]
+    fn junk_then_a_request_yields_the_request(
+        junk in junk(),
+        req in request(),
+        reply_required in any::<bool>(),
+    ) {
+        junk_then_yields(FrameDecoder::requests(), &junk, req.encode(reply_required))?;
+    }
+
+    /// The same for a client reading replies after junk.
+    #[test]
+    fn junk_then_a_reply_yields_the_reply(junk in junk(), reply in reply()) {
+        junk_then_yields(FrameDecoder::replies(), &junk, reply.encode())?;
     }
 }
