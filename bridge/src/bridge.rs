@@ -93,6 +93,14 @@ pub struct Bridge<T: Transport> {
     next_heartbeat: Duration,
     next_keepalive: Duration,
     stats: BridgeStats,
+    /// Whether any exchange with the brick has succeeded since the bridge started.
+    link_ever_up: bool,
+    /// The last link failure, for the error that stops a bridge whose link stays down.
+    last_link_error: Option<String>,
+    /// A command the link failed to deliver, tried again when the link is back (unless a
+    /// newer command comes first): the controller still waits for its outcome.
+    undelivered: Option<Command>,
+    next_retry: Duration,
 }
 
 impl<T: Transport> Bridge<T> {
@@ -115,7 +123,31 @@ impl<T: Transport> Bridge<T> {
             next_heartbeat: Duration::ZERO,
             next_keepalive: cfg.poll.keepalive_period(),
             stats: BridgeStats::default(),
+            link_ever_up: false,
+            last_link_error: None,
+            undelivered: None,
+            next_retry: Duration::ZERO,
         }
+    }
+
+    /// Whether the link to the brick is down (the last exchange failed).
+    pub fn link_down(&self) -> bool {
+        self.state.flags & motor_flags::LINK_DOWN != 0
+    }
+
+    /// Whether any exchange with the brick has succeeded since the bridge started.
+    pub fn link_ever_up(&self) -> bool {
+        self.link_ever_up
+    }
+
+    /// The last link failure, if any.
+    pub fn last_link_error(&self) -> Option<&str> {
+        self.last_link_error.as_deref()
+    }
+
+    /// The newest command executed (its SETOUTPUTSTATE telegrams delivered), 0 before any.
+    pub fn executed(&self) -> u64 {
+        self.state.after_command
     }
 
     /// The transport.
@@ -144,7 +176,9 @@ impl<T: Transport> Bridge<T> {
     }
 
     /// Executes a command received at `now`: feeds the watchdog and, unless it is a
-    /// keep-alive ([`KEEP_ALIVE_ACTION`]), sends its SETOUTPUTSTATE telegrams.
+    /// keep-alive ([`KEEP_ALIVE_ACTION`]), sends its SETOUTPUTSTATE telegrams. A command the
+    /// link fails to deliver is tried again by [`tick`](Self::tick) once the link is back,
+    /// unless a newer one comes first; its motion is reported only once delivered.
     pub fn on_command(&mut self, cmd: &Command, now: Duration) -> Result<(), BridgeError> {
         self.stats.commands += 1;
         self.watchdog.feed(now);
@@ -152,6 +186,18 @@ impl<T: Transport> Bridge<T> {
         if cmd.action == KEEP_ALIVE_ACTION {
             return Ok(());
         }
+        self.undelivered = None;
+        let delivered = self.execute(cmd, now);
+        if let Err(BridgeError::Transport(e)) = &delivered
+            && e.is_link_failure()
+        {
+            self.undelivered = Some(*cmd);
+            self.next_retry = now + self.poll.idle_period();
+        }
+        delivered
+    }
+
+    fn execute(&mut self, cmd: &Command, now: Duration) -> Result<(), BridgeError> {
         let cmds = if self.use_command_degrees {
             self.actions.for_rotation(cmd.left_deg, cmd.right_deg)
         } else {
@@ -159,7 +205,6 @@ impl<T: Transport> Bridge<T> {
                 .for_action(cmd.action)
                 .inspect_err(|_| self.stats.unknown_actions += 1)?
         };
-        self.state.after_command = cmd.seq;
         for sos in cmds.iter() {
             let req = Request::SetOutputState(*sos);
             let sent = if cmds.acknowledge {
@@ -168,10 +213,10 @@ impl<T: Transport> Bridge<T> {
                 self.transport.send(&req)
             };
             if let Err(e) = sent {
-                self.stats.transport_errors += 1;
-                self.state.flags |= motor_flags::LINK_DOWN;
+                self.link_error(&e);
                 return Err(e.into());
             }
+            self.link_ok();
             for p in Port::ALL {
                 if sos.port.contains(p) {
                     self.power[p.index()] = sos.power;
@@ -179,6 +224,8 @@ impl<T: Transport> Bridge<T> {
                 }
             }
         }
+        // Only a delivered command's motion is reported as following it.
+        self.state.after_command = cmd.seq;
         self.state.flags &= !motor_flags::SETTLED;
         self.phase = Phase::Moving { stable_polls: 0 };
         self.next_poll = now + self.poll.moving_period();
@@ -189,10 +236,26 @@ impl<T: Transport> Bridge<T> {
     /// keep the brick awake — and returns the motor state to publish, if any.
     pub fn tick(&mut self, now: Duration) -> Option<MotorState> {
         let mut out = None;
+        if now >= self.next_retry
+            && let Some(cmd) = self.undelivered.take()
+        {
+            // Tried again at the heartbeat cadence while the link is down.
+            self.next_retry = now + self.poll.idle_period();
+            match self.execute(&cmd, now) {
+                Ok(()) => {
+                    tracing::info!(seq = cmd.seq, "link back: the undelivered command went out");
+                }
+                Err(BridgeError::Transport(e)) if e.is_link_failure() => {
+                    self.undelivered = Some(cmd);
+                }
+                Err(e) => tracing::warn!(seq = cmd.seq, error = %e, "undelivered command refused"),
+            }
+        }
         if now >= self.next_keepalive {
             self.next_keepalive = now + self.poll.keepalive_period();
-            if let Err(e) = self.transport.request(&Request::KeepAlive) {
-                self.link_error(&e);
+            match self.transport.request(&Request::KeepAlive) {
+                Ok(_) => self.link_ok(),
+                Err(e) => self.link_error(&e),
             }
         }
         match self.phase {
@@ -228,10 +291,13 @@ impl<T: Transport> Bridge<T> {
 
     /// How long the process loop may sleep before [`tick`](Self::tick) has something to do.
     pub fn next_wakeup(&self, now: Duration) -> Duration {
-        let due = match self.phase {
+        let mut due = match self.phase {
             Phase::Moving { .. } => self.next_poll.min(now + self.watchdog.remaining(now)),
             Phase::Idle => self.next_heartbeat,
         };
+        if self.undelivered.is_some() {
+            due = due.min(self.next_retry);
+        }
         due.min(self.next_keepalive).saturating_sub(now)
     }
 
@@ -253,7 +319,7 @@ impl<T: Transport> Bridge<T> {
         {
             Ok(()) => {
                 self.power = [0; 3];
-                self.state.flags &= !motor_flags::LINK_DOWN;
+                self.link_ok();
             }
             Err(e) => self.link_error(&e),
         }
@@ -298,7 +364,7 @@ impl<T: Transport> Bridge<T> {
                 self.state.rotation_count[i] = state.rotation_count;
                 self.state.run_state[i] = state.run_state as u8;
                 self.power[i] = state.power;
-                self.state.flags &= !motor_flags::LINK_DOWN;
+                self.link_ok();
                 true
             }
             Ok(other) => {
@@ -319,7 +385,10 @@ impl<T: Transport> Bridge<T> {
             }
         }
         match self.transport.request(&Request::GetBatteryLevel) {
-            Ok(Reply::BatteryLevel { millivolts, .. }) => self.state.battery_mv = millivolts,
+            Ok(Reply::BatteryLevel { millivolts, .. }) => {
+                self.state.battery_mv = millivolts;
+                self.link_ok();
+            }
             Ok(_) => {}
             Err(e) => self.link_error(&e),
         }
@@ -332,7 +401,16 @@ impl<T: Transport> Bridge<T> {
         }
         if e.is_link_failure() {
             self.state.flags |= motor_flags::LINK_DOWN;
+            self.last_link_error = Some(e.to_string());
         }
+    }
+
+    fn link_ok(&mut self) {
+        if self.state.flags & motor_flags::LINK_DOWN != 0 {
+            tracing::info!(transport = %self.transport.describe(), "link to the brick is back");
+        }
+        self.state.flags &= !motor_flags::LINK_DOWN;
+        self.link_ever_up = true;
     }
 
     fn emit(&mut self, now: Duration) -> MotorState {

@@ -151,6 +151,9 @@ fn check_brick(brick: &SimBrickConfig) -> Result<(), SettingError> {
     Ok(())
 }
 
+/// The default `link_timeout_ms`: long enough for a Bluetooth serial link to connect.
+pub const DEFAULT_LINK_TIMEOUT_MS: u64 = 5000;
+
 /// The simulated Bluetooth link delay (the `[link_delay]` table).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(default, deny_unknown_fields)]
@@ -179,7 +182,7 @@ impl Default for LinkDelayConfig {
 pub struct SerialSection {
     /// Line speed (ignored by rfcomm and pseudo-terminals).
     pub baud_rate: u32,
-    /// Read timeout per reply part, ms.
+    /// Time to wait for a whole reply, ms.
     pub read_timeout_ms: u64,
     /// Wait between reconnection attempts, ms.
     pub reconnect_backoff_ms: u64,
@@ -302,6 +305,10 @@ pub struct BridgeSettings {
     /// `use_command_degrees`: drive the wheels by the command's `left_deg`/`right_deg`
     /// (default false).
     pub use_command_degrees: bool,
+    /// `link_timeout_ms`: a link to the brick that has not come up this long after the start,
+    /// or has been down this long since, stops the bridge with an error naming the transport
+    /// (and with it the launch), ms of wall time (default 5000, at least 100).
+    pub link_timeout_ms: u64,
     /// `[link_delay]`.
     pub link_delay: LinkDelayConfig,
     /// `[serial]`.
@@ -326,6 +333,7 @@ impl Default for BridgeSettings {
             transport: TransportKind::Sim,
             seed: 0,
             use_command_degrees: false,
+            link_timeout_ms: DEFAULT_LINK_TIMEOUT_MS,
             link_delay: LinkDelayConfig::default(),
             serial: SerialSection::default(),
             watchdog: WatchdogSection::default(),
@@ -363,6 +371,9 @@ pub struct BridgeConfig {
     /// `use_command_degrees`: drive the wheels by the command's `left_deg`/`right_deg` instead
     /// of looking its action id up in `[[actions]]` (default false).
     pub use_command_degrees: bool,
+    /// `link_timeout_ms` (default 5000): how long the link to the brick may be down — or not
+    /// yet up after the start — before the bridge stops with [`LinkDown`](crate::process::ProcessError::LinkDown).
+    pub link_timeout: Duration,
     /// `[link_delay]`: `None` when disabled.
     pub link_delay: Option<(Duration, Duration)>,
     /// `[serial]`.
@@ -386,6 +397,7 @@ impl Default for BridgeConfig {
             transport: TransportKind::Sim,
             seed: 0,
             use_command_degrees: false,
+            link_timeout: Duration::from_millis(DEFAULT_LINK_TIMEOUT_MS),
             link_delay: None,
             serial: SerialSection::default(),
             watchdog_deadline: Duration::from_millis(1000),
@@ -459,6 +471,12 @@ impl BridgeSettings {
         if s.max_timeouts == 0 {
             return Err(invalid("serial.max_timeouts", "must be at least 1"));
         }
+        if raw.link_timeout_ms < 100 {
+            return Err(invalid(
+                "link_timeout_ms",
+                format!("must be at least 100, got {}", raw.link_timeout_ms),
+            ));
+        }
         let d = raw.link_delay;
         if d.jitter_ms > d.mean_ms || d.mean_ms > 10_000 {
             return Err(invalid(
@@ -488,6 +506,7 @@ impl BridgeSettings {
             transport: raw.transport.clone(),
             seed: raw.seed,
             use_command_degrees: raw.use_command_degrees,
+            link_timeout: ms(raw.link_timeout_ms),
             link_delay: d.enabled.then(|| (ms(d.mean_ms), ms(d.jitter_ms))),
             serial: s,
             watchdog_deadline: ms(raw.watchdog.deadline_ms),

@@ -29,11 +29,13 @@
 
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
+use iceoryx2::prelude::*;
 use tes_runtime::channel::{Idle, LatestInbox, Outbox, WaitStrategy};
 use tes_runtime::latency::{LatencyRecorder, LatencyReport};
-use tes_topics::{Command, MotorState};
+use tes_runtime::progress::ProgressOutbox;
+use tes_topics::{Command, MotorState, Progress, Role, motor_flags, progress_flags};
 
 use crate::bridge::{Bridge, BridgeError};
 use crate::clock::Clock;
@@ -76,6 +78,57 @@ pub struct RunSummary {
     pub interrupted: bool,
     /// Observation → command latency of the commands received (keep-alives left out).
     pub latency: LatencyReport,
+    /// Set when the loop stopped because the link to the brick stayed down (or never came
+    /// up) for longer than the link timeout.
+    pub link_down: Option<LinkDown>,
+}
+
+/// The link to the brick stayed down too long.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LinkDown {
+    /// How long it had been down (or, if it never came up, how long since the start).
+    pub down_for: Duration,
+    /// Whether it never came up at all.
+    pub never_up: bool,
+}
+
+/// Watches the link to the brick against the link timeout (wall time).
+#[derive(Debug)]
+struct LinkWatch {
+    timeout: Duration,
+    started: Instant,
+    down_since: Option<Instant>,
+}
+
+impl LinkWatch {
+    fn new(timeout: Duration) -> Self {
+        Self {
+            timeout,
+            started: Instant::now(),
+            down_since: None,
+        }
+    }
+
+    /// The verdict after the bridge's latest exchanges.
+    fn check<T: Transport>(&mut self, bridge: &Bridge<T>) -> Option<LinkDown> {
+        let now = Instant::now();
+        if !bridge.link_ever_up() {
+            let waited = now.duration_since(self.started);
+            return (waited > self.timeout).then_some(LinkDown {
+                down_for: waited,
+                never_up: true,
+            });
+        }
+        if !bridge.link_down() {
+            self.down_since = None;
+            return None;
+        }
+        let down_for = now.duration_since(*self.down_since.get_or_insert(now));
+        (down_for > self.timeout).then_some(LinkDown {
+            down_for,
+            never_up: false,
+        })
+    }
 }
 
 pub use tes_runtime::channel::IpcError;
@@ -100,10 +153,13 @@ pub fn run<T: Transport, C: Clock>(
         opts,
         WaitStrategy::Block,
         &mut LatencyRecorder::new(1000, 0),
+        Duration::from_millis(crate::config::DEFAULT_LINK_TIMEOUT_MS),
     )
 }
 
-/// [`run`] with a wait strategy, recording latencies into `latency`.
+/// [`run`] with a wait strategy, recording latencies into `latency`; stops (with
+/// [`RunSummary::link_down`] set) when the link to the brick has been down, or not yet up
+/// since the start, for longer than `link_timeout`.
 pub fn run_with<T: Transport, C: Clock>(
     bridge: &mut Bridge<T>,
     clock: &C,
@@ -111,6 +167,7 @@ pub fn run_with<T: Transport, C: Clock>(
     opts: &RunOptions,
     wait: WaitStrategy,
     latency: &mut LatencyRecorder,
+    link_timeout: Duration,
 ) -> Result<RunSummary, IpcError> {
     let stop: Arc<AtomicBool> = opts.stop.clone().unwrap_or_default();
     if opts.handle_signals {
@@ -123,9 +180,20 @@ pub fn run_with<T: Transport, C: Clock>(
         LatestInbox::open(&node, &names.command, &names.command_event, wait)?;
     let states: Outbox<MotorState> =
         Outbox::open(&node, &names.motor_state, &names.motor_state_event, 0)?;
+    let mut progress = ProgressOutbox::open(&node, names, Role::Bridge)?;
     tracing::info!(command = %names.command, motor_state = %names.motor_state, %wait, "bridge loop running");
 
     let mut summary = RunSummary::default();
+    // A command on the board that the predecessor of a respawned bridge did not carry out.
+    if let Some(cmd) = in_flight_at_start(&node, names, &commands, &stop)? {
+        tracing::info!(
+            seq = cmd.seq,
+            "taking over the command in flight (its motion was never reported)"
+        );
+        on_command(bridge, clock, latency, cmd, &mut summary);
+    }
+    let mut link = LinkWatch::new(link_timeout);
+    let mut was_down = false;
     loop {
         // Brick time to wall time (the simulated brick may run faster than the wall clock);
         // at most 100 ms, so the stop flag is seen.
@@ -156,6 +224,31 @@ pub fn run_with<T: Transport, C: Clock>(
                 ..state
             })?;
             summary.published += 1;
+            if state.flags & motor_flags::SETTLED != 0 && state.flags & motor_flags::LINK_DOWN == 0
+            {
+                progress.report_mut().out_seq = state.after_command;
+            }
+        }
+        let down = bridge.link_down() || !bridge.link_ever_up();
+        let report = progress.report_mut();
+        report.in_seq = bridge.executed();
+        report.steps = summary.commands;
+        report.flags = 0;
+        if bridge.link_down() {
+            report.flags |= progress_flags::LINK_DOWN;
+        }
+        if !bridge.link_ever_up() {
+            report.flags |= progress_flags::LINK_NEVER_UP;
+        }
+        if down != was_down {
+            was_down = down;
+            progress.publish(monotonic_ns())?;
+        } else {
+            progress.publish_due(monotonic_ns())?;
+        }
+        if let Some(verdict) = link.check(bridge) {
+            summary.link_down = Some(verdict);
+            break;
         }
     }
     bridge.stop();
@@ -203,4 +296,58 @@ fn on_command<T: Transport, C: Clock>(
             tracing::warn!(seq = cmd.seq, error = %e, "command not delivered to the brick");
         }
     }
+}
+
+/// How long a starting bridge waits for perception's progress report to judge the command
+/// found on the board (perception reports at least every [`ProgressOutbox::PERIOD`]).
+const PERCEPTION_REPORT_WAIT: Duration = Duration::from_millis(600);
+
+/// The command a starting bridge must carry out itself: the one on the board (or the one in
+/// flight that a keep-alive on the board carries), if perception has not used its motion yet
+/// (its predecessor died before carrying it out or reporting it).
+/// `None` at a group's start (the board is empty), or when perception's report says the
+/// motion was used, or when perception does not report within [`PERCEPTION_REPORT_WAIT`].
+fn in_flight_at_start(
+    node: &Node<ipc::Service>,
+    names: &ServiceNames,
+    commands: &LatestInbox<Command>,
+    stop: &AtomicBool,
+) -> Result<Option<Command>, IpcError> {
+    // A keep-alive stands for the command in flight it carries.
+    let Some(cmd) = commands.current()?.and_then(|c| c.in_flight()) else {
+        return Ok(None);
+    };
+    if cmd.seq == 0 {
+        return Ok(None);
+    }
+    let service =
+        tes_runtime::channel::pubsub::<Progress>(node, names.progress_of(Role::Perception), 1)?;
+    let subscriber = service
+        .subscriber_builder()
+        .create()
+        .map_err(ipc_err("create a progress subscriber"))?;
+    let deadline = Instant::now() + PERCEPTION_REPORT_WAIT;
+    while Instant::now() < deadline && !stop.load(std::sync::atomic::Ordering::Relaxed) {
+        if let Some(report) = subscriber
+            .receive()
+            .map_err(ipc_err("receive a progress report"))?
+        {
+            // Take the newest report there is.
+            let mut newest = *report;
+            while let Some(r) = subscriber
+                .receive()
+                .map_err(ipc_err("receive a progress report"))?
+            {
+                newest = *r;
+            }
+            return Ok((newest.in_seq < cmd.seq).then_some(cmd));
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    tracing::warn!(
+        seq = cmd.seq,
+        "perception did not report within {PERCEPTION_REPORT_WAIT:?}; not carrying out the \
+         command found on the board (its motion may have been used)"
+    );
+    Ok(None)
 }

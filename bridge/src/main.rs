@@ -100,8 +100,16 @@ fn main() -> anyhow::Result<()> {
 }
 
 fn run(cfg: BridgeConfig) -> anyhow::Result<()> {
-    tes_bridge::process::run(&cfg, &RunOptions::process()).context("running the bridge")?;
-    Ok(())
+    match tes_bridge::process::run(&cfg, &RunOptions::process()) {
+        Err(e @ tes_bridge::process::ProcessError::LinkDown { .. }) => {
+            eprintln!("error: {e}");
+            std::process::exit(tes_bridge::process::LINK_DOWN_EXIT_STATUS);
+        }
+        done => {
+            done.context("running the bridge")?;
+            Ok(())
+        }
+    }
 }
 
 fn brick(link: &Path, cfg: &BridgeConfig) -> anyhow::Result<()> {

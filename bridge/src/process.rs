@@ -47,6 +47,23 @@ pub enum ProcessError {
     /// `[ipc] wait` names no strategy.
     #[error("ipc.wait: {0}")]
     Wait(#[from] tes_runtime::channel::BadWaitStrategy),
+    /// The link to the brick did not come up, or stayed down, for longer than
+    /// `link_timeout_ms`.
+    #[error(
+        "the link to the brick ({transport}) {}: {last_error}",
+        if *never_up { format!("did not come up within {:.1} s", down_for.as_secs_f64()) }
+        else { format!("has been down for {:.1} s", down_for.as_secs_f64()) }
+    )]
+    LinkDown {
+        /// The transport, as configured.
+        transport: String,
+        /// Whether it never came up.
+        never_up: bool,
+        /// How long it was down.
+        down_for: std::time::Duration,
+        /// The last failure.
+        last_error: String,
+    },
     /// The latency report could not be written.
     #[error("cannot write the latency report {}: {error}", path.display())]
     Report {
@@ -57,8 +74,13 @@ pub enum ProcessError {
     },
 }
 
+/// The exit status of a bridge process stopped by [`ProcessError::LinkDown`]: the launcher
+/// takes it as the end of the launch, never as a crash to respawn.
+pub const LINK_DOWN_EXIT_STATUS: i32 = 3;
+
 /// Runs the bridge with `cfg` until a signal (if `opts` handles them) or `opts.stop`; brakes
-/// the motors on the way out.
+/// the motors on the way out. Fails with [`ProcessError::LinkDown`] when the link to the brick
+/// does not come up, or stays down, for longer than `cfg.link_timeout`.
 ///
 /// With `transport = "sim"` the brick runs at `cfg.brick.time_scale`; with a serial transport
 /// the time scale is ignored (with a warning) and everything runs in wall time. Fails if the
@@ -119,8 +141,20 @@ pub fn run(cfg: &BridgeConfig, opts: &RunOptions) -> Result<RunSummary, ProcessE
         opts,
         cfg.ipc.wait_strategy()?,
         &mut latency,
+        cfg.link_timeout,
     )?;
     tracing::info!(?summary, stats = ?bridge.stats(), "bridge stopped");
+    if let Some(down) = summary.link_down {
+        return Err(ProcessError::LinkDown {
+            transport: bridge.transport_mut().describe(),
+            never_up: down.never_up,
+            down_for: down.down_for,
+            last_error: bridge
+                .last_link_error()
+                .unwrap_or("no reply from the brick")
+                .to_owned(),
+        });
+    }
     if let Some(path) = &cfg.ipc.latency_report {
         summary
             .latency

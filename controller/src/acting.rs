@@ -73,7 +73,7 @@ use tes_learning::cmdp::{CmdpError, CmdpStructure};
 use tes_learning::library::ViewLibrary;
 use tes_runtime::clock::Clock;
 use tes_runtime::latency::{LatencyRecorder, LatencyReport};
-use tes_topics::{Command, KEEP_ALIVE_ACTION, Observation, WorldMap, observation_flags};
+use tes_topics::{Command, Observation, WorldMap, observation_flags};
 use thiserror::Error;
 
 use crate::realtime::{Planner, PlannerThreadError};
@@ -175,7 +175,8 @@ pub enum Step {
 pub struct Sent {
     /// An episode that ended before this command, reported now that the command is out.
     pub report: Option<EpisodeLine>,
-    /// Whether a library save is due (an episode ended and `save_interval` has passed).
+    /// Whether a library save is due (an episode ended, `save_interval` has passed, and
+    /// something was learned since the last save).
     pub save_due: bool,
 }
 
@@ -190,6 +191,9 @@ pub struct Counts {
     pub refused: u64,
     /// Keep-alives sent.
     pub keepalives: u64,
+    /// Steps learned from: a command's outcome observed after a real motion (a `RESYNC` or an
+    /// episode's first observation teaches nothing).
+    pub learned: u64,
 }
 
 /// The loop's latency figures, after the warm-up: whole decisions (observation stamped →
@@ -246,6 +250,10 @@ pub struct ActingLoop {
     ended: Option<EpisodeLine>,
     last_sent_ns: u64,
     last_save_ns: u64,
+    /// [`Counts::learned`] at the last save due: nothing new, no save.
+    learned_at_save: u64,
+    /// The last command returned (a keep-alive carries it).
+    last_command: Command,
 }
 
 impl ActingLoop {
@@ -303,6 +311,8 @@ impl ActingLoop {
             ended: None,
             last_sent_ns: now_ns,
             last_save_ns: now_ns,
+            learned_at_save: 0,
+            last_command: Command::default(),
         })
     }
 
@@ -342,6 +352,7 @@ impl ActingLoop {
         } else if let Some((from, action)) = self.pending.take() {
             let effect = self.map.effect_between(from, state);
             self.agent.observe(from, action, effect)?;
+            self.counts.learned += 1;
             self.episode.reward += f64::from(obs.reward);
         }
         self.planner.collect(self.agent.model_mut())?;
@@ -374,17 +385,19 @@ impl ActingLoop {
             received_ns,
             decided_ns,
         });
+        let command = Command {
+            seq: self.command_seq,
+            answers: obs.seq,
+            stamp_ns: decided_ns,
+            observed_ns: obs.stamp_ns,
+            action: action as u32,
+            left_deg,
+            right_deg,
+            in_flight_action: 0,
+        };
+        self.last_command = command;
         Ok(Step::Act {
-            command: Command {
-                seq: self.command_seq,
-                answers: obs.seq,
-                stamp_ns: decided_ns,
-                observed_ns: obs.stamp_ns,
-                action: action as u32,
-                left_deg,
-                right_deg,
-                reserved: 0,
-            },
+            command,
             lost_outcome,
         })
     }
@@ -407,9 +420,12 @@ impl ActingLoop {
         if let Some(line) = self.ended.take() {
             sent.report = Some(self.report(line));
             let since_save = Duration::from_nanos(now_ns.saturating_sub(self.last_save_ns));
-            if since_save >= self.settings.save_interval {
+            if since_save >= self.settings.save_interval
+                && self.counts.learned > self.learned_at_save
+            {
                 sent.save_due = true;
                 self.last_save_ns = now_ns;
+                self.learned_at_save = self.counts.learned;
             }
         }
         self.pending = Some((decided.state, decided.action));
@@ -440,12 +456,13 @@ impl ActingLoop {
         self.command_seq += 1;
         self.counts.keepalives += 1;
         self.last_sent_ns = now_ns;
-        Some(Command {
-            seq: self.command_seq,
-            action: KEEP_ALIVE_ACTION,
-            stamp_ns: now_ns,
-            ..Command::default()
-        })
+        // It carries the command in flight: it replaces that command as the latest one the
+        // bridge can read, and a bridge that starts now must still find it.
+        Some(Command::keep_alive(
+            self.command_seq,
+            now_ns,
+            Some(&self.last_command),
+        ))
     }
 
     /// One slice of planning while waiting, when planning between polls (a planner thread
@@ -526,6 +543,7 @@ mod tests {
     use tes_learning::library::LibraryParams;
     use tes_learning::plan::PlannerParams;
     use tes_runtime::clock::ManualClock;
+    use tes_topics::KEEP_ALIVE_ACTION;
     use tes_topics::StateAttributes;
     use tes_topics::observation_flags::{EPISODE_START, TERMINAL};
 
@@ -687,6 +705,11 @@ mod tests {
         clock.advance(200_000_000);
         let keepalive = acting.on_idle(&clock).expect("a keep-alive is due");
         assert_eq!(keepalive.action, KEEP_ALIVE_ACTION);
+        // It carries the command in flight, for a bridge that starts while it is the latest.
+        let in_flight = keepalive.in_flight().expect("the command in flight");
+        assert_eq!(in_flight.seq, acting.last_command.seq);
+        assert_eq!(in_flight.action, acting.last_command.action);
+        assert!(keepalive.seq > in_flight.seq);
         assert_eq!(acting.on_idle(&clock), None, "just sent one");
         assert_eq!(acting.counts().keepalives, 1);
     }

@@ -20,7 +20,8 @@ use tes_learning::plan::PlannerParams;
 use tes_runtime::alloc_count;
 use tes_runtime::channel::{self, Idle, Inbox, IpcError, LatestOutbox, WaitStrategy};
 use tes_runtime::clock::{Clock, MonotonicClock};
-use tes_topics::{Command, Observation, ServiceNames, WorldMap};
+use tes_runtime::progress::ProgressOutbox;
+use tes_topics::{Command, Observation, Role, ServiceNames, WorldMap};
 use thiserror::Error;
 
 use crate::acting::{ActingError, ActingLoop, ActingSettings, Refusal, Step};
@@ -47,6 +48,9 @@ pub enum ControllerError {
     /// The library file cannot be used.
     #[error(transparent)]
     Store(#[from] StoreError),
+    /// Another controller holds the library.
+    #[error(transparent)]
+    Busy(#[from] tes_runtime::lock::LockError),
     /// The library cannot be built or updated.
     #[error("view library: {0}")]
     Library(#[from] LibraryError),
@@ -69,21 +73,69 @@ pub enum ControllerError {
     },
 }
 
-/// The library to start from: the file at `path` if it exists, else an empty one with the
-/// configured parameters.
+/// How long a controller waits for another to let go of its library.
+const LIBRARY_LOCK_PATIENCE: Duration = Duration::from_secs(10);
+
+/// Takes the library's lock file (`PATH.lock`), creating the library's directory if needed.
+fn lock_library(path: &std::path::Path) -> Result<tes_runtime::lock::Lock, ControllerError> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|error| tes_runtime::lock::LockError::Io {
+            what: "view library",
+            path: dir.to_owned(),
+            error,
+        })?;
+    }
+    let mut name = path.as_os_str().to_owned();
+    name.push(".lock");
+    let lock_path = PathBuf::from(name);
+    Ok(tes_runtime::lock::Lock::acquire_within(
+        &lock_path,
+        "view library",
+        LIBRARY_LOCK_PATIENCE,
+    )?)
+}
+
+/// The library the controller starts from, and whether it is a fresh one.
+#[derive(Debug)]
+struct StartingLibrary {
+    /// The views.
+    library: ViewLibrary,
+    /// True when there was no library file and the controller starts from an empty library.
+    started_empty: bool,
+}
+
+/// The library to start from. First removes the temporary files of saves a killed controller
+/// left behind. Then: nothing at `path` (not even a dangling link) means a first start, with
+/// an empty library of the configured parameters, said at info level; anything else at `path`
+/// must load — a file that is unreadable, not a regular file, a dangling symbolic link,
+/// corrupt, or for another world is an error naming it, never a silent fresh start (whose
+/// first save would replace the robot's lifelong memory).
 fn load_library(
     config: &ControllerConfig,
     path: &std::path::Path,
     map: &WorldMap,
-) -> Result<ViewLibrary, ControllerError> {
+) -> Result<StartingLibrary, ControllerError> {
     let (actions, effects, features) = (
         map.n_actions as usize,
         map.n_effects as usize,
         map.n_features as usize,
     );
-    if path.exists() {
-        return Ok(store::load_for(path, actions, effects, features)?.library);
+    remove_stale_saves(path);
+    match std::fs::symlink_metadata(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        // Something is there (or cannot be looked at): the loader opens it and reports why it
+        // cannot be used, if it cannot.
+        _ => {
+            return Ok(StartingLibrary {
+                library: store::load_for(path, actions, effects, features)?.library,
+                started_empty: false,
+            });
+        }
     }
+    tracing::info!(
+        "no view library at {}; starting from an empty library",
+        path.display()
+    );
     let params = LibraryParams {
         max_views: config.max_views,
         mdagl: MdaglParams {
@@ -93,7 +145,28 @@ fn load_library(
         },
         ..LibraryParams::default()
     };
-    Ok(ViewLibrary::new(actions, effects, features, params)?)
+    Ok(StartingLibrary {
+        library: ViewLibrary::new(actions, effects, features, params)?,
+        started_empty: true,
+    })
+}
+
+/// Removes what interrupted saves of the library at `path` left behind, and says so. A
+/// leftover that cannot be removed is only garbage: warned about, not a reason to stop.
+fn remove_stale_saves(path: &std::path::Path) {
+    match store::remove_stale_temp_files(path) {
+        Ok(removed) => {
+            for tmp in removed {
+                tracing::info!(
+                    file = %tmp.display(),
+                    "removed the temporary file of an interrupted library save"
+                );
+            }
+        }
+        Err(e) => {
+            tracing::warn!(error = %e, "cannot remove temporary files of interrupted library saves");
+        }
+    }
 }
 
 /// Runs the controller until `stop` is raised. `on_episode` receives each finished episode
@@ -150,10 +223,17 @@ pub fn run(
         Err(Idle::Stopped) => return Ok(ControllerSummary::default()),
     };
     let library_path = config.library_path();
-    let library = load_library(config, &library_path, &map)?;
+    // One controller per library: a predecessor still saving on its way out (its launcher was
+    // killed) is waited for; a running one is refused, naming its pid.
+    let _library_lock = lock_library(&library_path)?;
+    let StartingLibrary {
+        library,
+        started_empty,
+    } = load_library(config, &library_path, &map)?;
     tracing::info!(
         library = %library_path.display(),
         views = library.len(),
+        started_empty,
         states = map.n_states,
         "controller ready"
     );
@@ -193,6 +273,8 @@ pub fn run(
     let now = clock.now_ns();
     let mut acting = ActingLoop::starting_at(map, library, settings, planner, now, now)?;
     let saver = Saver::spawn(library_path.clone(), world)?;
+    // Ready (map, library, first plan): the first report tells perception it may start.
+    let mut progress = ProgressOutbox::open(&node, &names, Role::Controller)?;
     let idle_timeout = keepalive.map_or(Duration::from_millis(100), |k| {
         k.min(Duration::from_millis(100))
     });
@@ -214,6 +296,7 @@ pub fn run(
                     if let Some(keepalive) = acting.on_idle(&clock) {
                         commands.send(keepalive)?;
                     }
+                    progress.publish_due(clock.now_ns())?;
                     continue;
                 }
             };
@@ -255,6 +338,11 @@ pub fn run(
         }
         let sent = acting.command_sent(&clock)?;
         drop(counting);
+        // Off the acting path: the command is out.
+        let report = progress.report_mut();
+        (report.in_seq, report.out_seq) = (obs.seq, command.seq);
+        (report.steps, report.episodes) = (acting.counts().actions, acting.counts().episodes);
+        progress.publish_due(clock.now_ns())?;
         if let Some(line) = sent.report {
             on_episode(&line);
         }
@@ -286,7 +374,14 @@ pub fn run(
         keepalives: counts.keepalives,
         placement,
     };
-    if let Err(e) = save_library(agent, &library_path, world) {
+    if counts.learned == 0 {
+        // Nothing was learned from a real motion (say, the link to the brick never came up):
+        // the library on disk stays exactly as it was.
+        tracing::info!(
+            library = %library_path.display(),
+            "nothing learned in this run; the library is left as it was"
+        );
+    } else if let Err(e) = save_library(agent, &library_path, world) {
         summary.failed_saves += 1;
         tracing::error!(error = %e, "the library was not saved at shutdown; the previous file is intact");
     }
@@ -432,6 +527,104 @@ mod tests {
             crate::acting::structure_from_map(&bad),
             Err(ActingError::BadMap(_))
         ));
+    }
+
+    /// `load_library` for the test map (2 actions, 3 effects, 4 features) and default settings.
+    fn load_test_library(path: &std::path::Path) -> Result<StartingLibrary, ControllerError> {
+        load_library(&ControllerConfig::default(), path, &map())
+    }
+
+    #[test]
+    fn no_library_file_starts_empty_and_says_so_after_removing_dead_saves() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("library.tesl");
+        // No process has a pid at the kernel's limit: a save by it is an interrupted one.
+        let dead = std::fs::read_to_string("/proc/sys/kernel/pid_max")
+            .ok()
+            .and_then(|s| s.trim().parse::<u32>().ok())
+            .map(|pid| dir.path().join(format!(".library.tesl.tmp-{pid}")));
+        let live = dir
+            .path()
+            .join(format!(".library.tesl.tmp-{}", std::process::id()));
+        for tmp in dead.iter().chain([&live]) {
+            std::fs::write(tmp, b"half a library").unwrap();
+        }
+        let start = load_test_library(&path).unwrap();
+        assert!(start.started_empty);
+        assert!(start.library.is_empty());
+        assert_eq!(start.library.n_actions(), 2);
+        if let Some(dead) = dead {
+            assert!(!dead.exists(), "the dead saver's file is removed");
+        }
+        assert!(live.exists(), "a live saver's file is kept");
+        assert!(!path.exists(), "loading creates nothing");
+    }
+
+    #[test]
+    fn an_existing_library_is_loaded_not_replaced() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("library.tesl");
+        let mut library = ViewLibrary::new(2, 3, 4, LibraryParams::default()).unwrap();
+        library.end_task(Vec::new()).unwrap();
+        let stored = store::StoredLibrary {
+            library,
+            world: "arena 1".into(),
+            action_names: Vec::new(),
+            feature_names: Vec::new(),
+        };
+        store::save(&path, &stored).unwrap();
+        let start = load_test_library(&path).unwrap();
+        assert!(!start.started_empty);
+        assert_eq!(start.library, stored.library);
+    }
+
+    /// Anything at the library path that is not a loadable library stops the controller with
+    /// the path and the cause, and is left as it was.
+    #[test]
+    fn an_unusable_library_path_is_an_error_not_a_fresh_start() {
+        let dir = tempfile::tempdir().unwrap();
+        let expect_error = |path: &std::path::Path, cause: &str| {
+            let err = load_test_library(path).unwrap_err();
+            assert!(matches!(err, ControllerError::Store(_)), "{err}");
+            let text = err.to_string();
+            assert!(text.contains(&path.display().to_string()), "{text}");
+            assert!(text.contains(cause), "{text}");
+        };
+        let dangling = dir.path().join("dangling.tesl");
+        let target = dir.path().join("moved-away.tesl");
+        std::os::unix::fs::symlink(&target, &dangling).unwrap();
+        expect_error(&dangling, "which does not exist");
+        expect_error(&dangling, &target.display().to_string());
+        assert!(
+            std::fs::symlink_metadata(&dangling)
+                .unwrap()
+                .file_type()
+                .is_symlink()
+        );
+        assert!(!target.exists());
+
+        let directory = dir.path().join("directory.tesl");
+        std::fs::create_dir(&directory).unwrap();
+        expect_error(&directory, "is a directory, not a regular file");
+
+        let device = dir.path().join("device.tesl");
+        std::os::unix::fs::symlink("/dev/zero", &device).unwrap();
+        expect_error(&device, "is a character device, not a regular file");
+
+        let corrupt = dir.path().join("corrupt.tesl");
+        std::fs::write(&corrupt, b"not a library at all").unwrap();
+        expect_error(&corrupt, "not a TES view library");
+        assert_eq!(std::fs::read(&corrupt).unwrap(), b"not a library at all");
+
+        let other_world = dir.path().join("other-world.tesl");
+        let stored = store::StoredLibrary {
+            library: ViewLibrary::new(5, 3, 4, LibraryParams::default()).unwrap(),
+            world: "arena 2".into(),
+            action_names: Vec::new(),
+            feature_names: Vec::new(),
+        };
+        store::save(&other_world, &stored).unwrap();
+        expect_error(&other_world, "this world has 2, 3 and 4");
     }
 
     /// Raises a stop flag when dropped (also while unwinding from a failed assertion).
@@ -646,12 +839,12 @@ mod tests {
             pinned.unwrap_or((None, None)),
             "{summary:?}"
         );
+        // Nothing was learned from a motion: the library is not written at all.
         let library = rig.config.library.as_ref().unwrap();
-        let saved = store::load_for(library, 2, 3, 4).unwrap();
         assert!(
-            saved.library.is_empty(),
-            "nothing learned: {} views",
-            saved.library.len()
+            !library.exists(),
+            "nothing learned, yet {} was saved",
+            library.display()
         );
         // With the last port gone, no service of the test is left behind.
         rig.close();

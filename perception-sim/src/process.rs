@@ -10,9 +10,18 @@
 //! pose and publishes the next observation with its reward. An episode ends at a terminal
 //! state, when the robot is stuck for four actions, or at the step cap.
 //!
-//! If no motion report arrives within `motor_timeout_ms` of an observation, the observation
-//! is published again, flagged `RESYNC` (the controller then re-decides without learning from
-//! a command whose outcome is unknown).
+//! Before the first episode it waits until the group is ready — the controller has reported
+//! its progress (it has the map, its library and a first plan) and the bridge has reported
+//! the brick at rest over a working link — so that the first observation has a reader and its
+//! command a bridge. While it waits for a motion it keeps the world map reachable for a
+//! controller that starts late (or is respawned), and says how far it got on its progress
+//! service, at once when it takes a motion.
+//!
+//! A motion report flagged `LINK_DOWN` says nothing about the robot (the bridge could not
+//! reach the brick), so it never moves the simulated robot nor sets the baseline of the next
+//! motion. If no motion report arrives within `motor_timeout_ms` of an observation, the
+//! observation is published again, flagged `RESYNC` (the controller then re-decides without
+//! learning from a command whose outcome is unknown).
 
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
@@ -21,9 +30,10 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use tes_runtime::channel::{self, Idle, Inbox, IpcError, Outbox};
 use tes_runtime::clock::monotonic_ns;
+use tes_runtime::progress::{ProgressOutbox, ProgressWatch};
 use tes_topics::{
-    FeatureBits, MAX_STATES, MotorState, Observation, ServiceNames, StateAttributes, WorldMap,
-    motor_flags, observation_flags,
+    FeatureBits, MAX_STATES, MotorState, Observation, Role, ServiceNames, StateAttributes,
+    WorldMap, motor_flags, observation_flags, progress_flags,
 };
 use thiserror::Error;
 
@@ -123,6 +133,8 @@ pub fn run(
         0,
         strategy,
     )?;
+    let mut watch = ProgressWatch::open(&node, &names)?;
+    let mut progress = ProgressOutbox::open(&node, &names, Role::Perception)?;
     let map = world_map(&arena)?;
     maps.send(*map)?;
     tracing::info!(arena = %arena.id().map_or("custom".into(), |a| a.to_string()), states = arena.n_states(), "world map published");
@@ -131,15 +143,21 @@ pub fn run(
     let motor_timeout = Duration::from_millis(config.motor_timeout_ms);
     let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
     let mut summary = PerceptionSummary::default();
+    // Tacho counts at the last settled motion (or heartbeat at rest), the baseline of the next.
+    let Some(mut counts) =
+        wait_for_the_group(&maps, &motors, &mut watch, &mut progress, config, stop)?
+    else {
+        return Ok(summary);
+    };
     // Sequence numbers start from the monotonic clock, so a respawned perception's
     // observations are newer than anything its predecessor published: the controller, which
     // refuses stale or duplicate numbers, takes them without being told of the restart.
     let mut seq = monotonic_ns();
-    // Tacho counts at the last settled motion, and the last command whose motion we used.
-    let mut counts: Option<[i32; 2]> = None;
+    // The last command whose motion we used.
     let mut last_command = 0u64;
     let ports = [config.left_port, config.right_port];
     let mut actions = 0u64;
+    let mut maps_updated = std::time::Instant::now();
     for episode in 0..config.episodes {
         let mut pose = arena.random_start(&mut rng);
         let mut state = arena.discretise(pose);
@@ -163,6 +181,8 @@ pub fn run(
                 flags,
             })?;
             summary.observations += 1;
+            progress.report_mut().out_seq = seq;
+            progress.report_mut().steps = summary.observations;
             if flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0 {
                 break;
             }
@@ -173,28 +193,35 @@ pub fn run(
                 if left.is_zero() {
                     break None;
                 }
+                // Off the acting path (the command is out or the controller is gone): keep the
+                // map reachable for a controller that starts now, and report.
+                if maps_updated.elapsed() >= Duration::from_millis(100) {
+                    maps_updated = std::time::Instant::now();
+                    maps.update_connections()?;
+                    progress.publish_due(monotonic_ns())?;
+                }
                 match motors.next(left.min(Duration::from_millis(100)), stop)? {
                     Err(Idle::Stopped) => return Ok(summary),
-                    Err(Idle::Timeout) => {
-                        // A controller that starts (or restarts) later still gets the map:
-                        // history reaches a new subscriber when the publisher updates its
-                        // connections. Only when idle: right after an observation this
-                        // work would hold the CPU the controller is being woken on.
-                        maps.update_connections()?;
-                        continue;
+                    Err(Idle::Timeout) => continue,
+                    Ok(m) if m.flags & motor_flags::LINK_DOWN != 0 => {
+                        // The bridge cannot reach the brick: nothing is known of the robot.
                     }
                     Ok(m) => {
                         let now = [m.tacho_count[ports[0]], m.tacho_count[ports[1]]];
                         let settled = m.flags & motor_flags::SETTLED != 0;
                         if m.after_command > last_command && settled {
-                            let before = counts.unwrap_or([0, 0]);
-                            counts = Some(now);
+                            let before = counts;
+                            counts = now;
                             last_command = m.after_command;
+                            // Said at once: a bridge that starts now must know this motion
+                            // was used (see the bridge's take-over of a command in flight).
+                            progress.report_mut().in_seq = last_command;
+                            progress.publish(monotonic_ns())?;
                             break Some((m.after_command, now[0] - before[0], now[1] - before[1]));
                         }
                         if m.after_command <= last_command && settled {
                             // A heartbeat at rest: the baseline for the next motion.
-                            counts = Some(now);
+                            counts = now;
                         }
                     }
                 }
@@ -231,6 +258,7 @@ pub fn run(
             };
         }
         summary.episodes += 1;
+        progress.report_mut().episodes = u64::from(summary.episodes);
         tracing::info!(
             episode,
             reward = tracker.total_reward(),
@@ -242,7 +270,73 @@ pub fn run(
             break;
         }
     }
+    progress.publish(monotonic_ns())?;
     Ok(summary)
+}
+
+/// Waits until the controller has reported (it has the map, its library and a first plan)
+/// and the bridge has reported the brick at rest over a working link; keeps the world map
+/// reachable meanwhile. Returns the brick's tacho counts of the wheels at rest, or `None` if
+/// `stop` was raised first.
+fn wait_for_the_group(
+    maps: &Outbox<WorldMap>,
+    motors: &Inbox<MotorState>,
+    watch: &mut ProgressWatch,
+    progress: &mut ProgressOutbox,
+    config: &PerceptionConfig,
+    stop: &AtomicBool,
+) -> Result<Option<[i32; 2]>, PerceptionError> {
+    let started = std::time::Instant::now();
+    let mut said = started;
+    let mut at_rest = None;
+    loop {
+        maps.update_connections()?;
+        watch.poll()?;
+        progress.publish_due(monotonic_ns())?;
+        while let Some(m) = motors.try_next()? {
+            if m.flags & motor_flags::LINK_DOWN == 0 && m.flags & motor_flags::SETTLED != 0 {
+                at_rest = Some([
+                    m.tacho_count[config.left_port],
+                    m.tacho_count[config.right_port],
+                ]);
+            }
+        }
+        let controller_ready = watch.latest(Role::Controller).is_some();
+        if let (true, Some(counts)) = (controller_ready, at_rest) {
+            tracing::info!(
+                waited_ms = started.elapsed().as_millis() as u64,
+                "the controller and the bridge are ready; starting the first episode"
+            );
+            return Ok(Some(counts));
+        }
+        if stop.load(std::sync::atomic::Ordering::Relaxed) {
+            return Ok(None);
+        }
+        if said.elapsed() >= Duration::from_secs(5) {
+            said = std::time::Instant::now();
+            let link_down = watch.latest(Role::Bridge).is_some_and(|b| {
+                b.flags & (progress_flags::LINK_DOWN | progress_flags::LINK_NEVER_UP) != 0
+            });
+            tracing::info!(
+                controller_ready,
+                bridge_at_rest = at_rest.is_some(),
+                link_down,
+                "waiting for the group before the first episode"
+            );
+        }
+        match motors.next(Duration::from_millis(10), stop)? {
+            Err(Idle::Stopped) => return Ok(None),
+            Err(Idle::Timeout) => {}
+            Ok(m) => {
+                if m.flags & motor_flags::LINK_DOWN == 0 && m.flags & motor_flags::SETTLED != 0 {
+                    at_rest = Some([
+                        m.tacho_count[config.left_port],
+                        m.tacho_count[config.right_port],
+                    ]);
+                }
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -383,7 +477,19 @@ mod tests {
             // A failed assertion below must not leave perception waiting forever (the scope
             // joins it): stop it on the way out, however that is.
             let _stop_perception = StopOnDrop(&stop);
-            let first = next();
+            // Perception starts its first episode once the controller has reported and the
+            // bridge has reported the brick at rest: play both until it does.
+            let mut controller = ProgressOutbox::open(&node, &names, Role::Controller).unwrap();
+            let first = loop {
+                controller.publish(monotonic_ns()).unwrap();
+                report(0);
+                if let Ok(o) = observations
+                    .next(Duration::from_millis(20), &never)
+                    .unwrap()
+                {
+                    break o;
+                }
+            };
             assert_eq!(first.flags, observation_flags::EPISODE_START);
             assert_eq!((first.episode, first.step), (0, 0));
             assert!(first.seq > 0);

@@ -213,6 +213,12 @@ impl<T: ZeroCopySend + Copy + Default + PartialEq + fmt::Debug + 'static> Latest
         self.strategy
     }
 
+    /// What the board holds now, read or not (for a receiver deciding, at its start, what to
+    /// make of the value it found there).
+    pub fn current(&self) -> Result<Option<T>, IpcError> {
+        Ok(self.reading.as_ref().map(|r| *r.entry.get()))
+    }
+
     /// The board's value if it changed since the last read, without waiting.
     pub fn try_next(&self) -> Result<Option<T>, IpcError> {
         let Some(reading) = &self.reading else {

@@ -19,9 +19,13 @@ pub struct IpcError {
 
 /// Maps an iceoryx2 error to an [`IpcError`] naming the step.
 pub fn ipc_err<E: fmt::Debug>(context: &'static str) -> impl FnOnce(E) -> IpcError {
-    move |e| IpcError {
-        context,
-        message: format!("{e:?}"),
+    move |e| {
+        let mut message = format!("{e:?}");
+        if crate::cause::is_out_of_descriptors() {
+            message
+                .push_str(" — this process has too many open files: raise the limit (ulimit -n)");
+        }
+        IpcError { context, message }
     }
 }
 

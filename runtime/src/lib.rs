@@ -13,16 +13,23 @@
 //!   process shares;
 //! * [`clock`], [`signals`], [`logging`] — the monotonic stamp, SIGINT/SIGTERM as a stop flag,
 //!   `tracing` set-up;
-//! * [`alloc_count`] — a counting global allocator, to prove a loop allocates nothing.
+//! * [`alloc_count`] — a counting global allocator, to prove a loop allocates nothing;
+//! * [`cause`] — an operating-system error said as its cause (disk full, read-only, out of
+//!   descriptors, missing device);
+//! * [`progress`] — each process's progress report, and who holds a stalled group up;
+//! * [`lock`] — one owner at a time for a data directory or a library (a `flock` naming its pid).
 
 pub mod affinity;
 pub mod alloc_count;
 pub mod board;
+pub mod cause;
 pub mod channel;
 pub mod clock;
 pub mod ipc;
 pub mod latency;
+pub mod lock;
 pub mod logging;
+pub mod progress;
 pub mod settings;
 pub mod signals;
 pub mod wait;

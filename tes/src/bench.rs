@@ -19,7 +19,6 @@
 //! latency and the heap allocations on its acting path.
 
 use std::path::{Path, PathBuf};
-use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
@@ -446,7 +445,6 @@ fn run_floor(
     let config = dir.join("relay.toml");
     std::fs::write(&config, toml::to_string(&cfg)?)
         .with_context(|| format!("cannot write {}", config.display()))?;
-    let (lines, _quiet) = mpsc::channel();
     let mut children: Vec<Running> = Vec::new();
     // The receivers first, so the source's first observations find them sooner.
     for role in [relay::ROLES[2], relay::ROLES[1], relay::ROLES[0]] {
@@ -454,7 +452,7 @@ fn run_floor(
             role,
             config: config.clone(),
         };
-        let child = launch::spawn(&spec, &lines)?;
+        let child = launch::spawn(&spec)?;
         children.push(Running {
             spec,
             child,

@@ -21,11 +21,10 @@
 //!
 //! It exits non-zero if a child failed.
 
-use std::collections::BTreeSet;
-use std::io::{BufRead, BufReader};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdout, Command, ExitStatus, Stdio};
+use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
@@ -40,15 +39,20 @@ use tes_bridge::config::{BridgeConfig, BridgeSettings, TransportKind};
 use tes_controller::config::{ControllerConfig, default_data_dir};
 use tes_perception_sim::process::PerceptionConfig;
 use tes_runtime::channel::{self, WaitStrategy};
+use tes_runtime::lock::{Lock, LockError};
+use tes_runtime::progress::{ProgressWatch, holdup};
 use tes_runtime::settings::{self, Origin, SettingError};
+use tes_topics::{Role, ServiceNames};
 
 mod child;
 mod file;
 mod group;
+mod logs;
 
 pub use child::run_child;
 pub(crate) use file::*;
 pub(crate) use group::*;
+use logs::ChildLine;
 
 /// Arguments of `tes launch`.
 #[derive(Debug, Args)]
@@ -75,15 +79,15 @@ pub fn run(args: &LaunchArgs) -> Result<()> {
         }
         file.launch.episodes = n;
     }
-    let specs = prepare(&file)?;
-    run_group(&file, specs, true).map(|_| ())
+    let prepared = prepare(&file)?;
+    run_group(&file, prepared, true).map(|_| ())
 }
 
 /// Runs the group `file` describes until perception finishes, a child fails (or exhausts its
 /// restarts) or a signal; `echo` prints the controller's lines and the launcher's notes.
 pub(crate) fn run_file(file: &LaunchFile, echo: bool) -> Result<GroupOutcome> {
-    let specs = prepare(file)?;
-    run_group(file, specs, echo)
+    let prepared = prepare(file)?;
+    run_group(file, prepared, echo)
 }
 
 #[cfg(test)]
@@ -113,7 +117,7 @@ mod tests {
 
     /// Prepares the children of a launch file with `extra` after its `[launch]` table; the
     /// directory's `run` holds the children's settings files.
-    fn prepared(extra: &str) -> (tempfile::TempDir, Result<Vec<ChildSpec>, LaunchFileError>) {
+    fn prepared(extra: &str) -> (tempfile::TempDir, Result<Prepared, LaunchFileError>) {
         let (dir, _, file) = launch_file(extra);
         let specs = prepare(&file.expect("a launch file"));
         (dir, specs)
@@ -130,6 +134,28 @@ mod tests {
         match err {
             LaunchFileError::Setting(e) => e,
             other => panic!("not a setting error: {other}"),
+        }
+    }
+
+    /// A run directory that cannot be written is named with its cause — never reported as
+    /// invalid settings.
+    #[test]
+    fn an_unwritable_run_directory_is_named_with_its_cause() {
+        for (code, cause) in [
+            (28, "the disk is full"),
+            (30, "the file system is read-only"),
+        ] {
+            let err = LaunchFileError::RunDir {
+                path: PathBuf::from("/data/run"),
+                error: std::io::Error::from_raw_os_error(code),
+            };
+            let shown = err.to_string();
+            assert!(
+                shown.starts_with("cannot write the run directory: /data/run: ")
+                    && shown.contains(cause)
+                    && shown.ends_with("; nothing was started"),
+                "{shown}"
+            );
         }
     }
 
@@ -401,11 +427,16 @@ mod tests {
              [[bridge.actions]]\nid = 0\nname = \"only\"\nleft_deg = 10\nright_deg = -10\n",
         ] {
             let (dir, _, file) = launch_file(extra);
-            let file = file.expect("valid");
+            let mut file = file.expect("valid");
+            let prepared = prepare(&file).expect("prepared");
+            // Without a prefix of its own, the launch got a unique one.
+            assert!(prepared.service_prefix.starts_with("tes-"), "{prepared:?}");
+            file.launch
+                .service_prefix
+                .clone_from(&prepared.service_prefix);
             let children = file.children().expect("valid");
-            let specs = prepare(&file).expect("prepared");
             assert_eq!(
-                specs.iter().map(|s| s.role).collect::<Vec<_>>(),
+                prepared.specs.iter().map(|s| s.role).collect::<Vec<_>>(),
                 ["bridge", "controller", "perception-sim"]
             );
             let read = |role: &str| {

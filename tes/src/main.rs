@@ -42,8 +42,9 @@ enum Command {
     },
 }
 
-/// Children log to stderr (the launcher's terminal), level from `RUST_LOG` (default: warnings
-/// and errors only; the launcher prints the per-episode lines).
+/// Children log to stderr (their log file in the run directory, which the launcher relays to
+/// its terminal), level from `RUST_LOG` (default: warnings and errors only; the launcher
+/// prints the per-episode lines).
 fn init_child_logging() {
     tes_runtime::logging::init("warn");
 }
@@ -54,17 +55,21 @@ static ALLOCATOR: tes_runtime::alloc_count::CountingAllocator =
     tes_runtime::alloc_count::CountingAllocator;
 
 fn main() -> ExitCode {
-    // Die quietly on a closed pipe (`tes library show … | head`), as command-line tools do,
-    // instead of panicking on the next print.
-    // SAFETY: called first thing in `main`, before any other thread exists; SIG_DFL for
-    // SIGPIPE installs no handler code.
-    unsafe {
-        let _ = nix::sys::signal::signal(
-            nix::sys::signal::Signal::SIGPIPE,
-            nix::sys::signal::SigHandler::SigDfl,
-        );
-    }
     let cli = Cli::parse();
+    // Die quietly on a closed pipe (`tes library show … | head`), as command-line tools do,
+    // instead of panicking on the next print — but not the launcher nor its children: a
+    // closed pipe must never end a run before the library is saved (their output is written
+    // so that a closed pipe only silences it).
+    if !matches!(cli.command, Command::Launch(_) | Command::Child { .. }) {
+        // SAFETY: called in `main` before any other thread exists; SIG_DFL for SIGPIPE
+        // installs no handler code.
+        unsafe {
+            let _ = nix::sys::signal::signal(
+                nix::sys::signal::Signal::SIGPIPE,
+                nix::sys::signal::SigHandler::SigDfl,
+            );
+        }
+    }
     let result = match cli.command {
         Command::Fit(args) => fit::run(&args),
         Command::Experiment(args) => experiment::run(&args),

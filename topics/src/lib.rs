@@ -95,6 +95,11 @@ pub mod service {
     pub const WORLD_MAP: &str = "tes/world-map";
     /// Event service perception notifies after publishing a world map.
     pub const WORLD_MAP_EVENT: &str = "tes/world-map/event";
+    /// Publish–subscribe services (history 1), one per process (`tes/progress/controller`,
+    /// …), on which each process of the group says how far it got, a few times a second
+    /// ([`crate::Progress`]): the launcher watches them for a group that stopped making
+    /// progress and names the process that went silent.
+    pub const PROGRESS: &str = "tes/progress";
 }
 
 /// Every service name of one process group, each [`service`] name behind the group's prefix
@@ -124,6 +129,8 @@ pub struct ServiceNames {
     pub world_map: String,
     /// [`service::WORLD_MAP_EVENT`].
     pub world_map_event: String,
+    /// [`service::PROGRESS`] of each [`Role`], in [`Role::ALL`] order.
+    pub progress: [String; 3],
 }
 
 impl Default for ServiceNames {
@@ -145,7 +152,13 @@ impl ServiceNames {
             motor_state_event: name(service::MOTOR_STATE_EVENT),
             world_map: name(service::WORLD_MAP),
             world_map_event: name(service::WORLD_MAP_EVENT),
+            progress: Role::ALL.map(|r| name(&format!("{}/{}", service::PROGRESS, r.name()))),
         }
+    }
+
+    /// The progress service of `role`.
+    pub fn progress_of(&self, role: Role) -> &str {
+        &self.progress[role as usize - 1]
     }
 }
 
@@ -323,6 +336,80 @@ pub fn effect_between(
     best.0
 }
 
+/// Which process of the group a [`Progress`] report comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum Role {
+    /// perception-sim: the world and its camera.
+    Perception = 1,
+    /// The controller: learn, plan, act.
+    Controller = 2,
+    /// The bridge to the brick.
+    Bridge = 3,
+}
+
+impl Role {
+    /// Every role, in the order the data flows.
+    pub const ALL: [Role; 3] = [Role::Perception, Role::Controller, Role::Bridge];
+
+    /// The role a [`Progress::role`] number names.
+    pub fn from_number(n: u32) -> Option<Self> {
+        Self::ALL.into_iter().find(|r| *r as u32 == n)
+    }
+
+    /// The process's name, as the launcher calls it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Role::Perception => "perception-sim",
+            Role::Controller => "controller",
+            Role::Bridge => "bridge",
+        }
+    }
+}
+
+/// Bit flags of a [`Progress`] report.
+pub mod progress_flags {
+    /// The bridge's link to the brick is down (its transport failed and has not recovered).
+    pub const LINK_DOWN: u32 = 1;
+    /// The bridge's link has not been up yet since the bridge started.
+    pub const LINK_NEVER_UP: u32 = 1 << 1;
+}
+
+/// How far one process of the group got: published on [`service::PROGRESS`] a few times a
+/// second, off the acting path (after a command is out, or while idle), so that a watcher
+/// can tell a group that stopped making progress and which process holds it up.
+///
+/// The three sequence fields follow the loop observation → command → motion: perception
+/// publishes observation `out_seq` after using the motion of command `in_seq`; the controller
+/// answers observation `in_seq` with command `out_seq`; the bridge executes command `in_seq`
+/// and reports the motion of command `out_seq` settled.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
+#[type_name("tes::Progress")]
+#[repr(C)]
+pub struct Progress {
+    /// Monotonic clock (ns) when published.
+    pub stamp_ns: u64,
+    /// Monotonic clock (ns) when the process started.
+    pub started_ns: u64,
+    /// The process id.
+    pub pid: u32,
+    /// The [`Role`], as its number.
+    pub role: u32,
+    /// Episodes finished.
+    pub episodes: u64,
+    /// Steps done: observations published (perception), commands sent (controller),
+    /// commands executed (bridge).
+    pub steps: u64,
+    /// The newest sequence number taken in (see the type's docs).
+    pub in_seq: u64,
+    /// The newest sequence number given out (see the type's docs).
+    pub out_seq: u64,
+    /// [`progress_flags`] bits.
+    pub flags: u32,
+    /// Padding; always 0.
+    pub reserved: u32,
+}
+
 /// Bit flags of an [`Observation`].
 pub mod observation_flags {
     /// The state is terminal: the episode ends with this observation.
@@ -370,7 +457,8 @@ pub struct Observation {
 pub struct Command {
     /// Strictly increasing per publisher, starting at 1.
     pub seq: u64,
-    /// The `seq` of the observation this command answers.
+    /// The `seq` of the observation this command answers. For a keep-alive: the `seq` of the
+    /// command in flight (whose outcome the controller awaits), 0 if none.
     pub answers: u64,
     /// Monotonic clock (ns) when the command was published.
     pub stamp_ns: u64,
@@ -383,8 +471,47 @@ pub struct Command {
     pub left_deg: i32,
     /// Signed target rotation of the right wheel, degrees.
     pub right_deg: i32,
-    /// Reserved; always 0.
-    pub reserved: u32,
+    /// For a keep-alive: the action of the command in flight (its wheel targets are in
+    /// `left_deg`/`right_deg`, its `seq` in `answers`), so that a bridge that starts while
+    /// the keep-alive is the latest command can still carry out the command in flight
+    /// ([`Command::in_flight`]). 0 otherwise.
+    pub in_flight_action: u32,
+}
+
+impl Command {
+    /// A keep-alive (see [`KEEP_ALIVE_ACTION`]) numbered `seq`, sent at `stamp_ns`, carrying
+    /// the command in flight, if any.
+    pub fn keep_alive(seq: u64, stamp_ns: u64, in_flight: Option<&Command>) -> Self {
+        let mut k = Command {
+            seq,
+            stamp_ns,
+            action: KEEP_ALIVE_ACTION,
+            ..Command::default()
+        };
+        if let Some(c) = in_flight {
+            (k.answers, k.in_flight_action) = (c.seq, c.action);
+            (k.left_deg, k.right_deg) = (c.left_deg, c.right_deg);
+        }
+        k
+    }
+
+    /// The command this one stands for while it is the latest: itself, or for a keep-alive
+    /// the command in flight it carries (`None` if it carries none).
+    pub fn in_flight(&self) -> Option<Command> {
+        if self.action != KEEP_ALIVE_ACTION {
+            return Some(*self);
+        }
+        (self.answers != 0).then_some(Command {
+            seq: self.answers,
+            answers: 0,
+            stamp_ns: self.stamp_ns,
+            observed_ns: 0,
+            action: self.in_flight_action,
+            left_deg: self.left_deg,
+            right_deg: self.right_deg,
+            in_flight_action: 0,
+        })
+    }
 }
 
 /// The [`Command::action`] that moves nothing and only tells the bridge the controller is
@@ -474,7 +601,34 @@ mod tests {
         assert_eq!(core::mem::size_of::<Observation>(), 96);
         assert_eq!(core::mem::size_of::<Command>(), 48);
         assert_eq!(core::mem::size_of::<MotorState>(), 64);
+        assert_eq!(core::mem::size_of::<Progress>(), 64);
         assert_eq!(FEATURE_CAPACITY, 320);
+    }
+
+    #[test]
+    fn a_keep_alive_carries_the_command_in_flight() {
+        let command = Command {
+            seq: 7,
+            answers: 3,
+            action: 2,
+            left_deg: 90,
+            right_deg: -90,
+            ..Command::default()
+        };
+        assert_eq!(command.in_flight(), Some(command));
+        let k = Command::keep_alive(8, 55, Some(&command));
+        assert_eq!(k.action, KEEP_ALIVE_ACTION);
+        let carried = k.in_flight().expect("carried");
+        assert_eq!(
+            (
+                carried.seq,
+                carried.action,
+                carried.left_deg,
+                carried.right_deg
+            ),
+            (7, 2, 90, -90)
+        );
+        assert_eq!(Command::keep_alive(9, 56, None).in_flight(), None);
     }
 
     #[test]

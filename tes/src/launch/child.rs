@@ -30,8 +30,17 @@ pub fn run_child(role: &str, config: &Path) -> Result<()> {
                 handle_signals: false,
                 stop: Some(stop),
             };
-            tes_bridge::process::run(&cfg, &opts)?;
-            Ok(())
+            match tes_bridge::process::run(&cfg, &opts) {
+                Err(e @ tes_bridge::process::ProcessError::LinkDown { .. }) => {
+                    // A distinct status: the launcher ends the launch instead of respawning.
+                    eprintln!("error: {e}");
+                    std::process::exit(tes_bridge::process::LINK_DOWN_EXIT_STATUS);
+                }
+                done => {
+                    done?;
+                    Ok(())
+                }
+            }
         }
         relay if tes_bench::relay::ROLES.contains(&relay) => {
             let cfg = tes_bench::relay::RelayConfig::from_toml_in(&text, origin)?;

@@ -33,13 +33,18 @@ pub struct LaunchSection {
     pub max_restarts: u32,
     /// Grace period of each shutdown step, ms (default 3000).
     pub grace_ms: u64,
-    /// Prefix of every iceoryx2 service (default none; set one per group to run several
-    /// groups side by side).
+    /// Prefix of every iceoryx2 service. Unset (the default), each launch gets one of its own,
+    /// `tes-PID-XXXXXXXX/`, so any number of launches run side by side; a prefix already used
+    /// by a running group is refused.
     pub service_prefix: String,
     /// Where each child's settings are written (default: `run` in the data directory).
     pub run_dir: Option<PathBuf>,
     /// Seed of the world and the agent (default 1).
     pub seed: u64,
+    /// A group whose controller sends no command for this long is stalled: the launcher
+    /// names the process holding it up and stops the group (`restart = "never"`) or
+    /// restarts that process (`on-failure`), ms of wall time (default 10000, at least 500).
+    pub stall_timeout_ms: u64,
 }
 
 impl Default for LaunchSection {
@@ -55,6 +60,7 @@ impl Default for LaunchSection {
             service_prefix: String::new(),
             run_dir: None,
             seed: 1,
+            stall_timeout_ms: 10_000,
         }
     }
 }
@@ -305,6 +311,12 @@ pub(crate) fn check_launch(l: &LaunchSection) -> Result<(), SettingError> {
     if l.episodes == 0 {
         return bad("episodes", "must be at least 1".into());
     }
+    if l.stall_timeout_ms < 500 {
+        return bad(
+            "stall_timeout_ms",
+            format!("must be at least 500, got {}", l.stall_timeout_ms),
+        );
+    }
     if l.service_prefix.len() > 64 {
         return bad("service_prefix", "must be at most 64 bytes".into());
     }
@@ -329,13 +341,22 @@ pub(crate) enum LaunchFileError {
     /// each other, or the text is not TOML: placed in the file (its origin, line, table and
     /// key).
     Setting(SettingError),
-    /// The children's settings cannot be written to the run directory.
+    /// The children's settings cannot be serialised (a bug).
     Write {
         /// The launch file (or the embedded defaults).
         origin: Origin,
         /// Why.
         error: anyhow::Error,
     },
+    /// The run directory cannot be created or written (disk full, read-only, permissions).
+    RunDir {
+        /// The file or directory.
+        path: PathBuf,
+        /// Why.
+        error: std::io::Error,
+    },
+    /// Another group owns the run directory.
+    Busy(LockError),
 }
 
 impl std::fmt::Display for LaunchFileError {
@@ -358,6 +379,26 @@ impl std::fmt::Display for LaunchFileError {
             LaunchFileError::Write { origin, error } => {
                 write!(f, "{} {origin}: {error:#}", what(origin))?;
             }
+            LaunchFileError::RunDir { path, error } => write!(
+                f,
+                "cannot write the run directory: {}: {}",
+                path.display(),
+                tes_runtime::cause::explain(error)
+            )?,
+            LaunchFileError::Busy(LockError::Held { path, pid, .. }) => write!(
+                f,
+                "the run directory {} is in use by another tes launch{}; stop that one first, \
+                 or give this launch a data directory of its own (TES_DATA_DIR) or another \
+                 [launch] run_dir",
+                path.parent().unwrap_or(path).display(),
+                pid.map(|p| format!(" (pid {p})")).unwrap_or_default()
+            )?,
+            LaunchFileError::Busy(LockError::Io { path, error, .. }) => write!(
+                f,
+                "cannot lock the run directory: {}: {}",
+                path.display(),
+                tes_runtime::cause::explain(error)
+            )?,
         }
         f.write_str("; nothing was started")
     }
@@ -374,8 +415,32 @@ pub(crate) fn read_launch_file(path: &Path) -> Result<LaunchFile, LaunchFileErro
     LaunchFile::from_toml(&text, Origin::File(path.to_owned())).map_err(LaunchFileError::Setting)
 }
 
-/// Checks every child's settings and writes them to the run directory.
-pub(crate) fn prepare(file: &LaunchFile) -> Result<Vec<ChildSpec>, LaunchFileError> {
+/// A launch ready to start: its children's settings written, its run directory owned.
+#[derive(Debug)]
+pub(crate) struct Prepared {
+    /// The children, in start order.
+    pub(crate) specs: Vec<ChildSpec>,
+    /// Where their settings, output and logs are.
+    pub(crate) run_dir: PathBuf,
+    /// The group's service prefix (its own unless the file sets one).
+    pub(crate) service_prefix: String,
+    /// The run directory's lock, held for the group's life.
+    pub(crate) _lock: Lock,
+}
+
+/// A service prefix no other launch has: this process's id and the clock's low bits.
+pub(crate) fn unique_service_prefix() -> String {
+    let ns = tes_runtime::clock::monotonic_ns();
+    format!("tes-{}-{:08x}/", std::process::id(), ns & 0xffff_ffff)
+}
+
+/// Checks every child's settings, takes the run directory for this launch and writes their
+/// settings there. A launch without a service prefix gets one of its own.
+pub(crate) fn prepare(file: &LaunchFile) -> Result<Prepared, LaunchFileError> {
+    let mut file = file.clone();
+    if file.launch.service_prefix.is_empty() {
+        file.launch.service_prefix = unique_service_prefix();
+    }
     let children = file.children().map_err(LaunchFileError::Setting)?;
     let unwritable = |error: anyhow::Error| LaunchFileError::Write {
         origin: file.origin.clone(),
@@ -386,9 +451,12 @@ pub(crate) fn prepare(file: &LaunchFile) -> Result<Vec<ChildSpec>, LaunchFileErr
         .run_dir
         .clone()
         .unwrap_or_else(|| default_data_dir().join("run"));
-    std::fs::create_dir_all(&run_dir)
-        .with_context(|| format!("cannot create the run directory {}", run_dir.display()))
-        .map_err(unwritable)?;
+    std::fs::create_dir_all(&run_dir).map_err(|error| LaunchFileError::RunDir {
+        path: run_dir.clone(),
+        error,
+    })?;
+    let lock = Lock::acquire(&run_dir.join("launch.lock"), "run directory")
+        .map_err(LaunchFileError::Busy)?;
     let texts = [
         ("bridge", toml::to_string(&children.bridge)),
         ("controller", toml::to_string(&children.controller)),
@@ -400,14 +468,20 @@ pub(crate) fn prepare(file: &LaunchFile) -> Result<Vec<ChildSpec>, LaunchFileErr
             .with_context(|| format!("cannot write the {role}'s settings"))
             .map_err(unwritable)?;
         let path = run_dir.join(format!("{role}.toml"));
-        std::fs::write(&path, text)
-            .with_context(|| format!("cannot write {}", path.display()))
-            .map_err(unwritable)?;
+        std::fs::write(&path, text).map_err(|error| LaunchFileError::RunDir {
+            path: path.clone(),
+            error,
+        })?;
         let role = ROLES
             .into_iter()
             .find(|r| *r == role)
             .unwrap_or("controller");
         specs.push(ChildSpec { role, config: path });
     }
-    Ok(specs)
+    Ok(Prepared {
+        specs,
+        run_dir,
+        service_prefix: file.launch.service_prefix.clone(),
+        _lock: lock,
+    })
 }

@@ -28,16 +28,20 @@ pub(crate) struct GroupOutcome {
     pub(crate) episodes: u32,
 }
 
+/// How long the group may take to start (the controller loads its library and plans) before
+/// the stall watch applies, on top of `stall_timeout_ms`.
+const START_ALLOWANCE: Duration = Duration::from_secs(20);
+
+/// How many of a child's last log lines the launcher keeps, to say why it died.
+const LAST_WORDS: usize = 3;
+
 /// [`run_file`] with the children already prepared.
-pub(crate) fn run_group(
-    file: &LaunchFile,
-    specs: Vec<ChildSpec>,
-    echo: bool,
-) -> Result<GroupOutcome> {
+pub(crate) fn run_group(file: &LaunchFile, prepared: Prepared, echo: bool) -> Result<GroupOutcome> {
     let launch = &file.launch;
+    let say = logs::Say::default();
     let note = |text: String| {
         if echo {
-            eprintln!("{text}");
+            say.err(&text);
         }
     };
 
@@ -51,16 +55,52 @@ pub(crate) fn run_group(
         Ok(n) => note(format!(
             "launch: removed the stale iceoryx2 resources of {n} dead processes"
         )),
-        Err(e) => eprintln!("launch: warning: {e}"),
+        Err(e) => say.err(&format!("launch: warning: {e}")),
     }
+    let prefix = &prepared.service_prefix;
+    // A group is there if its processes' progress services are (a watcher of other services,
+    // such as a test subscribing early, is not a group).
+    let progress = format!("{prefix}{}", tes_topics::service::PROGRESS);
+    let taken =
+        channel::services_with_prefix(&progress).context("cannot list iceoryx2 services")?;
+    if !taken.is_empty() {
+        bail!(
+            "the service prefix {prefix:?} is in use by another running group; give this \
+             launch another [launch] service_prefix, or leave it unset for one of its own; \
+             nothing was started"
+        );
+    }
+    let node = channel::node(false)?;
+    let names = ServiceNames::with_prefix(prefix);
+    let mut watch = ProgressWatch::open(&node, &names)?;
     note(format!(
-        "launch: arena Env {}, {} episodes, real-time factor {}, wait {}, restart {:?}",
-        launch.arena, launch.episodes, launch.real_time_factor, launch.wait, launch.restart
+        "launch: arena Env {}, {} episodes, real-time factor {}, wait {}, restart {:?}, \
+         services {prefix}*, run directory {}",
+        launch.arena,
+        launch.episodes,
+        launch.real_time_factor,
+        launch.wait,
+        launch.restart,
+        prepared.run_dir.display()
     ));
-    let (lines_tx, lines) = mpsc::channel::<String>();
+    let library = file.controller.library_path();
+    match std::fs::symlink_metadata(&library) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => note(format!(
+            "launch: no view library at {}; the controller starts from an empty one",
+            library.display()
+        )),
+        _ => note(format!("launch: view library {}", library.display())),
+    }
+    let (lines_tx, lines) = mpsc::channel::<ChildLine>();
+    let following = Arc::new(AtomicBool::new(false));
     let mut children = Vec::new();
-    for spec in specs {
-        let child = spawn(&spec, &lines_tx)?;
+    for spec in prepared.specs {
+        let dir = run_dir_of(&spec);
+        logs::reset(&dir, spec.role)?;
+        for (stream, path) in logs::paths(&dir, spec.role) {
+            logs::follow(path, spec.role, stream, lines_tx.clone(), following.clone())?;
+        }
+        let child = spawn(&spec)?;
         children.push(Running {
             spec,
             child,
@@ -68,22 +108,27 @@ pub(crate) fn run_group(
             status: None,
         });
     }
+    drop(lines_tx);
     let grace = Duration::from_millis(launch.grace_ms);
+    let stall_timeout = Duration::from_millis(launch.stall_timeout_ms);
+    let mut relay = Relay {
+        echo,
+        say: &say,
+        last_words: BTreeMap::new(),
+        episodes: 0,
+    };
     let mut failure: Option<String> = None;
-    let mut episodes = 0u32;
+    // The controller's commands are the group's progress: its last count, and until when the
+    // group may go without a new one.
+    let mut last_steps = None;
+    let mut stall_deadline = Instant::now() + START_ALLOWANCE + stall_timeout;
     'supervise: loop {
-        for line in lines.try_iter() {
-            if line.starts_with("episode ") {
-                episodes += 1;
-            }
-            if echo {
-                println!("{line}");
-            }
-        }
+        relay.drain(&lines);
         if stop.load(Ordering::Relaxed) {
-            eprintln!("launch: stop requested; stopping the group");
+            say.err("launch: stop requested; stopping the group");
             break;
         }
+        let mut respawned = Vec::new();
         for i in 0..children.len() {
             let Some(status) = children[i]
                 .child
@@ -99,59 +144,120 @@ pub(crate) fn run_group(
                 break 'supervise;
             }
             let why = describe(status);
+            if role == "bridge" && status.code() == Some(tes_bridge::process::LINK_DOWN_EXIT_STATUS)
+            {
+                // Respawning cannot bring a link back: the launch ends here.
+                relay.drain_until_quiet(&lines);
+                let cause = relay
+                    .last_error(role)
+                    .unwrap_or_else(|| "the link to the brick is down".to_owned());
+                say.err(&format!(
+                    "launch: bridge stopped: {cause}; stopping the others"
+                ));
+                children[i].status = Some(status);
+                failure = Some(format!("bridge: {cause}"));
+                break 'supervise;
+            }
             let may_restart = launch.restart == Restart::OnFailure
                 && !status.success()
                 && children[i].restarts < launch.max_restarts;
             if !may_restart {
-                eprintln!("launch: {role} {why}; stopping the others");
+                relay.drain_until_quiet(&lines);
+                let said = relay
+                    .last_error(role)
+                    .map(|e| format!(" ({e})"))
+                    .unwrap_or_default();
+                say.err(&format!("launch: {role} {why}{said}; stopping the others"));
                 children[i].status = Some(status);
-                failure = Some(format!("{role} {why}"));
+                failure = Some(format!("{role} {why}{said}"));
                 break 'supervise;
             }
             children[i].restarts += 1;
-            eprintln!(
+            say.err(&format!(
                 "launch: {role} {why}; respawning it (restart {}/{})",
                 children[i].restarts, launch.max_restarts
-            );
+            ));
             if let Err(e) = channel::clean_stale_resources() {
-                eprintln!("launch: warning: {e}");
+                say.err(&format!("launch: warning: {e}"));
             }
-            children[i].child = spawn(&children[i].spec, &lines_tx)?;
+            children[i].child = spawn(&children[i].spec)?;
+            respawned.push(role);
+        }
+        // The stall watch: the controller's commands are the group's progress.
+        watch.poll()?;
+        for role in respawned {
+            if let Some(r) = Role::ALL.into_iter().find(|r| r.name() == role) {
+                watch.forget(r);
+            }
+            stall_deadline = Instant::now() + START_ALLOWANCE + stall_timeout;
+        }
+        let steps = watch.latest(Role::Controller).map(|p| p.steps);
+        if steps.is_some() && steps != last_steps {
+            last_steps = steps;
+            stall_deadline = Instant::now() + stall_timeout;
+        } else if Instant::now() > stall_deadline {
+            let latest = Role::ALL.map(|r| watch.latest(r).copied());
+            // Reports come every quarter second: a process silent for half the stall is the one.
+            let quiet = (stall_timeout / 2).max(Duration::from_millis(600));
+            let holdup = holdup(&latest, tes_runtime::clock::monotonic_ns(), quiet);
+            let silent = format!(
+                "the group made no progress for {:.1} s: {holdup}",
+                stall_timeout.as_secs_f64()
+            );
+            let index = children
+                .iter()
+                .position(|c| c.spec.role == holdup.role.name());
+            let may_restart = launch.restart == Restart::OnFailure
+                && index.is_some_and(|i| children[i].restarts < launch.max_restarts);
+            match index {
+                Some(i) if may_restart => {
+                    say.err(&format!("launch: {silent}; restarting it"));
+                    // Killed here, respawned by the loop above like any failed child.
+                    let _ = children[i].child.kill();
+                    stall_deadline = Instant::now() + START_ALLOWANCE + stall_timeout;
+                }
+                _ => {
+                    say.err(&format!("launch: {silent}; stopping the group"));
+                    failure = Some(silent);
+                    break 'supervise;
+                }
+            }
         }
         std::thread::sleep(Duration::from_millis(20));
     }
     shutdown(&mut children, grace);
-    // Every child has exited; take what they printed last (the controller reports its last
-    // episode and its summary on the way out) until each one's output is closed, or 2 s.
-    drop(lines_tx);
+    // Every child has exited; take what they wrote last (the controller reports its last
+    // episode and its summary on the way out).
+    following.store(true, Ordering::Release);
     let deadline = Instant::now() + Duration::from_secs(2);
     while let Ok(line) = lines.recv_timeout(deadline.saturating_duration_since(Instant::now())) {
-        if line.starts_with("episode ") {
-            episodes += 1;
-        }
-        if echo {
-            println!("{line}");
-        }
+        relay.take(line);
     }
+    let episodes = relay.episodes;
     let mut failed: Vec<String> = failure.into_iter().collect();
     for c in &children {
         match c.status {
             Some(s) if !s.success() && !stopped_by_us(s) => {
-                failed.push(format!("{} {}", c.spec.role, describe(s)));
+                let line = format!("{} {}", c.spec.role, describe(s));
+                if !failed
+                    .iter()
+                    .any(|f| f.starts_with(c.spec.role) || *f == line)
+                {
+                    failed.push(line);
+                }
             }
             _ => {}
         }
     }
-    failed.dedup();
     if echo {
-        println!(
+        say.out(&format!(
             "launch: {episodes} episodes; {}",
             if failed.is_empty() {
                 "all processes stopped cleanly".to_owned()
             } else {
                 format!("failed: {}", failed.join("; "))
             }
-        );
+        ));
     }
     if !failed.is_empty() {
         bail!("a process failed: {}", failed.join("; "));
@@ -159,16 +265,92 @@ pub(crate) fn run_group(
     Ok(GroupOutcome { episodes })
 }
 
-/// Starts one child: this executable in the child's role, dying with the launcher.
-pub(crate) fn spawn(spec: &ChildSpec, lines: &mpsc::Sender<String>) -> Result<Child> {
+/// Relays the children's lines: standard output (episode lines, summaries) to the launcher's
+/// standard output when echoing, logs to its standard error; keeps each child's last log lines.
+struct Relay<'a> {
+    echo: bool,
+    say: &'a logs::Say,
+    last_words: BTreeMap<&'static str, VecDeque<String>>,
+    /// Episode lines seen.
+    episodes: u32,
+}
+
+impl Relay<'_> {
+    fn take(&mut self, line: ChildLine) {
+        match line.stream {
+            logs::Stream::Out => {
+                if line.text.starts_with("episode ") {
+                    self.episodes += 1;
+                }
+                if self.echo {
+                    self.say.out(&line.text);
+                }
+            }
+            logs::Stream::Log => {
+                self.say.err(&line.text);
+                let kept = self.last_words.entry(line.role).or_default();
+                if kept.len() == LAST_WORDS {
+                    kept.pop_front();
+                }
+                kept.push_back(line.text);
+            }
+        }
+    }
+
+    /// Takes every line that has arrived.
+    fn drain(&mut self, lines: &mpsc::Receiver<ChildLine>) {
+        for line in lines.try_iter() {
+            self.take(line);
+        }
+    }
+
+    /// Takes lines until none has come for a moment (a child that just died may still have
+    /// its last words on their way from its files).
+    fn drain_until_quiet(&mut self, lines: &mpsc::Receiver<ChildLine>) {
+        while let Ok(line) = lines.recv_timeout(Duration::from_millis(50)) {
+            self.take(line);
+        }
+    }
+
+    /// The last error line `role` logged (else its last line), without a log line's
+    /// timestamp and level.
+    fn last_error(&self, role: &str) -> Option<String> {
+        let kept = self.last_words.get(role)?;
+        kept.iter()
+            .rev()
+            .find(|l| l.contains(" ERROR ") || l.starts_with("error"))
+            .or_else(|| kept.back())
+            .map(|l| {
+                let l = l.trim();
+                l.split_once(" ERROR ")
+                    .map(|(_, rest)| rest.trim_start())
+                    .or_else(|| l.strip_prefix("error: "))
+                    .unwrap_or(l)
+                    .to_owned()
+            })
+    }
+}
+
+/// The run directory a child's settings are in (its output goes there too).
+fn run_dir_of(spec: &ChildSpec) -> PathBuf {
+    spec.config
+        .parent()
+        .map_or_else(|| PathBuf::from("."), Path::to_path_buf)
+}
+
+/// Starts one child: this executable in the child's role, dying with the launcher; its
+/// output goes to its files in the run directory (see [`logs`]).
+pub(crate) fn spawn(spec: &ChildSpec) -> Result<Child> {
     let exe = std::env::current_exe().context("cannot find the tes executable")?;
+    let (out, log) = logs::open(&run_dir_of(spec), spec.role)?;
     let mut cmd = Command::new(exe);
     cmd.arg("child")
         .arg(spec.role)
         .arg("--config")
         .arg(&spec.config)
         .stdin(Stdio::null())
-        .stdout(Stdio::piped());
+        .stdout(Stdio::from(out))
+        .stderr(Stdio::from(log));
     // SAFETY: `pre_exec` runs in the forked child before exec; prctl(PR_SET_PDEATHSIG) is
     // async-signal-safe and touches no memory of the parent.
     unsafe {
@@ -176,25 +358,13 @@ pub(crate) fn spawn(spec: &ChildSpec, lines: &mpsc::Sender<String>) -> Result<Ch
             nix::sys::prctl::set_pdeathsig(Signal::SIGTERM).map_err(std::io::Error::from)
         });
     }
-    let mut child = cmd
-        .spawn()
-        .with_context(|| format!("cannot start {}", spec.role))?;
-    if let Some(out) = child.stdout.take() {
-        relay(out, lines.clone());
-    }
-    Ok(child)
-}
-
-/// Forwards a child's stdout, line by line, to the launcher.
-pub(crate) fn relay(out: ChildStdout, lines: mpsc::Sender<String>) {
-    std::thread::spawn(move || {
-        for line in BufReader::new(out).lines() {
-            let Ok(line) = line else { break };
-            if lines.send(line).is_err() {
-                break;
-            }
-        }
-    });
+    cmd.spawn().map_err(|e| {
+        anyhow::anyhow!(
+            "cannot start {}: {}",
+            spec.role,
+            tes_runtime::cause::explain(&e)
+        )
+    })
 }
 
 /// SIGINT, then SIGTERM after `grace`, then SIGKILL after `grace`; waits for every child.
