@@ -34,8 +34,8 @@ use std::time::{Duration, Instant};
 use iceoryx2::prelude::*;
 use tes_runtime::channel::{Idle, LatestInbox, Outbox, WaitStrategy};
 use tes_runtime::latency::{LatencyRecorder, LatencyReport};
-use tes_runtime::progress::ProgressOutbox;
-use tes_topics::{Command, MotorState, Progress, Role, motor_flags, progress_flags};
+use tes_runtime::progress::{ProgressOutbox, ProgressWatch};
+use tes_topics::{Command, MotorState, Role, motor_flags, progress_flags};
 
 use crate::bridge::{Bridge, BridgeError};
 use crate::clock::Clock;
@@ -320,27 +320,12 @@ fn in_flight_at_start(
     if cmd.seq == 0 {
         return Ok(None);
     }
-    let service =
-        tes_runtime::channel::pubsub::<Progress>(node, names.progress_of(Role::Perception), 1)?;
-    let subscriber = service
-        .subscriber_builder()
-        .create()
-        .map_err(ipc_err("create a progress subscriber"))?;
+    let mut watch = ProgressWatch::open(node, names)?;
     let deadline = Instant::now() + PERCEPTION_REPORT_WAIT;
     while Instant::now() < deadline && !stop.load(std::sync::atomic::Ordering::Relaxed) {
-        if let Some(report) = subscriber
-            .receive()
-            .map_err(ipc_err("receive a progress report"))?
-        {
-            // Take the newest report there is.
-            let mut newest = *report;
-            while let Some(r) = subscriber
-                .receive()
-                .map_err(ipc_err("receive a progress report"))?
-            {
-                newest = *r;
-            }
-            return Ok((newest.in_seq < cmd.seq).then_some(cmd));
+        watch.poll()?;
+        if let Some(perception) = watch.latest(Role::Perception) {
+            return Ok((perception.in_seq < cmd.seq).then_some(cmd));
         }
         std::thread::sleep(Duration::from_millis(5));
     }

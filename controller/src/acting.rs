@@ -471,6 +471,12 @@ impl ActingLoop {
         self.planner.work(self.agent.model_mut())
     }
 
+    /// When the last command or keep-alive went out (the clock's reading in
+    /// [`command_sent`](Self::command_sent) or [`on_idle`](Self::on_idle)).
+    pub fn last_sent_ns(&self) -> u64 {
+        self.last_sent_ns
+    }
+
     /// Whether the warm-up actions are behind (the latency figures count from here).
     pub fn warmed_up(&self) -> bool {
         self.decision.warmed_up()

@@ -342,7 +342,7 @@ pub fn run(
         let report = progress.report_mut();
         (report.in_seq, report.out_seq) = (obs.seq, command.seq);
         (report.steps, report.episodes) = (acting.counts().actions, acting.counts().episodes);
-        progress.publish_due(clock.now_ns())?;
+        progress.publish_due(acting.last_sent_ns())?;
         if let Some(line) = sent.report {
             on_episode(&line);
         }

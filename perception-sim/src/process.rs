@@ -289,17 +289,21 @@ fn wait_for_the_group(
     let started = std::time::Instant::now();
     let mut said = started;
     let mut at_rest = None;
+    // A heartbeat of the brick at rest over a working link gives the wheels' counts.
+    let rest = |m: MotorState| {
+        (m.flags & motor_flags::LINK_DOWN == 0 && m.flags & motor_flags::SETTLED != 0).then(|| {
+            [
+                m.tacho_count[config.left_port],
+                m.tacho_count[config.right_port],
+            ]
+        })
+    };
     loop {
         maps.update_connections()?;
         watch.poll()?;
         progress.publish_due(monotonic_ns())?;
         while let Some(m) = motors.try_next()? {
-            if m.flags & motor_flags::LINK_DOWN == 0 && m.flags & motor_flags::SETTLED != 0 {
-                at_rest = Some([
-                    m.tacho_count[config.left_port],
-                    m.tacho_count[config.right_port],
-                ]);
-            }
+            at_rest = rest(m).or(at_rest);
         }
         let controller_ready = watch.latest(Role::Controller).is_some();
         if let (true, Some(counts)) = (controller_ready, at_rest) {
@@ -327,14 +331,7 @@ fn wait_for_the_group(
         match motors.next(Duration::from_millis(10), stop)? {
             Err(Idle::Stopped) => return Ok(None),
             Err(Idle::Timeout) => {}
-            Ok(m) => {
-                if m.flags & motor_flags::LINK_DOWN == 0 && m.flags & motor_flags::SETTLED != 0 {
-                    at_rest = Some([
-                        m.tacho_count[config.left_port],
-                        m.tacho_count[config.right_port],
-                    ]);
-                }
-            }
+            Ok(m) => at_rest = rest(m).or(at_rest),
         }
     }
 }

@@ -12,42 +12,17 @@ use std::io;
 /// assert!(tes_runtime::cause::explain(&e).ends_with("too many open files: raise the limit (ulimit -n)"));
 /// ```
 pub fn explain(e: &io::Error) -> String {
-    let hint = match e.raw_os_error() {
-        Some(code) if code == libc_errno::ENOSPC || code == libc_errno::EDQUOT => {
-            Some("the disk is full")
-        }
-        Some(code) if code == libc_errno::EROFS => Some("the file system is read-only"),
-        Some(code) if code == libc_errno::EMFILE || code == libc_errno::ENFILE => {
-            Some("too many open files: raise the limit (ulimit -n)")
-        }
-        Some(code) if code == libc_errno::ENOENT => Some("no such file or device"),
-        Some(code) if code == libc_errno::ENODEV || code == libc_errno::ENXIO => {
-            Some("no such device (is it connected and switched on?)")
-        }
-        Some(code) if code == libc_errno::EACCES || code == libc_errno::EPERM => {
-            Some("permission denied")
-        }
-        _ => None,
-    };
-    match hint {
-        Some(h) => format!("{e}: {h}"),
-        None => e.to_string(),
-    }
-}
-
-/// The error numbers `explain` knows, from `nix` (no `libc` dependency needed).
-mod libc_errno {
     use nix::errno::Errno;
-    pub const ENOSPC: i32 = Errno::ENOSPC as i32;
-    pub const EDQUOT: i32 = Errno::EDQUOT as i32;
-    pub const EROFS: i32 = Errno::EROFS as i32;
-    pub const EMFILE: i32 = Errno::EMFILE as i32;
-    pub const ENFILE: i32 = Errno::ENFILE as i32;
-    pub const ENOENT: i32 = Errno::ENOENT as i32;
-    pub const ENODEV: i32 = Errno::ENODEV as i32;
-    pub const ENXIO: i32 = Errno::ENXIO as i32;
-    pub const EACCES: i32 = Errno::EACCES as i32;
-    pub const EPERM: i32 = Errno::EPERM as i32;
+    let hint = match e.raw_os_error().map(Errno::from_raw) {
+        Some(Errno::ENOSPC | Errno::EDQUOT) => "the disk is full",
+        Some(Errno::EROFS) => "the file system is read-only",
+        Some(Errno::EMFILE | Errno::ENFILE) => "too many open files: raise the limit (ulimit -n)",
+        Some(Errno::ENOENT) => "no such file or device",
+        Some(Errno::ENODEV | Errno::ENXIO) => "no such device (is it connected and switched on?)",
+        Some(Errno::EACCES | Errno::EPERM) => "permission denied",
+        _ => return e.to_string(),
+    };
+    format!("{e}: {hint}")
 }
 
 /// Whether this process has (nearly) run out of file descriptors: it has fewer than 16 left
@@ -64,12 +39,12 @@ pub fn is_out_of_descriptors() -> bool {
     {
         return true;
     }
-    match std::fs::File::open("/dev/null") {
-        Ok(_) => false,
-        Err(e) => {
-            matches!(e.raw_os_error(), Some(c) if c == libc_errno::EMFILE || c == libc_errno::ENFILE)
-        }
-    }
+    std::fs::File::open("/dev/null").is_err_and(|e| {
+        matches!(
+            e.raw_os_error().map(nix::errno::Errno::from_raw),
+            Some(nix::errno::Errno::EMFILE | nix::errno::Errno::ENFILE)
+        )
+    })
 }
 
 #[cfg(test)]

@@ -12,10 +12,10 @@
 //! let path = dir.path().join("tes.lock");
 //! let held = Lock::acquire(&path, "data directory")?;
 //! // A second owner is refused, naming the holder.
-//! match Lock::acquire(&path, "data directory") {
-//!     Err(LockError::Held { pid, .. }) => assert_eq!(pid, Some(std::process::id())),
-//!     other => panic!("not refused: {other:?}"),
-//! }
+//! let Err(LockError::Held { pid, .. }) = Lock::acquire(&path, "data directory") else {
+//!     return Err("a second owner must be refused".into());
+//! };
+//! assert_eq!(pid, Some(std::process::id()));
 //! drop(held);
 //! let _again = Lock::acquire(&path, "data directory")?;
 //! # Ok::<(), Box<dyn std::error::Error>>(())

@@ -412,14 +412,23 @@ mod tests {
         Telegram::from_bytes(&[0x00, 0x0B]).expect("fits")
     }
 
+    /// Feeds `junk` then the frame of `t` to `d`.
+    fn junk_then(
+        d: &mut FrameDecoder,
+        junk: &[u8],
+        t: &Telegram,
+    ) -> Vec<Result<Telegram, FrameError>> {
+        let mut bytes = junk.to_vec();
+        bytes.extend_from_slice(t.to_frame().as_bytes());
+        feed(d, &bytes)
+    }
+
     #[test]
     fn a_stray_byte_before_a_frame_is_skipped() {
         let t = battery_request();
         for stray in 0..=u8::MAX {
             let mut d = FrameDecoder::requests();
-            let mut bytes = vec![stray];
-            bytes.extend_from_slice(t.to_frame().as_bytes());
-            let out = feed(&mut d, &bytes);
+            let out = junk_then(&mut d, &[stray], &t);
             assert_eq!(out.last(), Some(&Ok(t)), "stray 0x{stray:02X}: {out:?}");
             assert_eq!(out.iter().filter(|r| r.is_ok()).count(), 1);
             assert!(d.is_idle());
@@ -430,9 +439,7 @@ mod tests {
     fn a_zero_length_header_is_skipped_byte_by_byte() {
         let t = battery_request();
         let mut d = FrameDecoder::requests();
-        let mut bytes = vec![0x00, 0x00];
-        bytes.extend_from_slice(t.to_frame().as_bytes());
-        let out = feed(&mut d, &bytes);
+        let out = junk_then(&mut d, &[0x00, 0x00], &t);
         assert_eq!(out.first(), Some(&Err(FrameError::BadLength(0))));
         assert_eq!(out.last(), Some(&Ok(t)));
         // The two zero bytes and nothing of the frame were skipped.
@@ -444,9 +451,7 @@ mod tests {
         let t = battery_request();
         for junk in [[0x41, 0x00], [0xFF, 0xFF], [0x00, 0x01]] {
             let mut d = FrameDecoder::requests();
-            let mut bytes = junk.to_vec();
-            bytes.extend_from_slice(t.to_frame().as_bytes());
-            let out = feed(&mut d, &bytes);
+            let out = junk_then(&mut d, &junk, &t);
             assert!(
                 matches!(out.first(), Some(Err(FrameError::BadLength(n))) if *n == 0 || *n > 64),
                 "{out:?}"
