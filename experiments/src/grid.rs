@@ -34,6 +34,7 @@ use crate::episode::{
 pub use crate::stats::Summary;
 use crate::stats::summarise;
 use crate::svg::{BandPoint, LineChart, Series};
+use crate::verdict::TargetCheck;
 use tes_learning::plan::PlannerParams;
 
 /// A grid task as an experiment sees it.
@@ -241,6 +242,9 @@ pub struct GridReport {
     pub lore_over_fepsg_time: f64,
     /// RL-DT / loreRL seconds per episode (RL-DT at 10 features, loreRL at 210; paper: 16.5).
     pub rldt_over_lore_time: f64,
+    /// The paper's targets for this experiment and whether they hold (a `--quick` run says it
+    /// is too small to judge them).
+    pub targets: Vec<TargetCheck>,
 }
 
 /// Seconds per episode of one algorithm.
@@ -368,11 +372,7 @@ pub fn run(
                 continue;
             };
             finals.insert(a.name().to_owned(), final_of(runs));
-            series.push(Series {
-                name: a.name().to_owned(),
-                points: accumulated_curve(runs),
-                colour: Some(a as usize),
-            });
+            series.push(Series::method(a.name(), accumulated_curve(runs)));
         }
         let chart = LineChart {
             title: title.to_owned(),
@@ -398,38 +398,20 @@ pub fn run(
     )?;
 
     let mut fig3c: BTreeMap<String, BTreeMap<usize, Summary>> = BTreeMap::new();
-    let mut series = Vec::new();
     for a in FIG_3C {
-        let mut points = Vec::new();
         for &level in &config.irrelevant_levels {
             if let Some(runs) = by_cell.get(&Cell {
                 algorithm: a,
                 irrelevant: level,
             }) {
-                let s = final_of(runs);
                 fig3c
                     .entry(a.name().to_owned())
                     .or_default()
-                    .insert(level, s);
-                points.push(s.at(level as f64));
+                    .insert(level, final_of(runs));
             }
         }
-        series.push(Series {
-            name: a.name().to_owned(),
-            points,
-            colour: Some(a as usize),
-        });
     }
-    let chart = LineChart {
-        title: format!(
-            "Fig. 3c — accumulated reward after {} episodes",
-            config.episodes
-        ),
-        x_label: "irrelevant features".into(),
-        y_label: "accumulated reward".into(),
-        series,
-        markers: true,
-    };
+    let chart = fig3c_chart(&fig3c, config.episodes);
     write_file(&out.join("fig3c.svg"), &chart.to_svg())?;
 
     let mut table1 = BTreeMap::new();
@@ -465,6 +447,12 @@ pub fn run(
         (Some(r), Some(l)) if l > 0.0 => r / l,
         _ => f64::NAN,
     };
+    let targets = targets(
+        config.quick,
+        &fig3b_final,
+        lore_over_fepsg_time,
+        rldt_over_lore_time,
+    );
     let report = GridReport {
         config: config.clone(),
         task: task_name,
@@ -475,6 +463,7 @@ pub fn run(
         table1,
         lore_over_fepsg_time,
         rldt_over_lore_time,
+        targets,
     };
     write_summary(out, &report)?;
     Ok(report)
@@ -493,4 +482,75 @@ fn accumulated_curve(runs: &[RunResult]) -> Vec<BandPoint> {
         points.push(s.at((e + 1) as f64));
     }
     points
+}
+
+/// Fig. 3c from its final accumulated rewards: algorithm → (irrelevant features → summary),
+/// after `episodes` episodes. Algorithms are drawn in Fig. 3c's order.
+pub fn fig3c_chart(
+    fig3c: &BTreeMap<String, BTreeMap<usize, Summary>>,
+    episodes: usize,
+) -> LineChart {
+    let series = FIG_3C
+        .iter()
+        .filter_map(|a| {
+            let by_level = fig3c.get(a.name())?;
+            Some(Series::method(
+                a.name(),
+                by_level
+                    .iter()
+                    .map(|(&level, s)| s.at(level as f64))
+                    .collect(),
+            ))
+        })
+        .collect();
+    LineChart {
+        title: format!("Fig. 3c — accumulated reward after {episodes} episodes"),
+        x_label: "irrelevant features".into(),
+        y_label: "accumulated reward".into(),
+        series,
+        markers: true,
+    }
+}
+
+/// The paper's §5.1 targets, checked against a run's Fig. 3b rewards (200 irrelevant
+/// features) and Table 1 time ratios.
+fn targets(
+    quick: bool,
+    fig3b_final: &BTreeMap<String, Summary>,
+    lore_over_fepsg_time: f64,
+    rldt_over_lore_time: f64,
+) -> Vec<TargetCheck> {
+    let mean = |name: &str| fig3b_final.get(name).map_or(f64::NAN, |s| s.mean);
+    let (lore, fepsg, blore, frmax) = (
+        mean("loreRL"),
+        mean("fEpsG"),
+        mean("bloreRL"),
+        mean("fRmax"),
+    );
+    vec![
+        TargetCheck::new(
+            "200 irrelevant features: loreRL's accumulated reward >= 90 % of fEpsG's",
+            format!("loreRL {lore:.1}, fEpsG {fepsg:.1}"),
+            quick,
+            lore >= fepsg - 0.1 * fepsg.abs(),
+        ),
+        TargetCheck::new(
+            "200 irrelevant features: loreRL's accumulated reward above bloreRL's and fRmax's",
+            format!("loreRL {lore:.1}, bloreRL {blore:.1}, fRmax {frmax:.1}"),
+            quick,
+            lore > blore && lore > frmax,
+        ),
+        TargetCheck::new(
+            "Table 1: loreRL / fEpsG time per episode <= 2.5 (paper: 2.2)",
+            format!("{lore_over_fepsg_time:.2}"),
+            quick,
+            lore_over_fepsg_time <= 2.5,
+        ),
+        TargetCheck::new(
+            "Table 1: RL-DT / loreRL time per episode >= 10 (paper: 16.5)",
+            format!("{rldt_over_lore_time:.1}"),
+            quick,
+            rldt_over_lore_time >= 10.0,
+        ),
+    ]
 }

@@ -5,7 +5,11 @@
 //! * [`robot`] — §5.2: the robot arenas, TES against loreRL, LWT and the baselines
 //!   (Figs. 8–9, Tables 5–6);
 //! * [`episode`] — what they share: a task, the algorithms, running an episode;
-//! * [`stats`], [`svg`] — confidence intervals and dependency-free SVG charts for the reports;
+//! * [`stats`], [`svg`] — confidence intervals and dependency-free SVG charts for the reports,
+//!   every method in one colour across all of them;
+//! * [`verdict`] — the paper's targets and whether a run meets them (a `--quick` run is too
+//!   small to judge);
+//! * [`replot`] — redraws the figures a result folder's `summary.json` holds the data of;
 //! * [`write_labelled_csv`] and the `make-fit-demo` binary — the seeded demo stream that
 //!   `tes fit` runs on in the README (`data/fit-demo.csv`).
 //!
@@ -13,10 +17,12 @@
 
 pub mod episode;
 pub mod grid;
+pub mod replot;
 pub mod robot;
 pub mod stats;
 pub mod svg;
 pub mod transfer;
+pub mod verdict;
 
 use std::io::{self, Write};
 

@@ -38,7 +38,8 @@ use crate::episode::{
 };
 use crate::grid::GridEnv;
 use crate::stats::{Summary, summarise};
-use crate::svg::{LineChart, Series};
+use crate::svg::{CategoryChart, CategorySeries, Interval, LineChart, Series};
+use crate::verdict::{TargetCheck, Verdict};
 
 /// Settings of `tes experiment transfer`.
 #[derive(Debug, Clone, Serialize)]
@@ -166,7 +167,9 @@ impl Method {
         }
     }
 
-    fn colour(self) -> usize {
+    /// Offsets the method's agent seed within a job, so the methods of a run explore
+    /// independently (and the seeds stay those earlier runs recorded).
+    fn seed_offset(self) -> usize {
         match self {
             Method::Tes => 0,
             Method::Lwt => 1,
@@ -236,6 +239,9 @@ pub struct TransferReport {
     pub tes_beats_all_rands: usize,
     /// Agent seconds per test episode, per method.
     pub seconds_per_episode: BTreeMap<String, Summary>,
+    /// The paper's Table 2 targets and whether they hold (a `--quick` run says it is too
+    /// small to judge them; a run over fewer than all 15 tasks, that it left tasks out).
+    pub targets: Vec<TargetCheck>,
 }
 
 /// Runs the transfer experiment, writes its files into `out`, and returns the summary.
@@ -318,6 +324,7 @@ pub fn run(
             .collect();
         seconds_per_episode.insert(m.name(), summarise(&per_run));
     }
+    let targets = targets(config.quick, tasks.len(), tes_beats_lore_rl, tes_beats_lwt);
     let report = TransferReport {
         config: config.clone(),
         wall_seconds: started.elapsed().as_secs_f64(),
@@ -326,6 +333,7 @@ pub fn run(
         tes_beats_lwt,
         tes_beats_all_rands,
         seconds_per_episode,
+        targets,
     };
     write_summary(out, &report)?;
     Ok(report)
@@ -396,7 +404,7 @@ fn run_job(
     for &m in methods {
         let agent_seed = seed
             .wrapping_mul(31)
-            .wrapping_add(1_000 + m.colour() as u64);
+            .wrapping_add(1_000 + m.seed_offset() as u64);
         let transfer = |policy| {
             let params = TesParams {
                 policy,
@@ -506,11 +514,7 @@ fn write_fig4b(
             let s = summarise(&acc);
             points.push(s.at((e + 1) as f64));
         }
-        series.push(Series {
-            name: m.name(),
-            points,
-            colour: Some(m.colour()),
-        });
+        series.push(Series::method(m.name(), points));
     }
     let chart = LineChart {
         title: format!(
@@ -526,25 +530,99 @@ fn write_fig4b(
     write_file(&out.join(format!("fig4b-task{task}.svg")), &chart.to_svg())
 }
 
-/// Table 2 as a chart: first-episode reward per test task for TES, LWT and loreRL.
-fn write_jumpstart_chart(out: &Path, tasks: &[TaskSummary]) -> Result<()> {
-    let series = [Method::Tes, Method::Lwt, Method::LoreRl, Method::FEpsG]
-        .into_iter()
-        .map(|m| Series {
+/// The paper's Table 2 targets: TES's jumpstart beats loreRL's on at least 12 of the 15
+/// tasks and LWT's on at least 10, given how many of `tasks` each beat it on.
+fn targets(quick: bool, tasks: usize, beats_lore_rl: usize, beats_lwt: usize) -> Vec<TargetCheck> {
+    let all = GridSuite::TASKS;
+    let check = |target: &str, beats: usize, needed: usize| {
+        let mut check =
+            TargetCheck::new(target, format!("{beats} / {tasks}"), quick, beats >= needed);
+        if !quick && tasks < all {
+            check.verdict = Verdict::PartialRun;
+        }
+        check
+    };
+    vec![
+        check(
+            "Table 2: TES's jumpstart beats loreRL's on >= 12 of 15 tasks (paper: 14)",
+            beats_lore_rl,
+            12,
+        ),
+        check(
+            "Table 2: TES's jumpstart beats LWT's on >= 10 of 15 tasks (paper: 12)",
+            beats_lwt,
+            10,
+        ),
+    ]
+}
+
+/// The methods Table 2's chart shows.
+const TABLE2_METHODS: [Method; 4] = [Method::Tes, Method::Lwt, Method::LoreRl, Method::FEpsG];
+
+/// Table 2 as a chart: the first-episode reward of TES, LWT, loreRL and fEpsG on each test
+/// task, given per task as method name → summary. Tasks are categories — one slot per task
+/// of the suite, each method a dot with its 95 % interval, nothing joining tasks — and a task
+/// the run did not hold out is marked "not run".
+pub fn jumpstart_chart(jumpstart: &BTreeMap<usize, BTreeMap<String, Summary>>) -> CategoryChart {
+    let tasks: Vec<usize> = (0..GridSuite::TASKS)
+        .chain(jumpstart.keys().copied().filter(|&t| t >= GridSuite::TASKS))
+        .collect();
+    let series = TABLE2_METHODS
+        .iter()
+        .map(|m| CategorySeries {
             name: m.name(),
-            points: tasks
+            values: tasks
                 .iter()
-                .filter_map(|t| t.jumpstart.get(&m.name()).map(|s| s.at(t.task as f64)))
+                .map(|t| {
+                    let s = jumpstart.get(t)?.get(&m.name())?;
+                    Some(Interval {
+                        mean: s.mean,
+                        lo: s.lo,
+                        hi: s.hi,
+                    })
+                })
                 .collect(),
-            colour: Some(m.colour()),
         })
         .collect();
-    let chart = LineChart {
-        title: "Table 2 — reward of the first test episode (jumpstart)".into(),
-        x_label: "test task".into(),
+    CategoryChart {
+        title: "Table 2 — reward of the first test episode (jumpstart), mean and 95 % interval"
+            .into(),
+        x_label: "held-out test task (suite index)".into(),
         y_label: "first-episode reward".into(),
+        categories: tasks.iter().map(ToString::to_string).collect(),
         series,
-        markers: true,
-    };
-    write_file(&out.join("table2.svg"), &chart.to_svg())
+    }
+}
+
+fn write_jumpstart_chart(out: &Path, tasks: &[TaskSummary]) -> Result<()> {
+    let jumpstart = tasks
+        .iter()
+        .map(|t| (t.task, t.jumpstart.clone()))
+        .collect();
+    write_file(
+        &out.join("table2.svg"),
+        &jumpstart_chart(&jumpstart).to_svg(),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn table2_targets_are_judged_only_on_a_full_size_run_over_every_task() {
+        let verdicts = |quick, tasks, lore, lwt| -> Vec<Verdict> {
+            targets(quick, tasks, lore, lwt)
+                .into_iter()
+                .map(|t| t.verdict)
+                .collect()
+        };
+        assert_eq!(
+            verdicts(false, 15, 12, 9),
+            [Verdict::Holds, Verdict::DoesNotHold]
+        );
+        assert_eq!(verdicts(true, 3, 0, 0), [Verdict::QuickRun; 2]);
+        assert_eq!(verdicts(false, 3, 3, 3), [Verdict::PartialRun; 2]);
+        assert!(targets(true, 3, 1, 2)[0].measured == "1 / 3");
+    }
 }

@@ -9,6 +9,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use tes_experiments::grid::{self, GridConfig};
 use tes_experiments::robot::{self, RobotConfig};
 use tes_experiments::transfer::{self, TransferConfig};
+use tes_experiments::verdict::{QUICK_RUN_NOTE, TargetCheck, Verdict};
 use tes_learning::agents::ExampleStore;
 
 /// Arguments of `tes experiment`.
@@ -27,6 +28,15 @@ enum Which {
     Transfer(TransferArgs),
     /// §5.2 robot study on the simulated arenas: Fig. 8, Fig. 9, Tables 5 and 6 (in-process).
     Robot(RobotArgs),
+    /// Redraw the figures a result folder's summary.json holds the data of (grid: fig3c.svg;
+    /// transfer: table2.svg), without rerunning anything.
+    Replot(ReplotArgs),
+}
+
+#[derive(Debug, Args)]
+struct ReplotArgs {
+    /// A folder an experiment wrote (it holds summary.json).
+    dir: PathBuf,
 }
 
 #[derive(Debug, Args)]
@@ -125,6 +135,47 @@ pub fn run(args: &ExperimentArgs) -> Result<()> {
         Which::Grid(g) => run_grid(g),
         Which::Transfer(t) => run_transfer(t),
         Which::Robot(r) => run_robot(r),
+        Which::Replot(r) => run_replot(r),
+    }
+}
+
+fn run_replot(args: &ReplotArgs) -> Result<()> {
+    let done = tes_experiments::replot::replot(&args.dir)?;
+    for file in &done.written {
+        println!("redrew {}", file.display());
+    }
+    if !done.not_redrawn.is_empty() {
+        println!(
+            "{} not redrawn: drawn from every episode, which summary.json does not keep (rerun `tes experiment {}`)",
+            done.not_redrawn.join(", "),
+            done.experiment
+        );
+    }
+    Ok(())
+}
+
+/// The lines printing a run's targets: each target with what was measured and its verdict —
+/// or, for a quick run, the measurements under one note that they are too small to judge.
+fn target_lines(targets: &[TargetCheck]) -> Vec<String> {
+    let quick = targets.iter().any(|t| t.verdict == Verdict::QuickRun);
+    let mut lines = vec![if quick {
+        format!("the paper's targets ({QUICK_RUN_NOTE}):")
+    } else {
+        "the paper's targets:".to_owned()
+    }];
+    for t in targets {
+        lines.push(if t.verdict == Verdict::QuickRun {
+            format!("  {}: {}", t.target, t.measured)
+        } else {
+            format!("  {}: {} — {}", t.target, t.measured, t.verdict.text())
+        });
+    }
+    lines
+}
+
+fn print_targets(targets: &[TargetCheck]) {
+    for line in target_lines(targets) {
+        println!("{line}");
     }
 }
 
@@ -202,10 +253,7 @@ fn run_transfer(args: &TransferArgs) -> Result<()> {
         println!("  {:>4}  {:<6}{cells}", t.task, t.size);
     }
     let n = report.tasks.len();
-    println!(
-        "TES's jumpstart beats loreRL's on {}/{n} tasks (target >= 12/15), LWT's on {}/{n} (target >= 10/15)",
-        report.tes_beats_lore_rl, report.tes_beats_lwt
-    );
+    print_targets(&report.targets);
     println!(
         "TES's accumulated reward beats every random view combination on {}/{n} tasks",
         report.tes_beats_all_rands
@@ -303,14 +351,7 @@ fn run_grid(args: &GridArgs) -> Result<()> {
             t.seconds_per_episode.mean, t.features
         );
     }
-    println!(
-        "loreRL / fEpsG time per episode: {:.2} (paper: 2.2; target <= 2.5)",
-        report.lore_over_fepsg_time
-    );
-    println!(
-        "RL-DT / loreRL time per episode: {:.1} (paper: 16.5; target >= 10)",
-        report.rldt_over_lore_time
-    );
+    print_targets(&report.targets);
     println!(
         "wrote summary.json, episodes.csv, fig3a.svg, fig3b.svg, fig3c.svg to {}",
         args.out.display()
@@ -367,17 +408,54 @@ fn run_robot(args: &RobotArgs) -> Result<()> {
             s.mean, s.lo, s.hi
         );
     }
-    println!(
-        "TES >= TES-woRi >= loreRL > LWT: {}",
-        if report.ordering_holds {
-            "holds"
-        } else {
-            "does not hold"
-        }
-    );
+    print_targets(&report.targets);
     println!(
         "wrote summary.json, episodes.csv, fig8.svg, fig9.svg to {}",
         args.out.display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn checks(quick: bool) -> Vec<TargetCheck> {
+        vec![
+            TargetCheck::new("a <= 2.5", "3.10", quick, false),
+            TargetCheck::new("b >= 10", "16.0", quick, true),
+        ]
+    }
+
+    #[test]
+    fn a_quick_run_prints_its_numbers_but_no_verdict() {
+        let lines = target_lines(&checks(true));
+        let text = lines.join("\n");
+        assert!(lines[0].contains(QUICK_RUN_NOTE), "{text}");
+        assert!(!text.contains("hold"), "{text}");
+        assert!(text.contains("a <= 2.5: 3.10") && text.contains("b >= 10: 16.0"));
+    }
+
+    #[test]
+    fn a_full_run_prints_a_verdict_per_target() {
+        let lines = target_lines(&checks(false));
+        assert_eq!(lines[0], "the paper's targets:");
+        assert_eq!(lines[1], "  a <= 2.5: 3.10 — does not hold");
+        assert_eq!(lines[2], "  b >= 10: 16.0 — holds");
+    }
+
+    #[test]
+    fn replot_takes_a_result_folder() {
+        use clap::Parser;
+        #[derive(Debug, Parser)]
+        struct Cli {
+            #[command(flatten)]
+            args: ExperimentArgs,
+        }
+        let cli = Cli::try_parse_from(["tes", "replot", "docs/results/transfer"]).unwrap();
+        assert!(
+            matches!(&cli.args.which, Which::Replot(r) if r.dir == std::path::Path::new("docs/results/transfer"))
+        );
+        assert!(Cli::try_parse_from(["tes", "replot"]).is_err());
+    }
 }

@@ -1,0 +1,120 @@
+//! The paper's targets and whether a run meets them — or is too small to tell.
+//!
+//! A `--quick` run is a first look: a smaller task, a few runs, short training. Its figures
+//! cannot confirm or refute the paper's claims, so it reports [`Verdict::QuickRun`] in place of
+//! "holds" or "does not hold", in the printed output and in `summary.json` alike; full-size runs
+//! keep their verdicts.
+
+use serde::Serialize;
+
+/// What a quick run says in place of a verdict.
+pub const QUICK_RUN_NOTE: &str =
+    "quick run: too small to judge the paper's targets; run without --quick";
+
+/// What a run that left out some of the paper's cases says in place of a verdict.
+pub const PARTIAL_RUN_NOTE: &str =
+    "partial run: the target counts every test task; run them all to judge it";
+
+/// Whether a run meets one of the paper's targets. Serialised as its [`text`](Self::text).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub enum Verdict {
+    /// The target is met.
+    #[serde(rename = "holds")]
+    Holds,
+    /// The target is missed.
+    #[serde(rename = "does not hold")]
+    DoesNotHold,
+    /// A `--quick` run: too small to judge.
+    #[serde(rename = "quick run: too small to judge the paper's targets; run without --quick")]
+    QuickRun,
+    /// A full-size run over only some of the cases the target counts.
+    #[serde(rename = "partial run: the target counts every test task; run them all to judge it")]
+    PartialRun,
+}
+
+impl Verdict {
+    /// The verdict on a target that `holds` in a run that was `quick` or not.
+    pub fn judge(quick: bool, holds: bool) -> Self {
+        match (quick, holds) {
+            (true, _) => Verdict::QuickRun,
+            (false, true) => Verdict::Holds,
+            (false, false) => Verdict::DoesNotHold,
+        }
+    }
+
+    /// The verdict in words, as printed and as `summary.json` records it.
+    pub fn text(self) -> &'static str {
+        match self {
+            Verdict::Holds => "holds",
+            Verdict::DoesNotHold => "does not hold",
+            Verdict::QuickRun => QUICK_RUN_NOTE,
+            Verdict::PartialRun => PARTIAL_RUN_NOTE,
+        }
+    }
+
+    /// Whether this is a judgement (holds or not) rather than a note that none can be made.
+    pub fn is_judged(self) -> bool {
+        matches!(self, Verdict::Holds | Verdict::DoesNotHold)
+    }
+}
+
+/// One of the paper's targets, what a run measured against it, and the verdict.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TargetCheck {
+    /// The target, in words (e.g. "loreRL / fEpsG time per episode <= 2.5 (paper: 2.2)").
+    pub target: String,
+    /// What this run measured, in words and numbers.
+    pub measured: String,
+    /// Holds, does not hold, or why it cannot be judged.
+    pub verdict: Verdict,
+}
+
+impl TargetCheck {
+    /// A check of `target` against `measured`, judged by [`Verdict::judge`].
+    pub fn new(
+        target: impl Into<String>,
+        measured: impl Into<String>,
+        quick: bool,
+        holds: bool,
+    ) -> Self {
+        Self {
+            target: target.into(),
+            measured: measured.into(),
+            verdict: Verdict::judge(quick, holds),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_quick_run_never_gives_a_verdict() {
+        for holds in [true, false] {
+            let v = Verdict::judge(true, holds);
+            assert_eq!(v, Verdict::QuickRun);
+            assert!(!v.is_judged());
+            assert!(!v.text().contains("hold"), "{}", v.text());
+        }
+        assert_eq!(Verdict::judge(false, true).text(), "holds");
+        assert_eq!(Verdict::judge(false, false).text(), "does not hold");
+        assert!(Verdict::judge(false, false).is_judged());
+    }
+
+    #[test]
+    fn summary_json_records_the_same_words_as_the_printout() {
+        for v in [
+            Verdict::Holds,
+            Verdict::DoesNotHold,
+            Verdict::QuickRun,
+            Verdict::PartialRun,
+        ] {
+            let json = serde_json::to_string(&v).unwrap();
+            assert_eq!(json, format!("\"{}\"", v.text()));
+        }
+        let check = TargetCheck::new("a <= 2.5", "3.1", true, false);
+        let json = serde_json::to_string(&check).unwrap();
+        assert!(json.contains(QUICK_RUN_NOTE) && !json.contains("does not hold"));
+    }
+}
