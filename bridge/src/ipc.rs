@@ -175,7 +175,7 @@ pub fn run_with<T: Transport, C: Clock>(
             signal_hook::flag::register(signal, stop.clone()).map_err(ipc_err("handle signals"))?;
         }
     }
-    let node = tes_runtime::channel::node(false)?;
+    let node = tes_runtime::channel::group_node(names, Role::Bridge, false)?;
     let mut commands: LatestInbox<Command> =
         LatestInbox::open(&node, &names.command, &names.command_event, wait)?;
     let states: Outbox<MotorState> =

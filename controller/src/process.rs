@@ -195,7 +195,7 @@ pub fn run(
         );
     }
     let names = ServiceNames::with_prefix(&config.service_prefix);
-    let node = channel::node(false)?;
+    let node = channel::group_node(&names, Role::Controller, false)?;
     let maps: Inbox<WorldMap> = Inbox::open(
         &node,
         &names.world_map,

@@ -122,7 +122,7 @@ pub fn run(
     let strategy = config.check()?.wait();
     let arena = Arena::new(ArenaId::from_number(config.arena).map_err(PerceptionError::Arena)?);
     let names = ServiceNames::with_prefix(&config.service_prefix);
-    let node = channel::node(false)?;
+    let node = channel::group_node(&names, Role::Perception, false)?;
     let maps: Outbox<WorldMap> = Outbox::open(&node, &names.world_map, &names.world_map_event, 1)?;
     let observations: Outbox<Observation> =
         Outbox::open(&node, &names.observation, &names.observation_event, 0)?;

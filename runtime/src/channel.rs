@@ -23,7 +23,9 @@ use iceoryx2::prelude::*;
 
 pub use crate::board::{LatestInbox, LatestOutbox};
 pub use crate::ipc::{
-    IpcError, clean_stale_resources, ipc_err, node, pubsub, services_with_prefix,
+    GROUP_MEMBERS, IpcError, LAUNCHER, NODE_NAME_MAX, NodeEntry, NodeLiveness,
+    clean_stale_resources, group_node, group_node_name, ipc_err, list_nodes, node, node_named,
+    parse_group_node_name, prefix_of, pubsub, services_with_prefix,
 };
 use crate::ipc::{listener, notifier};
 pub use crate::wait::{BadWaitStrategy, WaitStrategy};

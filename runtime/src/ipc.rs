@@ -5,6 +5,8 @@ use std::fmt;
 
 use iceoryx2::prelude::*;
 
+use tes_topics::{Role, ServiceNames};
+
 use crate::channel::{BUFFER, Listener};
 
 /// An iceoryx2 failure; `context` says which step.
@@ -43,6 +45,133 @@ pub fn node(handle_signals: bool) -> Result<Node<ipc::Service>, IpcError> {
         .signal_handling_mode(mode)
         .create::<ipc::Service>()
         .map_err(ipc_err("create the node"))
+}
+
+/// Creates a process's iceoryx2 node named `name` (otherwise as [`node`]), so that a list of
+/// the machine's nodes says whose it is. A name iceoryx2 cannot take (longer than
+/// [`NODE_NAME_MAX`] bytes, or not ASCII) is refused with an error naming it.
+pub fn node_named(name: &str, handle_signals: bool) -> Result<Node<ipc::Service>, IpcError> {
+    let node_name = NodeName::new(name).map_err(|e| IpcError {
+        context: "use the node name",
+        message: format!(
+            "{name:?} is not a node name ({e:?}): at most {NODE_NAME_MAX} ASCII characters \
+             (a group's node names are its service prefix and the process's role: shorten \
+             the service prefix)"
+        ),
+    })?;
+    let mode = if handle_signals {
+        SignalHandlingMode::HandleTerminationRequests
+    } else {
+        SignalHandlingMode::Disabled
+    };
+    NodeBuilder::new()
+        .name(&node_name)
+        .config(&Config::default())
+        .signal_handling_mode(mode)
+        .create::<ipc::Service>()
+        .map_err(ipc_err("create the node"))
+}
+
+/// The node of the process playing `role` in the group whose services are `names`: named
+/// [`group_node_name`]`(prefix, role)` so that `tes status` finds the group and the role.
+pub fn group_node(
+    names: &ServiceNames,
+    role: Role,
+    handle_signals: bool,
+) -> Result<Node<ipc::Service>, IpcError> {
+    node_named(
+        &group_node_name(prefix_of(names), role.name()),
+        handle_signals,
+    )
+}
+
+/// The longest node name iceoryx2 takes, in bytes (ASCII only).
+pub const NODE_NAME_MAX: usize = iceoryx2::constants::MAX_NODE_NAME_LENGTH;
+
+/// The member name of a group's launcher (the processes are named by [`Role::name`]).
+pub const LAUNCHER: &str = "launcher";
+
+/// Every member of a group a node name can say: the three processes' [`Role::name`]s and
+/// [`LAUNCHER`].
+pub const GROUP_MEMBERS: [&str; 4] = ["perception-sim", "controller", "bridge", LAUNCHER];
+
+/// What stands between a group's service prefix and the member in a node name: a group's
+/// node names look like its service names (`tes-41-0badcafe/tes/controller` beside the
+/// service `tes-41-0badcafe/tes/progress/controller`).
+const MEMBER_MARK: &str = "tes/";
+
+/// The node name of `member` (a [`Role::name`] or [`LAUNCHER`]) of the group with service
+/// prefix `prefix`; [`parse_group_node_name`] reads it back.
+pub fn group_node_name(prefix: &str, member: &str) -> String {
+    format!("{prefix}{MEMBER_MARK}{member}")
+}
+
+/// The (service prefix, member) a node name made by [`group_node_name`] says; `None` for a
+/// name that is not a TES group member's (an unnamed node, another program's node).
+pub fn parse_group_node_name(name: &str) -> Option<(&str, &'static str)> {
+    GROUP_MEMBERS.into_iter().find_map(|member| {
+        let prefix = name.strip_suffix(member)?.strip_suffix(MEMBER_MARK)?;
+        Some((prefix, member))
+    })
+}
+
+/// The service prefix of the group whose services are `names` (empty for names not made by
+/// [`ServiceNames::with_prefix`]).
+pub fn prefix_of(names: &ServiceNames) -> &str {
+    let role = Role::Perception;
+    let progress = names.progress_of(role);
+    progress
+        .strip_suffix(role.name())
+        .and_then(|p| p.strip_suffix('/'))
+        .and_then(|p| p.strip_suffix(tes_topics::service::PROGRESS))
+        .unwrap_or("")
+}
+
+/// Whether a listed node's process is alive.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NodeLiveness {
+    /// Its process runs.
+    Alive,
+    /// Its process died without removing the node's resources: stale, for
+    /// [`clean_stale_resources`].
+    Dead,
+    /// This process may not tell (another user's node).
+    Inaccessible,
+    /// The node's files are incomplete (being created or removed right now).
+    Undefined,
+}
+
+/// One iceoryx2 node of this machine, as [`list_nodes`] sees it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct NodeEntry {
+    /// The node's name (empty for an unnamed node); `None` when its details cannot be read.
+    pub name: Option<String>,
+    /// Its process's id, when its details can be read.
+    pub pid: Option<i32>,
+    /// Whether its process is alive.
+    pub liveness: NodeLiveness,
+}
+
+/// Every iceoryx2 node of this machine (of the default config), alive or dead.
+pub fn list_nodes() -> Result<Vec<NodeEntry>, IpcError> {
+    use iceoryx2::node::NodeView;
+    let mut nodes = Vec::new();
+    Node::<ipc::Service>::list(&Config::default(), |state| {
+        let (details, liveness) = match &state {
+            NodeState::Alive(view) => (view.details().as_ref(), NodeLiveness::Alive),
+            NodeState::Dead(view) => (view.details().as_ref(), NodeLiveness::Dead),
+            NodeState::Inaccessible(_) => (None, NodeLiveness::Inaccessible),
+            NodeState::Undefined(_) => (None, NodeLiveness::Undefined),
+        };
+        nodes.push(NodeEntry {
+            name: details.map(|d| d.name().as_str().to_owned()),
+            pid: details.map(|d| d.process_id().value()),
+            liveness,
+        });
+        CallbackProgression::Continue
+    })
+    .map_err(ipc_err("list the nodes"))?;
+    Ok(nodes)
 }
 
 /// Removes the iceoryx2 resources (shared memory, event and service files) left behind by
@@ -131,4 +260,108 @@ pub(crate) fn listener(node: &Node<ipc::Service>, event: &str) -> Result<Listene
 
 pub(crate) fn service_name(name: &str) -> Result<ServiceName, IpcError> {
     ServiceName::new(name).map_err(ipc_err("use the service name"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every member's node name reads back as its group's prefix and the member, whatever
+    /// the prefix holds (nothing, slashes, even a member's name).
+    #[test]
+    fn a_group_node_name_reads_back_as_its_prefix_and_member() {
+        for prefix in [
+            "",
+            "g/",
+            "tes-41-0badcafe/",
+            "tes-test/7/x/",
+            "a/tes/controller/",
+        ] {
+            for member in GROUP_MEMBERS {
+                let name = group_node_name(prefix, member);
+                assert_eq!(
+                    parse_group_node_name(&name),
+                    Some((prefix, member)),
+                    "{name}"
+                );
+            }
+        }
+        assert_eq!(
+            group_node_name("tes-41-0badcafe/", "controller"),
+            "tes-41-0badcafe/tes/controller"
+        );
+    }
+
+    /// An unnamed node, another program's node, or a name that only looks like a member's is
+    /// no group member.
+    #[test]
+    fn other_node_names_are_no_group_member() {
+        for name in [
+            "",
+            "controller",
+            "x/controller",
+            "x/tes/",
+            "x/tes/planner",
+            "x/tes/controllers",
+            "x/tes-controller",
+            "x/tes/Controller",
+        ] {
+            assert_eq!(parse_group_node_name(name), None, "{name}");
+        }
+    }
+
+    #[test]
+    fn the_process_members_are_the_roles() {
+        let roles = Role::ALL.map(Role::name);
+        assert_eq!(GROUP_MEMBERS[..3], roles);
+    }
+
+    #[test]
+    fn the_prefix_of_a_groups_names_is_the_one_they_were_made_with() {
+        for prefix in ["", "g/", "tes-41-0badcafe/", "run-42/"] {
+            assert_eq!(prefix_of(&ServiceNames::with_prefix(prefix)), prefix);
+        }
+    }
+
+    /// A name iceoryx2 cannot take is refused with a typed error naming it, before any node
+    /// exists.
+    #[test]
+    fn a_node_name_iceoryx2_cannot_take_is_refused() {
+        for name in [
+            "x".repeat(NODE_NAME_MAX + 1),
+            "prefix-é/tes/bridge".to_owned(),
+        ] {
+            let err = node_named(&name, false).expect_err("refused");
+            assert_eq!(err.context, "use the node name");
+            assert!(err.message.contains(&format!("{name:?}")), "{err}");
+        }
+        assert!(node_named(&"x".repeat(NODE_NAME_MAX), false).is_ok());
+    }
+
+    /// A named node is listed alive with its name and this process's id.
+    #[test]
+    fn a_named_node_is_listed_alive_with_its_name_and_pid() {
+        let name = group_node_name(&format!("tes-unit/{}/", std::process::id()), "controller");
+        let node = node_named(&name, false).expect("node");
+        let listed = list_nodes().expect("list");
+        let ours: Vec<&NodeEntry> = listed
+            .iter()
+            .filter(|n| n.name.as_deref() == Some(name.as_str()))
+            .collect();
+        assert_eq!(
+            ours,
+            [&NodeEntry {
+                name: Some(name.clone()),
+                pid: Some(std::process::id() as i32),
+                liveness: NodeLiveness::Alive,
+            }]
+        );
+        drop(node);
+        let listed = list_nodes().expect("list");
+        assert!(
+            !listed
+                .iter()
+                .any(|n| n.name.as_deref() == Some(name.as_str()))
+        );
+    }
 }

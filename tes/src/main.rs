@@ -10,6 +10,7 @@ mod experiment;
 mod fit;
 mod launch;
 mod library;
+mod status;
 
 /// TES: online sparse view learning (mDAGL), model-based RL and transfer for a real-time robot.
 #[derive(Debug, Parser)]
@@ -29,6 +30,9 @@ enum Command {
     Library(library::LibraryArgs),
     /// Start perception-sim, controller and bridge as one process group.
     Launch(launch::LaunchArgs),
+    /// List the process groups running on this machine: their processes, pids, uptime and
+    /// progress, and crashed groups' stale resources.
+    Status(status::StatusArgs),
     /// Latency benchmarks: the real loop against the raw iceoryx2 floor, and scaling sweeps.
     Bench(bench::BenchArgs),
     /// Run one process of the group (used by `tes launch`).
@@ -75,6 +79,7 @@ fn main() -> ExitCode {
         Command::Experiment(args) => experiment::run(&args),
         Command::Library(args) => library::run(&args),
         Command::Launch(args) => launch::run(&args),
+        Command::Status(args) => status::run(&args),
         Command::Bench(args) => bench::run(&args),
         Command::Child { role, config } => {
             init_child_logging();

@@ -70,7 +70,7 @@ pub(crate) fn run_group(file: &LaunchFile, prepared: Prepared, echo: bool) -> Re
              nothing was started"
         );
     }
-    let node = channel::node(false)?;
+    let node = channel::node_named(&channel::group_node_name(prefix, channel::LAUNCHER), false)?;
     let names = ServiceNames::with_prefix(prefix);
     let mut watch = ProgressWatch::open(&node, &names)?;
     note(format!(
