@@ -2,21 +2,27 @@
 //! no ports, threads of its own or clock inside — [`crate::process`] wraps it in iceoryx2, and
 //! tests drive it directly.
 //!
-//! For every observation ([`ActingLoop::on_observation`]) it:
+//! The command an observation gets does not depend on what that observation teaches: the
+//! action comes from the last adopted plan (ε-greedy over its policy), and that plan was made
+//! from an earlier hand-over of the model. So the loop decides first and learns after (the
+//! split of Hester & Stone's RTMBA, inside one thread). For every observation
+//! ([`ActingLoop::on_observation`]) it:
 //!
 //! 1. refuses what it cannot use (a stale or duplicate sequence number, a state outside the
 //!    map, a non-finite reward) — nothing is learned from or answered;
-//! 2. derives the effect the last action had ([`WorldMap::effect_between`]) and hands it to the
-//!    agent, which scores and updates the views of that action (TES — with an empty library
-//!    this is loreRL);
-//! 3. adopts the planner's latest finished policy;
-//! 4. picks the next action (ε-greedy) and returns the [`Command`] to publish; with a blocking
-//!    bridge it hands the planner the new model first (see [`ActingSettings::offer_before_command`]).
+//! 2. adopts the planner's latest finished plan;
+//! 3. picks the next action (ε-greedy) and returns the [`Command`] to publish.
 //!
-//! Once the caller has published the command it calls [`ActingLoop::command_sent`], which hands
-//! the planner the model (unless that was done before the command), records the decision's
-//! latency against the budget, and reports an episode that ended before this command.
-//! Everything from the observation to the command allocates nothing after warm-up
+//! Once the caller has published the command it calls [`ActingLoop::command_sent`], which
+//! learns from the observation — derives the effect the last action had
+//! ([`WorldMap::effect_between`]) and hands it to the agent, which scores and updates every
+//! view of that action (TES; with an empty library this is loreRL) — hands the planner the new
+//! model, records the decision's latency against the budget and the learning's time, and
+//! reports an episode that ended before this command. An observation that ends an episode gets
+//! no command, so it is learned from at once. [`Order::LearnFirst`] keeps the older order
+//! (learn, then decide), which makes the same decisions bit for bit
+//! (`controller/tests/decide_first.rs`) and serves as the baseline of the latency benchmark.
+//! Everything from the observation to the end of the learning allocates nothing after warm-up
 //! (`controller/tests/allocations.rs` drives this struct to show it).
 //!
 //! ```
@@ -96,9 +102,51 @@ pub enum ActingError {
     Planner(#[from] PlannerThreadError),
 }
 
+/// When the acting loop learns from an observation: after the command it answers it with is
+/// out (the default), or before deciding that command.
+///
+/// Both make the same decisions: the command comes from the last adopted plan, which the
+/// observation's lesson cannot change. Deciding first takes the scoring and updating of every
+/// view of the last action, and the model's hand-over to the planner, off the decision.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Order {
+    /// Adopt a finished plan, decide, publish; then learn and hand the planner the model.
+    #[default]
+    DecideFirst,
+    /// Learn, adopt a finished plan, decide, publish (the order before decide-first; kept as
+    /// the baseline the latency benchmark compares against).
+    LearnFirst,
+}
+
+impl std::fmt::Display for Order {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Order::DecideFirst => "decide-first",
+            Order::LearnFirst => "learn-first",
+        })
+    }
+}
+
+impl std::str::FromStr for Order {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "decide-first" => Ok(Order::DecideFirst),
+            "learn-first" => Ok(Order::LearnFirst),
+            _ => Err(format!(
+                "unknown order {s:?}: expected decide-first or learn-first"
+            )),
+        }
+    }
+}
+
 /// What the acting loop is told once, at start.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ActingSettings {
+    /// When an observation is learned from: after its command (the default) or before.
+    pub order: Order,
     /// The per-action latency budget, µs: decisions slower than this are counted as misses.
     pub budget_us: u64,
     /// Actions left out of the latency figures at the start.
@@ -112,9 +160,10 @@ pub struct ActingSettings {
     pub keepalive: Option<Duration>,
     /// At an episode's end, say a library save is due if this long has passed since the last.
     pub save_interval: Duration,
-    /// Whether the planner gets the new model before the command is published (with a bridge
-    /// that sleeps on events: waking the idle planner gets the other CPU out of halt for the
-    /// bridge's wake-up) rather than after it (with a bridge that busy-polls).
+    /// With [`Order::LearnFirst`]: whether the planner gets the new model before the command
+    /// is published (with a bridge that sleeps on events: waking the idle planner gets the
+    /// other CPU out of halt for the bridge's wake-up) rather than after it (with a bridge that
+    /// busy-polls). Deciding first, the model is handed over after learning, after the command.
     pub offer_before_command: bool,
     /// How long to wait for the first plan at start.
     pub first_plan_timeout: Duration,
@@ -123,6 +172,7 @@ pub struct ActingSettings {
 impl Default for ActingSettings {
     fn default() -> Self {
         Self {
+            order: Order::DecideFirst,
             budget_us: 1000,
             warmup_actions: 0,
             epsilon: 0.05,
@@ -197,7 +247,7 @@ pub struct Counts {
 }
 
 /// The loop's latency figures, after the warm-up: whole decisions (observation stamped →
-/// command stamped) and their two parts.
+/// command stamped) and their two parts, and the learning that follows a command.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Latencies {
     /// Observation stamped → command stamped.
@@ -206,6 +256,22 @@ pub struct Latencies {
     pub wake: LatencyReport,
     /// Observation received → command stamped (the loop's own work).
     pub compute: LatencyReport,
+    /// Command published → learned from the observation and handed the planner the model
+    /// (deciding first; learning first, this work is part of `compute`). Its misses count
+    /// against the same budget.
+    pub learn: LatencyReport,
+    /// Observations published before the learning of the one before had finished (deciding
+    /// first): each waited for that learning, and the wait is part of its decision's latency.
+    pub learning_overran: u64,
+}
+
+/// One step to learn from: the action taken in `from`, which led to `to` with `reward`.
+#[derive(Debug, Clone, Copy)]
+struct Lesson {
+    from: usize,
+    action: usize,
+    to: usize,
+    reward: f32,
 }
 
 /// A decision between [`ActingLoop::on_observation`] and [`ActingLoop::command_sent`].
@@ -216,6 +282,8 @@ struct InFlight {
     observed_ns: u64,
     received_ns: u64,
     decided_ns: u64,
+    /// Deciding first: what the observation teaches, learned once the command is out.
+    lesson: Option<Lesson>,
 }
 
 /// The running episode.
@@ -236,6 +304,7 @@ pub struct ActingLoop {
     decision: LatencyRecorder,
     wake: LatencyRecorder,
     compute: LatencyRecorder,
+    learning: LatencyRecorder,
     episode_latency: LatencyRecorder,
     counts: Counts,
     last_seq: u64,
@@ -249,6 +318,10 @@ pub struct ActingLoop {
     /// first would delay that action.
     ended: Option<EpisodeLine>,
     last_sent_ns: u64,
+    /// When the learning after the last command finished (deciding first), until the next
+    /// observation checks it was published later.
+    learned_ns: Option<u64>,
+    learning_overran: u64,
     last_save_ns: u64,
     /// [`Counts::learned`] at the last save due: nothing new, no save.
     learned_at_save: u64,
@@ -300,6 +373,7 @@ impl ActingLoop {
             decision: recorder(settings.warmup_actions),
             wake: recorder(settings.warmup_actions),
             compute: recorder(settings.warmup_actions),
+            learning: recorder(settings.warmup_actions),
             episode_latency: recorder(0),
             settings,
             counts: Counts::default(),
@@ -310,14 +384,17 @@ impl ActingLoop {
             episode: EpisodeTally::default(),
             ended: None,
             last_sent_ns: now_ns,
+            learned_ns: None,
+            learning_overran: 0,
             last_save_ns: now_ns,
             learned_at_save: 0,
             last_command: Command::default(),
         })
     }
 
-    /// Takes an observation: learns from the last command's outcome and decides the next
-    /// action (see the [module docs](self)). `clock` stamps the receipt and the command.
+    /// Takes an observation: decides the next action, and learns from the last command's
+    /// outcome before (learning first) or once the command is out (deciding first; see the
+    /// [module docs](self)). `clock` stamps the receipt and the command.
     pub fn on_observation(
         &mut self,
         obs: &Observation,
@@ -343,20 +420,35 @@ impl ActingLoop {
             return Ok(Step::Refused(Refusal::NonFiniteReward));
         }
         self.last_seq = obs.seq;
+        if let Some(learned_ns) = self.learned_ns.take()
+            && learned_ns > obs.stamp_ns
+        {
+            self.learning_overran += 1;
+        }
         let mut lost_outcome = false;
+        let mut lesson = None;
         if obs.flags & observation_flags::EPISODE_START != 0 {
             self.pending = None;
             self.episode = EpisodeTally::default();
         } else if obs.flags & observation_flags::RESYNC != 0 {
             lost_outcome = self.pending.take().is_some();
         } else if let Some((from, action)) = self.pending.take() {
-            let effect = self.map.effect_between(from, state);
-            self.agent.observe(from, action, effect)?;
-            self.counts.learned += 1;
-            self.episode.reward += f64::from(obs.reward);
+            lesson = Some(Lesson {
+                from,
+                action,
+                to: state,
+                reward: obs.reward,
+            });
+        }
+        let ends = obs.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0;
+        if self.settings.order == Order::LearnFirst || ends {
+            // Nothing answers an episode's last observation: nothing to put first.
+            if let Some(lesson) = lesson.take() {
+                self.learn(lesson)?;
+            }
         }
         self.planner.collect(self.agent.model_mut())?;
-        if obs.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0 {
+        if ends {
             self.planner.offer(self.agent.model_mut())?;
             self.counts.episodes += 1;
             // Two episode ends in a row (no command between): report the first now.
@@ -372,7 +464,7 @@ impl ActingLoop {
             return Ok(Step::EpisodeEnded { report });
         }
         let action = self.agent.act(state)?;
-        if self.settings.offer_before_command {
+        if self.settings.order == Order::LearnFirst && self.settings.offer_before_command {
             self.planner.offer(self.agent.model_mut())?;
         }
         let [left_deg, right_deg] = self.map.action_wheels[action];
@@ -384,6 +476,7 @@ impl ActingLoop {
             observed_ns: obs.stamp_ns,
             received_ns,
             decided_ns,
+            lesson,
         });
         let command = Command {
             seq: self.command_seq,
@@ -402,18 +495,31 @@ impl ActingLoop {
         })
     }
 
-    /// The command [`on_observation`](Self::on_observation) returned is out: hands the planner
-    /// the model (if not done before the command), records the decision's latency, and
-    /// reports an episode that ended before it. A call without a command in flight does
-    /// nothing.
+    /// The command [`on_observation`](Self::on_observation) returned is out: learns from the
+    /// observation (deciding first), hands the planner the model (unless that was done before
+    /// the command), records the decision's latency and the learning's time, and reports an
+    /// episode that ended before the command. A call without a command in flight does nothing.
     pub fn command_sent(&mut self, clock: &impl Clock) -> Result<Sent, ActingError> {
         let Some(decided) = self.in_flight.take() else {
             return Ok(Sent::default());
         };
         let now_ns = clock.now_ns();
         self.last_sent_ns = now_ns;
-        if !self.settings.offer_before_command {
-            self.planner.offer(self.agent.model_mut())?;
+        match self.settings.order {
+            Order::DecideFirst => {
+                if let Some(lesson) = decided.lesson {
+                    self.learn(lesson)?;
+                }
+                self.planner.offer(self.agent.model_mut())?;
+                let learned_ns = clock.now_ns();
+                self.learning.record_ns(learned_ns.saturating_sub(now_ns));
+                self.learned_ns = Some(learned_ns);
+            }
+            Order::LearnFirst => {
+                if !self.settings.offer_before_command {
+                    self.planner.offer(self.agent.model_mut())?;
+                }
+            }
         }
         // Reporting is not on the acting path: the command is out.
         let mut sent = Sent::default();
@@ -443,6 +549,15 @@ impl ActingLoop {
         Ok(sent)
     }
 
+    /// Learns one step: the agent scores and updates the views of its action.
+    fn learn(&mut self, lesson: Lesson) -> Result<(), ActingError> {
+        let effect = self.map.effect_between(lesson.from, lesson.to);
+        self.agent.observe(lesson.from, lesson.action, effect)?;
+        self.counts.learned += 1;
+        self.episode.reward += f64::from(lesson.reward);
+        Ok(())
+    }
+
     /// No observation came for a while: a keep-alive for the bridge's watchdog if a move is
     /// under way and the last command is older than the keep-alive period.
     pub fn on_idle(&mut self, clock: &impl Clock) -> Option<Command> {
@@ -469,6 +584,13 @@ impl ActingLoop {
     /// needs none); returns whether work is left.
     pub fn plan_between_polls(&mut self) -> bool {
         self.planner.work(self.agent.model_mut())
+    }
+
+    /// Waits up to `timeout` for the plan in flight to be made, leaving its adoption to the
+    /// next observation (see [`Planner::settle`]); returns whether none is left in the
+    /// making. For tests and replays that need each plan adopted at a known observation.
+    pub fn settle_planner(&mut self, timeout: Duration) -> Result<bool, ActingError> {
+        Ok(self.planner.settle(timeout)?)
     }
 
     /// When the last command or keep-alive went out (the clock's reading in
@@ -503,6 +625,8 @@ impl ActingLoop {
             decision: self.decision.report(),
             wake: self.wake.report(),
             compute: self.compute.report(),
+            learn: self.learning.report(),
+            learning_overran: self.learning_overran,
         }
     }
 
@@ -661,6 +785,87 @@ mod tests {
         assert!((line.reward - (3.0 * -0.05 + 1.0)).abs() < 1e-6, "{line:?}");
         assert!(line.p50_us >= 500 && line.p99_us >= 1100, "{line:?}");
         assert_eq!(acting.counts().episodes, 1);
+    }
+
+    /// Deciding first, the learning after each command is timed on its own, and an
+    /// observation published before that learning finished is counted as having waited.
+    #[test]
+    fn deciding_first_times_the_learning_and_counts_observations_that_waited_for_it() {
+        let mut acting = acting(ActingSettings::default());
+        assert_eq!(acting.settings.order, Order::DecideFirst);
+        // Every reading 100 µs after the last.
+        let clock = ManualClock::new(10_000_000).stepping(100_000);
+        let start = clock.now_ns();
+        let first = observation(1, start, 0, 0.0, EPISODE_START);
+        assert!(matches!(
+            acting.on_observation(&first, &clock).unwrap(),
+            Step::Act { .. }
+        ));
+        acting.command_sent(&clock).unwrap();
+        assert_eq!(
+            acting.counts().learned,
+            0,
+            "an episode's start teaches nothing"
+        );
+        let l = acting.latencies();
+        assert_eq!((l.learn.count, l.learn.max_us), (1, 100), "{l:?}");
+        // Stamped before the learning ended: it waited.
+        let early = observation(2, start, 1, -0.05, 0);
+        assert!(matches!(
+            acting.on_observation(&early, &clock).unwrap(),
+            Step::Act { .. }
+        ));
+        assert_eq!(
+            acting.counts().learned,
+            0,
+            "learned only once the command is out"
+        );
+        acting.command_sent(&clock).unwrap();
+        assert_eq!(acting.counts().learned, 1);
+        assert_eq!(acting.latencies().learning_overran, 1);
+        // Stamped after it: no wait.
+        let late = observation(3, clock.now_ns(), 2, -0.05, 0);
+        assert!(matches!(
+            acting.on_observation(&late, &clock).unwrap(),
+            Step::Act { .. }
+        ));
+        acting.command_sent(&clock).unwrap();
+        let l = acting.latencies();
+        assert_eq!((l.learning_overran, l.learn.count), (1, 3), "{l:?}");
+        // An episode's last observation has no command: it is learned from at once.
+        let end = observation(4, clock.now_ns(), 4, 1.0, TERMINAL);
+        assert!(matches!(
+            acting.on_observation(&end, &clock).unwrap(),
+            Step::EpisodeEnded { .. }
+        ));
+        assert_eq!(acting.counts().learned, 3);
+    }
+
+    /// Learning first, the learning is part of the decision and no learning is timed apart.
+    #[test]
+    fn learning_first_learns_before_the_command() {
+        let mut acting = acting(ActingSettings {
+            order: Order::LearnFirst,
+            ..ActingSettings::default()
+        });
+        let clock = ManualClock::new(10_000_000);
+        for (seq, x, flags) in [(1, 0, EPISODE_START), (2, 1, 0)] {
+            let obs = observation(seq, clock.now_ns(), x, -0.05, flags);
+            assert!(matches!(
+                acting.on_observation(&obs, &clock).unwrap(),
+                Step::Act { .. }
+            ));
+            assert_eq!(
+                acting.counts().learned,
+                seq - 1,
+                "learned before the command"
+            );
+            acting.command_sent(&clock).unwrap();
+        }
+        assert_eq!(acting.latencies().learn.count, 0);
+        assert_eq!("learn-first".parse(), Ok(Order::LearnFirst));
+        assert_eq!(Order::DecideFirst.to_string(), "decide-first");
+        assert!("later".parse::<Order>().is_err());
     }
 
     /// Stale, duplicate and malformed observations are refused and counted, answer nothing and

@@ -23,6 +23,8 @@ use tes_runtime::affinity::Placement;
 use tes_runtime::channel::WaitStrategy;
 use tes_runtime::settings::Origin;
 
+pub use crate::acting::Order;
+
 /// Settings of the controller process (TOML: the `[controller]` table of a launch file, or a
 /// file of its own). Every key is optional. Written back with serde (`toml::to_string`), it
 /// reads back the same.
@@ -87,12 +89,30 @@ pub struct ControllerConfig {
     /// between polls with `wait = "spin"`, else the thread). Spinning on two cores leaves a
     /// planner thread almost no time; between polls, the spin does the planning. Resolved by
     /// [`ControllerConfig::check`] (or [`ControllerConfig::planning_for`]) into [`Planning`].
+    /// `inline`: the acting thread makes each plan whole right after learning, which follows
+    /// the command, and adopts it at the next observation — every run with the same seeds
+    /// adopts the same plans at the same steps, whatever the timing (for reproducible runs;
+    /// the next observation waits for a plan that takes longer than the robot's move).
     pub planning: PlanningMode,
     /// `plan_slice`: with `planning = "between-polls"`, the states' worth of planning work done
     /// between two polls (default 32). One slice is what an observation arriving mid-slice
     /// waits at most; the slice that starts an action's refresh or adopts the plan is the
     /// longest.
     pub plan_slice: usize,
+    /// `order`: when an observation is learned from — `decide-first` (the default: adopt a
+    /// finished plan, decide and publish the command, then score and update the views and hand
+    /// the planner the model) or `learn-first` (all of that before the command). Both make the
+    /// same decisions; deciding first keeps the learning off the decision's latency.
+    pub order: Order,
+    /// `planner_idle_spin_us`: with a planner thread, how long it polls for its next job
+    /// after finishing a plan before it sleeps, µs (default 5000; 0 = sleep at once). It polls
+    /// under `SCHED_IDLE`, so only with time no other thread wants (and not at all if the
+    /// system refuses `SCHED_IDLE`). Polling keeps its CPU out of the idle halt: with a bridge
+    /// that sleeps on events, the bridge woken by a command is put on that CPU and runs at
+    /// once, where a halted virtual CPU takes tens of µs to come back; and the next hand-over
+    /// wakes no sleeping thread. 5 ms covers an action at the simulator's fastest pace (about
+    /// 2 ms); at the physical pace it is a few percent of a CPU's idle time.
+    pub planner_idle_spin_us: u64,
 }
 
 /// Where the controller's threads run: CPUs, or `None` for unpinned
@@ -117,6 +137,8 @@ pub enum PlanningMode {
     Thread,
     /// The acting thread, between the polls of its spinning wait.
     BetweenPolls,
+    /// The acting thread, each plan whole at its hand-over, adopted at the next observation.
+    Inline,
 }
 
 impl std::fmt::Display for PlanningMode {
@@ -125,13 +147,14 @@ impl std::fmt::Display for PlanningMode {
             PlanningMode::Auto => "auto",
             PlanningMode::Thread => "thread",
             PlanningMode::BetweenPolls => "between-polls",
+            PlanningMode::Inline => "inline",
         })
     }
 }
 
-/// A `planning` value that is not `auto`, `thread` or `between-polls`.
+/// A `planning` value that is not `auto`, `thread`, `between-polls` or `inline`.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("unknown planning {0:?}: expected auto, thread or between-polls")]
+#[error("unknown planning {0:?}: expected auto, thread, between-polls or inline")]
 pub struct BadPlanningMode(pub String);
 
 impl std::str::FromStr for PlanningMode {
@@ -142,6 +165,7 @@ impl std::str::FromStr for PlanningMode {
             "auto" => Ok(PlanningMode::Auto),
             "thread" => Ok(PlanningMode::Thread),
             "between-polls" => Ok(PlanningMode::BetweenPolls),
+            "inline" => Ok(PlanningMode::Inline),
             _ => Err(BadPlanningMode(s.to_owned())),
         }
     }
@@ -155,6 +179,8 @@ pub enum Planning {
     Thread,
     /// The acting thread, between the polls of its spinning wait.
     BetweenPolls,
+    /// The acting thread, each plan whole at its hand-over (after the learning).
+    Inline,
 }
 
 impl std::fmt::Display for Planning {
@@ -162,6 +188,7 @@ impl std::fmt::Display for Planning {
         f.write_str(match self {
             Planning::Thread => "thread",
             Planning::BetweenPolls => "between-polls",
+            Planning::Inline => "inline",
         })
     }
 }
@@ -188,6 +215,8 @@ impl Default for ControllerConfig {
             planner_cpu: Placement::Auto,
             planning: PlanningMode::Auto,
             plan_slice: 32,
+            order: Order::DecideFirst,
+            planner_idle_spin_us: 5000,
         }
     }
 }
@@ -332,7 +361,7 @@ impl ControllerConfig {
             Placement::Auto => None,
         };
         let planner = match (planning, self.planner_cpu) {
-            (Planning::BetweenPolls, _) => None,
+            (Planning::BetweenPolls | Planning::Inline, _) => None,
             (Planning::Thread, Placement::Cpu(c)) => Some(c),
             (Planning::Thread, Placement::Unpinned) => None,
             (Planning::Thread, Placement::Auto) => acting.and_then(|a| {
@@ -354,7 +383,16 @@ impl ControllerConfig {
             PlanningMode::Auto if strategy == WaitStrategy::Spin => Planning::BetweenPolls,
             PlanningMode::Auto | PlanningMode::Thread => Planning::Thread,
             PlanningMode::BetweenPolls => Planning::BetweenPolls,
+            PlanningMode::Inline => Planning::Inline,
         };
+        if planning == Planning::Inline
+            && let Placement::Cpu(_) = self.planner_cpu
+        {
+            return bad(
+                "planner_cpu pins the planner thread, and inline planning has none \
+                 (it runs on the acting thread: see acting_cpu)",
+            );
+        }
         if planning == Planning::BetweenPolls {
             if strategy == WaitStrategy::Block {
                 return bad(
@@ -426,6 +464,7 @@ mod tests {
                 "planning = \"between-polls\"\nwait = \"spin\"\nplanner_cpu = 0",
                 "planning",
             ),
+            ("planning = \"inline\"\nplanner_cpu = 0", "planning"),
         ] {
             let err = ControllerConfig::from_toml(text).unwrap_err();
             assert_eq!(err.key, key, "{text}");
@@ -436,6 +475,8 @@ mod tests {
             ("wait = \"spin\"", Planning::BetweenPolls),
             ("wait = \"spin-then-block\"", Planning::Thread),
             ("wait = \"spin\"\nplanning = \"thread\"", Planning::Thread),
+            ("planning = \"inline\"", Planning::Inline),
+            ("wait = \"spin\"\nplanning = \"inline\"", Planning::Inline),
             (
                 "wait = \"spin-then-block\"\nplanning = \"between-polls\"",
                 Planning::BetweenPolls,
@@ -475,6 +516,7 @@ mod tests {
             ("auto", PlanningMode::Auto),
             ("thread", PlanningMode::Thread),
             ("between-polls", PlanningMode::BetweenPolls),
+            ("inline", PlanningMode::Inline),
         ] {
             let cfg =
                 ControllerConfig::from_toml(&format!("wait = \"spin\"\nplanning = \"{text}\""))
@@ -501,6 +543,15 @@ mod tests {
             assert!(err.reason.contains(reason), "{text}: {err}");
         }
         assert!("later".parse::<PlanningMode>().is_err());
+        for (text, order) in [
+            ("decide-first", Order::DecideFirst),
+            ("learn-first", Order::LearnFirst),
+        ] {
+            let cfg = ControllerConfig::from_toml(&format!("order = \"{text}\"")).unwrap();
+            assert_eq!(cfg.order, order, "{text}");
+        }
+        let err = ControllerConfig::from_toml("seed = 2\norder = \"later\"\n").unwrap_err();
+        assert_eq!((err.key.as_str(), err.line()), ("order", Some(2)), "{err}");
     }
 
     /// What `check` finds wrong is placed at the key's line of the file it came from.
@@ -547,6 +598,8 @@ mod tests {
                 planner_cpu: Placement::Unpinned,
                 planning: PlanningMode::BetweenPolls,
                 plan_slice: 5,
+                order: Order::LearnFirst,
+                planner_idle_spin_us: 0,
             },
             ControllerConfig {
                 wait: WaitStrategy::Spin,

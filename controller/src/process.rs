@@ -26,9 +26,11 @@ use thiserror::Error;
 
 use crate::acting::{ActingError, ActingLoop, ActingSettings, Refusal, Step};
 use crate::config::{ConfigError, ControllerConfig, Planning};
-use crate::realtime::{Planner, PlannerThread, PlannerThreadError, SlicedPlanner};
-use crate::saver::{SaveError, Saver, save_library};
-pub use crate::summary::{ControllerSummary, EpisodeLine};
+use crate::realtime::{
+    Planner, PlannerThread, PlannerThreadError, PlannerThreadOptions, SlicedPlanner,
+};
+use crate::saver::{SaveError, Saver, WorldNames, save_library};
+pub use crate::summary::{ControllerSummary, EpisodeLine, LibraryCounts, LibraryEnd, LibraryFacts};
 
 /// Why the controller stopped with an error.
 #[derive(Debug, Error)]
@@ -230,6 +232,7 @@ pub fn run(
         library,
         started_empty,
     } = load_library(config, &library_path, &map)?;
+    let library_before = LibraryCounts::of(&library);
     tracing::info!(
         library = %library_path.display(),
         views = library.len(),
@@ -243,12 +246,20 @@ pub fn run(
     };
     let planner = |structure| -> Result<Planner, PlannerThreadError> {
         Ok(match planning {
-            Planning::Thread => Planner::Thread(PlannerThread::spawn_on(
+            Planning::Thread => Planner::Thread(PlannerThread::spawn_with(
                 structure,
                 planner_params,
-                placement.planner,
+                PlannerThreadOptions {
+                    cpu: placement.planner,
+                    idle_spin: Duration::from_micros(config.planner_idle_spin_us),
+                },
             )?),
             Planning::BetweenPolls => Planner::BetweenPolls(Box::new(SlicedPlanner::new(
+                structure,
+                planner_params,
+                config.plan_slice,
+            )?)),
+            Planning::Inline => Planner::Inline(Box::new(SlicedPlanner::new(
                 structure,
                 planner_params,
                 config.plan_slice,
@@ -257,22 +268,25 @@ pub fn run(
     };
     let keepalive = (config.keepalive_ms > 0).then(|| Duration::from_millis(config.keepalive_ms));
     let settings = ActingSettings {
+        order: config.order,
         budget_us: config.budget_us,
         warmup_actions: config.warmup_actions,
         epsilon: config.epsilon,
         seed: config.seed,
         keepalive,
         save_interval: checked.save_interval(),
-        offer_before_command: offers_before_command(strategy),
+        // An inline plan before the command would be part of the decision.
+        offer_before_command: offers_before_command(strategy) && planning != Planning::Inline,
         first_plan_timeout: Duration::from_secs(10),
     };
     let clock = MonotonicClock;
-    let world = map.world;
+    // What the saved library calls the world, its actions and its features.
+    let world_names = WorldNames::of_map(&map);
     // Command numbers from the monotonic clock, so a respawned controller's commands are newer
     // than its predecessor's (perception and the bridge ignore stale command numbers).
     let now = clock.now_ns();
     let mut acting = ActingLoop::starting_at(map, library, settings, planner, now, now)?;
-    let saver = Saver::spawn(library_path.clone(), world)?;
+    let saver = Saver::spawn(library_path.clone(), world_names.clone())?;
     // Ready (map, library, first plan): the first report tells perception it may start.
     let mut progress = ProgressOutbox::open(&node, &names, Role::Controller)?;
     let idle_timeout = keepalive.map_or(Duration::from_millis(100), |k| {
@@ -364,6 +378,9 @@ pub fn run(
         latency: latencies.decision,
         wake: latencies.wake,
         compute: latencies.compute,
+        order: config.order.to_string(),
+        learn: latencies.learn,
+        learning_overran: latencies.learning_overran,
         allocations: alloc_count::installed()
             .then(|| alloc_count::counted() - warmup_allocations.unwrap_or(alloc_count::counted())),
         ipc_allocations: alloc_count::installed().then_some(ipc_allocations),
@@ -373,6 +390,14 @@ pub fn run(
         planning: planning.to_string(),
         keepalives: counts.keepalives,
         placement,
+        library: None,
+    };
+    let mut facts = LibraryFacts {
+        path: library_path.display().to_string(),
+        started_empty,
+        before: library_before,
+        after: library_before,
+        end: LibraryEnd::LeftAsItWas,
     };
     if counts.learned == 0 {
         // Nothing was learned from a real motion (say, the link to the brick never came up):
@@ -381,10 +406,17 @@ pub fn run(
             library = %library_path.display(),
             "nothing learned in this run; the library is left as it was"
         );
-    } else if let Err(e) = save_library(agent, &library_path, world) {
-        summary.failed_saves += 1;
-        tracing::error!(error = %e, "the library was not saved at shutdown; the previous file is intact");
+    } else {
+        match save_library(agent, &library_path, &world_names) {
+            Ok(after) => (facts.after, facts.end) = (after, LibraryEnd::Saved),
+            Err(e) => {
+                summary.failed_saves += 1;
+                facts.end = LibraryEnd::NotSaved;
+                tracing::error!(error = %e, "the library was not saved at shutdown; the previous file is intact");
+            }
+        }
     }
+    summary.library = Some(facts);
     Ok(summary)
 }
 
@@ -839,13 +871,21 @@ mod tests {
             pinned.unwrap_or((None, None)),
             "{summary:?}"
         );
-        // Nothing was learned from a motion: the library is not written at all.
+        // Nothing was learned from a motion: the library is not written at all, and the
+        // summary says so.
         let library = rig.config.library.as_ref().unwrap();
         assert!(
             !library.exists(),
             "nothing learned, yet {} was saved",
             library.display()
         );
+        let facts = summary.library.as_ref().expect("the library facts");
+        assert_eq!(
+            (facts.started_empty, facts.end, facts.after),
+            (true, LibraryEnd::LeftAsItWas, LibraryCounts::default()),
+            "{facts:?}"
+        );
+        assert_eq!(facts.path, library.display().to_string());
         // With the last port gone, no service of the test is left behind.
         rig.close();
     }
@@ -923,6 +963,20 @@ mod tests {
         // Episode 9 never ended: nothing more to report.
         assert_eq!(lines.try_recv().ok(), None, "one line per ended episode");
         assert_eq!((summary.episodes, summary.actions), (2, 3), "{summary:?}");
+        // Learned from, so saved at shutdown: this run's task finished in it, the facts those
+        // of the file, its actions named by their wheels (this map's features mean nothing
+        // known, so they are not named).
+        let facts = summary.library.as_ref().expect("the library facts");
+        let stored = store::load(rig.config.library.as_ref().unwrap()).unwrap();
+        assert_eq!(
+            (facts.started_empty, facts.end, facts.before),
+            (true, LibraryEnd::Saved, LibraryCounts::default()),
+            "{facts:?}"
+        );
+        assert_eq!(facts.after, LibraryCounts::of(&stored.library), "{facts:?}");
+        assert_eq!(facts.after.tasks, 1, "{facts:?}");
+        assert_eq!(stored.action_names, ["stay (both wheels 0°)"; 2]);
+        assert!(stored.feature_names.is_empty());
         rig.close();
     }
 

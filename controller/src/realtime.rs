@@ -94,6 +94,38 @@ struct PlanJob {
     error: Option<ChangeError>,
 }
 
+/// How a [`PlannerThread`] runs ([`PlannerThread::spawn_with`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct PlannerThreadOptions {
+    /// The CPU it is pinned to (`None`: unpinned).
+    pub cpu: Option<usize>,
+    /// How long it polls for the next job after finishing a plan before it sleeps (zero:
+    /// sleeps at once). Under `SCHED_IDLE` the poll takes only time nobody else wants, and it
+    /// keeps its CPU out of the idle halt: a process woken meanwhile (the bridge, on a
+    /// command) is put on that CPU and runs at once, where a halted virtual CPU takes tens
+    /// of µs to come back. And the next hand-over wakes no sleeping thread.
+    pub idle_spin: Duration,
+}
+
+/// The next job for the planner thread: polled for up to `spin`, then waited for.
+fn next_job(
+    jobs: &Receiver<Box<PlanJob>>,
+    spin: Duration,
+) -> Result<Box<PlanJob>, channel::RecvError> {
+    if !spin.is_zero() {
+        let start = std::time::Instant::now();
+        loop {
+            match jobs.try_recv() {
+                Ok(job) => return Ok(job),
+                Err(TryRecvError::Disconnected) => return Err(channel::RecvError),
+                Err(TryRecvError::Empty) if start.elapsed() >= spin => break,
+                Err(TryRecvError::Empty) => std::hint::spin_loop(),
+            }
+        }
+    }
+    jobs.recv()
+}
+
 /// Value iteration on its own thread.
 #[derive(Debug)]
 pub struct PlannerThread {
@@ -101,6 +133,8 @@ pub struct PlannerThread {
     from_planner: Receiver<Box<PlanJob>>,
     /// The job buffer while it is on this side (`None` while a plan is in flight).
     spare: Option<Box<PlanJob>>,
+    /// A finished plan received by [`settle`](Self::settle), not yet adopted.
+    ready: Option<Box<PlanJob>>,
     handle: Option<JoinHandle<()>>,
     plans: u64,
 }
@@ -123,6 +157,24 @@ impl PlannerThread {
         params: PlannerParams,
         cpu: Option<usize>,
     ) -> Result<Self, PlannerThreadError> {
+        Self::spawn_with(
+            structure,
+            params,
+            PlannerThreadOptions {
+                cpu,
+                idle_spin: Duration::ZERO,
+            },
+        )
+    }
+
+    /// [`spawn`](Self::spawn) with `options`: where the thread runs, and how long it polls
+    /// for its next job after a plan before it sleeps.
+    pub fn spawn_with(
+        structure: Arc<CmdpStructure>,
+        params: PlannerParams,
+        options: PlannerThreadOptions,
+    ) -> Result<Self, PlannerThreadError> {
+        let PlannerThreadOptions { cpu, idle_spin } = options;
         if let Some(cpu) = cpu {
             check_cpu(cpu)?;
         }
@@ -147,9 +199,14 @@ impl PlannerThread {
                 {
                     tracing::warn!(error = %e, "the planner thread runs unpinned");
                 }
-                lower_this_threads_priority();
+                // Polling at a priority above SCHED_IDLE would take time from others.
+                let idle_spin = if lower_this_threads_priority() {
+                    idle_spin
+                } else {
+                    Duration::ZERO
+                };
                 // Ends when the acting side drops its sender.
-                while let Ok(mut job) = jobs.recv() {
+                while let Ok(mut job) = next_job(&jobs, idle_spin) {
                     // In as few pieces as it takes; no plan when the changes moved no backup
                     // by the tolerance.
                     let mut pieces = model.begin_pieces(&job.changes);
@@ -174,6 +231,7 @@ impl PlannerThread {
             to_planner: Some(to_planner),
             from_planner,
             spare: Some(job),
+            ready: None,
             handle: Some(handle),
             plans: 0,
         })
@@ -212,6 +270,9 @@ impl PlannerThread {
         &mut self,
         model: &mut PlannedModel,
     ) -> Result<Option<PlanStats>, PlannerThreadError> {
+        if let Some(job) = self.ready.take() {
+            return self.adopt(job, model).map(Some);
+        }
         match self.from_planner.try_recv() {
             Ok(job) => self.adopt(job, model).map(Some),
             Err(TryRecvError::Empty) => Ok(None),
@@ -228,9 +289,29 @@ impl PlannerThread {
         if !self.busy() {
             return Ok(None);
         }
+        if let Some(job) = self.ready.take() {
+            return self.adopt(job, model).map(Some);
+        }
         match self.from_planner.recv_timeout(timeout) {
             Ok(job) => self.adopt(job, model).map(Some),
             Err(RecvTimeoutError::Timeout) => Ok(None),
+            Err(RecvTimeoutError::Disconnected) => Err(PlannerThreadError::Gone),
+        }
+    }
+
+    /// Waits up to `timeout` for the plan in flight to finish, without adopting it: the next
+    /// [`collect`](Self::collect) does. Returns whether no plan is left in the making. For
+    /// tests and replays that need the plan adopted at a known observation.
+    pub fn settle(&mut self, timeout: Duration) -> Result<bool, PlannerThreadError> {
+        if !self.busy() || self.ready.is_some() {
+            return Ok(true);
+        }
+        match self.from_planner.recv_timeout(timeout) {
+            Ok(job) => {
+                self.ready = Some(job);
+                Ok(true)
+            }
+            Err(RecvTimeoutError::Timeout) => Ok(false),
             Err(RecvTimeoutError::Disconnected) => Err(PlannerThreadError::Gone),
         }
     }
@@ -245,7 +326,11 @@ impl PlannerThread {
             self.spare = Some(job);
             return Err(e.into());
         }
-        let adopted = model.adopt(&job.values, &job.policy, stats, job.backup_span);
+        // Swapped, not copied: the acting thread never reads the plan the other CPU wrote
+        // until it acts on a state of it; the job takes the old buffers back, which the
+        // planner overwrites.
+        let adopted =
+            model.adopt_swapping(&mut job.values, &mut job.policy, stats, job.backup_span);
         self.spare = Some(job);
         adopted?;
         self.plans += 1;
@@ -427,22 +512,51 @@ impl SlicedPlanner {
     }
 }
 
-/// Who plans for an acting loop: a [`PlannerThread`], or the acting thread itself between
-/// polls ([`SlicedPlanner`]). The same protocol either way.
+/// Who plans for an acting loop: a [`PlannerThread`], the acting thread itself between
+/// polls ([`SlicedPlanner`]), or the acting thread at each hand-over. The same protocol
+/// either way.
 #[derive(Debug)]
 pub enum Planner {
     /// On its own thread.
     Thread(PlannerThread),
     /// On the acting thread, between polls.
     BetweenPolls(Box<SlicedPlanner>),
+    /// On the acting thread, the whole plan at each hand-over ([`offer`](Self::offer)),
+    /// adopted at the next [`collect`](Self::collect): every plan is adopted one observation
+    /// after its hand-over, whatever the timing. For replays and tests, not for real time (a
+    /// plan can take milliseconds).
+    Inline(Box<SlicedPlanner>),
 }
 
 impl Planner {
-    /// See [`PlannerThread::offer`].
+    /// See [`PlannerThread::offer`] (inline: and makes the plan).
     pub fn offer(&mut self, model: &mut PlannedModel) -> Result<bool, PlannerThreadError> {
         match self {
             Self::Thread(p) => p.offer(model),
             Self::BetweenPolls(p) => p.offer(model),
+            Self::Inline(p) => {
+                let offered = p.offer(model)?;
+                while p.work() {}
+                Ok(offered)
+            }
+        }
+    }
+
+    /// Waits up to `timeout` for the plan in flight to finish without adopting it (between
+    /// polls: does its slices); returns whether none is left in the making. See
+    /// [`PlannerThread::settle`].
+    pub fn settle(&mut self, timeout: Duration) -> Result<bool, PlannerThreadError> {
+        match self {
+            Self::Thread(p) => p.settle(timeout),
+            Self::BetweenPolls(p) | Self::Inline(p) => {
+                let start = std::time::Instant::now();
+                while p.work() {
+                    if start.elapsed() > timeout {
+                        return Ok(false);
+                    }
+                }
+                Ok(true)
+            }
         }
     }
 
@@ -453,7 +567,7 @@ impl Planner {
     ) -> Result<Option<PlanStats>, PlannerThreadError> {
         match self {
             Self::Thread(p) => p.collect(model),
-            Self::BetweenPolls(p) => p.collect(model),
+            Self::BetweenPolls(p) | Self::Inline(p) => p.collect(model),
         }
     }
 
@@ -465,16 +579,16 @@ impl Planner {
     ) -> Result<Option<PlanStats>, PlannerThreadError> {
         match self {
             Self::Thread(p) => p.wait(model, timeout),
-            Self::BetweenPolls(p) => p.wait(model, timeout),
+            Self::BetweenPolls(p) | Self::Inline(p) => p.wait(model, timeout),
         }
     }
 
     /// One slice of planning, or the adoption of a finished plan into `model`, when planning
     /// happens between polls (see [`SlicedPlanner::work_then_adopt`]); returns whether work
-    /// is left. A planner thread needs none: `false`.
+    /// is left. A planner thread needs none, nor does an inline planner: `false`.
     pub fn work(&mut self, model: &mut PlannedModel) -> bool {
         match self {
-            Self::Thread(_) => false,
+            Self::Thread(_) | Self::Inline(_) => false,
             Self::BetweenPolls(p) => p.work_then_adopt(model),
         }
     }
@@ -483,21 +597,22 @@ impl Planner {
     pub fn plans(&self) -> u64 {
         match self {
             Self::Thread(p) => p.plans(),
-            Self::BetweenPolls(p) => p.plans(),
+            Self::BetweenPolls(p) | Self::Inline(p) => p.plans(),
         }
     }
 }
 
 /// `SCHED_IDLE` for the calling thread, or nice +19 if that is refused (Linux schedules
-/// threads individually); best effort — planning still works at normal priority.
-pub(crate) fn lower_this_threads_priority() {
+/// threads individually); best effort — planning still works at normal priority. Returns
+/// whether the thread runs under `SCHED_IDLE`.
+pub(crate) fn lower_this_threads_priority() -> bool {
     #[cfg(target_os = "linux")]
     {
         let param = libc::sched_param { sched_priority: 0 };
         // SAFETY: pid 0 is the calling thread; `param` outlives the call.
         let idle = unsafe { libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) };
         if idle == 0 {
-            return;
+            return true;
         }
         // SAFETY: plain syscalls on the calling thread's own id; no memory is shared.
         let nice = unsafe {
@@ -511,6 +626,7 @@ pub(crate) fn lower_this_threads_priority() {
             );
         }
     }
+    false
 }
 
 impl Drop for PlannerThread {
@@ -560,6 +676,45 @@ mod tests {
             .wait(model, Duration::from_secs(10))
             .unwrap()
             .expect("a plan within 10 s")
+    }
+
+    /// A planner thread that polls between jobs plans the same as one that sleeps, and ends
+    /// when the acting side goes, polling or not.
+    #[test]
+    fn a_polling_planner_thread_plans_the_same_and_ends_with_its_owner() {
+        let c = Arc::new(corridor(9, &[]));
+        let params = PlannerParams::default();
+        for idle_spin in [Duration::ZERO, Duration::from_millis(50)] {
+            let mut planner = PlannerThread::spawn_with(
+                c.clone(),
+                params,
+                PlannerThreadOptions {
+                    cpu: None,
+                    idle_spin,
+                },
+            )
+            .unwrap();
+            let mut offloaded = PlannedModel::new(c.clone(), params).unwrap();
+            offloaded.plan_elsewhere();
+            let mut inline = PlannedModel::new(c.clone(), params).unwrap();
+            for round in 0..3 {
+                let p = 0.6 + 0.1 * round as f64;
+                for s in 0..9 {
+                    for m in [&mut offloaded, &mut inline] {
+                        m.set(0, s, &[p, 1.0 - p, 0.0]);
+                    }
+                }
+                assert!(planner.offer(&mut offloaded).unwrap());
+                assert!(planner.settle(Duration::from_secs(10)).unwrap());
+                let stats = planner.collect(&mut offloaded).unwrap();
+                assert_eq!(stats, inline.replan(), "{idle_spin:?}");
+                assert_eq!(offloaded.planner().policy(), inline.planner().policy());
+            }
+            // Dropping joins the thread: it must see the closed channel while polling.
+            let started = std::time::Instant::now();
+            drop(planner);
+            assert!(started.elapsed() < Duration::from_secs(5), "{idle_spin:?}");
+        }
     }
 
     #[test]

@@ -23,6 +23,19 @@ pub struct ControllerSummary {
     /// path's own work), against the same budget.
     #[serde(default)]
     pub compute: LatencyReport,
+    /// When the acting loop learned: `decide-first` or `learn-first`
+    /// ([`Order`](crate::acting::Order)).
+    #[serde(default)]
+    pub order: String,
+    /// Deciding first, the work after the command: command published → learned from the
+    /// observation and handed the planner the model, against the same budget (learning
+    /// first, it is part of `compute` and this is empty).
+    #[serde(default)]
+    pub learn: LatencyReport,
+    /// Observations published before the learning after the previous command had finished;
+    /// each waited for it, and its decision's latency includes the wait.
+    #[serde(default)]
+    pub learning_overran: u64,
     /// Heap allocations on the acting path (observation received → command published) after
     /// the warm-up; `None` if the process does not count them (no
     /// [`CountingAllocator`](tes_runtime::alloc_count::CountingAllocator)).
@@ -46,6 +59,102 @@ pub struct ControllerSummary {
     /// Where the acting and planner threads ran ([`ControllerConfig::placement`](crate::config::ControllerConfig::placement)).
     #[serde(default)]
     pub placement: ThreadPlacement,
+    /// The view library the run loaded and what became of it; `None` if the run stopped
+    /// before it loaded one (before the world map came).
+    #[serde(default)]
+    pub library: Option<LibraryFacts>,
+}
+
+/// How many views and finished tasks a view library holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+pub struct LibraryCounts {
+    /// Views.
+    pub views: usize,
+    /// Tasks finished (a controller run is one task).
+    pub tasks: u32,
+}
+
+impl LibraryCounts {
+    /// The counts of `library`.
+    pub fn of(library: &tes_learning::library::ViewLibrary) -> Self {
+        Self {
+            views: library.len(),
+            tasks: library.tasks_seen(),
+        }
+    }
+}
+
+impl std::fmt::Display for LibraryCounts {
+    /// "9 views, 3 tasks" (singular for one).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let plural = |n: u64| if n == 1 { "" } else { "s" };
+        write!(
+            f,
+            "{} view{}, {} task{}",
+            self.views,
+            plural(self.views as u64),
+            self.tasks,
+            plural(u64::from(self.tasks))
+        )
+    }
+}
+
+/// What became of the library file at the end of a run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LibraryEnd {
+    /// Saved at shutdown, with this run's task finished in it.
+    Saved,
+    /// Nothing was learned from a real motion, so the file was not written at shutdown (nor
+    /// during the run): it is as it was when the run started (or still absent).
+    #[default]
+    LeftAsItWas,
+    /// The save at shutdown failed (logged): the file holds its last good save — the one the
+    /// run started from, or a save after one of its episodes.
+    NotSaved,
+}
+
+/// The view library a controller run loaded and saved: the facts the end of a launch states.
+#[derive(Debug, Clone, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+pub struct LibraryFacts {
+    /// The library file (as displayed; a path that is not UTF-8 is shown lossily).
+    #[serde(default)]
+    pub path: String,
+    /// True when there was no library file and the run started from an empty library.
+    #[serde(default)]
+    pub started_empty: bool,
+    /// What the loaded library held.
+    #[serde(default)]
+    pub before: LibraryCounts,
+    /// What the library saved at shutdown holds (`before` unless [`LibraryEnd::Saved`]).
+    #[serde(default)]
+    pub after: LibraryCounts,
+    /// What became of the file.
+    #[serde(default)]
+    pub end: LibraryEnd,
+}
+
+impl std::fmt::Display for LibraryFacts {
+    /// One line: `library PATH: 9 views, 3 tasks -> 11 views, 4 tasks (saved)`, or `started
+    /// empty (no library file yet)` for the start, or what happened instead of a save.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "library {}: ", self.path)?;
+        if self.started_empty {
+            f.write_str("started empty (no library file yet)")?;
+        } else {
+            write!(f, "{}", self.before)?;
+        }
+        match (self.end, self.started_empty) {
+            (LibraryEnd::Saved, _) => write!(f, " -> {} (saved)", self.after),
+            (LibraryEnd::LeftAsItWas, false) => f.write_str("; left as it was: nothing learned"),
+            (LibraryEnd::LeftAsItWas, true) => {
+                f.write_str("; nothing learned, so no library file was written")
+            }
+            (LibraryEnd::NotSaved, _) => f.write_str(
+                "; NOT saved at shutdown (the save failed: the file, if any, is its last good save)",
+            ),
+        }
+    }
 }
 
 impl std::fmt::Display for ControllerSummary {
@@ -70,6 +179,13 @@ impl std::fmt::Display for ControllerSummary {
             self.compute.max_us,
             self.compute.misses,
         )?;
+        if self.learn.count > 0 {
+            write!(
+                f,
+                "learning after the command p50 {} p99 {} max {} us, {} observations waited for it, ",
+                self.learn.p50_us, self.learn.p99_us, self.learn.max_us, self.learning_overran
+            )?;
+        }
         match self.allocations {
             Some(n) => write!(
                 f,
@@ -120,5 +236,85 @@ impl std::fmt::Display for EpisodeLine {
             "episode {}: reward {:.2}, {} steps, decision latency p50 {} us p99 {} us, {} over budget",
             self.episode, self.reward, self.steps, self.p50_us, self.p99_us, self.misses
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn facts(started_empty: bool, end: LibraryEnd) -> LibraryFacts {
+        LibraryFacts {
+            path: "/data/library.tesl".into(),
+            started_empty,
+            before: LibraryCounts { views: 9, tasks: 3 },
+            after: LibraryCounts {
+                views: 11,
+                tasks: 4,
+            },
+            end,
+        }
+    }
+
+    #[test]
+    fn the_library_line_says_before_after_and_what_became_of_the_file() {
+        let cases = [
+            (
+                false,
+                LibraryEnd::Saved,
+                "library /data/library.tesl: 9 views, 3 tasks -> 11 views, 4 tasks (saved)",
+            ),
+            (
+                true,
+                LibraryEnd::Saved,
+                "library /data/library.tesl: started empty (no library file yet) -> 11 views, \
+                 4 tasks (saved)",
+            ),
+            (
+                false,
+                LibraryEnd::LeftAsItWas,
+                "library /data/library.tesl: 9 views, 3 tasks; left as it was: nothing learned",
+            ),
+            (
+                true,
+                LibraryEnd::LeftAsItWas,
+                "library /data/library.tesl: started empty (no library file yet); nothing \
+                 learned, so no library file was written",
+            ),
+            (
+                false,
+                LibraryEnd::NotSaved,
+                "library /data/library.tesl: 9 views, 3 tasks; NOT saved at shutdown (the save \
+                 failed: the file, if any, is its last good save)",
+            ),
+        ];
+        for (started_empty, end, line) in cases {
+            assert_eq!(facts(started_empty, end).to_string(), line);
+        }
+        let one = LibraryCounts { views: 1, tasks: 1 };
+        assert_eq!(one.to_string(), "1 view, 1 task");
+        assert_eq!(LibraryCounts::default().to_string(), "0 views, 0 tasks");
+    }
+
+    /// The report round-trips through JSON, and a report written before the library facts
+    /// existed still reads (without them).
+    #[test]
+    fn the_report_round_trips_and_older_reports_still_read() {
+        let summary = ControllerSummary {
+            episodes: 4,
+            library: Some(facts(false, LibraryEnd::Saved)),
+            ..ControllerSummary::default()
+        };
+        let json = serde_json::to_string(&summary).unwrap();
+        assert!(json.contains("\"end\":\"saved\""), "{json}");
+        let back: ControllerSummary = serde_json::from_str(&json).unwrap();
+        assert_eq!(back, summary);
+
+        let mut old = serde_json::to_value(ControllerSummary::default()).unwrap();
+        old.as_object_mut().unwrap().remove("library");
+        let back: ControllerSummary = serde_json::from_value(old).unwrap();
+        assert_eq!(back.library, None);
+        let partial: LibraryFacts = serde_json::from_str(r#"{"path": "/x"}"#).unwrap();
+        assert_eq!(partial.end, LibraryEnd::LeftAsItWas);
     }
 }

@@ -10,6 +10,9 @@ use std::cell::Cell;
 use tes_learning::mdagl::synthetic::{SparseMultinomialStream, SyntheticSpec};
 use tes_learning::mdagl::{Features, Mdagl, MdaglParams};
 
+mod common;
+use common::ArenaDriver;
+
 struct CountingAllocator;
 
 thread_local! {
@@ -271,130 +274,14 @@ fn tes_steps_with_a_nine_view_library_allocate_nothing() {
     );
 }
 
-/// The paper's arena Env 3 as the controller sees it — its world map — with outcomes drawn
-/// by a seeded generator: the other end of the acting loop, stepping the test's fake clock.
-struct ArenaDriver {
-    map: Box<tes_topics::WorldMap>,
-    rng: rand_chacha::ChaCha8Rng,
-    clock: tes_runtime::clock::ManualClock,
-    seq: u64,
-    episode: u32,
-    step: u32,
-    state: usize,
-    flags: u32,
-}
-
-impl ArenaDriver {
-    fn new(seed: u64) -> Self {
-        use rand::SeedableRng;
-        let arena = tes_perception_sim::arena::Arena::new(tes_perception_sim::arena::ArenaId::Env3);
-        let map = tes_perception_sim::process::world_map(&arena).unwrap();
-        let mut driver = Self {
-            map,
-            rng: rand_chacha::ChaCha8Rng::seed_from_u64(seed),
-            // Each reading 3 µs after the last.
-            clock: tes_runtime::clock::ManualClock::new(1_000_000_000).stepping(3_000),
-            seq: 0,
-            episode: 0,
-            step: 0,
-            state: 0,
-            flags: 0,
-        };
-        driver.start_episode();
-        driver
-    }
-
-    fn start_episode(&mut self) {
-        use rand::RngExt;
-        let n = self.map.out_state();
-        self.state = loop {
-            let s = self.rng.random_range(0..n);
-            if self.map.terminal[s] == 0 {
-                break s;
-            }
-        };
-        self.step = 0;
-        self.flags = tes_topics::observation_flags::EPISODE_START;
-    }
-
-    /// The observation of where the robot is now.
-    fn observation(&mut self) -> tes_topics::Observation {
-        use tes_runtime::clock::Clock;
-        self.seq += 1;
-        tes_topics::Observation {
-            seq: self.seq,
-            stamp_ns: self.clock.now_ns(),
-            after_command: 0,
-            episode: self.episode,
-            step: self.step,
-            state: self.map.attributes(self.state),
-            n_features: self.map.n_features,
-            features: self.map.features[self.state],
-            reward: self.map.reward[self.state],
-            flags: self.flags,
-        }
-    }
-
-    /// The robot carries out `action`: mostly its usual effect, sometimes another.
-    fn carry_out(&mut self, action: usize) {
-        use rand::RngExt;
-        let effects = self.map.n_effects as usize;
-        let effect = if self.rng.random_range(0..4) == 0 {
-            self.rng.random_range(0..effects)
-        } else {
-            (action * 7) % effects
-        };
-        self.state = usize::from(self.map.next_state[self.state][effect]);
-        self.step += 1;
-        self.flags = if self.map.terminal[self.state] != 0 {
-            tes_topics::observation_flags::TERMINAL
-        } else if self.step >= 40 {
-            tes_topics::observation_flags::TRUNCATED
-        } else {
-            0
-        };
-    }
-
-    /// `steps` observations through `acting`, with `t % 40` polls of planning between them
-    /// and an idle wait (a keep-alive) every 50; returns the commands published.
-    fn run(&mut self, acting: &mut tes_controller::acting::ActingLoop, steps: usize) -> u64 {
-        use tes_controller::acting::Step;
-        let mut commands = 0;
-        for t in 0..steps {
-            let obs = self.observation();
-            match acting.on_observation(&obs, &self.clock).unwrap() {
-                Step::Act { command, .. } => {
-                    std::hint::black_box(command);
-                    acting.command_sent(&self.clock).unwrap();
-                    commands += 1;
-                    self.carry_out(command.action as usize);
-                }
-                Step::EpisodeEnded { .. } => {
-                    self.episode += 1;
-                    self.start_episode();
-                }
-                Step::Refused(why) => panic!("refused {obs:?}: {why:?}"),
-            }
-            for _ in 0..t % 40 {
-                acting.plan_between_polls();
-            }
-            if t % 50 == 49 {
-                self.clock.advance(300_000_000);
-                std::hint::black_box(acting.on_idle(&self.clock));
-            }
-        }
-        commands
-    }
-}
-
-/// The controller's acting loop itself — refuse or accept the observation, derive the effect,
-/// score and update every view of the action, adopt a finished plan, act, hand the planner a
-/// new snapshot, report ended episodes, send keep-alives — with planning on its own thread or
-/// between its polls in slices, from a library learned on the same map: allocates nothing
-/// over 10 000 observations after the warm-up.
+/// The controller's acting loop itself — refuse or accept the observation, adopt a finished
+/// plan, act, then derive the effect, score and update every view of the action, hand the
+/// planner a new snapshot, report ended episodes, send keep-alives — with planning on its own
+/// thread or between its polls in slices, deciding first or learning first, from a library
+/// learned on the same map: allocates nothing over 10 000 observations after the warm-up.
 #[test]
 fn the_real_time_acting_loop_allocates_nothing() {
-    use tes_controller::acting::{ActingLoop, ActingSettings};
+    use tes_controller::acting::{ActingLoop, ActingSettings, Order};
     use tes_controller::realtime::{Planner, PlannerThread, SlicedPlanner};
     use tes_learning::library::{LibraryParams, ViewLibrary};
     use tes_learning::plan::PlannerParams;
@@ -424,11 +311,21 @@ fn the_real_time_acting_loop_allocates_nothing() {
     let (library, _) = first.finish().1.finish_task().unwrap();
     assert!(!library.is_empty(), "the first task left no view");
 
-    for (who, planner) in [
-        ("planning on a thread", &thread as &dyn Fn(_) -> _),
-        ("planning between polls", &sliced),
+    for (who, planner, order) in [
+        (
+            "planning on a thread",
+            &thread as &dyn Fn(_) -> _,
+            Order::DecideFirst,
+        ),
+        ("planning between polls", &sliced, Order::DecideFirst),
+        (
+            "planning on a thread, learning first",
+            &thread,
+            Order::LearnFirst,
+        ),
     ] {
         let mut driver = ArenaDriver::new(11);
+        let settings = ActingSettings { order, ..settings };
         let mut acting =
             ActingLoop::new(driver.map.clone(), library.clone(), settings, planner).unwrap();
         driver.run(&mut acting, 500); // warm-up

@@ -222,20 +222,11 @@ const FLAG_BALL: u8 = 8;
 pub use tes_topics::StateAttributes;
 
 /// A readable name for feature `i` (< 312): "green ring 12", "blue ring 0", "ball ring 99",
-/// "orientation 3", "green mark in cell", "no green mark in cell", "blue mark in cell",
-/// "no blue mark in cell".
+/// "facing NW", "green mark in cell", "no green mark in cell", "blue mark in cell",
+/// "no blue mark in cell" — [`tes_topics::names::arena_feature_name`], the names saved view
+/// libraries give the features of the layout perception extracts them by.
 pub fn feature_name(i: usize) -> Option<String> {
-    Some(match i {
-        _ if i < BLUE_RINGS => format!("green ring {}", i - GREEN_RINGS),
-        _ if i < BALL_RINGS => format!("blue ring {}", i - BLUE_RINGS),
-        _ if i < ORIENTATION_FEATURES => format!("ball ring {}", i - BALL_RINGS),
-        _ if i < GREEN_IN_CELL => format!("orientation {}", i - ORIENTATION_FEATURES),
-        GREEN_IN_CELL => "green mark in cell".to_owned(),
-        NO_GREEN_IN_CELL => "no green mark in cell".to_owned(),
-        BLUE_IN_CELL => "blue mark in cell".to_owned(),
-        NO_BLUE_IN_CELL => "no blue mark in cell".to_owned(),
-        _ => return None,
-    })
+    tes_topics::names::arena_feature_name(i)
 }
 
 /// One arena: layout, physics, discretisation, effects, rewards and features.

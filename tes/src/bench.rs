@@ -26,7 +26,7 @@ use clap::{Args, Subcommand};
 use serde::Serialize;
 use tes_bench::relay::{self, RelayConfig};
 use tes_bench::{fixtures, scaling};
-use tes_controller::config::{ControllerConfig, PlanningMode, ThreadPlacement};
+use tes_controller::config::{ControllerConfig, Order, PlanningMode, ThreadPlacement};
 use tes_controller::process::ControllerSummary;
 use tes_learning::library::store::{self, StoredLibrary};
 use tes_runtime::affinity::Placement;
@@ -92,6 +92,15 @@ pub struct LatencyArgs {
     /// while it spins) [default: between-polls with --wait spin, else thread].
     #[arg(long)]
     planning: Option<String>,
+    /// When the controller learns from an observation: decide-first (after publishing the
+    /// command; the default) or learn-first (before deciding, the older order, for a
+    /// before/after comparison in one build).
+    #[arg(long, default_value = "decide-first")]
+    order: Order,
+    /// How long the controller's planner thread polls for its next job after a plan, µs
+    /// [default: the controller's, 5000; 0 = sleeps at once].
+    #[arg(long)]
+    planner_idle_spin_us: Option<u64>,
 }
 
 /// Arguments of `tes bench scaling`.
@@ -109,6 +118,10 @@ pub struct ScalingArgs {
     /// Write scaling.json, scaling.csv and the two SVG charts here.
     #[arg(long)]
     out: Option<PathBuf>,
+    /// The acting loop's order: decide-first (the decision and the learning timed apart) or
+    /// learn-first (the older order: the decision includes the learning).
+    #[arg(long, default_value = "decide-first")]
+    order: Order,
     /// Print one JSON object instead of the table.
     #[arg(long)]
     json: bool,
@@ -145,6 +158,13 @@ struct LatencyResult {
     wake: LatencyReport,
     /// Its second part: observation received → command published (the acting path's work).
     compute: LatencyReport,
+    /// When the controller learned: `decide-first` or `learn-first`.
+    order: String,
+    /// Deciding first, the learning after each command (command published → views scored and
+    /// updated, the planner handed the model).
+    learn: LatencyReport,
+    /// Observations published before the previous learning had finished (they waited for it).
+    learning_overran: u64,
     floor_p50_us: u64,
     floor_p90_us: u64,
     floor_p99_us: u64,
@@ -272,6 +292,9 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         decision: controller.latency,
         wake: controller.wake,
         compute: controller.compute,
+        order: controller.order.clone(),
+        learn: controller.learn,
+        learning_overran: controller.learning_overran,
         floor_p50_us: floor.p50_us,
         floor_p90_us: floor.p90_us,
         floor_p99_us: floor.p99_us,
@@ -294,9 +317,10 @@ fn latency(args: &LatencyArgs) -> Result<()> {
     }
     let cpu = |c: Option<usize>| c.map_or("unpinned".to_owned(), |c| format!("CPU {c}"));
     println!(
-        "tes bench latency: wait {}, {} actions measured (+{} warm-up), {} views, budget {} us, one action every {} us; \
+        "tes bench latency: wait {}, {}, {} actions measured (+{} warm-up), {} views, budget {} us, one action every {} us; \
          acting thread and floor hop {}, planner {}",
         result.wait,
+        result.order,
         result.actions,
         args.warmup,
         args.views,
@@ -321,6 +345,9 @@ fn latency(args: &LatencyArgs) -> Result<()> {
     row("ours: controller decision only", &controller.latency);
     row("  of which: stamp -> received", &controller.wake);
     row("  of which: received -> published", &controller.compute);
+    if controller.learn.count > 0 {
+        row("learning after the command", &controller.learn);
+    }
     println!(
         "ratio ours/floor: p50 {:.2}, p99 {:.2}; allocations on the acting path: {}",
         result.ratio_p50,
@@ -332,6 +359,13 @@ fn latency(args: &LatencyArgs) -> Result<()> {
     );
     // A planner thread yields to everything: where the measured loops keep both CPUs busy
     // (spin on two cores) it barely runs, and the agent acts on an old policy.
+    if controller.learn.count > 0 {
+        println!(
+            "learning finished before the next observation in {:.3} % of actions ({} observations waited for it)",
+            100.0 * (1.0 - result.learning_overran as f64 / result.actions.max(1) as f64),
+            result.learning_overran
+        );
+    }
     println!(
         "planner ({}): {} plans finished and adopted, one per {:.0} actions",
         result.planning,
@@ -408,6 +442,10 @@ fn group_file(
         .planner
         .map_or(Placement::Unpinned, Placement::Cpu);
     c.planning = planning_mode(args)?;
+    c.order = args.order;
+    if let Some(us) = args.planner_idle_spin_us {
+        c.planner_idle_spin_us = us;
+    }
     // The bridge's [ipc] table as the bench writes it: the launch-wide prefix and wait go in.
     let ipc = &mut file.bridge.ipc;
     ipc.budget_us = args.budget_us;
@@ -490,27 +528,65 @@ fn scaling_sweep(args: &ScalingArgs) -> Result<()> {
     }
     if !args.json {
         println!(
-            "{:>9} {:>6} {:>8} {:>8} {:>8} {:>8} {:>8}",
-            "features", "views", "p50 us", "p90 us", "p99 us", "p99.9 us", "max us"
+            "{:>9} {:>6} | {:>8} {:>8} {:>8} | {:>8} {:>8} {:>8} | {:>8} {:>8}",
+            "", "", "decision", "", "", "learning", "", "", "whole", ""
+        );
+        println!(
+            "{:>9} {:>6} | {:>8} {:>8} {:>8} | {:>8} {:>8} {:>8} | {:>8} {:>8}",
+            "features",
+            "views",
+            "p50 us",
+            "p99 us",
+            "max us",
+            "p50 us",
+            "p99 us",
+            "max us",
+            "p50 us",
+            "p99 us"
         );
     }
-    let points = scaling::sweep(args.actions, args.warmup, args.seed, |p| {
+    let points = scaling::sweep(args.actions, args.warmup, args.seed, args.order, |p| {
         if !args.json {
-            let l = &p.latency;
+            let (d, l, w) = (&p.decision, &p.learn, &p.latency);
             println!(
-                "{:>9} {:>6} {:>8} {:>8} {:>8} {:>8} {:>8}",
-                p.features, p.views, l.p50_us, l.p90_us, l.p99_us, l.p999_us, l.max_us
+                "{:>9} {:>6} | {:>8} {:>8} {:>8} | {:>8} {:>8} {:>8} | {:>8} {:>8}",
+                p.features,
+                p.views,
+                d.p50_us,
+                d.p99_us,
+                d.max_us,
+                l.p50_us,
+                l.p99_us,
+                l.max_us,
+                w.p50_us,
+                w.p99_us
             );
         }
     })?;
     if let Some(dir) = &args.out {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-        let mut csv = String::from("features,views,count,p50_us,p90_us,p99_us,p999_us,max_us\n");
+        let mut csv = String::from(
+            "features,views,count,p50_us,p90_us,p99_us,p999_us,max_us,\
+             decision_p50_us,decision_p99_us,decision_max_us,learn_p50_us,learn_p99_us,learn_max_us\n",
+        );
         for p in &points {
-            let l = &p.latency;
+            let (l, d, n) = (&p.latency, &p.decision, &p.learn);
             csv.push_str(&format!(
-                "{},{},{},{},{},{},{},{}\n",
-                p.features, p.views, l.count, l.p50_us, l.p90_us, l.p99_us, l.p999_us, l.max_us
+                "{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+                p.features,
+                p.views,
+                l.count,
+                l.p50_us,
+                l.p90_us,
+                l.p99_us,
+                l.p999_us,
+                l.max_us,
+                d.p50_us,
+                d.p99_us,
+                d.max_us,
+                n.p50_us,
+                n.p99_us,
+                n.max_us
             ));
         }
         let [by_features, by_views] = scaling::charts(&points);

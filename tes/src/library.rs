@@ -1,8 +1,9 @@
-//! `tes library show|export PATH`: what a saved view library holds.
+//! `tes library show|export [PATH]`: what a saved view library holds — by default the robot's
+//! own, `library.tesl` in the data directory, which `tes launch` loads and saves.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-use anyhow::Result;
+use anyhow::{Result, bail};
 use clap::{Args, Subcommand};
 use serde::Serialize;
 use tes_learning::library::store::{self, FORMAT_VERSION, StoredLibrary};
@@ -18,13 +19,14 @@ pub struct LibraryArgs {
 enum Which {
     /// Print each view: its action, selected features, track record, tasks won, scores.
     Show {
-        /// The library file.
-        path: PathBuf,
+        /// The library file (default: the robot's library, `library.tesl` in the data
+        /// directory: `$TES_DATA_DIR`, else `$XDG_DATA_HOME/tes`, else `~/.local/share/tes`).
+        path: Option<PathBuf>,
     },
     /// The same as one JSON object on stdout.
     Export {
-        /// The library file.
-        path: PathBuf,
+        /// The library file (default: the robot's library, as for `show`).
+        path: Option<PathBuf>,
         /// Emit JSON (the only format; the flag keeps the command explicit).
         #[arg(long, required = true)]
         json: bool,
@@ -125,17 +127,39 @@ fn report(path: &std::path::Path, stored: &StoredLibrary) -> Report {
 
 /// Runs `tes library`.
 pub fn run(args: &LibraryArgs) -> Result<()> {
+    let default = tes_controller::config::default_library_path;
     match &args.which {
         Which::Show { path } => {
-            let r = report(path, &store::load(path)?);
+            let path = library_file(path.as_deref(), default)?;
+            let r = report(&path, &store::load(&path)?);
             print_report(&r);
         }
         Which::Export { path, .. } => {
-            let r = report(path, &store::load(path)?);
+            let path = library_file(path.as_deref(), default)?;
+            let r = report(&path, &store::load(&path)?);
             println!("{}", serde_json::to_string_pretty(&r)?);
         }
     }
     Ok(())
+}
+
+/// The library file to read: `path` if given (the loader names it if it cannot be read),
+/// else the `default` one — which must be there: without it, says that there is no library
+/// yet and how one comes about, rather than a bare "no such file".
+fn library_file(path: Option<&Path>, default: impl FnOnce() -> PathBuf) -> Result<PathBuf> {
+    if let Some(path) = path {
+        return Ok(path.to_owned());
+    }
+    let path = default();
+    match std::fs::symlink_metadata(&path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => bail!(
+            "no library at {} yet: run `tes launch` first (it saves the robot's view library \
+             there), or give a library file",
+            path.display()
+        ),
+        // Anything there is the loader's to open, or to say why it cannot.
+        _ => Ok(path),
+    }
 }
 
 fn print_report(r: &Report) {
@@ -198,5 +222,33 @@ fn print_report(r: &Report) {
             })
             .collect();
         println!("  scores: {}", scores.join("; "));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn without_a_path_the_default_library_is_read_and_its_absence_said() {
+        let dir = tempfile::tempdir().unwrap();
+        let default = dir.path().join("data/library.tesl");
+        let err = library_file(None, || default.clone())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with(&format!("no library at {} yet: ", default.display()))
+                && err.contains("run `tes launch` first"),
+            "{err}"
+        );
+        std::fs::create_dir_all(dir.path().join("data")).unwrap();
+        std::fs::write(&default, b"whatever is there is the loader's to judge").unwrap();
+        assert_eq!(library_file(None, || default.clone()).unwrap(), default);
+        // A given path is used as it is, there or not (the loader names it).
+        let given = dir.path().join("elsewhere.tesl");
+        assert_eq!(
+            library_file(Some(&given), || unreachable!("no default needed")).unwrap(),
+            given
+        );
     }
 }

@@ -96,15 +96,22 @@ fn latency_runs_both_paths_and_reports_every_key() {
         "decision",
         "wake",
         "compute",
+        "order",
+        "learn",
+        "learning_overran",
     ] {
         assert!(v.get(key).is_some(), "missing {key} in {v}");
     }
     assert_eq!(v["acting_cpu"], acting, "{v}");
     assert_eq!(v["planner_cpu"], planner, "{v}");
-    // The decision splits into its wake-up and its compute.
-    for part in ["decision", "wake", "compute", "floor_decision"] {
+    // The decision splits into its wake-up and its compute; deciding first (the default),
+    // the learning follows each command and is timed on its own.
+    for part in ["decision", "wake", "compute", "learn", "floor_decision"] {
         assert_eq!(v[part]["count"], 150, "{part}: {v}");
     }
+    assert_eq!(v["order"], "decide-first", "{v}");
+    let overran = v["learning_overran"].as_u64().expect("a count");
+    assert!(overran <= 150, "{v}");
     assert_eq!(v["wait"], "block");
     assert_eq!(v["planning"], "thread", "{v}");
     assert_eq!(v["actions"], 150);
@@ -187,6 +194,16 @@ fn bad_bench_arguments_are_refused_before_anything_starts() {
     assert!(!ok);
     assert!(
         stderr.contains("--planning") && stderr.contains("spin"),
+        "{stderr}"
+    );
+    let (ok, _, stderr) = run(
+        &["bench", "latency", "--order", "later"],
+        dir.path(),
+        Duration::from_secs(30),
+    );
+    assert!(!ok);
+    assert!(
+        stderr.contains("--order") && stderr.contains("decide-first"),
         "{stderr}"
     );
 }

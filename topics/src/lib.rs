@@ -33,6 +33,7 @@
 
 use iceoryx2::prelude::ZeroCopySend;
 
+pub mod names;
 mod world_map;
 
 pub use world_map::{MAX_ACTIONS, MAX_EFFECTS, MAX_STATES, WorldMap};

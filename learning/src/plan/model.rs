@@ -289,6 +289,23 @@ impl PlannedModel {
         Ok(())
     }
 
+    /// [`adopt`](Self::adopt) without a copy (see [`ValueIteration::adopt_swapping`]):
+    /// `values` and `policy` come back holding the previous plan's.
+    pub fn adopt_swapping(
+        &mut self,
+        values: &mut Vec<f64>,
+        policy: &mut Vec<u32>,
+        stats: PlanStats,
+        backup_span: f64,
+    ) -> Result<(), PlanError> {
+        self.planner.adopt_swapping(values, policy)?;
+        let drift = self.drift;
+        self.planned(stats, backup_span);
+        // Changes since the snapshot still count.
+        self.drift = drift;
+        Ok(())
+    }
+
     /// Re-plans if the model moved enough since the last plan; returns the plan's statistics
     /// if it did. Allocation-free.
     pub fn replan(&mut self) -> Option<PlanStats> {

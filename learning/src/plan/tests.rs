@@ -229,3 +229,33 @@ fn a_replan_stops_at_the_drift_that_triggered_it_and_converges_once_the_model_ho
     let full = model.replan().expect("the model moved");
     assert!(full.converged && full.sweeps > 1, "{full:?}");
 }
+
+/// Adopting by swapping gives the same plan as adopting by copying, hands back the previous
+/// one, and refuses buffers of another size, changing nothing.
+#[test]
+fn adopting_by_swapping_equals_adopting_by_copying() {
+    let c = corridor(9, &[]);
+    let mut table = EffectTable::uniform(&c);
+    for s in 0..9 {
+        table.set(0, s, &[0.8, 0.1, 0.1]);
+    }
+    let mut made = ValueIteration::new(&c, tight()).unwrap();
+    made.plan(&c, &table);
+    let mut copied = ValueIteration::new(&c, tight()).unwrap();
+    let mut swapped = ValueIteration::new(&c, tight()).unwrap();
+    let previous = (swapped.values().to_vec(), swapped.policy().to_vec());
+    copied.adopt(made.values(), made.policy()).unwrap();
+    let (mut values, mut policy) = (made.values().to_vec(), made.policy().to_vec());
+    swapped.adopt_swapping(&mut values, &mut policy).unwrap();
+    assert_eq!(swapped.values(), copied.values());
+    assert_eq!(swapped.policy(), copied.policy());
+    assert_eq!((values, policy), previous, "the old plan comes back");
+    let (mut short, mut policy) = (vec![0.0; 3], vec![0; 9]);
+    assert!(swapped.adopt_swapping(&mut short, &mut policy).is_err());
+    assert_eq!(
+        swapped.values(),
+        copied.values(),
+        "a refused adoption changes nothing"
+    );
+    assert_eq!(short.len(), 3);
+}

@@ -284,4 +284,24 @@ impl ValueIteration {
         self.policy.copy_from_slice(policy);
         Ok(())
     }
+
+    /// [`adopt`](Self::adopt) without a copy: swaps the buffers, so `values` and `policy`
+    /// come back holding the previous solution. Adopting a plan made on another CPU this way
+    /// reads none of it, so none of it crosses between the CPUs' caches until it is used.
+    pub fn adopt_swapping(
+        &mut self,
+        values: &mut Vec<f64>,
+        policy: &mut Vec<u32>,
+    ) -> Result<(), PlanError> {
+        if values.len() != self.values.len() || policy.len() != self.policy.len() {
+            return Err(PlanError::WrongSize {
+                expected: self.values.len(),
+                values: values.len(),
+                policy: policy.len(),
+            });
+        }
+        std::mem::swap(&mut self.values, values);
+        std::mem::swap(&mut self.policy, policy);
+        Ok(())
+    }
 }

@@ -132,7 +132,7 @@ fn there_are_312_features_in_a_fixed_layout() {
     assert_eq!(feature_name(12).as_deref(), Some("green ring 12"));
     assert_eq!(feature_name(100).as_deref(), Some("blue ring 0"));
     assert_eq!(feature_name(299).as_deref(), Some("ball ring 99"));
-    assert_eq!(feature_name(303).as_deref(), Some("orientation 3"));
+    assert_eq!(feature_name(303).as_deref(), Some("facing NW"));
     assert_eq!(feature_name(308).as_deref(), Some("green mark in cell"));
     assert_eq!(feature_name(309).as_deref(), Some("no green mark in cell"));
     assert_eq!(feature_name(310).as_deref(), Some("blue mark in cell"));
@@ -140,6 +140,92 @@ fn there_are_312_features_in_a_fixed_layout() {
     assert_eq!(feature_name(312), None);
     let names: std::collections::HashSet<String> = (0..312).filter_map(feature_name).collect();
     assert_eq!(names.len(), 312);
+}
+
+/// The names saved libraries give the features (`tes_topics::names`) say what perception's
+/// extraction sets, block by block: in every in-area state of every arena, a "green ring r"
+/// (blue, ball) is on exactly when a green mark (blue mark, the ball) lies r to r + 1 units
+/// from the cell's centre; exactly one "facing H" is on, H the compass name of the state's
+/// orientation (its cell step); "green mark in cell" (blue) is on exactly when the cell holds
+/// one and "no green mark in cell" otherwise. The out state has no feature.
+#[test]
+fn each_named_feature_block_is_what_the_extraction_sets() {
+    for id in ArenaId::ALL {
+        let a = Arena::new(id);
+        assert!(a.features(a.out_state()).is_empty());
+        let unit = a.unit_cm();
+        for s in 0..a.out_state() {
+            let attr = a.attributes(s).unwrap();
+            let (x, y) = (usize::from(attr.x), usize::from(attr.y));
+            let centre = a.cell_centre(x, y);
+            let names: std::collections::BTreeSet<String> = a
+                .features(s)
+                .iter()
+                .map(|&i| feature_name(i as usize).unwrap())
+                .collect();
+            // What each named block should hold, from the arena's geometry.
+            let mut expected = std::collections::BTreeSet::new();
+            for (what, points) in [
+                ("green", a.marks(MarkColour::Green)),
+                ("blue", a.marks(MarkColour::Blue)),
+                ("ball", std::slice::from_ref(&a.layout().ball)),
+            ] {
+                for p in points {
+                    let ring = (p.distance(centre) / unit).floor();
+                    if ring < RINGS as f64 {
+                        expected.insert(format!("{what} ring {ring}"));
+                    }
+                }
+            }
+            let (dx, dy) = DIRS[usize::from(attr.orientation)];
+            let heading: String = [(dy > 0, 'N'), (dy < 0, 'S'), (dx > 0, 'E'), (dx < 0, 'W')]
+                .into_iter()
+                .filter_map(|(on, c)| on.then_some(c))
+                .collect();
+            expected.insert(format!("facing {heading}"));
+            for (colour, word) in [(MarkColour::Green, "green"), (MarkColour::Blue, "blue")] {
+                expected.insert(if a.has_mark(colour, x, y) {
+                    format!("{word} mark in cell")
+                } else {
+                    format!("no {word} mark in cell")
+                });
+            }
+            assert_eq!(names, expected, "{id}, state {s} {attr:?}");
+        }
+    }
+}
+
+/// The names saved libraries give the actions, from the wheel targets the world map carries,
+/// are the arena's own short names with the targets, and the way each says the robot turns
+/// is the way the simulated robot turns on carpet (clockwise is right).
+#[test]
+fn action_names_from_the_wheels_say_what_the_robot_does() {
+    let arena = Arena::new(ArenaId::Env1);
+    let (x, y) = (0..10)
+        .flat_map(|y| (0..10).map(move |x| (x, y)))
+        .find(|&(x, y)| {
+            arena.surface(x, y) == Surface::Carpet
+                && !arena.is_death_cell(x, y)
+                && !arena.is_ball_cell(x, y)
+        })
+        .unwrap();
+    let start = Pose {
+        position: arena.cell_centre(x, y),
+        heading: 0.0,
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    for (a, &(left, right)) in ACTIONS.iter().enumerate() {
+        let wheels = [left.round() as i32, right.round() as i32];
+        let name = tes_topics::names::wheel_action_name(wheels);
+        assert!(name.starts_with(ACTION_NAMES[a]), "{a}: {name}");
+        let moved = arena.move_robot(start, left, right, &mut rng);
+        let turned = (moved.heading - start.heading + PI).rem_euclid(TAU) - PI;
+        match name.split_whitespace().nth(1) {
+            Some("right") => assert!(turned < -0.1, "{name}: turned {turned} rad"),
+            Some("left") => assert!(turned > 0.1, "{name}: turned {turned} rad"),
+            _ => assert!(turned.abs() < 0.1, "{name}: turned {turned} rad"),
+        }
+    }
 }
 
 #[test]
