@@ -34,7 +34,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use tes_bridge::config::{BridgeConfig, BridgeSettings, TransportKind};
 use tes_controller::config::{ControllerConfig, default_data_dir};
 use tes_perception_sim::process::PerceptionConfig;
@@ -48,6 +48,7 @@ mod child;
 mod file;
 mod group;
 mod logs;
+mod reference;
 
 pub use child::run_child;
 pub(crate) use file::*;
@@ -65,10 +66,26 @@ pub struct LaunchArgs {
     /// Episodes to run (overrides `[launch] episodes`).
     #[arg(long)]
     episodes: Option<u32>,
+    /// Print every key of the launch file with its default, meaning and allowed values, and
+    /// exit: `toml` (the default) is a launch file `--config` reads back; `markdown` is the
+    /// reference page, docs/config.md.
+    #[arg(
+        long,
+        value_name = "FORMAT",
+        value_enum,
+        num_args = 0..=1,
+        require_equals = true,
+        default_missing_value = "toml",
+        conflicts_with_all = ["config", "episodes"]
+    )]
+    print_config: Option<reference::Format>,
 }
 
 /// Runs `tes launch`.
 pub fn run(args: &LaunchArgs) -> Result<()> {
+    if let Some(format) = args.print_config {
+        return reference::print(format);
+    }
     let mut file = match &args.config {
         Some(path) => read_launch_file(path)?,
         None => LaunchFile::default(),

@@ -4,7 +4,7 @@
 use super::*;
 
 /// What to do when a child dies.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize, Default)]
 #[serde(rename_all = "kebab-case")]
 pub enum Restart {
     /// Stop the others and exit non-zero.
@@ -14,8 +14,8 @@ pub enum Restart {
     OnFailure,
 }
 
-/// The `[launch]` table.
-#[derive(Debug, Clone, Deserialize)]
+/// The `[launch]` table (its keys are described in [`super::reference`]).
+#[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LaunchSection {
     /// Episodes perception runs before the group stops (default 20).
