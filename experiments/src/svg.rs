@@ -565,6 +565,27 @@ pub struct DrawnSeries {
     pub used: Vec<String>,
 }
 
+/// What in a figure's drawn series (see [`drawn_series`]) breaks the one-colour-per-method
+/// rule: a method not in its [`method_colour`], drawn in more than one colour, or sharing its
+/// colour with another method of the figure. Empty when the figure keeps the rule.
+pub fn colour_problems(drawn: &[DrawnSeries]) -> Vec<String> {
+    let mut problems = Vec::new();
+    for (i, d) in drawn.iter().enumerate() {
+        if d.colour != method_colour(&d.name) {
+            problems.push(format!("{} is not in its colour", d.name));
+        }
+        if d.used != [d.colour.clone()] {
+            problems.push(format!("{} is drawn in {:?}", d.name, d.used));
+        }
+        for other in &drawn[i + 1..] {
+            if d.colour == other.colour {
+                problems.push(format!("{} and {} share a colour", d.name, other.name));
+            }
+        }
+    }
+    problems
+}
+
 /// Reads back, from an SVG rendered by [`LineChart::to_svg`] or [`CategoryChart::to_svg`],
 /// each series in order of first appearance: its declared colour and the colours actually
 /// used to draw it. Checks that a figure keeps to [`method_colour`] start here.
@@ -748,18 +769,7 @@ mod tests {
         assert_eq!(line_drawn.len(), 4);
         assert_eq!(cat_drawn.len(), 3);
         for figure in [&line_drawn, &cat_drawn] {
-            for (i, d) in figure.iter().enumerate() {
-                assert_eq!(d.colour, method_colour(&d.name), "{}", d.name);
-                assert_eq!(
-                    d.used,
-                    vec![d.colour.clone()],
-                    "{} drawn in one colour",
-                    d.name
-                );
-                for other in &figure[i + 1..] {
-                    assert_ne!(d.colour, other.colour, "{} and {}", d.name, other.name);
-                }
-            }
+            assert_eq!(colour_problems(figure), Vec::<String>::new());
         }
         for d in &cat_drawn {
             let same = line_drawn.iter().find(|l| l.name == d.name).unwrap();

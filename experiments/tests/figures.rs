@@ -8,7 +8,7 @@ use std::path::Path;
 use tes_experiments::grid::{self, GridConfig};
 use tes_experiments::replot::replot;
 use tes_experiments::robot::{self, RobotConfig};
-use tes_experiments::svg::{drawn_series, method_colour};
+use tes_experiments::svg::{colour_problems, drawn_series};
 use tes_experiments::transfer::{self, TransferConfig};
 use tes_experiments::verdict::{QUICK_RUN_NOTE, Verdict};
 
@@ -94,21 +94,8 @@ fn quick_runs_draw_every_method_in_its_one_colour_and_give_no_verdicts() {
     for (figure, svg) in &figures {
         let drawn = drawn_series(svg);
         assert!(drawn.len() >= 2, "{figure} draws its methods");
-        for (i, d) in drawn.iter().enumerate() {
-            assert_eq!(d.colour, method_colour(&d.name), "{figure}: {}", d.name);
-            assert_eq!(
-                d.used,
-                vec![d.colour.clone()],
-                "{figure}: {} in one colour",
-                d.name
-            );
-            for other in &drawn[i + 1..] {
-                assert_ne!(
-                    d.colour, other.colour,
-                    "{figure}: {} and {}",
-                    d.name, other.name
-                );
-            }
+        assert_eq!(colour_problems(&drawn), Vec::<String>::new(), "{figure}");
+        for d in &drawn {
             let (first_figure, colour) = colour_of
                 .entry(d.name.clone())
                 .or_insert_with(|| (figure.clone(), d.colour.clone()));

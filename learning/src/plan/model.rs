@@ -282,10 +282,7 @@ impl PlannedModel {
         backup_span: f64,
     ) -> Result<(), PlanError> {
         self.planner.adopt(values, policy)?;
-        let drift = self.drift;
-        self.planned(stats, backup_span);
-        // Changes since the snapshot still count.
-        self.drift = drift;
+        self.adopted(stats, backup_span);
         Ok(())
     }
 
@@ -299,11 +296,16 @@ impl PlannedModel {
         backup_span: f64,
     ) -> Result<(), PlanError> {
         self.planner.adopt_swapping(values, policy)?;
+        self.adopted(stats, backup_span);
+        Ok(())
+    }
+
+    /// Records a plan made elsewhere as the last plan.
+    fn adopted(&mut self, stats: PlanStats, backup_span: f64) {
         let drift = self.drift;
         self.planned(stats, backup_span);
         // Changes since the snapshot still count.
         self.drift = drift;
-        Ok(())
     }
 
     /// Re-plans if the model moved enough since the last plan; returns the plan's statistics

@@ -273,13 +273,7 @@ impl ValueIteration {
     /// Adopts a solution computed elsewhere (a planner thread's): its values become the warm
     /// start, its policy the greedy policy. Both must have one entry per state.
     pub fn adopt(&mut self, values: &[f64], policy: &[u32]) -> Result<(), PlanError> {
-        if values.len() != self.values.len() || policy.len() != self.policy.len() {
-            return Err(PlanError::WrongSize {
-                expected: self.values.len(),
-                values: values.len(),
-                policy: policy.len(),
-            });
-        }
+        self.check_solution(values, policy)?;
         self.values.copy_from_slice(values);
         self.policy.copy_from_slice(policy);
         Ok(())
@@ -293,6 +287,14 @@ impl ValueIteration {
         values: &mut Vec<f64>,
         policy: &mut Vec<u32>,
     ) -> Result<(), PlanError> {
+        self.check_solution(values, policy)?;
+        std::mem::swap(&mut self.values, values);
+        std::mem::swap(&mut self.policy, policy);
+        Ok(())
+    }
+
+    /// A solution to adopt has one value and one action per state.
+    fn check_solution(&self, values: &[f64], policy: &[u32]) -> Result<(), PlanError> {
         if values.len() != self.values.len() || policy.len() != self.policy.len() {
             return Err(PlanError::WrongSize {
                 expected: self.values.len(),
@@ -300,8 +302,6 @@ impl ValueIteration {
                 policy: policy.len(),
             });
         }
-        std::mem::swap(&mut self.values, values);
-        std::mem::swap(&mut self.policy, policy);
         Ok(())
     }
 }
