@@ -226,6 +226,7 @@ impl<T: Transport> Bridge<T> {
         }
         // Only a delivered command's motion is reported as following it.
         self.state.after_command = cmd.seq;
+        self.state.action = u16::try_from(cmd.action).unwrap_or(tes_topics::NO_ACTION);
         self.state.flags &= !motor_flags::SETTLED;
         self.phase = Phase::Moving { stable_polls: 0 };
         self.next_poll = now + self.poll.moving_period();

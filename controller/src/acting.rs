@@ -459,6 +459,7 @@ impl ActingLoop {
                 steps: self.episode.steps,
                 p50_us: 0,
                 p99_us: 0,
+                max_us: 0,
                 misses: self.episode.misses,
             });
             return Ok(Step::EpisodeEnded { report });
@@ -641,6 +642,7 @@ impl ActingLoop {
     fn report(&mut self, mut line: EpisodeLine) -> EpisodeLine {
         line.p50_us = self.episode_latency.quantile_us(0.5);
         line.p99_us = self.episode_latency.quantile_us(0.99);
+        line.max_us = self.episode_latency.max_us();
         self.episode_latency.reset();
         line
     }

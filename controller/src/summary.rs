@@ -212,7 +212,7 @@ pub(crate) fn on_cpu(cpu: Option<usize>) -> String {
     cpu.map_or("unpinned".to_owned(), |c| format!("CPU {c}"))
 }
 
-/// One finished episode, as printed.
+/// One finished episode, as printed (and read back by the launcher: [`EpisodeLine::parse`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EpisodeLine {
     /// Episode index (from perception).
@@ -225,6 +225,8 @@ pub struct EpisodeLine {
     pub p50_us: u64,
     /// 99th percentile.
     pub p99_us: u64,
+    /// The episode's slowest decision, µs.
+    pub max_us: u64,
     /// Decisions over budget in the episode.
     pub misses: u64,
 }
@@ -233,15 +235,69 @@ impl std::fmt::Display for EpisodeLine {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "episode {}: reward {:.2}, {} steps, decision latency p50 {} us p99 {} us, {} over budget",
-            self.episode, self.reward, self.steps, self.p50_us, self.p99_us, self.misses
+            "episode {}: reward {:.2}, {} steps, decision latency p50 {} us p99 {} us max {} us, \
+             {} over budget",
+            self.episode,
+            self.reward,
+            self.steps,
+            self.p50_us,
+            self.p99_us,
+            self.max_us,
+            self.misses
         )
+    }
+}
+
+impl EpisodeLine {
+    /// Reads a line as [`Display`](std::fmt::Display) writes it (the reward to its two
+    /// printed decimals); `None` for any other line.
+    ///
+    /// ```
+    /// use tes_controller::summary::EpisodeLine;
+    ///
+    /// let line = EpisodeLine { episode: 3, reward: 1.5, steps: 12, p50_us: 4, p99_us: 9, max_us: 31, misses: 0 };
+    /// assert_eq!(EpisodeLine::parse(&line.to_string()), Some(line));
+    /// assert_eq!(EpisodeLine::parse("controller: done"), None);
+    /// ```
+    pub fn parse(text: &str) -> Option<Self> {
+        let rest = text.strip_prefix("episode ")?;
+        let (episode, rest) = rest.split_once(": reward ")?;
+        let (reward, rest) = rest.split_once(", ")?;
+        let (steps, rest) = rest.split_once(" steps, decision latency p50 ")?;
+        let (p50, rest) = rest.split_once(" us p99 ")?;
+        let (p99, rest) = rest.split_once(" us max ")?;
+        let (max, rest) = rest.split_once(" us, ")?;
+        let misses = rest.strip_suffix(" over budget")?;
+        Some(Self {
+            episode: episode.parse().ok()?,
+            reward: reward.parse().ok()?,
+            steps: steps.parse().ok()?,
+            p50_us: p50.parse().ok()?,
+            p99_us: p99.parse().ok()?,
+            max_us: max.parse().ok()?,
+            misses: misses.parse().ok()?,
+        })
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    proptest::proptest! {
+        /// The launcher reads back every episode line the controller prints.
+        #[test]
+        fn episode_lines_read_back(
+            episode: u32, centi in -100_000i64..100_000, steps: u32,
+            p50_us: u64, p99_us: u64, max_us: u64, misses: u64,
+        ) {
+            let line = EpisodeLine {
+                episode, reward: centi as f64 / 100.0, steps, p50_us, p99_us, max_us, misses,
+            };
+            let back = EpisodeLine::parse(&line.to_string()).expect("reads back");
+            proptest::prop_assert_eq!(back, line);
+        }
+    }
 
     fn facts(started_empty: bool, end: LibraryEnd) -> LibraryFacts {
         LibraryFacts {

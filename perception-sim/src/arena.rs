@@ -137,6 +137,8 @@ mod effects;
 pub use effects::{Effect, Move, Turn};
 mod episode;
 pub use episode::{Episode, EpisodeStatus, EpisodeStep};
+mod picture;
+pub use picture::Path;
 
 use rand::{Rng, RngExt};
 use thiserror::Error;

@@ -32,15 +32,17 @@ use tes_runtime::channel::{self, Idle, Inbox, IpcError, Outbox};
 use tes_runtime::clock::monotonic_ns;
 use tes_runtime::progress::{ProgressOutbox, ProgressWatch};
 use tes_topics::{
-    FeatureBits, MAX_STATES, MotorState, Observation, Role, ServiceNames, StateAttributes,
-    WorldMap, motor_flags, observation_flags, progress_flags,
+    FeatureBits, MAX_STATES, MotorState, NO_ACTION, Observation, Role, ServiceNames,
+    StateAttributes, WorldMap, motor_flags, observation_flags, progress_flags,
 };
 use thiserror::Error;
 
 use crate::arena::{Arena, ArenaError, ArenaId, Episode, EpisodeStatus};
 
 pub mod config;
+pub mod trajectory;
 pub use config::{CheckedPerception, ConfigError, PerceptionConfig};
+use trajectory::{EndReason, TrajectoryLog, TrajectoryRow};
 
 /// Why perception stopped with an error.
 #[derive(Debug, Error)]
@@ -57,6 +59,14 @@ pub enum PerceptionError {
     /// The arena does not fit a world map.
     #[error("the arena has {0} states, more than a world map holds ({MAX_STATES})")]
     TooBig(usize),
+    /// The trajectory file cannot be written.
+    #[error("cannot write the trajectory {}: {error}", path.display())]
+    Trajectory {
+        /// The file.
+        path: std::path::PathBuf,
+        /// Why.
+        error: std::io::Error,
+    },
 }
 
 /// What a perception run did.
@@ -157,6 +167,17 @@ pub fn run(
     let mut last_command = 0u64;
     let ports = [config.left_port, config.right_port];
     let mut actions = 0u64;
+    let mut trajectory = match &config.trajectory {
+        Some(path) => {
+            Some(
+                TrajectoryLog::create(path).map_err(|error| PerceptionError::Trajectory {
+                    path: path.clone(),
+                    error,
+                })?,
+            )
+        }
+        None => None,
+    };
     let mut maps_updated = std::time::Instant::now();
     for episode in 0..config.episodes {
         let mut pose = arena.random_start(&mut rng);
@@ -166,6 +187,8 @@ pub fn run(
         let mut reward = 0.0f64;
         let mut after_command = 0;
         let mut step = 0u32;
+        // The last action's trajectory row, written after the observation it led to.
+        let mut pending: Option<TrajectoryRow> = None;
         loop {
             seq += 1;
             observations.send(Observation {
@@ -181,6 +204,14 @@ pub fn run(
                 flags,
             })?;
             summary.observations += 1;
+            // Written once the observation is out: the controller decides meanwhile.
+            if let (Some(log), Some(row)) = (trajectory.as_mut(), pending.take()) {
+                log.push(&arena, &row)
+                    .map_err(|error| PerceptionError::Trajectory {
+                        path: log.path().to_owned(),
+                        error,
+                    })?;
+            }
             progress.report_mut().out_seq = seq;
             progress.report_mut().steps = summary.observations;
             if flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0 {
@@ -217,7 +248,12 @@ pub fn run(
                             // was used (see the bridge's take-over of a command in flight).
                             progress.report_mut().in_seq = last_command;
                             progress.publish(monotonic_ns())?;
-                            break Some((m.after_command, now[0] - before[0], now[1] - before[1]));
+                            break Some((
+                                m.after_command,
+                                m.action,
+                                now[0] - before[0],
+                                now[1] - before[1],
+                            ));
                         }
                         if m.after_command <= last_command && settled {
                             // A heartbeat at rest: the baseline for the next motion.
@@ -226,7 +262,7 @@ pub fn run(
                     }
                 }
             };
-            let Some((command, left, right)) = motion else {
+            let Some((command, action, left, right)) = motion else {
                 summary.resyncs += 1;
                 tracing::warn!(
                     seq,
@@ -236,6 +272,7 @@ pub fn run(
                 reward = 0.0;
                 continue;
             };
+            let (pose_before, from) = (pose, state);
             pose = arena.move_robot(pose, f64::from(left), f64::from(right), &mut rng);
             if !settle.is_zero() {
                 std::thread::sleep(settle);
@@ -256,6 +293,23 @@ pub fn run(
                 }
                 EpisodeStatus::Continuing => 0,
             };
+            pending = trajectory.as_ref().map(|_| TrajectoryRow {
+                episode,
+                step: step - 1,
+                from,
+                action: (action != NO_ACTION).then_some(action),
+                to: state,
+                reward,
+                pose_before,
+                pose_after: pose,
+                end: EndReason::of(
+                    &arena,
+                    state,
+                    outcome.status,
+                    step >= config.step_cap,
+                    out_of_actions,
+                ),
+            });
         }
         summary.episodes += 1;
         progress.report_mut().episodes = u64::from(summary.episodes);

@@ -214,6 +214,15 @@ impl LatencyRecorder {
         }
     }
 
+    /// The largest recorded latency, µs (0 when nothing is recorded).
+    pub fn max_us(&self) -> u64 {
+        if self.histogram.is_empty() {
+            0
+        } else {
+            self.histogram.max()
+        }
+    }
+
     /// Forgets every sample and window (the warm-up stays done).
     pub fn reset(&mut self) {
         self.histogram.reset();

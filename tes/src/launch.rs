@@ -49,11 +49,14 @@ mod file;
 mod group;
 mod logs;
 mod reference;
+mod run_folder;
+mod run_record;
 
 pub use child::run_child;
 pub(crate) use file::*;
 pub(crate) use group::*;
 use logs::ChildLine;
+use run_folder::RUNS;
 
 /// Arguments of `tes launch`.
 #[derive(Debug, Args)]
@@ -451,7 +454,8 @@ mod tests {
             file.launch
                 .service_prefix
                 .clone_from(&prepared.service_prefix);
-            let children = file.children().expect("valid");
+            let mut children = file.children().expect("valid");
+            children.write_into(&dir.path().join("run"));
             assert_eq!(
                 prepared.specs.iter().map(|s| s.role).collect::<Vec<_>>(),
                 ["bridge", "controller", "perception-sim"]

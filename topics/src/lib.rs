@@ -520,6 +520,9 @@ impl Command {
 /// a keep-alive arrives within its deadline while a motor runs.
 pub const KEEP_ALIVE_ACTION: u32 = u32::MAX;
 
+/// [`MotorState::action`] when the command's action id does not fit.
+pub const NO_ACTION: u16 = u16::MAX;
+
 /// Motor run states as the NXT firmware reports them.
 pub mod run_state {
     /// Motor is idle (coasting or braked, not running a command).
@@ -563,8 +566,9 @@ pub struct MotorState {
     pub reserved: u8,
     /// Battery voltage in millivolts.
     pub battery_mv: u16,
-    /// Padding; always 0.
-    pub reserved2: u16,
+    /// The abstract action of the command `after_command` ([`Command::action`]; 0 before any
+    /// command, [`NO_ACTION`] for an id beyond `u16`): for logs of what the robot did.
+    pub action: u16,
     /// [`motor_flags`] bits.
     pub flags: u32,
 }

@@ -54,6 +54,14 @@ pub enum MarkColour {
 }
 
 impl MarkColour {
+    /// Lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            MarkColour::Green => "green",
+            MarkColour::Blue => "blue",
+        }
+    }
+
     /// The other colour.
     pub fn other(self) -> MarkColour {
         match self {

@@ -41,6 +41,9 @@ pub struct PerceptionConfig {
     pub left_port: usize,
     /// See `left_port`.
     pub right_port: usize,
+    /// `trajectory`: where to write the run's trajectory, one CSV row per action (default
+    /// unset: none; a launch sets it to `trajectory.csv` in its run folder).
+    pub trajectory: Option<std::path::PathBuf>,
 }
 
 impl Default for PerceptionConfig {
@@ -58,6 +61,7 @@ impl Default for PerceptionConfig {
             motor_timeout_ms: 5000,
             left_port: 1,
             right_port: 2,
+            trajectory: None,
         }
     }
 }
@@ -249,6 +253,7 @@ mod tests {
                 motor_timeout_ms: 400,
                 left_port: 0,
                 right_port: 2,
+                trajectory: Some("/tmp/run/trajectory.csv".into()),
             },
         ];
         for cfg in cfgs {

@@ -37,8 +37,14 @@ pub struct LaunchSection {
     /// `tes-PID-XXXXXXXX/`, so any number of launches run side by side; a prefix already used
     /// by a running group is refused.
     pub service_prefix: String,
-    /// Where each child's settings are written (default: `run` in the data directory).
+    /// The run folder itself, used as it is (no folder per run, never pruned). Unset (the
+    /// default), each launch gets a folder of its own under `runs_dir`.
     pub run_dir: Option<PathBuf>,
+    /// Where the per-launch run folders go (default: `runs` in the data directory).
+    pub runs_dir: Option<PathBuf>,
+    /// How many run folders `runs_dir` keeps: the oldest beyond it are removed when a launch
+    /// starts (default 20; 0 keeps every one).
+    pub keep_runs: u32,
     /// Seed of the world and the agent (default 1).
     pub seed: u64,
     /// A group whose controller sends no command for this long is stalled: the launcher
@@ -59,6 +65,8 @@ impl Default for LaunchSection {
             grace_ms: 3000,
             service_prefix: String::new(),
             run_dir: None,
+            runs_dir: None,
+            keep_runs: 20,
             seed: 1,
             stall_timeout_ms: 10_000,
         }
@@ -154,6 +162,26 @@ pub(crate) struct Children {
     pub(crate) perception: PerceptionConfig,
 }
 
+/// The trajectory perception writes in the run folder, unless its table names a file.
+pub(crate) const TRAJECTORY: &str = "trajectory.csv";
+
+/// The latency report the bridge writes in the run folder, unless its table names a file.
+pub(crate) const BRIDGE_REPORT: &str = "bridge-report.json";
+
+impl Children {
+    /// Has the children write their records into the run folder `run_dir` where their tables
+    /// name no file of their own: perception's trajectory, the bridge's latency report.
+    pub(crate) fn write_into(&mut self, run_dir: &Path) {
+        self.perception
+            .trajectory
+            .get_or_insert_with(|| run_dir.join(TRAJECTORY));
+        self.bridge
+            .ipc
+            .latency_report
+            .get_or_insert_with(|| run_dir.join(BRIDGE_REPORT));
+    }
+}
+
 impl LaunchFile {
     /// Parses a launch file's text, once, into the typed tables; a key that is unknown, of
     /// the wrong type or repeated is reported with `origin`, its line and its table and key.
@@ -179,6 +207,15 @@ impl LaunchFile {
     /// (what writing the key in the table does in a file).
     pub(crate) fn keep(&mut self, table: &str, key: &str) {
         self.own.insert(format!("{table}.{key}"));
+    }
+
+    /// The arena perception runs: its own `arena` if its table sets one, else `[launch] arena`.
+    pub(crate) fn arena(&self) -> u32 {
+        if self.inherits("perception", "arena") {
+            u32::from(self.launch.arena)
+        } else {
+            self.perception.arena
+        }
     }
 
     /// Whether the launch-wide value goes into `[table] key`.
@@ -420,8 +457,11 @@ pub(crate) fn read_launch_file(path: &Path) -> Result<LaunchFile, LaunchFileErro
 pub(crate) struct Prepared {
     /// The children, in start order.
     pub(crate) specs: Vec<ChildSpec>,
-    /// Where their settings, output and logs are.
+    /// This launch's run folder: the children's settings, output and logs, the resolved launch
+    /// file, the episode table, the trajectories and, at the end, the pictures.
     pub(crate) run_dir: PathBuf,
+    /// Old run folders removed to keep `[launch] keep_runs`.
+    pub(crate) pruned: Vec<PathBuf>,
     /// The group's service prefix (its own unless the file sets one).
     pub(crate) service_prefix: String,
     /// The run directory's lock, held for the group's life.
@@ -434,29 +474,57 @@ pub(crate) fn unique_service_prefix() -> String {
     format!("tes-{}-{:08x}/", std::process::id(), ns & 0xffff_ffff)
 }
 
+/// The resolved launch file a run folder keeps.
+pub(crate) const RESOLVED_LAUNCH_FILE: &str = "launch.toml";
+
 /// Checks every child's settings, takes the run directory for this launch and writes their
 /// settings there. A launch without a service prefix gets one of its own.
 pub(crate) fn prepare(file: &LaunchFile) -> Result<Prepared, LaunchFileError> {
+    let as_given = file;
     let mut file = file.clone();
     if file.launch.service_prefix.is_empty() {
         file.launch.service_prefix = unique_service_prefix();
     }
-    let children = file.children().map_err(LaunchFileError::Setting)?;
+    let mut children = file.children().map_err(LaunchFileError::Setting)?;
     let unwritable = |error: anyhow::Error| LaunchFileError::Write {
         origin: file.origin.clone(),
         error,
     };
-    let run_dir = file
-        .launch
-        .run_dir
-        .clone()
-        .unwrap_or_else(|| default_data_dir().join("run"));
-    std::fs::create_dir_all(&run_dir).map_err(|error| LaunchFileError::RunDir {
-        path: run_dir.clone(),
-        error,
-    })?;
-    let lock = Lock::acquire(&run_dir.join("launch.lock"), "run directory")
-        .map_err(LaunchFileError::Busy)?;
+    let run_dir_error = |path: &Path| {
+        let path = path.to_owned();
+        move |error| LaunchFileError::RunDir { path, error }
+    };
+    let (run_dir, pruned, lock) = match &file.launch.run_dir {
+        Some(dir) => {
+            std::fs::create_dir_all(dir).map_err(run_dir_error(dir))?;
+            let lock = Lock::acquire(&dir.join("launch.lock"), "run directory")
+                .map_err(LaunchFileError::Busy)?;
+            (dir.clone(), Vec::new(), lock)
+        }
+        None => {
+            let runs = file
+                .launch
+                .runs_dir
+                .clone()
+                .unwrap_or_else(|| default_data_dir().join(RUNS));
+            std::fs::create_dir_all(&runs).map_err(run_dir_error(&runs))?;
+            // One launch per data directory: the library and the runs are its.
+            let lock = Lock::acquire(&runs.join("launch.lock"), "run directory")
+                .map_err(LaunchFileError::Busy)?;
+            let dir = run_folder::create(&runs, std::time::SystemTime::now())
+                .map_err(run_dir_error(&runs))?;
+            let pruned = run_folder::prune(&runs, file.launch.keep_runs, &dir);
+            run_folder::point_latest_at(&runs, &dir);
+            (dir, pruned, lock)
+        }
+    };
+    // As given: a launch without a service prefix of its own gets a new one when rerun.
+    let resolved = reference::render_resolved(as_given)
+        .context("cannot write the resolved launch file")
+        .map_err(unwritable)?;
+    let resolved_path = run_dir.join(RESOLVED_LAUNCH_FILE);
+    std::fs::write(&resolved_path, resolved).map_err(run_dir_error(&resolved_path))?;
+    children.write_into(&run_dir);
     let texts = [
         ("bridge", toml::to_string(&children.bridge)),
         ("controller", toml::to_string(&children.controller)),
@@ -481,6 +549,7 @@ pub(crate) fn prepare(file: &LaunchFile) -> Result<Prepared, LaunchFileError> {
     Ok(Prepared {
         specs,
         run_dir,
+        pruned,
         service_prefix: file.launch.service_prefix.clone(),
         _lock: lock,
     })

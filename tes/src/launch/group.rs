@@ -75,7 +75,7 @@ pub(crate) fn run_group(file: &LaunchFile, prepared: Prepared, echo: bool) -> Re
     let mut watch = ProgressWatch::open(&node, &names)?;
     note(format!(
         "launch: arena Env {}, {} episodes, real-time factor {}, wait {}, restart {:?}, \
-         services {prefix}*, run directory {}",
+         services {prefix}*, run folder {}",
         launch.arena,
         launch.episodes,
         launch.real_time_factor,
@@ -83,6 +83,16 @@ pub(crate) fn run_group(file: &LaunchFile, prepared: Prepared, echo: bool) -> Re
         launch.restart,
         prepared.run_dir.display()
     ));
+    if !prepared.pruned.is_empty() {
+        note(format!(
+            "launch: removed the {} oldest run folders (keep_runs = {})",
+            prepared.pruned.len(),
+            launch.keep_runs
+        ));
+    }
+    let record =
+        run_record::RunRecord::create(&prepared.run_dir, file.controller.budget_us, file.arena())?;
+    let run_dir = prepared.run_dir.clone();
     let library = file.controller.library_path();
     match std::fs::symlink_metadata(&library) {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => note(format!(
@@ -134,7 +144,9 @@ pub(crate) fn run_group(file: &LaunchFile, prepared: Prepared, echo: bool) -> Re
         say: &say,
         last_words: BTreeMap::new(),
         episodes: 0,
+        record,
     };
+    let mut record_polled = Instant::now();
     let mut failure: Option<String> = None;
     // The controller's commands are the group's progress: its last count, and until when the
     // group may go without a new one.
@@ -201,6 +213,10 @@ pub(crate) fn run_group(file: &LaunchFile, prepared: Prepared, echo: bool) -> Re
             children[i].child = spawn(&children[i].spec)?;
             respawned.push(role);
         }
+        if record_polled.elapsed() >= RECORD_POLL {
+            record_polled = Instant::now();
+            relay.record.poll();
+        }
         // The stall watch: the controller's commands are the group's progress.
         watch.poll()?;
         for role in respawned {
@@ -252,6 +268,7 @@ pub(crate) fn run_group(file: &LaunchFile, prepared: Prepared, echo: bool) -> Re
         relay.take(line);
     }
     let episodes = relay.episodes;
+    let drawn = relay.record.finish();
     let mut failed: Vec<String> = failure.into_iter().collect();
     for c in &children {
         match c.status {
@@ -269,10 +286,30 @@ pub(crate) fn run_group(file: &LaunchFile, prepared: Prepared, echo: bool) -> Re
     }
     if echo {
         let default_library = tes_controller::config::default_library_path();
+        match &drawn {
+            Ok(pictures) => {
+                say.out(&format!("launch: run folder {}", run_dir.display()));
+                let names: Vec<String> = pictures
+                    .iter()
+                    .filter_map(|p| p.file_name())
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .collect();
+                say.out(&format!(
+                    "launch: see the run in {} there (pictures), and episodes.csv and \
+                     trajectory.csv (one row per episode, per action)",
+                    names.join(", ")
+                ));
+            }
+            Err(e) => say.err(&format!(
+                "launch: warning: the run folder {} is incomplete: {e:#}",
+                run_dir.display()
+            )),
+        }
         let end = LibraryOutcome::read(report.as_deref(), &library, library_at_start);
         for line in end.lines(&library, &default_library) {
             say.out(&line);
         }
+
         say.out(&format!(
             "launch: {episodes} episodes; {}",
             if failed.is_empty() {
@@ -296,14 +333,20 @@ struct Relay<'a> {
     last_words: BTreeMap<&'static str, VecDeque<String>>,
     /// Episode lines seen.
     episodes: u32,
+    /// The run folder's records, fed the controller's lines.
+    record: run_record::RunRecord,
 }
+
+/// How often the launcher reads the trajectory perception writes.
+const RECORD_POLL: Duration = Duration::from_millis(250);
 
 impl Relay<'_> {
     fn take(&mut self, line: ChildLine) {
         match line.stream {
             logs::Stream::Out => {
-                if line.text.starts_with("episode ") {
+                if line.role == "controller" && line.text.starts_with("episode ") {
                     self.episodes += 1;
+                    self.record.controller_line(&line.text);
                 }
                 if self.echo {
                     self.say.out(&line.text);

@@ -242,11 +242,30 @@ pub(crate) const KEYS: &[Key] = &[
         "launch",
         "run_dir",
         "path",
-        "Where the children's settings, output and logs are written (and the lock that keeps \
-         a second launch out). Unset: `run` in the data directory (`$TES_DATA_DIR`, else \
-         `$XDG_DATA_HOME/tes`, else `~/.local/share/tes`).",
+        "This launch's run folder, used as it is: no folder of its own per launch, never \
+         pruned (it holds the lock that keeps a second launch out). Unset: each launch gets \
+         a run folder of its own in `runs_dir`.",
     )
     .example("\"/path/to/run\""),
+    key(
+        "launch",
+        "runs_dir",
+        "path",
+        "Where each launch makes its run folder, named by its UTC start time \
+         (`2026-12-02T19-05-33Z`): the resolved launch file, the children's settings, output \
+         and logs, `episodes.csv`, `trajectory.csv`, the latency reports and, at the end, \
+         `rewards.svg`, `latency.svg` and `arena.svg`; `latest` links to the newest. Unset: \
+         `runs` in the data directory (`$TES_DATA_DIR`, else `$XDG_DATA_HOME/tes`, else \
+         `~/.local/share/tes`).",
+    )
+    .example("\"/path/to/runs\""),
+    key(
+        "launch",
+        "keep_runs",
+        "count; 0 = keep every one",
+        "How many run folders `runs_dir` keeps: when a launch starts, the oldest beyond this \
+         are removed.",
+    ),
     key(
         "launch",
         "seed",
@@ -342,6 +361,15 @@ pub(crate) const KEYS: &[Key] = &[
         "`0` (A) | `1` (B) | `2` (C); not `left_port`",
         "The NXT output port driving the right wheel (as `[bridge.motors] right_port`).",
     ),
+    key(
+        "perception",
+        "trajectory",
+        "path",
+        "Where to write the run's trajectory: one CSV row per action (state, action, effect, \
+         reward, poses before and after, why the episode ended). Unset: a launch writes \
+         `trajectory.csv` in its run folder.",
+    )
+    .example("\"/path/to/trajectory.csv\""),
     // [controller]
     key(
         "controller",
@@ -838,7 +866,11 @@ pub(crate) const KEYS: &[Key] = &[
 /// `controller`, `bridge`): the config structs' `Default`s, serialised. Keys that are unset
 /// by default are absent (TOML has no "unset").
 pub(crate) fn defaults() -> Result<toml::Table> {
-    let file = LaunchFile::default();
+    values_of(&LaunchFile::default())
+}
+
+/// The values of `file`, one TOML table per process, as [`defaults`] gives the defaults'.
+fn values_of(file: &LaunchFile) -> Result<toml::Table> {
     let mut tables = toml::Table::new();
     let mut put = |name: &str, value: Result<toml::Value, toml::ser::Error>| -> Result<()> {
         let value = value.with_context(|| format!("cannot serialise the [{name}] defaults"))?;
@@ -914,9 +946,7 @@ fn keys_of(table: &Table, values: Option<&toml::Table>) -> Vec<(String, Key)> {
 /// are keys unset by default (shown with an example value) — unless `set_all`, which writes
 /// every one (for the tests: every key then reaches the parser).
 pub(crate) fn render_toml(set_all: bool) -> Result<String> {
-    let defaults = defaults()?;
-    let mut out = String::new();
-    for line in [
+    let header = [
         "TES launch file: every key of every table, at its default.",
         "Printed by `tes launch --print-config`; read by `tes launch --config FILE`.",
         "Every key is optional: keep only those you change. Unknown keys are refused.",
@@ -924,7 +954,50 @@ pub(crate) fn render_toml(set_all: bool) -> Result<String> {
         "unless the table sets them; uncomment one to give that process a value of its own.",
         "Keys unset by default are commented out with an example value.",
         "Reference: docs/config.md (tes launch --print-config=markdown).",
-    ] {
+    ];
+    render_values(&defaults()?, &header, set_all)
+}
+
+/// The launch file a run folder keeps: every key of `file` (the user's values, the defaults
+/// for the rest), described as [`render_toml`] describes them, which `tes launch --config`
+/// reads back as the same launch. The keys a child inherits from `[launch]` stay commented
+/// out unless the file gave that child its own value.
+pub(crate) fn render_resolved(file: &LaunchFile) -> Result<String> {
+    let header = [
+        "TES launch file of this run: every key, as the launch ran it (the file's values, the",
+        "defaults for the rest). `tes launch --config THIS_FILE` runs it again (with a run",
+        "folder of its own). What each child ran with, inherited keys filled in, is in",
+        "ROLE.toml beside it.",
+    ];
+    let mut text = render_values(&values_of(file)?, &header, false)?;
+    // A child's own value of an inherited key is part of the launch: write it out.
+    for key in &file.own {
+        // `bridge.ipc.wait` is the `wait` line of `[bridge.ipc]`.
+        let Some((table, name)) = key.rsplit_once('.') else {
+            continue;
+        };
+        let commented = format!("# {name} = ");
+        if let Some(at) = find_in_table(&text, table, &commented) {
+            text.replace_range(at..at + 2, "");
+        }
+    }
+    Ok(text)
+}
+
+/// Where the line starting with `line` is in the `[table]` section of `text`.
+fn find_in_table(text: &str, table: &str, line: &str) -> Option<usize> {
+    let header = format!("\n[{table}]\n");
+    let start = text.find(&header)? + header.len();
+    let end = text[start..].find("\n[").map_or(text.len(), |e| start + e);
+    let at = text[start..end].find(&format!("\n{line}"))?;
+    Some(start + at + 1)
+}
+
+/// [`render_toml`] of the values `tables`, after the comment lines `header`.
+fn render_values(tables: &toml::Table, header: &[&str], set_all: bool) -> Result<String> {
+    let defaults = tables;
+    let mut out = String::new();
+    for line in header {
         comment(&mut out, line);
     }
     for table in TABLES {
