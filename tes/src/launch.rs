@@ -51,6 +51,7 @@ mod logs;
 mod reference;
 mod run_folder;
 mod run_record;
+mod tui;
 
 pub use child::run_child;
 pub(crate) use file::*;
@@ -69,6 +70,11 @@ pub struct LaunchArgs {
     /// Episodes to run (overrides `[launch] episodes`).
     #[arg(long)]
     episodes: Option<u32>,
+    /// Show the group live in the terminal (processes, episodes, rewards, decision latency,
+    /// the robot on the arena map, the last log lines) instead of printing its lines; `q`
+    /// stops it.
+    #[arg(long)]
+    tui: bool,
     /// Print every key of the launch file with its default, meaning and allowed values, and
     /// exit: `toml` (the default) is a launch file `--config` reads back; `markdown` is the
     /// reference page, docs/config.md.
@@ -79,7 +85,7 @@ pub struct LaunchArgs {
         num_args = 0..=1,
         require_equals = true,
         default_missing_value = "toml",
-        conflicts_with_all = ["config", "episodes"]
+        conflicts_with_all = ["config", "episodes", "tui"]
     )]
     print_config: Option<reference::Format>,
 }
@@ -100,14 +106,14 @@ pub fn run(args: &LaunchArgs) -> Result<()> {
         file.launch.episodes = n;
     }
     let prepared = prepare(&file)?;
-    run_group(&file, prepared, true).map(|_| ())
+    run_group(&file, prepared, true, args.tui).map(|_| ())
 }
 
 /// Runs the group `file` describes until perception finishes, a child fails (or exhausts its
 /// restarts) or a signal; `echo` prints the controller's lines and the launcher's notes.
 pub(crate) fn run_file(file: &LaunchFile, echo: bool) -> Result<GroupOutcome> {
     let prepared = prepare(file)?;
-    run_group(file, prepared, echo)
+    run_group(file, prepared, echo, false)
 }
 
 #[cfg(test)]

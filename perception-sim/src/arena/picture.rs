@@ -239,7 +239,7 @@ mod tests {
             };
             let svg = arena.to_svg("arena", &[path.clone(), path]);
             let n = arena.cells();
-            assert_eq!(svg.matches("<rect x=").count() >= n * n, true);
+            assert!(svg.matches("<rect x=").count() >= n * n);
             let deaths = (0..n)
                 .flat_map(|y| (0..n).map(move |x| (x, y)))
                 .filter(|&(x, y)| arena.is_death_cell(x, y))

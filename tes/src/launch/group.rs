@@ -36,7 +36,13 @@ const START_ALLOWANCE: Duration = Duration::from_secs(20);
 const LAST_WORDS: usize = 3;
 
 /// [`run_file`] with the children already prepared.
-pub(crate) fn run_group(file: &LaunchFile, prepared: Prepared, echo: bool) -> Result<GroupOutcome> {
+/// `tui` shows the group in a live view ([`tui`]) while it runs.
+pub(crate) fn run_group(
+    file: &LaunchFile,
+    prepared: Prepared,
+    echo: bool,
+    tui: bool,
+) -> Result<GroupOutcome> {
     let launch = &file.launch;
     let say = logs::Say::default();
     let note = |text: String| {
@@ -119,6 +125,24 @@ pub(crate) fn run_group(file: &LaunchFile, prepared: Prepared, echo: bool) -> Re
         }
         report = Some(path);
     }
+    let title = format!(
+        "TES launch: arena Env {}, services {prefix}*, run folder {}",
+        file.arena(),
+        run_dir.display()
+    );
+    // The terminal is the view's from here until the group stops.
+    let mut view = if tui {
+        say.hold();
+        match tui::LiveView::open() {
+            Ok(view) => Some(view),
+            Err(e) => {
+                say.release();
+                return Err(e.context("--tui: cannot show the live view; nothing was started"));
+            }
+        }
+    } else {
+        None
+    };
     let (lines_tx, lines) = mpsc::channel::<ChildLine>();
     let following = Arc::new(AtomicBool::new(false));
     let mut children = Vec::new();
@@ -217,6 +241,35 @@ pub(crate) fn run_group(file: &LaunchFile, prepared: Prepared, echo: bool) -> Re
             record_polled = Instant::now();
             relay.record.poll();
         }
+        if let Some(v) = &mut view {
+            if v.stop_asked() {
+                stop.store(true, Ordering::Relaxed);
+            }
+            let processes: Vec<tui::ProcessRow> = children
+                .iter()
+                .map(|c| tui::ProcessRow {
+                    role: c.spec.role,
+                    pid: c.child.id(),
+                    state: c.status.map_or("running".to_owned(), describe),
+                    restarts: c.restarts,
+                })
+                .collect();
+            let log = say.held_lines(50);
+            let frame = tui::Frame {
+                title: &title,
+                episodes_planned: launch.episodes,
+                budget_us: file.controller.budget_us,
+                processes: &processes,
+                record: &relay.record,
+                log: &log,
+                status: "",
+            };
+            if let Err(e) = v.draw_due(&frame) {
+                view = None;
+                say.release();
+                say.err(&format!("launch: warning: the live view stopped: {e:#}"));
+            }
+        }
         // The stall watch: the controller's commands are the group's progress.
         watch.poll()?;
         for role in respawned {
@@ -259,6 +312,9 @@ pub(crate) fn run_group(file: &LaunchFile, prepared: Prepared, echo: bool) -> Re
         }
         std::thread::sleep(Duration::from_millis(20));
     }
+    // The terminal is the user's again: the shutdown and the summary are printed.
+    drop(view);
+    say.release();
     shutdown(&mut children, grace);
     // Every child has exited; take what they wrote last (the controller reports its last
     // episode and its summary on the way out).

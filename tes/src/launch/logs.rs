@@ -115,11 +115,59 @@ pub(crate) fn follow(
 #[derive(Debug, Default)]
 pub(crate) struct Say {
     out_closed: AtomicBool,
+    /// While a live view owns the terminal: the lines said, newest last, instead of printed.
+    held: std::sync::Mutex<Option<std::collections::VecDeque<String>>>,
 }
 
+/// How many lines [`Say::hold`] keeps.
+const HELD_LINES: usize = 500;
+
 impl Say {
+    /// Keeps what is said from now on (the last [`HELD_LINES`]) instead of printing it: the
+    /// terminal belongs to the live view.
+    pub(crate) fn hold(&self) {
+        if let Ok(mut held) = self.held.lock() {
+            held.get_or_insert_with(Default::default);
+        }
+    }
+
+    /// Prints what is said again (the held lines are dropped: the run folder has them).
+    pub(crate) fn release(&self) {
+        if let Ok(mut held) = self.held.lock() {
+            *held = None;
+        }
+    }
+
+    /// The last `n` held lines, oldest first.
+    pub(crate) fn held_lines(&self, n: usize) -> Vec<String> {
+        match self.held.lock() {
+            Ok(held) => held.as_ref().map_or_else(Vec::new, |h| {
+                h.iter().skip(h.len().saturating_sub(n)).cloned().collect()
+            }),
+            Err(_) => Vec::new(),
+        }
+    }
+
+    /// Whether `line` was held (and so must not be printed).
+    fn held(&self, line: &str) -> bool {
+        let Ok(mut held) = self.held.lock() else {
+            return false;
+        };
+        let Some(held) = held.as_mut() else {
+            return false;
+        };
+        if held.len() == HELD_LINES {
+            held.pop_front();
+        }
+        held.push_back(line.to_owned());
+        true
+    }
+
     /// Prints `line` on standard output (nothing once that is closed).
     pub(crate) fn out(&self, line: &str) {
+        if self.held(line) {
+            return;
+        }
         if !self.out_closed.load(Ordering::Relaxed) {
             let mut out = std::io::stdout().lock();
             if writeln!(out, "{line}").and_then(|()| out.flush()).is_err() {
@@ -130,6 +178,9 @@ impl Say {
 
     /// Prints `line` on standard error (errors ignored: there is nowhere else to say them).
     pub(crate) fn err(&self, line: &str) {
+        if self.held(line) {
+            return;
+        }
         let _ = writeln!(std::io::stderr().lock(), "{line}");
     }
 }

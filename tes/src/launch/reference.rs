@@ -1001,7 +1001,7 @@ fn render_values(tables: &toml::Table, header: &[&str], set_all: bool) -> Result
         comment(&mut out, line);
     }
     for table in TABLES {
-        let value = lookup(&defaults, table.name);
+        let value = lookup(defaults, table.name);
         out.push('\n');
         comment(&mut out, table.about);
         if table.array {

@@ -256,6 +256,7 @@ impl RunRecord {
     }
 
     /// The last episodes' paths (oldest first), cm.
+    #[cfg(test)]
     pub(crate) fn paths(&self) -> impl Iterator<Item = &(u32, Vec<DVec2>)> {
         self.paths.iter()
     }
