@@ -25,6 +25,13 @@ fn launch(dir: &Path, config: &Path, episodes: u32) -> Vec<String> {
     let (ok, out, err) = group.finish(Duration::from_secs(120));
     assert!(ok, "stdout {out:?}\nstderr {err:?}");
     assert!(!group.children_alive());
+    // iceoryx2 is given its configuration: its "no config file" warning never shows.
+    assert!(
+        !err.iter()
+            .chain(&out)
+            .any(|l| l.contains("No config file was loaded")),
+        "{err:?}"
+    );
     out
 }
 
