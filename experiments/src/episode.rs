@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use tes_learning::agents::{
     Agent, AgentError, Contexts, CountingAgent, ExampleStore, LoreRl, LoreRlParams, LseRmax,
     LseRmaxParams, RlDt, RlDtParams,
@@ -140,7 +140,7 @@ impl Algorithm {
 }
 
 /// What happened in one episode.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Episode {
     /// Sum of the rewards received.
     pub reward: f64,

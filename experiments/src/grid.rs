@@ -16,13 +16,11 @@ use std::collections::BTreeMap;
 use std::fs;
 use std::path::Path;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, Result};
 use rand_chacha::ChaCha8Rng;
-use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use tes_learning::agents::{Contexts, ExampleStore};
 use tes_learning::cmdp::CmdpStructure;
 use tes_perception_sim::grid::{GridSuite, GridTask};
@@ -31,6 +29,7 @@ use crate::episode::{
     AgentSettings, Algorithm, Episode, EpisodicTask, run_agent, write_episodes_csv, write_file,
     write_summary,
 };
+use crate::jobs::{self, JobOptions, Manifest};
 pub use crate::stats::Summary;
 use crate::stats::summarise;
 use crate::svg::{BandPoint, LineChart, Series};
@@ -97,7 +96,7 @@ impl EpisodicTask for GridEnv {
 }
 
 /// Settings of `tes experiment grid`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct GridConfig {
     /// Independent runs per (algorithm, feature count).
     pub runs: usize,
@@ -165,7 +164,7 @@ struct Cell {
 }
 
 /// Per-run results of one cell.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 struct RunResult {
     run: usize,
     seed: u64,
@@ -256,21 +255,29 @@ pub struct TimeSummary {
     pub seconds_per_episode: Summary,
 }
 
-/// Runs the grid experiment, writes its files into `out`, and returns the summary.
-///
-/// `progress(done, total)` is called as episodes finish (from worker threads).
-pub fn run(
-    config: &GridConfig,
-    out: &Path,
-    progress: &(dyn Fn(u64, u64) + Sync),
-) -> Result<GridReport> {
-    let started = Instant::now();
-    fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+/// The experiment's name in manifests.
+pub const EXPERIMENT: &str = "grid";
+
+/// The experiment's independent jobs, in index order: every (cell, run), cells sorted, runs
+/// innermost.
+fn job_list(config: &GridConfig) -> Vec<(Cell, usize)> {
+    cells(config)
+        .into_iter()
+        .flat_map(|c| (0..config.runs).map(move |r| (c, r)))
+        .collect()
+}
+
+/// The manifest of a run of `config` (or its `shard`).
+pub fn manifest(config: &GridConfig, shard: jobs::Shard) -> Result<Manifest> {
+    Manifest::new(EXPERIMENT, config, job_list(config).len(), shard)
+}
+
+/// One environment per feature count: same layout and dynamics, more irrelevant features.
+fn environments(config: &GridConfig) -> Result<BTreeMap<usize, GridEnv>> {
     let mut levels: Vec<usize> = cells(config).iter().map(|c| c.irrelevant).collect();
     levels.sort_unstable();
     levels.dedup();
-    // One environment per feature count: same layout and dynamics, more irrelevant features.
-    let envs: BTreeMap<usize, GridEnv> = levels
+    levels
         .iter()
         .map(|&n| {
             let tasks = GridSuite::paper(config.world_seed, n);
@@ -280,30 +287,47 @@ pub fn run(
                 .with_context(|| format!("the suite has no task {}", config.task_index))?;
             Ok((n, GridEnv::new(task)?))
         })
-        .collect::<Result<_>>()?;
+        .collect()
+}
 
-    let jobs: Vec<(Cell, usize)> = cells(config)
-        .into_iter()
-        .flat_map(|c| (0..config.runs).map(move |r| (c, r)))
-        .collect();
-    let total = (jobs.len() * config.episodes) as u64;
-    let done = AtomicU64::new(0);
-    let results: Vec<(Cell, RunResult)> = jobs
-        .par_iter()
-        .map(|&(cell, run)| {
-            let seed = config.seed + run as u64;
-            let env = &envs[&cell.irrelevant];
-            let settings = AgentSettings {
-                planner: PlannerParams {
-                    stop_at_drift: config.stop_at_drift,
-                    ..PlannerParams::default()
-                },
-                rl_dt_examples: config.rl_dt_examples,
-            };
-            let episodes = run_agent(cell.algorithm, env, config.episodes, seed, settings, |_| {
-                let d = done.fetch_add(1, Ordering::Relaxed) + 1;
-                progress(d, total);
-            })
+/// Runs the grid experiment, writes its files into `out`, and returns the summary.
+///
+/// `progress(done, total)` is called as jobs (runs) finish (from worker threads).
+pub fn run(
+    config: &GridConfig,
+    out: &Path,
+    progress: &(dyn Fn(u64, u64) + Sync),
+) -> Result<GridReport> {
+    run_with(config, out, JobOptions::default(), progress)?
+        .context("a run over every job gives a summary")
+}
+
+/// [`run`] with `options`: a share of the jobs (then only their records and the manifest are
+/// written, and `None` returned: [`jobs::merge`] and [`summarise_dir`] finish the work) or a
+/// resumed run.
+pub fn run_with(
+    config: &GridConfig,
+    out: &Path,
+    options: JobOptions,
+    progress: &(dyn Fn(u64, u64) + Sync),
+) -> Result<Option<GridReport>> {
+    let started = Instant::now();
+    fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let envs = environments(config)?;
+    let jobs = job_list(config);
+    let manifest = manifest(config, options.shard)?;
+    let results = jobs::run_jobs(out, &manifest, options, progress, |index| {
+        let (cell, run) = jobs[index];
+        let seed = config.seed + run as u64;
+        let env = &envs[&cell.irrelevant];
+        let settings = AgentSettings {
+            planner: PlannerParams {
+                stop_at_drift: config.stop_at_drift,
+                ..PlannerParams::default()
+            },
+            rl_dt_examples: config.rl_dt_examples,
+        };
+        let episodes = run_agent(cell.algorithm, env, config.episodes, seed, settings, |_| {})
             .with_context(|| {
                 format!(
                     "{} with {} irrelevant features, run {run}",
@@ -311,16 +335,55 @@ pub fn run(
                     cell.irrelevant
                 )
             })?;
-            Ok((
-                cell,
-                RunResult {
-                    run,
-                    seed,
-                    episodes,
-                },
-            ))
+        Ok(RunResult {
+            run,
+            seed,
+            episodes,
         })
-        .collect::<Result<_>>()?;
+    })?;
+    if !options.shard.is_all() {
+        return Ok(None);
+    }
+    report_from(config, &envs, results, out, started).map(Some)
+}
+
+/// Computes the summary, tables and figures of a complete result folder (one run, a resumed
+/// one, or merged shards) from its job records.
+pub fn summarise_dir(out: &Path) -> Result<GridReport> {
+    let started = Instant::now();
+    let manifest = Manifest::read(out)?;
+    let config: GridConfig = manifest.settings()?;
+    let envs = environments(&config)?;
+    let jobs = job_list(&config);
+    let results = jobs::run_jobs(
+        out,
+        &manifest,
+        JobOptions {
+            shard: jobs::Shard::ALL,
+            resume: true,
+        },
+        &|_, _| {},
+        |index| {
+            anyhow::bail!(
+                "job {index} of {} is missing from {}",
+                jobs.len(),
+                out.display()
+            )
+        },
+    )?;
+    report_from(&config, &envs, results, out, started)
+}
+
+fn report_from(
+    config: &GridConfig,
+    envs: &BTreeMap<usize, GridEnv>,
+    results: BTreeMap<usize, RunResult>,
+    out: &Path,
+    started: Instant,
+) -> Result<GridReport> {
+    let jobs = job_list(config);
+    let results: Vec<(Cell, RunResult)> =
+        results.into_iter().map(|(i, r)| (jobs[i].0, r)).collect();
     let mut by_cell: BTreeMap<Cell, Vec<RunResult>> = BTreeMap::new();
     for (cell, r) in results {
         by_cell.entry(cell).or_default().push(r);

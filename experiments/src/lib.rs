@@ -9,6 +9,9 @@
 //!   every method in one colour across all of them;
 //! * [`verdict`] — the paper's targets and whether a run meets them (a `--quick` run is too
 //!   small to judge);
+//! * [`jobs`] — every experiment as a list of independent jobs: `--shard K/N`, `--resume`,
+//!   merging shard folders;
+//! * [`report`] — `report.md`, every table and figure of the whole study in one page;
 //! * [`replot`] — redraws the figures a result folder's `summary.json` holds the data of;
 //! * [`write_labelled_csv`] and the `make-fit-demo` binary — the seeded demo stream that
 //!   `tes fit` runs on in the README (`data/fit-demo.csv`).
@@ -17,7 +20,9 @@
 
 pub mod episode;
 pub mod grid;
+pub mod jobs;
 pub mod replot;
+pub mod report;
 pub mod robot;
 pub mod stats;
 pub mod svg;

@@ -21,14 +21,12 @@ use std::collections::BTreeMap;
 use std::fs;
 use std::path::Path;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use tes_learning::agents::{
     Agent, Contexts, CountingAgent, LoreRl, LoreRlParams, Tes, TesParams, ViewPolicy,
 };
@@ -39,12 +37,13 @@ use tes_learning::plan::PlannerParams;
 use tes_perception_sim::arena::{Arena, ArenaId, Episode as ArenaEpisode, EpisodeStatus};
 
 use crate::episode::{Episode, write_episodes_csv, write_file, write_summary};
+use crate::jobs::{self, JobOptions, Manifest};
 use crate::stats::{Summary, summarise};
 use crate::svg::{BandPoint, LineChart, Series};
 use crate::verdict::TargetCheck;
 
 /// Settings of `tes experiment robot`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct RobotConfig {
     /// Independent repeats (paper: 20 for Fig. 8, 10 for Table 5).
     pub runs: usize,
@@ -255,7 +254,6 @@ fn run_job(
     worlds: &BTreeMap<u32, World>,
     method: RobotMethod,
     run: usize,
-    tick: &(dyn Fn() + Sync),
 ) -> Result<Vec<Episode>> {
     let seed = config.seed + run as u64;
     let test = &worlds[&ArenaId::Env3.number()];
@@ -278,7 +276,6 @@ fn run_job(
         let mut rng = ChaCha8Rng::seed_from_u64(agent_seed ^ 0xA2E4A);
         for _ in 0..config.train_episodes {
             run_episode(&mut agent, world, config.step_cap, &mut rng)?;
-            tick();
         }
         library = agent.finish_task()?.0;
     }
@@ -326,7 +323,6 @@ fn run_job(
             config.step_cap,
             &mut rng,
         )?);
-        tick();
     }
     Ok(episodes)
 }
@@ -351,40 +347,99 @@ pub struct RobotReport {
     pub targets: Vec<TargetCheck>,
 }
 
+/// The experiment's name in manifests.
+pub const EXPERIMENT: &str = "robot";
+
+/// The experiment's independent jobs, in index order: (method, run), runs innermost.
+fn job_list(config: &RobotConfig) -> Vec<(RobotMethod, usize)> {
+    RobotMethod::ALL
+        .into_iter()
+        .flat_map(|m| (0..config.runs).map(move |r| (m, r)))
+        .collect()
+}
+
+/// The manifest of a run of `config` (or its `shard`).
+pub fn manifest(config: &RobotConfig, shard: jobs::Shard) -> Result<Manifest> {
+    Manifest::new(EXPERIMENT, config, job_list(config).len(), shard)
+}
+
+fn check(config: &RobotConfig) -> Result<()> {
+    if config.runs == 0 || config.episodes == 0 || config.step_cap == 0 {
+        bail!("runs, episodes and the step cap must all be at least 1");
+    }
+    Ok(())
+}
+
 /// Runs the robot experiment, writes its files into `out`, and returns the summary.
+///
+/// `progress(done, total)` is called as jobs (method, run) finish (from worker threads).
 pub fn run(
     config: &RobotConfig,
     out: &Path,
     progress: &(dyn Fn(u64, u64) + Sync),
 ) -> Result<RobotReport> {
-    if config.runs == 0 || config.episodes == 0 || config.step_cap == 0 {
-        bail!("runs, episodes and the step cap must all be at least 1");
-    }
+    run_with(config, out, JobOptions::default(), progress)?
+        .context("a run over every job gives a summary")
+}
+
+/// [`run`] with `options`: a share of the jobs (then only their records and the manifest are
+/// written, and `None` returned: [`jobs::merge`] and [`summarise_dir`] finish the work) or a
+/// resumed run.
+pub fn run_with(
+    config: &RobotConfig,
+    out: &Path,
+    options: JobOptions,
+    progress: &(dyn Fn(u64, u64) + Sync),
+) -> Result<Option<RobotReport>> {
+    check(config)?;
     let started = Instant::now();
     fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let worlds: BTreeMap<u32, World> = ArenaId::ALL
         .into_iter()
         .map(|id| Ok((id.number(), World::new(id)?)))
         .collect::<Result<_>>()?;
-    let jobs: Vec<(RobotMethod, usize)> = RobotMethod::ALL
-        .into_iter()
-        .flat_map(|m| (0..config.runs).map(move |r| (m, r)))
-        .collect();
-    let total: u64 = jobs
-        .iter()
-        .map(|(m, _)| (config.episodes + m.experience().len() * config.train_episodes) as u64)
-        .sum();
-    let done = AtomicU64::new(0);
-    let tick = || progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
-    let results: Vec<((RobotMethod, usize), Vec<Episode>)> = jobs
-        .par_iter()
-        .map(|&(m, r)| {
-            run_job(config, &worlds, m, r, &tick)
-                .with_context(|| format!("{} run {r}", m.name()))
-                .map(|e| ((m, r), e))
-        })
-        .collect::<Result<_>>()?;
-    let by: BTreeMap<(RobotMethod, usize), Vec<Episode>> = results.into_iter().collect();
+    let jobs = job_list(config);
+    let manifest = manifest(config, options.shard)?;
+    let results = jobs::run_jobs(out, &manifest, options, progress, |index| {
+        let (m, r) = jobs[index];
+        run_job(config, &worlds, m, r).with_context(|| format!("{} run {r}", m.name()))
+    })?;
+    if !options.shard.is_all() {
+        return Ok(None);
+    }
+    report_from(config, results, out, started).map(Some)
+}
+
+/// Computes the summary, tables and figures of a complete result folder (one run, a resumed
+/// one, or merged shards) from its job records.
+pub fn summarise_dir(out: &Path) -> Result<RobotReport> {
+    let started = Instant::now();
+    let manifest = Manifest::read(out)?;
+    let config: RobotConfig = manifest.settings()?;
+    check(&config)?;
+    let total = manifest.jobs;
+    let results = jobs::run_jobs(
+        out,
+        &manifest,
+        JobOptions {
+            shard: jobs::Shard::ALL,
+            resume: true,
+        },
+        &|_, _| {},
+        |index| anyhow::bail!("job {index} of {total} is missing from {}", out.display()),
+    )?;
+    report_from(&config, results, out, started)
+}
+
+fn report_from(
+    config: &RobotConfig,
+    results: BTreeMap<usize, Vec<Episode>>,
+    out: &Path,
+    started: Instant,
+) -> Result<RobotReport> {
+    let jobs = job_list(config);
+    let by: BTreeMap<(RobotMethod, usize), Vec<Episode>> =
+        results.into_iter().map(|(i, e)| (jobs[i], e)).collect();
     let runs_of = |m: RobotMethod| -> Vec<&Vec<Episode>> {
         (0..config.runs).filter_map(|r| by.get(&(m, r))).collect()
     };

@@ -19,15 +19,13 @@
 use std::collections::BTreeMap;
 use std::fs;
 use std::path::Path;
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
-use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use tes_learning::agents::{Agent, Tes, TesParams, ViewPolicy};
 use tes_learning::library::store::{self, StoredLibrary};
 use tes_learning::library::{LibraryParams, ViewLibrary};
@@ -37,12 +35,13 @@ use crate::episode::{
     Algorithm, Episode, EpisodicTask, run_episode, write_episodes_csv, write_file, write_summary,
 };
 use crate::grid::GridEnv;
+use crate::jobs::{self, JobOptions, Manifest};
 use crate::stats::{Summary, summarise};
 use crate::svg::{CategoryChart, CategorySeries, Interval, LineChart, Series};
 use crate::verdict::{TargetCheck, Verdict};
 
 /// Settings of `tes experiment transfer`.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TransferConfig {
     /// Independent runs per test task (paper: 20).
     pub runs: usize,
@@ -167,6 +166,17 @@ impl Method {
         }
     }
 
+    /// The method called `name` (the inverse of [`name`](Self::name)).
+    pub fn from_name(name: &str) -> Option<Self> {
+        Some(match name {
+            "TES" => Method::Tes,
+            "LWT" => Method::Lwt,
+            "loreRL" => Method::LoreRl,
+            "fEpsG" => Method::FEpsG,
+            _ => Method::Rands(name.strip_prefix("Rands ")?.parse().ok()?),
+        })
+    }
+
     /// Offsets the method's agent seed within a job, so the methods of a run explore
     /// independently (and the seeds stay those earlier runs recorded).
     fn seed_offset(self) -> usize {
@@ -181,14 +191,43 @@ impl Method {
 }
 
 /// One (test task, run) job's results.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 struct JobResult {
     task: usize,
     run: usize,
     seed: u64,
     training_order: Vec<usize>,
     library_views: usize,
+    /// Per method, by [`Method::name`].
+    #[serde(with = "by_name")]
     episodes: BTreeMap<Method, Vec<Episode>>,
+}
+
+/// A job's episodes keyed by method name in its record.
+mod by_name {
+    use super::*;
+    use serde::{Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(
+        m: &BTreeMap<Method, Vec<Episode>>,
+        s: S,
+    ) -> Result<S::Ok, S::Error> {
+        s.collect_map(m.iter().map(|(k, v)| (k.name(), v)))
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(
+        d: D,
+    ) -> Result<BTreeMap<Method, Vec<Episode>>, D::Error> {
+        let named: BTreeMap<String, Vec<Episode>> = BTreeMap::deserialize(d)?;
+        named
+            .into_iter()
+            .map(|(k, v)| {
+                Method::from_name(&k)
+                    .map(|m| (m, v))
+                    .ok_or_else(|| serde::de::Error::custom(format!("unknown method {k:?}")))
+            })
+            .collect()
+    }
 }
 
 /// Per test task, what `summary.json` records.
@@ -244,36 +283,104 @@ pub struct TransferReport {
     pub targets: Vec<TargetCheck>,
 }
 
+/// The experiment's name in manifests.
+pub const EXPERIMENT: &str = "transfer";
+
+/// The experiment's independent jobs, in index order: (test task, run), runs innermost.
+fn job_list(config: &TransferConfig) -> Vec<(usize, usize)> {
+    config
+        .test_tasks
+        .iter()
+        .flat_map(|&t| (0..config.runs).map(move |r| (t, r)))
+        .collect()
+}
+
+/// The manifest of a run of `config` (or its `shard`).
+pub fn manifest(config: &TransferConfig, shard: jobs::Shard) -> Result<Manifest> {
+    Manifest::new(EXPERIMENT, config, job_list(config).len(), shard)
+}
+
+fn environments(config: &TransferConfig) -> Result<Vec<GridEnv>> {
+    GridSuite::paper(config.world_seed, config.irrelevant)
+        .into_iter()
+        .map(GridEnv::new)
+        .collect()
+}
+
 /// Runs the transfer experiment, writes its files into `out`, and returns the summary.
 ///
-/// `progress(done, total)` is called as episodes finish (from worker threads).
+/// `progress(done, total)` is called as jobs (test task, run) finish (from worker threads).
 pub fn run(
     config: &TransferConfig,
     out: &Path,
     progress: &(dyn Fn(u64, u64) + Sync),
 ) -> Result<TransferReport> {
+    run_with(config, out, JobOptions::default(), progress)?
+        .context("a run over every job gives a summary")
+}
+
+/// [`run`] with `options`: a share of the jobs (then only their records, run 0's libraries
+/// and the manifest are written, and `None` returned: [`jobs::merge`] and [`summarise_dir`]
+/// finish the work) or a resumed run.
+pub fn run_with(
+    config: &TransferConfig,
+    out: &Path,
+    options: JobOptions,
+    progress: &(dyn Fn(u64, u64) + Sync),
+) -> Result<Option<TransferReport>> {
     config.check()?;
     let started = Instant::now();
     fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let envs: Vec<GridEnv> = GridSuite::paper(config.world_seed, config.irrelevant)
-        .into_iter()
-        .map(GridEnv::new)
-        .collect::<Result<_>>()?;
+    let envs = environments(config)?;
     let methods = config.methods();
-    let per_job =
-        config.training_tasks * config.train_episodes + methods.len() * config.test_episodes;
-    let jobs: Vec<(usize, usize)> = config
-        .test_tasks
-        .iter()
-        .flat_map(|&t| (0..config.runs).map(move |r| (t, r)))
-        .collect();
-    let total = (jobs.len() * per_job) as u64;
-    let done = AtomicU64::new(0);
-    let tick = || progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
-    let mut results: Vec<JobResult> = jobs
-        .par_iter()
-        .map(|&(task, run)| run_job(config, &envs, &methods, task, run, out, &tick))
-        .collect::<Result<_>>()?;
+    let jobs = job_list(config);
+    let manifest = manifest(config, options.shard)?;
+    let results = jobs::run_jobs(out, &manifest, options, progress, |index| {
+        let (task, run) = jobs[index];
+        run_job(config, &envs, &methods, task, run, out)
+    })?;
+    if !options.shard.is_all() {
+        return Ok(None);
+    }
+    report_from(config, &envs, results.into_values().collect(), out, started).map(Some)
+}
+
+/// Computes the summary, tables and figures of a complete result folder (one run, a resumed
+/// one, or merged shards) from its job records.
+pub fn summarise_dir(out: &Path) -> Result<TransferReport> {
+    let started = Instant::now();
+    let manifest = Manifest::read(out)?;
+    let config: TransferConfig = manifest.settings()?;
+    config.check()?;
+    let envs = environments(&config)?;
+    let total = manifest.jobs;
+    let results = jobs::run_jobs(
+        out,
+        &manifest,
+        JobOptions {
+            shard: jobs::Shard::ALL,
+            resume: true,
+        },
+        &|_, _| {},
+        |index| anyhow::bail!("job {index} of {total} is missing from {}", out.display()),
+    )?;
+    report_from(
+        &config,
+        &envs,
+        results.into_values().collect(),
+        out,
+        started,
+    )
+}
+
+fn report_from(
+    config: &TransferConfig,
+    envs: &[GridEnv],
+    mut results: Vec<JobResult>,
+    out: &Path,
+    started: Instant,
+) -> Result<TransferReport> {
+    let methods = config.methods();
     results.sort_by_key(|r| (r.task, r.run));
 
     write_episodes_csv(
@@ -347,7 +454,6 @@ fn run_job(
     task: usize,
     run: usize,
     out: &Path,
-    tick: &(dyn Fn() + Sync),
 ) -> Result<JobResult> {
     let seed = job_seed(config, task, run);
     let mut order_rng = ChaCha8Rng::seed_from_u64(seed);
@@ -374,7 +480,6 @@ fn run_job(
         for _ in 0..config.train_episodes {
             run_episode(&mut agent, env, &s, &mut world)
                 .with_context(|| context(&format!("training on task {t}")))?;
-            tick();
         }
         library = agent
             .finish_task()
@@ -429,7 +534,6 @@ fn run_job(
                 run_episode(agent.as_mut(), test, &structure, &mut world)
                     .with_context(|| context(&m.name()))?,
             );
-            tick();
         }
         episodes.insert(m, eps);
     }

@@ -1,14 +1,16 @@
 //! `tes experiment`: rerun the paper's experiments and write tables and plots.
 
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::Once;
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use tes_experiments::grid::{self, GridConfig};
-use tes_experiments::robot::{self, RobotConfig};
-use tes_experiments::transfer::{self, TransferConfig};
+use tes_experiments::grid::{self, GridConfig, GridReport};
+use tes_experiments::jobs::{self, JobOptions, Manifest, Shard};
+use tes_experiments::robot::{self, RobotConfig, RobotReport};
+use tes_experiments::transfer::{self, TransferConfig, TransferReport};
 use tes_experiments::verdict::{QUICK_RUN_NOTE, TargetCheck, Verdict};
 use tes_learning::agents::ExampleStore;
 
@@ -28,9 +30,116 @@ enum Which {
     Transfer(TransferArgs),
     /// §5.2 robot study on the simulated arenas: Fig. 8, Fig. 9, Tables 5 and 6 (in-process).
     Robot(RobotArgs),
+    /// The whole study: grid, transfer and robot at the paper's settings into OUT/grid,
+    /// OUT/transfer and OUT/robot, then OUT/report.md with every table and figure.
+    All(AllArgs),
+    /// Combine the shard folders of one run (`--shard K/N`) into one result folder, refusing
+    /// shards that overlap, miss jobs, or come from other settings, seeds or code.
+    Merge(MergeArgs),
     /// Redraw the figures a result folder's summary.json holds the data of (grid: fig3c.svg;
     /// transfer: table2.svg), without rerunning anything.
     Replot(ReplotArgs),
+}
+
+/// How to split and continue a run: shared by every experiment.
+#[derive(Debug, Args)]
+struct JobArgs {
+    /// Run only share K of N of the experiment's independent jobs (job i when i mod N = K-1),
+    /// e.g. one task of a Slurm array; combine the folders with `tes experiment merge`.
+    #[arg(long, value_name = "K/N")]
+    shard: Option<Shard>,
+    /// Continue an interrupted run in DIR: keep the jobs it recorded, run the rest, with the
+    /// settings, seeds and shard DIR's manifest.json records (no other setting may be given).
+    #[arg(long, value_name = "DIR")]
+    resume: Option<PathBuf>,
+}
+
+impl JobArgs {
+    /// The options, out folder and (on resume) manifest; `settings_given` says whether any
+    /// setting was passed on the command line.
+    fn resolve(
+        &self,
+        out: &Path,
+        experiment: &str,
+        settings_given: bool,
+    ) -> Result<(JobOptions, PathBuf, Option<Manifest>)> {
+        match &self.resume {
+            None => Ok((
+                JobOptions {
+                    shard: self.shard.unwrap_or(Shard::ALL),
+                    resume: false,
+                },
+                out.to_owned(),
+                None,
+            )),
+            Some(dir) => {
+                if self.shard.is_some() || settings_given {
+                    bail!(
+                        "--resume takes the settings and shard from {}/manifest.json; give no other setting",
+                        dir.display()
+                    );
+                }
+                let manifest = Manifest::read(dir)?;
+                if manifest.experiment != experiment {
+                    bail!(
+                        "{} holds a {} run, not a {experiment} run",
+                        dir.display(),
+                        manifest.experiment
+                    );
+                }
+                Ok((
+                    JobOptions {
+                        shard: manifest.shard,
+                        resume: true,
+                    },
+                    dir.clone(),
+                    Some(manifest),
+                ))
+            }
+        }
+    }
+}
+
+#[derive(Debug, Args)]
+struct AllArgs {
+    /// Repeats of every experiment [default: each experiment's own, 20; --quick: its quick
+    /// value].
+    #[arg(long)]
+    runs: Option<usize>,
+    /// Directory for grid/, transfer/, robot/ and report.md.
+    #[arg(long, default_value = "results")]
+    out: PathBuf,
+    /// Each experiment's --quick settings.
+    #[arg(long)]
+    quick: bool,
+    /// Worker threads [default: all cores].
+    #[arg(long)]
+    threads: Option<usize>,
+    #[command(flatten)]
+    jobs: AllJobArgs,
+}
+
+/// `--shard` and `--resume` of `tes experiment all`.
+#[derive(Debug, Args)]
+struct AllJobArgs {
+    /// Run only share K of N of each experiment's jobs; merge the folders with
+    /// `tes experiment merge`.
+    #[arg(long, value_name = "K/N")]
+    shard: Option<Shard>,
+    /// Continue an interrupted `tes experiment all` in DIR with its recorded settings.
+    #[arg(long, value_name = "DIR")]
+    resume: Option<PathBuf>,
+}
+
+#[derive(Debug, Args)]
+struct MergeArgs {
+    /// Shard folders of one run (each holds manifest.json and jobs/), or folders that
+    /// `tes experiment all --shard` wrote (each holds grid/, transfer/ and robot/).
+    #[arg(required = true)]
+    dirs: Vec<PathBuf>,
+    /// The merged result folder.
+    #[arg(long)]
+    out: PathBuf,
 }
 
 #[derive(Debug, Args)]
@@ -56,12 +165,14 @@ struct RobotArgs {
     /// Small settings for a first look: seconds.
     #[arg(long)]
     quick: bool,
-    /// Base seed; run r uses seed + r.
-    #[arg(long, default_value_t = 1)]
-    seed: u64,
+    /// Base seed; run r uses seed + r [default: 1].
+    #[arg(long)]
+    seed: Option<u64>,
     /// Worker threads [default: all cores].
     #[arg(long)]
     threads: Option<usize>,
+    #[command(flatten)]
+    jobs: JobArgs,
 }
 
 #[derive(Debug, Args)]
@@ -84,15 +195,17 @@ struct TransferArgs {
     /// Episodes on the test task [default: 50; --quick: 12].
     #[arg(long)]
     test_episodes: Option<usize>,
-    /// Base seed; the job of (task t, run r) uses seed + 1000 r + t.
-    #[arg(long, default_value_t = 1)]
-    seed: u64,
-    /// Seed of the grid suite (layouts, dynamics, irrelevant features).
-    #[arg(long, default_value_t = 2017)]
-    world_seed: u64,
+    /// Base seed; the job of (task t, run r) uses seed + 1000 r + t [default: 1].
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Seed of the grid suite (layouts, dynamics, irrelevant features) [default: 2017].
+    #[arg(long)]
+    world_seed: Option<u64>,
     /// Worker threads [default: all cores].
     #[arg(long)]
     threads: Option<usize>,
+    #[command(flatten)]
+    jobs: JobArgs,
 }
 
 #[derive(Debug, Args)]
@@ -109,15 +222,17 @@ struct GridArgs {
     /// Small settings for a first look (and CI): finishes in about two minutes on two cores.
     #[arg(long)]
     quick: bool,
-    /// First agent seed; run r uses seed + r.
-    #[arg(long, default_value_t = 1)]
-    seed: u64,
-    /// Seed of the grid suite (layouts, dynamics, irrelevant features).
-    #[arg(long, default_value_t = 2017)]
-    world_seed: u64,
+    /// First agent seed; run r uses seed + r [default: 1].
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Seed of the grid suite (layouts, dynamics, irrelevant features) [default: 2017].
+    #[arg(long)]
+    world_seed: Option<u64>,
     /// Worker threads [default: all cores].
     #[arg(long)]
     threads: Option<usize>,
+    #[command(flatten)]
+    jobs: JobArgs,
     /// Plan every re-plan to the tolerance, instead of stopping it once no value moves by
     /// more than the model change that triggered it (see `tes_learning::plan`).
     #[arg(long)]
@@ -135,6 +250,8 @@ pub fn run(args: &ExperimentArgs) -> Result<()> {
         Which::Grid(g) => run_grid(g),
         Which::Transfer(t) => run_transfer(t),
         Which::Robot(r) => run_robot(r),
+        Which::All(a) => run_all(a),
+        Which::Merge(m) => run_merge(m),
         Which::Replot(r) => run_replot(r),
     }
 }
@@ -193,29 +310,68 @@ fn set_threads(threads: Option<usize>) -> Result<()> {
     Ok(())
 }
 
+impl TransferArgs {
+    fn settings_given(&self) -> bool {
+        self.runs.is_some()
+            || self.quick
+            || self.tasks.is_some()
+            || self.train_episodes.is_some()
+            || self.test_episodes.is_some()
+            || self.seed.is_some()
+            || self.world_seed.is_some()
+    }
+
+    fn config(&self, runs: Option<usize>) -> TransferConfig {
+        let mut config = if self.quick {
+            TransferConfig::quick()
+        } else {
+            TransferConfig::paper()
+        };
+        if let Some(runs) = self.runs.or(runs) {
+            config.runs = runs;
+        }
+        if let Some(tasks) = &self.tasks {
+            config.test_tasks.clone_from(tasks);
+        }
+        if let Some(n) = self.train_episodes {
+            config.train_episodes = n;
+        }
+        if let Some(n) = self.test_episodes {
+            config.test_episodes = n;
+        }
+        if let Some(seed) = self.seed {
+            config.seed = seed;
+        }
+        if let Some(seed) = self.world_seed {
+            config.world_seed = seed;
+        }
+        config
+    }
+}
+
 fn run_transfer(args: &TransferArgs) -> Result<()> {
-    let mut config = if args.quick {
-        TransferConfig::quick()
-    } else {
-        TransferConfig::paper()
-    };
-    if let Some(runs) = args.runs {
-        config.runs = runs;
-    }
-    if let Some(tasks) = &args.tasks {
-        config.test_tasks.clone_from(tasks);
-    }
-    if let Some(n) = args.train_episodes {
-        config.train_episodes = n;
-    }
-    if let Some(n) = args.test_episodes {
-        config.test_episodes = n;
-    }
-    config.seed = args.seed;
-    config.world_seed = args.world_seed;
     set_threads(args.threads)?;
+    let (options, out, resumed) =
+        args.jobs
+            .resolve(&args.out, transfer::EXPERIMENT, args.settings_given())?;
+    let config = match &resumed {
+        Some(m) => m.settings()?,
+        None => args.config(None),
+    };
+    if let Some(report) = transfer_with(&config, &out, options)? {
+        print_transfer(&report, &out);
+    }
+    Ok(())
+}
+
+/// Runs (a share of) the transfer experiment with a progress bar; `None` for a shard.
+fn transfer_with(
+    config: &TransferConfig,
+    out: &Path,
+    options: JobOptions,
+) -> Result<Option<TransferReport>> {
     eprintln!(
-        "transfer experiment: test tasks {:?}, {} runs, training on {} tasks x {} episodes, {} test episodes, seed {}, world seed {} -> {}",
+        "transfer experiment: test tasks {:?}, {} runs, training on {} tasks x {} episodes, {} test episodes, seed {}, world seed {}{} -> {}",
         config.test_tasks,
         config.runs,
         config.training_tasks,
@@ -223,15 +379,17 @@ fn run_transfer(args: &TransferArgs) -> Result<()> {
         config.test_episodes,
         config.seed,
         config.world_seed,
-        args.out.display()
+        shard_note(options),
+        out.display()
     );
     let bar = progress_bar("transfer");
-    let report = transfer::run(&config, &args.out, &|done, total| {
-        bar.set_length(total);
-        bar.set_position(done);
-    })?;
-    bar.finish_and_clear();
+    let report = transfer::run_with(config, out, options, &bar.callback())?;
+    bar.finish(out, "transfer", options);
+    Ok(report)
+}
 
+fn print_transfer(report: &TransferReport, out: &Path) {
+    let config = &report.config;
     println!(
         "{:.1} s wall clock. Table 2: reward of the first test episode (mean over {} runs)",
         report.wall_seconds, config.runs
@@ -264,63 +422,144 @@ fn run_transfer(args: &TransferArgs) -> Result<()> {
     }
     println!(
         "wrote summary.json, episodes.csv, table2.svg, fig4b-task*.svg to {}",
-        args.out.display()
+        out.display()
     );
-    Ok(())
 }
 
-fn progress_bar(total_hint: &str) -> ProgressBar {
-    if !std::io::stderr().is_terminal() {
-        return ProgressBar::hidden();
+fn shard_note(options: JobOptions) -> String {
+    let mut note = String::new();
+    if !options.shard.is_all() {
+        note.push_str(&format!(", shard {}", options.shard));
     }
-    let bar = ProgressBar::with_draw_target(Some(1), ProgressDrawTarget::stderr());
-    if let Ok(style) = ProgressStyle::with_template(
-        "{msg} [{bar:40}] {pos}/{len} episodes ({elapsed}, {eta} left)",
-    ) {
-        bar.set_style(style.progress_chars("=> "));
+    if options.resume {
+        note.push_str(", resuming");
     }
-    bar.set_message(total_hint.to_owned());
-    bar
+    note
+}
+
+/// A progress bar on stderr (hidden when stderr is not a terminal): runs done, elapsed, and
+/// the time left estimated from the runs finished in this invocation.
+struct Progress {
+    bar: ProgressBar,
+    first: Once,
+}
+
+impl Progress {
+    /// The `progress(done, total)` callback the experiments call.
+    fn callback(&self) -> impl Fn(u64, u64) + Sync + '_ {
+        move |done, total| {
+            self.bar.set_length(total);
+            self.bar.set_position(done);
+            // The first call reports the runs found on resume: the estimate starts after it.
+            self.first.call_once(|| self.bar.reset_eta());
+        }
+    }
+
+    fn finish(&self, out: &Path, experiment: &str, options: JobOptions) {
+        self.bar.finish_and_clear();
+        if !options.shard.is_all() {
+            println!(
+                "shard {} of the {experiment} experiment written to {}; combine the shards with `tes experiment merge DIR... --out DIR`",
+                options.shard,
+                out.display()
+            );
+        }
+    }
+}
+
+fn progress_bar(what: &str) -> Progress {
+    let bar = if std::io::stderr().is_terminal() {
+        let bar = ProgressBar::with_draw_target(Some(1), ProgressDrawTarget::stderr());
+        if let Ok(style) = ProgressStyle::with_template(
+            "{msg} [{bar:40}] {pos}/{len} runs ({elapsed} elapsed, ~{eta} left)",
+        ) {
+            bar.set_style(style.progress_chars("=> "));
+        }
+        bar.set_message(what.to_owned());
+        bar
+    } else {
+        ProgressBar::hidden()
+    };
+    Progress {
+        bar,
+        first: Once::new(),
+    }
+}
+
+impl GridArgs {
+    fn settings_given(&self) -> bool {
+        self.runs.is_some()
+            || self.episodes.is_some()
+            || self.quick
+            || self.seed.is_some()
+            || self.world_seed.is_some()
+            || self.converge_plans
+            || self.rl_dt_per_state_counts
+    }
+
+    fn config(&self, runs: Option<usize>) -> GridConfig {
+        let mut config = if self.quick {
+            GridConfig::quick()
+        } else {
+            GridConfig::paper(20, 800)
+        };
+        if let Some(runs) = self.runs.or(runs) {
+            config.runs = runs;
+        }
+        if let Some(episodes) = self.episodes {
+            config.episodes = episodes;
+        }
+        if let Some(seed) = self.seed {
+            config.seed = seed;
+        }
+        if let Some(seed) = self.world_seed {
+            config.world_seed = seed;
+        }
+        config.stop_at_drift = !self.converge_plans;
+        if self.rl_dt_per_state_counts {
+            config.rl_dt_examples = ExampleStore::PerStateCounts;
+        }
+        config
+    }
 }
 
 fn run_grid(args: &GridArgs) -> Result<()> {
-    let mut config = if args.quick {
-        GridConfig::quick()
-    } else {
-        GridConfig::paper(20, 800)
+    set_threads(args.threads)?;
+    let (options, out, resumed) =
+        args.jobs
+            .resolve(&args.out, grid::EXPERIMENT, args.settings_given())?;
+    let config = match &resumed {
+        Some(m) => m.settings()?,
+        None => args.config(None),
     };
-    if let Some(runs) = args.runs {
-        config.runs = runs;
+    if let Some(report) = grid_with(&config, &out, options)? {
+        print_grid(&report, &out);
     }
-    if let Some(episodes) = args.episodes {
-        config.episodes = episodes;
-    }
+    Ok(())
+}
+
+/// Runs (a share of) the grid experiment with a progress bar; `None` for a shard.
+fn grid_with(config: &GridConfig, out: &Path, options: JobOptions) -> Result<Option<GridReport>> {
     if config.runs == 0 || config.episodes == 0 {
         bail!("--runs and --episodes must be at least 1");
     }
-    config.seed = args.seed;
-    config.world_seed = args.world_seed;
-    config.stop_at_drift = !args.converge_plans;
-    if args.rl_dt_per_state_counts {
-        config.rl_dt_examples = ExampleStore::PerStateCounts;
-    }
-    set_threads(args.threads)?;
     eprintln!(
-        "grid experiment: {} runs x {} episodes, irrelevant features {:?}, seeds {}.., world seed {} -> {}",
+        "grid experiment: {} runs x {} episodes, irrelevant features {:?}, seeds {}.., world seed {}{} -> {}",
         config.runs,
         config.episodes,
         config.irrelevant_levels,
         config.seed,
         config.world_seed,
-        args.out.display()
+        shard_note(options),
+        out.display()
     );
     let bar = progress_bar("grid");
-    let report = grid::run(&config, &args.out, &|done, total| {
-        bar.set_length(total);
-        bar.set_position(done);
-    })?;
-    bar.finish_and_clear();
+    let report = grid::run_with(config, out, options, &bar.callback())?;
+    bar.finish(out, "grid", options);
+    Ok(report)
+}
 
+fn print_grid(report: &GridReport, out: &Path) {
     println!("{}; {:.1} s wall clock", report.task, report.wall_seconds);
     let show = |title: &str, finals: &std::collections::BTreeMap<String, grid::Summary>| {
         println!("{title}");
@@ -354,45 +593,81 @@ fn run_grid(args: &GridArgs) -> Result<()> {
     print_targets(&report.targets);
     println!(
         "wrote summary.json, episodes.csv, fig3a.svg, fig3b.svg, fig3c.svg to {}",
-        args.out.display()
+        out.display()
     );
-    Ok(())
+}
+
+impl RobotArgs {
+    fn settings_given(&self) -> bool {
+        self.runs.is_some()
+            || self.episodes.is_some()
+            || self.train_episodes.is_some()
+            || self.quick
+            || self.seed.is_some()
+    }
+
+    fn config(&self, runs: Option<usize>) -> RobotConfig {
+        let mut config = if self.quick {
+            RobotConfig::quick()
+        } else {
+            RobotConfig::paper()
+        };
+        if let Some(n) = self.runs.or(runs) {
+            config.runs = n;
+        }
+        if let Some(n) = self.episodes {
+            config.episodes = n;
+        }
+        if let Some(n) = self.train_episodes {
+            config.train_episodes = n;
+        }
+        if let Some(seed) = self.seed {
+            config.seed = seed;
+        }
+        config
+    }
 }
 
 fn run_robot(args: &RobotArgs) -> Result<()> {
-    let mut config = if args.quick {
-        RobotConfig::quick()
-    } else {
-        RobotConfig::paper()
-    };
-    if let Some(n) = args.runs {
-        config.runs = n;
-    }
-    if let Some(n) = args.episodes {
-        config.episodes = n;
-    }
-    if let Some(n) = args.train_episodes {
-        config.train_episodes = n;
-    }
-    config.seed = args.seed;
     set_threads(args.threads)?;
+    let (options, out, resumed) =
+        args.jobs
+            .resolve(&args.out, robot::EXPERIMENT, args.settings_given())?;
+    let config = match &resumed {
+        Some(m) => m.settings()?,
+        None => args.config(None),
+    };
+    if let Some(report) = robot_with(&config, &out, options)? {
+        print_robot(&report, &out);
+    }
+    Ok(())
+}
+
+/// Runs (a share of) the robot study with a progress bar; `None` for a shard.
+fn robot_with(
+    config: &RobotConfig,
+    out: &Path,
+    options: JobOptions,
+) -> Result<Option<RobotReport>> {
     eprintln!(
-        "robot experiment: {} runs, {} episodes on Env 3 after {} per earlier arena, seeds {}.. -> {}",
+        "robot experiment: {} runs, {} episodes on Env 3 after {} per earlier arena, seeds {}..{} -> {}",
         config.runs,
         config.episodes,
         config.train_episodes,
         config.seed,
-        args.out.display()
+        shard_note(options),
+        out.display()
     );
     let bar = progress_bar("robot");
-    let report = robot::run(&config, &args.out, &|done, total| {
-        bar.set_length(total);
-        bar.set_position(done);
-    })?;
-    bar.finish_and_clear();
+    let report = robot::run_with(config, out, options, &bar.callback())?;
+    bar.finish(out, "robot", options);
+    Ok(report)
+}
+
+fn print_robot(report: &RobotReport, out: &Path) {
     println!(
         "{:.1} s wall clock. Accumulated reward on Env 3 after {} episodes (95% CI), difference to TES, seconds per episode:",
-        report.wall_seconds, config.episodes
+        report.wall_seconds, report.config.episodes
     );
     for (name, s) in &report.accumulated {
         let diff = report
@@ -411,6 +686,131 @@ fn run_robot(args: &RobotArgs) -> Result<()> {
     print_targets(&report.targets);
     println!(
         "wrote summary.json, episodes.csv, fig8.svg, fig9.svg to {}",
+        out.display()
+    );
+}
+
+/// The three experiments of `tes experiment all`, in the order they run.
+const ALL: [&str; 3] = [grid::EXPERIMENT, transfer::EXPERIMENT, robot::EXPERIMENT];
+
+fn run_all(args: &AllArgs) -> Result<()> {
+    set_threads(args.threads)?;
+    let (out, shard, resume) = match &args.jobs.resume {
+        Some(dir) => {
+            if args.jobs.shard.is_some() || args.runs.is_some() || args.quick {
+                bail!(
+                    "--resume takes the settings and shard from the manifests in {}; give no other setting",
+                    dir.display()
+                );
+            }
+            let shard = Manifest::read(&dir.join(grid::EXPERIMENT))?.shard;
+            (dir.clone(), shard, true)
+        }
+        None => (
+            args.out.clone(),
+            args.jobs.shard.unwrap_or(Shard::ALL),
+            false,
+        ),
+    };
+    let dir = |e: &str| out.join(e);
+    let (grid_config, transfer_config, robot_config) = if resume {
+        (
+            Manifest::read(&dir(grid::EXPERIMENT))?.settings()?,
+            Manifest::read(&dir(transfer::EXPERIMENT))?.settings()?,
+            Manifest::read(&dir(robot::EXPERIMENT))?.settings()?,
+        )
+    } else {
+        let (mut g, mut t, mut r) = if args.quick {
+            (
+                GridConfig::quick(),
+                TransferConfig::quick(),
+                RobotConfig::quick(),
+            )
+        } else {
+            (
+                GridConfig::paper(20, 800),
+                TransferConfig::paper(),
+                RobotConfig::paper(),
+            )
+        };
+        if let Some(runs) = args.runs {
+            (g.runs, t.runs, r.runs) = (runs, runs, runs);
+        }
+        // Every manifest first, so that an interrupted study resumes from any point.
+        jobs::prepare(&dir(grid::EXPERIMENT), &grid::manifest(&g, shard)?)?;
+        jobs::prepare(&dir(transfer::EXPERIMENT), &transfer::manifest(&t, shard)?)?;
+        jobs::prepare(&dir(robot::EXPERIMENT), &robot::manifest(&r, shard)?)?;
+        (g, t, r)
+    };
+    let options = JobOptions {
+        shard,
+        resume: true,
+    };
+    let started = std::time::Instant::now();
+    let g = grid_with(&grid_config, &dir(grid::EXPERIMENT), options)?;
+    let t = transfer_with(&transfer_config, &dir(transfer::EXPERIMENT), options)?;
+    let r = robot_with(&robot_config, &dir(robot::EXPERIMENT), options)?;
+    match (g, t, r) {
+        (Some(g), Some(t), Some(r)) => {
+            let path = out.join("report.md");
+            tes_experiments::report::write(&path, &g, &t, &r)?;
+            print_grid(&g, &dir(grid::EXPERIMENT));
+            print_transfer(&t, &dir(transfer::EXPERIMENT));
+            print_robot(&r, &dir(robot::EXPERIMENT));
+            println!(
+                "the whole study took {:.1} s; wrote {}",
+                started.elapsed().as_secs_f64(),
+                path.display()
+            );
+        }
+        _ => println!(
+            "shard {shard} of the study written to {}; combine the shards with `tes experiment merge DIR... --out DIR`",
+            out.display()
+        ),
+    }
+    Ok(())
+}
+
+fn run_merge(args: &MergeArgs) -> Result<()> {
+    let whole_study = args
+        .dirs
+        .iter()
+        .all(|d| !d.join("manifest.json").exists() && d.join(grid::EXPERIMENT).is_dir());
+    if whole_study {
+        let mut reports = (None, None, None);
+        for experiment in ALL {
+            let shards: Vec<PathBuf> = args.dirs.iter().map(|d| d.join(experiment)).collect();
+            let out = args.out.join(experiment);
+            jobs::merge(&shards, &out)
+                .with_context(|| format!("cannot merge the {experiment} shards"))?;
+            match experiment {
+                "grid" => reports.0 = Some(grid::summarise_dir(&out)?),
+                "transfer" => reports.1 = Some(transfer::summarise_dir(&out)?),
+                _ => reports.2 = Some(robot::summarise_dir(&out)?),
+            }
+        }
+        if let (Some(g), Some(t), Some(r)) = reports {
+            let path = args.out.join("report.md");
+            tes_experiments::report::write(&path, &g, &t, &r)?;
+            println!(
+                "merged {} study shards; wrote {}",
+                args.dirs.len(),
+                path.display()
+            );
+        }
+        return Ok(());
+    }
+    let manifest = jobs::merge(&args.dirs, &args.out).context("cannot merge the shards")?;
+    match manifest.experiment.as_str() {
+        "grid" => print_grid(&grid::summarise_dir(&args.out)?, &args.out),
+        "transfer" => print_transfer(&transfer::summarise_dir(&args.out)?, &args.out),
+        "robot" => print_robot(&robot::summarise_dir(&args.out)?, &args.out),
+        other => bail!("unknown experiment {other:?} in the shards' manifests"),
+    }
+    println!(
+        "merged {} shards of {} jobs into {}",
+        args.dirs.len(),
+        manifest.jobs,
         args.out.display()
     );
     Ok(())

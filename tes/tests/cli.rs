@@ -223,6 +223,29 @@ fn experiment_rejects_zero_runs() {
     assert!(String::from_utf8_lossy(&run.stderr).contains("--runs"));
 }
 
+#[test]
+fn experiment_shards_and_resumes_are_checked_before_anything_runs() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let out = dir.path().to_string_lossy().into_owned();
+    for bad in ["0/3", "4/3", "3", "a/b"] {
+        let run = tes(&["experiment", "robot", "--shard", bad, "--out", &out]);
+        assert!(!run.status.success(), "{bad}");
+        assert!(
+            String::from_utf8_lossy(&run.stderr).contains("K/N"),
+            "{bad}"
+        );
+    }
+    let run = tes(&["experiment", "transfer", "--resume", &out]);
+    assert!(!run.status.success());
+    assert!(String::from_utf8_lossy(&run.stderr).contains("manifest.json"));
+    let run = tes(&["experiment", "grid", "--resume", &out, "--runs", "3"]);
+    assert!(!run.status.success());
+    assert!(String::from_utf8_lossy(&run.stderr).contains("give no other setting"));
+    let run = tes(&["experiment", "merge", &out, "--out", &out]);
+    assert!(!run.status.success());
+    assert!(String::from_utf8_lossy(&run.stderr).contains("manifest.json"));
+}
+
 /// A library grown by this test process over two tasks, saved with names.
 fn saved_library(dir: &tempfile::TempDir) -> PathBuf {
     use tes_learning::library::store::{self, StoredLibrary};

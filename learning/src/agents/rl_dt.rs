@@ -70,7 +70,7 @@ pub struct RlDtParams {
 
 /// How [`RlDt`] keeps the examples it re-induces its trees from. Both give the same trees
 /// and so the same behaviour; they differ in memory and induction time.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ExampleStore {
     /// Every example as observed, one entry per step (Hester & Stone's RL-DT): induction
