@@ -477,6 +477,13 @@ pub struct Command {
     /// the keep-alive is the latest command can still carry out the command in flight
     /// ([`Command::in_flight`]). 0 otherwise.
     pub in_flight_action: u32,
+    /// Padding; always 0.
+    pub reserved: u32,
+    /// Plans the controller had adopted when it decided (its start-up plan included; 0 for a
+    /// keep-alive): which model hand-over the deciding plan came from, since at most one plan
+    /// is in flight and plans are adopted in hand-over order. A recording keeps it so that a
+    /// replay adopts each plan at the same observation (`tes replay`).
+    pub plans: u64,
 }
 
 impl Command {
@@ -511,6 +518,8 @@ impl Command {
             left_deg: self.left_deg,
             right_deg: self.right_deg,
             in_flight_action: 0,
+            reserved: 0,
+            plans: 0,
         })
     }
 }
@@ -600,7 +609,7 @@ mod tests {
         // protocol change and must be deliberate.
         assert_eq!(core::mem::size_of::<FeatureBits>(), 8 * FEATURE_WORDS);
         assert_eq!(core::mem::size_of::<Observation>(), 96);
-        assert_eq!(core::mem::size_of::<Command>(), 48);
+        assert_eq!(core::mem::size_of::<Command>(), 64);
         assert_eq!(core::mem::size_of::<MotorState>(), 64);
         assert_eq!(core::mem::size_of::<Progress>(), 64);
         assert_eq!(FEATURE_CAPACITY, 320);
