@@ -109,6 +109,11 @@ pub(crate) fn run_group(file: &LaunchFile, prepared: Prepared, echo: bool) -> Re
         }
         report = Some(path);
     }
+    // Subscribed before any child starts, so it misses nothing.
+    let recorder = crate::record::start(file, &prepared.specs, prefix, &library)?;
+    if let Some(r) = &recorder {
+        note(format!("launch: recording to {}", r.path().display()));
+    }
     let (lines_tx, lines) = mpsc::channel::<ChildLine>();
     let following = Arc::new(AtomicBool::new(false));
     let mut children = Vec::new();
@@ -253,6 +258,12 @@ pub(crate) fn run_group(file: &LaunchFile, prepared: Prepared, echo: bool) -> Re
     }
     let episodes = relay.episodes;
     let mut failed: Vec<String> = failure.into_iter().collect();
+    if let Some(r) = recorder {
+        match crate::record::finish(r) {
+            Ok(line) => note(line),
+            Err(e) => failed.push(format!("recorder: {e:#}")),
+        }
+    }
     for c in &children {
         match c.status {
             Some(s) if !s.success() && !stopped_by_us(s) => {
