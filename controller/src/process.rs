@@ -21,6 +21,7 @@ use tes_runtime::alloc_count;
 use tes_runtime::channel::{self, Idle, Inbox, IpcError, LatestOutbox, WaitStrategy};
 use tes_runtime::clock::{Clock, MonotonicClock};
 use tes_runtime::progress::ProgressOutbox;
+use tes_runtime::ring::RingOutbox;
 use tes_topics::{Command, Observation, Role, ServiceNames, WorldMap};
 use thiserror::Error;
 
@@ -207,6 +208,15 @@ pub fn run(
     // A blackboard, not a publisher: sending a command allocates nothing (see LatestOutbox).
     let commands: LatestOutbox<Command> =
         LatestOutbox::open(&node, &names.command, &names.command_event)?;
+    // Every command again, by its number, for a recorder (written once the command is out;
+    // nobody is notified). Without it the group runs on, unrecordable.
+    let command_log = match RingOutbox::<Command>::open(&node, &names.command_log) {
+        Ok(log) => Some(log),
+        Err(e) => {
+            tracing::warn!(error = %e, "no command log: a recording of this run misses its commands");
+            None
+        }
+    };
 
     tracing::info!(service = %names.world_map, "waiting for the world map");
     let map_timeout = checked.map_timeout();
@@ -290,6 +300,9 @@ pub fn run(
                     // A move is under way: tell the bridge's watchdog we are still here.
                     if let Some(keepalive) = acting.on_idle(&clock) {
                         commands.send(keepalive)?;
+                        if let Some(log) = &command_log {
+                            log.put(keepalive);
+                        }
                     }
                     progress.publish_due(clock.now_ns())?;
                     continue;
@@ -334,6 +347,9 @@ pub fn run(
         let sent = acting.command_sent(&clock)?;
         drop(counting);
         // Off the acting path: the command is out.
+        if let Some(log) = &command_log {
+            log.put(command);
+        }
         let report = progress.report_mut();
         (report.in_seq, report.out_seq) = (obs.seq, command.seq);
         (report.steps, report.episodes) = (acting.counts().actions, acting.counts().episodes);

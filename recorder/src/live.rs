@@ -1,19 +1,21 @@
-//! The recorder: a thread of its own (in the launcher, never in the controller) subscribing
-//! to the group's services and writing what it sees to a [`RunWriter`].
+//! The recorder: a thread of its own (in the launcher, never in the controller) reading the
+//! group's services and writing what it finds to a [`RunWriter`].
 //!
-//! What each service guarantees decides how it is read:
+//! It polls every few milliseconds and is woken by nothing, so no process of the group
+//! notifies it, and it never waits on the loop. What each service guarantees decides how it
+//! is read:
 //!
 //! * observations and motor states are publish–subscribe: the recorder's subscribers (no
-//!   listener, so publishers notify nobody more) queue up to `tes_runtime::channel::BUFFER`
-//!   samples each, drained at every wake-up;
-//! * commands go over a one-entry blackboard, which keeps a command until the next one, and
-//!   the next one answers the next observation — a whole loop of the group later. The
-//!   recorder sleeps on the command event, as the bridge does, and reads the board when woken;
+//!   listener) queue up to `tes_runtime::ipc::RECORDER_BUFFER` samples each;
+//! * the controller's commands go to the bridge over a one-entry blackboard, which a passive
+//!   reader could miss; the controller also stores each one, once it is out, in a ring of the
+//!   last `tes_runtime::ring::RING` commands (`tes/command/log`, a lock-free store into shared
+//!   memory that allocates nothing and notifies nobody), which the recorder reads;
 //! * the world map is published with history, so it reaches the recorder whenever it joins.
 //!
 //! Nothing is formatted or written on the controller's side. A sample the recorder could not
-//! take in time (a machine so loaded that it slept through a whole loop) is counted from the
-//! gaps in the sequence numbers and written in the file's end record.
+//! take in time (a machine that kept it from running for a whole buffer's worth of actions)
+//! is counted from the gaps in the sequence numbers and written in the file's end record.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -22,7 +24,9 @@ use std::time::{Duration, Instant};
 
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
-use tes_runtime::channel::{self, Idle, IpcError, LatestInbox, WaitStrategy};
+use tes_runtime::channel::{self, IpcError};
+use tes_runtime::ipc::RECORDER_BUFFER;
+use tes_runtime::ring::RingReader;
 use tes_topics::{Command, MotorState, Observation, ServiceNames, WorldMap};
 
 use crate::writer::{RecordCounts, RunInfo, RunWriter, WriteError};
@@ -44,8 +48,9 @@ pub enum RecordError {
 /// How often the file is flushed (the open chunk closed and written out).
 const FLUSH_EVERY: Duration = Duration::from_millis(500);
 
-/// How long one wait for a command lasts before the recorder looks at the other services.
-const WAKE_EVERY: Duration = Duration::from_millis(20);
+/// How often the recorder looks at the services: well within what their buffers hold at the
+/// fastest real-time factor (a thousand samples; about eight motor states per action).
+const POLL_EVERY: Duration = Duration::from_millis(2);
 
 /// A running recorder; [`stop`](Self::stop) finishes the file.
 #[derive(Debug)]
@@ -83,10 +88,12 @@ fn subscriber<T: ZeroCopySend + Copy + std::fmt::Debug + 'static>(
     node: &Node<ipc::Service>,
     name: &str,
     history: usize,
+    buffer: usize,
 ) -> Result<Sub<T>, IpcError> {
     let service = channel::pubsub::<T>(node, name, history)?;
     let subscriber = service
         .subscriber_builder()
+        .buffer_size(buffer)
         .create()
         .map_err(channel::ipc_err("create a subscriber"))?;
     subscriber
@@ -171,19 +178,15 @@ fn record(
     let opened = (|| -> Result<_, RecordError> {
         let names = ServiceNames::with_prefix(prefix);
         let node = channel::node(false)?;
-        let maps = subscriber::<WorldMap>(&node, &names.world_map, 1)?;
-        let observations = subscriber::<Observation>(&node, &names.observation, 0)?;
-        let motor_states = subscriber::<MotorState>(&node, &names.motor_state, 0)?;
-        let commands = LatestInbox::<Command>::open(
-            &node,
-            &names.command,
-            &names.command_event,
-            WaitStrategy::Block,
-        )?;
+        let maps = subscriber::<WorldMap>(&node, &names.world_map, 1, 1)?;
+        let observations =
+            subscriber::<Observation>(&node, &names.observation, 0, RECORDER_BUFFER)?;
+        let motor_states = subscriber::<MotorState>(&node, &names.motor_state, 0, RECORDER_BUFFER)?;
+        let commands = RingReader::<Command>::open(&node, &names.command_log)?;
         let writer = RunWriter::create(path, info)?;
         Ok((node, maps, observations, motor_states, commands, writer))
     })();
-    let (node, maps, observations, motor_states, mut commands, mut writer) = match opened {
+    let (_node, maps, observations, motor_states, mut commands, mut writer) = match opened {
         Ok(ports) => {
             let _ = ready.send(Ok(()));
             ports
@@ -193,24 +196,13 @@ fn record(
             return Err(RecordError::Thread("could not start"));
         }
     };
-    let never = AtomicBool::new(false);
     let (mut seen_obs, mut seen_cmd, mut seen_motor) =
         (Gaps::default(), Gaps::default(), Gaps::default());
     let mut have_map = false;
     let mut last_flush = Instant::now();
-    let mut last_command: Option<u64> = None;
-    let mut stopping = false;
     loop {
-        // Woken by a command (or every WAKE_EVERY): the observation it answers is queued by
-        // now, so the file keeps the order observation, command, motion.
-        let command = match commands.next(WAKE_EVERY, if stopping { &never } else { stop })? {
-            Ok(c) => Some(c),
-            Err(Idle::Timeout) => None,
-            Err(Idle::Stopped) => {
-                stopping = true;
-                commands.try_next()?
-            }
-        };
+        // Read after the stop too: what the group sent last is still queued.
+        let stopping = stop.load(Ordering::SeqCst);
         if !have_map {
             drain(&maps, |m| {
                 if !have_map {
@@ -220,16 +212,14 @@ fn record(
                 Ok(())
             })?;
         }
+        // In the order of the loop: observations, the commands answering them, the motion.
         drain(&observations, |o| {
             seen_obs.see(o.seq);
             Ok(writer.observation(&o)?)
         })?;
-        if let Some(c) = command
-            && last_command != Some(c.seq)
-        {
-            last_command = Some(c.seq);
+        for c in commands.take_new() {
             seen_cmd.see(c.seq);
-            writer.command(&c)?;
+            writer.command(c)?;
         }
         drain(&motor_states, |m| {
             seen_motor.see(m.seq);
@@ -241,10 +231,8 @@ fn record(
         if last_flush.elapsed() >= FLUSH_EVERY {
             writer.flush()?;
             last_flush = Instant::now();
-            // A respawned controller writes to a fresh board once every reader let go of
-            // the abandoned one.
-            commands.renew_if_abandoned(&node)?;
         }
+        std::thread::sleep(POLL_EVERY);
     }
     let missed = RecordCounts {
         missed_observations: seen_obs.missed,

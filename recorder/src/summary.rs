@@ -4,6 +4,7 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
+use tes_runtime::latency::LatencyRecorder;
 use tes_topics::observation_flags;
 
 use crate::reader::Recording;
@@ -22,6 +23,8 @@ pub struct Episode {
     pub p50_us: u64,
     /// … 99th percentile, µs.
     pub p99_us: u64,
+    /// Decisions over the controller's budget (`[controller] budget_us`).
+    pub misses: u64,
     /// Whether it ended (a terminal or truncated observation is in the file).
     pub ended: bool,
 }
@@ -37,37 +40,41 @@ pub struct Summary {
     pub latency_us: [u64; 4],
 }
 
-/// The `q` quantile of sorted `values` (nearest rank), 0 for none.
-fn quantile(sorted: &[u64], q: f64) -> u64 {
-    if sorted.is_empty() {
-        return 0;
-    }
-    let rank = ((q * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len());
-    sorted[rank - 1]
-}
-
-/// Summarises `recording`.
+/// Summarises `recording`: the latencies go through the controller's own recorder
+/// ([`LatencyRecorder`]), so the percentiles are the ones `tes launch` printed.
 pub fn summarise(recording: &Recording) -> Summary {
+    // The budget the controller counted misses against (its default if the file has none).
+    let budget_us =
+        tes_controller::config::ControllerConfig::from_toml(recording.run_value("controller_toml"))
+            .map_or(1000, |c| c.budget_us);
     let mut episodes: Vec<Episode> = Vec::new();
-    let mut latencies: Vec<Vec<u64>> = Vec::new();
-    let mut all = Vec::new();
+    let mut episode_latency = LatencyRecorder::new(budget_us, 0);
+    let mut all = LatencyRecorder::new(budget_us, 0);
+    let mut sorted = Vec::new();
     let by_answer: std::collections::HashMap<u64, &tes_topics::Command> =
         recording.commands.iter().map(|c| (c.answers, c)).collect();
     let mut observations: Vec<_> = recording.observations.iter().collect();
     observations.sort_by_key(|o| o.seq);
+    let close = |e: &mut Episode, l: &mut LatencyRecorder| {
+        (e.p50_us, e.p99_us, e.misses) = (l.quantile_us(0.5), l.quantile_us(0.99), l.misses());
+        l.reset();
+    };
     for o in observations {
         if episodes.last().is_none_or(|e| e.episode != o.episode) {
+            if let Some(e) = episodes.last_mut() {
+                close(e, &mut episode_latency);
+            }
             episodes.push(Episode {
                 episode: o.episode,
                 reward: 0.0,
                 steps: 0,
                 p50_us: 0,
                 p99_us: 0,
+                misses: 0,
                 ended: false,
             });
-            latencies.push(Vec::new());
         }
-        let (Some(e), Some(l)) = (episodes.last_mut(), latencies.last_mut()) else {
+        let Some(e) = episodes.last_mut() else {
             continue;
         };
         if o.flags & (observation_flags::EPISODE_START | observation_flags::RESYNC) == 0 {
@@ -78,24 +85,24 @@ pub fn summarise(recording: &Recording) -> Summary {
         }
         if let Some(c) = by_answer.get(&o.seq) {
             e.steps += 1;
-            let us = c.stamp_ns.saturating_sub(c.observed_ns) / 1000;
-            l.push(us);
-            all.push(us);
+            let ns = c.stamp_ns.saturating_sub(c.observed_ns);
+            episode_latency.record_ns(ns);
+            all.record_ns(ns);
+            sorted.push(ns / 1000);
         }
     }
-    for (e, l) in episodes.iter_mut().zip(&mut latencies) {
-        l.sort_unstable();
-        (e.p50_us, e.p99_us) = (quantile(l, 0.5), quantile(l, 0.99));
+    if let Some(e) = episodes.last_mut() {
+        close(e, &mut episode_latency);
     }
-    all.sort_unstable();
+    sorted.sort_unstable();
     Summary {
         episodes,
-        actions: all.len() as u64,
+        actions: sorted.len() as u64,
         latency_us: [
-            quantile(&all, 0.5),
-            quantile(&all, 0.9),
-            quantile(&all, 0.99),
-            all.last().copied().unwrap_or(0),
+            all.quantile_us(0.5),
+            all.quantile_us(0.9),
+            all.quantile_us(0.99),
+            sorted.last().copied().unwrap_or(0),
         ],
     }
 }
@@ -105,12 +112,13 @@ impl std::fmt::Display for Summary {
         for e in &self.episodes {
             writeln!(
                 f,
-                "episode {}: reward {:.2}, {} steps, decision latency p50 {} us p99 {} us{}",
+                "episode {}: reward {:.2}, {} steps, decision latency p50 {} us p99 {} us, {} over budget{}",
                 e.episode,
                 e.reward,
                 e.steps,
                 e.p50_us,
                 e.p99_us,
+                e.misses,
                 if e.ended { "" } else { " (did not end)" }
             )?;
         }

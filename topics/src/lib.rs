@@ -87,6 +87,10 @@ pub mod service {
     pub const COMMAND: &str = "tes/command";
     /// Event service the controller notifies after publishing a command.
     pub const COMMAND_EVENT: &str = "tes/command/event";
+    /// Blackboard ring holding the controller's last commands, each by its sequence number
+    /// (`tes_runtime::ring`), written after the command is out and notifying nobody: what a
+    /// recorder reads every command from.
+    pub const COMMAND_LOG: &str = "tes/command/log";
     /// Publish–subscribe service carrying [`crate::MotorState`]s from the bridge to perception.
     pub const MOTOR_STATE: &str = "tes/motor-state";
     /// Event service the bridge notifies after publishing a motor state.
@@ -122,6 +126,8 @@ pub struct ServiceNames {
     pub command: String,
     /// [`service::COMMAND_EVENT`].
     pub command_event: String,
+    /// [`service::COMMAND_LOG`].
+    pub command_log: String,
     /// [`service::MOTOR_STATE`].
     pub motor_state: String,
     /// [`service::MOTOR_STATE_EVENT`].
@@ -149,6 +155,7 @@ impl ServiceNames {
             observation_event: name(service::OBSERVATION_EVENT),
             command: name(service::COMMAND),
             command_event: name(service::COMMAND_EVENT),
+            command_log: name(service::COMMAND_LOG),
             motor_state: name(service::MOTOR_STATE),
             motor_state_event: name(service::MOTOR_STATE_EVENT),
             world_map: name(service::WORLD_MAP),
