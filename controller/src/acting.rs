@@ -488,6 +488,9 @@ impl ActingLoop {
             left_deg,
             right_deg,
             in_flight_action: 0,
+            reserved: 0,
+            // A counter read: what a replay needs to adopt each plan where this run did.
+            plans: self.planner.plans(),
         };
         self.last_command = command;
         Ok(Step::Act {
@@ -592,6 +595,14 @@ impl ActingLoop {
     /// making. For tests and replays that need each plan adopted at a known observation.
     pub fn settle_planner(&mut self, timeout: Duration) -> Result<bool, ActingError> {
         Ok(self.planner.settle(timeout)?)
+    }
+
+    /// Holds back (`true`) or allows the adoption of finished plans at the next observations
+    /// (see [`Planner::hold`]; a planner thread cannot be held, and `false` says so). With
+    /// [`settle_planner`](Self::settle_planner), a replay adopts each plan at the observation
+    /// the recorded run adopted it at ([`Command::plans`]).
+    pub fn hold_plans(&mut self, hold: bool) -> bool {
+        self.planner.hold(hold)
     }
 
     /// When the last command or keep-alive went out (the clock's reading in

@@ -21,11 +21,12 @@ use tes_runtime::alloc_count;
 use tes_runtime::channel::{self, Idle, Inbox, IpcError, LatestOutbox, WaitStrategy};
 use tes_runtime::clock::{Clock, MonotonicClock};
 use tes_runtime::progress::ProgressOutbox;
+use tes_runtime::ring::RingOutbox;
 use tes_topics::{Command, Observation, Role, ServiceNames, WorldMap};
 use thiserror::Error;
 
 use crate::acting::{ActingError, ActingLoop, ActingSettings, Refusal, Step};
-use crate::config::{ConfigError, ControllerConfig, Planning};
+use crate::config::{CheckedController, ConfigError, ControllerConfig, Planning};
 use crate::realtime::{
     Planner, PlannerThread, PlannerThreadError, PlannerThreadOptions, SlicedPlanner,
 };
@@ -138,15 +139,7 @@ fn load_library(
         "no view library at {}; starting from an empty library",
         path.display()
     );
-    let params = LibraryParams {
-        max_views: config.max_views,
-        mdagl: MdaglParams {
-            lambda: config.lambda,
-            alpha: config.alpha,
-            intercept: false,
-        },
-        ..LibraryParams::default()
-    };
+    let params = empty_library_params(config);
     Ok(StartingLibrary {
         library: ViewLibrary::new(actions, effects, features, params)?,
         started_empty: true,
@@ -215,6 +208,15 @@ pub fn run(
     // A blackboard, not a publisher: sending a command allocates nothing (see LatestOutbox).
     let commands: LatestOutbox<Command> =
         LatestOutbox::open(&node, &names.command, &names.command_event)?;
+    // Every command again, by its number, for a recorder (written once the command is out;
+    // nobody is notified). Without it the group runs on, unrecordable.
+    let command_log = match RingOutbox::<Command>::open(&node, &names.command_log) {
+        Ok(log) => Some(log),
+        Err(e) => {
+            tracing::warn!(error = %e, "no command log: a recording of this run misses its commands");
+            None
+        }
+    };
 
     tracing::info!(service = %names.world_map, "waiting for the world map");
     let map_timeout = checked.map_timeout();
@@ -266,19 +268,8 @@ pub fn run(
             )?)),
         })
     };
-    let keepalive = (config.keepalive_ms > 0).then(|| Duration::from_millis(config.keepalive_ms));
-    let settings = ActingSettings {
-        order: config.order,
-        budget_us: config.budget_us,
-        warmup_actions: config.warmup_actions,
-        epsilon: config.epsilon,
-        seed: config.seed,
-        keepalive,
-        save_interval: checked.save_interval(),
-        // An inline plan before the command would be part of the decision.
-        offer_before_command: offers_before_command(strategy) && planning != Planning::Inline,
-        first_plan_timeout: Duration::from_secs(10),
-    };
+    let settings = acting_settings(config, &checked);
+    let keepalive = settings.keepalive;
     let clock = MonotonicClock;
     // What the saved library calls the world, its actions and its features.
     let world_names = WorldNames::of_map(&map);
@@ -309,6 +300,9 @@ pub fn run(
                     // A move is under way: tell the bridge's watchdog we are still here.
                     if let Some(keepalive) = acting.on_idle(&clock) {
                         commands.send(keepalive)?;
+                        if let Some(log) = &command_log {
+                            log.put(keepalive);
+                        }
                     }
                     progress.publish_due(clock.now_ns())?;
                     continue;
@@ -353,6 +347,9 @@ pub fn run(
         let sent = acting.command_sent(&clock)?;
         drop(counting);
         // Off the acting path: the command is out.
+        if let Some(log) = &command_log {
+            log.put(command);
+        }
         let report = progress.report_mut();
         (report.in_seq, report.out_seq) = (obs.seq, command.seq);
         (report.steps, report.episodes) = (acting.counts().actions, acting.counts().episodes);
@@ -425,6 +422,38 @@ pub fn run(
 /// the other, idle CPU, and in a VM whose idle vCPUs halt it runs there only once that vCPU is
 /// back; waking the planner first gets that CPU out of halt while the command is sent, and the
 /// `SCHED_IDLE` planner gives way to the bridge at once. A spinning bridge needs no wake-up.
+/// The parameters of the empty library a controller starts from when there is no library
+/// file (a replay of such a run starts from the same).
+pub fn empty_library_params(config: &ControllerConfig) -> LibraryParams {
+    LibraryParams {
+        max_views: config.max_views,
+        mdagl: MdaglParams {
+            lambda: config.lambda,
+            alpha: config.alpha,
+            intercept: false,
+        },
+        ..LibraryParams::default()
+    }
+}
+
+/// The acting loop's settings for `config` (checked as `checked`): the controller's, and a
+/// replay's of a run with that configuration.
+pub fn acting_settings(config: &ControllerConfig, checked: &CheckedController) -> ActingSettings {
+    let (strategy, planning) = (checked.wait(), checked.planning());
+    ActingSettings {
+        order: config.order,
+        budget_us: config.budget_us,
+        warmup_actions: config.warmup_actions,
+        epsilon: config.epsilon,
+        seed: config.seed,
+        keepalive: (config.keepalive_ms > 0).then(|| Duration::from_millis(config.keepalive_ms)),
+        save_interval: checked.save_interval(),
+        // An inline plan before the command would be part of the decision.
+        offer_before_command: offers_before_command(strategy) && planning != Planning::Inline,
+        first_plan_timeout: Duration::from_secs(10),
+    }
+}
+
 fn offers_before_command(strategy: WaitStrategy) -> bool {
     strategy != WaitStrategy::Spin
 }

@@ -390,6 +390,8 @@ pub struct SlicedPlanner {
     failed: Option<PlannerThreadError>,
     slice: usize,
     plans: u64,
+    /// While set, a finished plan is not adopted ([`hold`](Self::hold)).
+    held: bool,
 }
 
 impl SlicedPlanner {
@@ -409,12 +411,19 @@ impl SlicedPlanner {
             failed: None,
             slice: slice.max(1),
             plans: 0,
+            held: false,
         })
     }
 
     /// Whether a plan is being made (or made and not yet collected).
     pub fn busy(&self) -> bool {
         self.busy
+    }
+
+    /// While `hold` is set, [`collect`](Self::collect) adopts nothing, finished or not: a
+    /// replay adopts each plan at the observation the recorded run did.
+    pub fn hold(&mut self, hold: bool) {
+        self.held = hold;
     }
 
     /// Plans adopted so far.
@@ -477,7 +486,7 @@ impl SlicedPlanner {
         if let Some(e) = self.failed.take() {
             return Err(e);
         }
-        if !self.busy || !self.pieces.done() {
+        if self.held || !self.busy || !self.pieces.done() {
             return Ok(None);
         }
         self.busy = false;
@@ -598,6 +607,18 @@ impl Planner {
         match self {
             Self::Thread(p) => p.plans(),
             Self::BetweenPolls(p) | Self::Inline(p) => p.plans(),
+        }
+    }
+
+    /// Holds back (or releases) the adoption of finished plans ([`SlicedPlanner::hold`]);
+    /// returns whether this planner can (a planner thread cannot).
+    pub fn hold(&mut self, hold: bool) -> bool {
+        match self {
+            Self::Thread(_) => false,
+            Self::BetweenPolls(p) | Self::Inline(p) => {
+                p.hold(hold);
+                true
+            }
         }
     }
 }

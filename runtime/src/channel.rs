@@ -120,6 +120,7 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Inbox<T> {
         let service = pubsub::<T>(node, name, history)?;
         let subscriber = service
             .subscriber_builder()
+            .buffer_size(history.max(BUFFER))
             .create()
             .map_err(ipc_err("create a subscriber"))?;
         let listener = listener(node, event)?;

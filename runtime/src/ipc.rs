@@ -212,9 +212,30 @@ pub fn pubsub<T: ZeroCopySend + Copy + fmt::Debug + 'static>(
     node.service_builder(&service_name(name)?)
         .publish_subscribe::<T>()
         .history_size(history)
-        .subscriber_max_buffer_size(history.max(BUFFER))
+        .subscriber_max_buffer_size(max_buffer_of(name, history))
         .open_or_create()
         .map_err(ipc_err("open a publish-subscribe service"))
+}
+
+/// Samples a recorder's subscriber to a small payload's service holds
+/// ([`RECORDED_BUFFER_SERVICES`]), so that a recorder that polls now and then misses nothing.
+pub const RECORDER_BUFFER: usize = 1024;
+
+/// The services (by the end of their names) whose subscribers may hold up to
+/// [`RECORDER_BUFFER`] samples: small payloads published every action. Subscribers of the
+/// group itself still ask for [`BUFFER`].
+pub const RECORDED_BUFFER_SERVICES: [&str; 2] = [
+    tes_topics::service::OBSERVATION,
+    tes_topics::service::MOTOR_STATE,
+];
+
+/// The most samples a subscriber of the service `name` may hold.
+fn max_buffer_of(name: &str, history: usize) -> usize {
+    if RECORDED_BUFFER_SERVICES.iter().any(|s| name.ends_with(s)) {
+        history.max(RECORDER_BUFFER)
+    } else {
+        history.max(BUFFER)
+    }
 }
 
 /// The names of the iceoryx2 services that exist now and start with `prefix` (to check that a

@@ -30,6 +30,7 @@ pub mod latency;
 pub mod lock;
 pub mod logging;
 pub mod progress;
+pub mod ring;
 pub mod settings;
 pub mod signals;
 pub mod wait;

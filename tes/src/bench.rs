@@ -101,6 +101,10 @@ pub struct LatencyArgs {
     /// [default: the controller's, 5000; 0 = sleeps at once].
     #[arg(long)]
     planner_idle_spin_us: Option<u64>,
+    /// Also run the group with the recorder (`tes launch --record`), from the same library,
+    /// and compare its latency with the run without.
+    #[arg(long)]
+    record: bool,
 }
 
 /// Arguments of `tes bench scaling`.
@@ -187,6 +191,18 @@ struct LatencyResult {
     plans: u64,
     /// Who planned: `thread` or `between-polls`.
     planning: String,
+    /// With `--record`: the same group, recorded (null without).
+    recorded: Option<RecordedRun>,
+}
+
+/// The recorded run of `tes bench latency --record`: observation → bridge latency and the
+/// controller's acting-path allocations.
+#[derive(Debug, Clone, Copy, Serialize)]
+struct RecordedRun {
+    p50_us: u64,
+    p99_us: u64,
+    misses: u64,
+    allocations: Option<u64>,
 }
 
 fn ratio(ours: u64, floor: u64) -> f64 {
@@ -236,15 +252,13 @@ fn latency(args: &LatencyArgs) -> Result<()> {
     let library = fixtures::arena_library(args.views, 3000, args.seed)?;
     let files = RunFiles::in_dir(dir);
     let library_path = &files.library;
-    store::save(
-        library_path,
-        &StoredLibrary {
-            library,
-            world: "arena 1+2 (bench)".into(),
-            action_names: Vec::new(),
-            feature_names: Vec::new(),
-        },
-    )?;
+    let stored = StoredLibrary {
+        library,
+        world: "arena 1+2 (bench)".into(),
+        action_names: Vec::new(),
+        feature_names: Vec::new(),
+    };
+    store::save(library_path, &stored)?;
     eprintln!("bench: ours — perception-sim → controller → bridge on Env 3, {total} actions");
     let (controller_report, bridge_report) = (&files.controller_report, &files.bridge_report);
     let file = group_file(dir, &prefix, wait, args, placement, &files)?;
@@ -276,6 +290,33 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         "bench: the floor — a raw iceoryx2 two-hop relay, {total} round trips, wait {wait}, one every {cycle_us} us"
     );
     let (floor, floor_decision) = run_floor(dir, &prefix, wait, cycle_us, args, placement.acting)?;
+    let recorded = if args.record {
+        // The same library again (the first run saved what it learned).
+        store::save(library_path, &stored)?;
+        let mut with = file.clone();
+        let mcap = dir.join("bench.mcap");
+        with.launch.record = Some(mcap.clone());
+        eprintln!(
+            "bench: ours again, recorded to {} by the launcher's recorder thread",
+            mcap.display()
+        );
+        launch::run_file(&with, false).context("the recorded process group failed")?;
+        let report = LatencyReport::load(bridge_report)
+            .with_context(|| format!("no bridge report at {}", bridge_report.display()))?;
+        let summary: ControllerSummary =
+            serde_json::from_str(&std::fs::read_to_string(controller_report).with_context(
+                || format!("no controller report at {}", controller_report.display()),
+            )?)
+            .context("the controller's report is malformed")?;
+        Some(RecordedRun {
+            p50_us: report.p50_us,
+            p99_us: report.p99_us,
+            misses: report.misses,
+            allocations: summary.allocations,
+        })
+    } else {
+        None
+    };
     let result = LatencyResult {
         wait: wait.to_string(),
         actions: ours.count,
@@ -310,6 +351,7 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         planner_cpu: placement.planner,
         plans: controller.plans,
         planning: controller.planning.clone(),
+        recorded,
     };
     if args.json {
         println!("{}", serde_json::to_string(&result)?);
@@ -357,6 +399,18 @@ fn latency(args: &LatencyArgs) -> Result<()> {
             _ => "not counted".to_owned(),
         }
     );
+    if let Some(r) = &result.recorded {
+        println!(
+            "with the recorder: observation -> bridge p50 {} us ({:+.1} %), p99 {} us ({:+.1} %), {} misses; allocations on the acting path: {}",
+            r.p50_us,
+            (ratio(r.p50_us, ours.p50_us) - 1.0) * 100.0,
+            r.p99_us,
+            (ratio(r.p99_us, ours.p99_us) - 1.0) * 100.0,
+            r.misses,
+            r.allocations
+                .map_or("not counted".to_owned(), |n| n.to_string())
+        );
+    }
     // A planner thread yields to everything: where the measured loops keep both CPUs busy
     // (spin on two cores) it barely runs, and the agent acts on an old policy.
     if controller.learn.count > 0 {

@@ -85,9 +85,13 @@ pub struct LaunchArgs {
         num_args = 0..=1,
         require_equals = true,
         default_missing_value = "toml",
-        conflicts_with_all = ["config", "episodes", "tui"]
+        conflicts_with_all = ["config", "episodes", "tui", "record"]
     )]
     print_config: Option<reference::Format>,
+    /// Record the run to this MCAP file (overrides `[launch] record`): every observation,
+    /// command and motor state, for `tes replay` and viewers such as Foxglove.
+    #[arg(long, value_name = "FILE.mcap")]
+    record: Option<PathBuf>,
 }
 
 /// Runs `tes launch`.
@@ -104,6 +108,9 @@ pub fn run(args: &LaunchArgs) -> Result<()> {
             bail!("--episodes: must be at least 1; nothing was started");
         }
         file.launch.episodes = n;
+    }
+    if let Some(path) = &args.record {
+        file.launch.record = Some(path.clone());
     }
     let prepared = prepare(&file)?;
     run_group(&file, prepared, true, args.tui).map(|_| ())

@@ -10,6 +10,7 @@ mod experiment;
 mod fit;
 mod launch;
 mod library;
+mod record;
 mod status;
 
 /// TES: online sparse view learning (mDAGL), model-based RL and transfer for a real-time robot.
@@ -33,6 +34,9 @@ enum Command {
     /// List the process groups running on this machine: their processes, pids, uptime and
     /// progress, and crashed groups' stale resources.
     Status(status::StatusArgs),
+    /// Replay a recorded run (`tes launch --record`) through the acting loop and check every
+    /// decision; or summarise it, or export it as CSV.
+    Replay(record::ReplayArgs),
     /// Latency benchmarks: the real loop against the raw iceoryx2 floor, and scaling sweeps.
     Bench(bench::BenchArgs),
     /// Run one process of the group (used by `tes launch`).
@@ -80,6 +84,7 @@ fn main() -> ExitCode {
         Command::Library(args) => library::run(&args),
         Command::Launch(args) => launch::run(&args),
         Command::Status(args) => status::run(&args),
+        Command::Replay(args) => record::run(&args),
         Command::Bench(args) => bench::run(&args),
         Command::Child { role, config } => {
             init_child_logging();

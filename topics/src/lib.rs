@@ -87,6 +87,10 @@ pub mod service {
     pub const COMMAND: &str = "tes/command";
     /// Event service the controller notifies after publishing a command.
     pub const COMMAND_EVENT: &str = "tes/command/event";
+    /// Blackboard ring holding the controller's last commands, each by its sequence number
+    /// (`tes_runtime::ring`), written after the command is out and notifying nobody: what a
+    /// recorder reads every command from.
+    pub const COMMAND_LOG: &str = "tes/command/log";
     /// Publish–subscribe service carrying [`crate::MotorState`]s from the bridge to perception.
     pub const MOTOR_STATE: &str = "tes/motor-state";
     /// Event service the bridge notifies after publishing a motor state.
@@ -122,6 +126,8 @@ pub struct ServiceNames {
     pub command: String,
     /// [`service::COMMAND_EVENT`].
     pub command_event: String,
+    /// [`service::COMMAND_LOG`].
+    pub command_log: String,
     /// [`service::MOTOR_STATE`].
     pub motor_state: String,
     /// [`service::MOTOR_STATE_EVENT`].
@@ -149,6 +155,7 @@ impl ServiceNames {
             observation_event: name(service::OBSERVATION_EVENT),
             command: name(service::COMMAND),
             command_event: name(service::COMMAND_EVENT),
+            command_log: name(service::COMMAND_LOG),
             motor_state: name(service::MOTOR_STATE),
             motor_state_event: name(service::MOTOR_STATE_EVENT),
             world_map: name(service::WORLD_MAP),
@@ -477,6 +484,13 @@ pub struct Command {
     /// the keep-alive is the latest command can still carry out the command in flight
     /// ([`Command::in_flight`]). 0 otherwise.
     pub in_flight_action: u32,
+    /// Padding; always 0.
+    pub reserved: u32,
+    /// Plans the controller had adopted when it decided (its start-up plan included; 0 for a
+    /// keep-alive): which model hand-over the deciding plan came from, since at most one plan
+    /// is in flight and plans are adopted in hand-over order. A recording keeps it so that a
+    /// replay adopts each plan at the same observation (`tes replay`).
+    pub plans: u64,
 }
 
 impl Command {
@@ -511,6 +525,8 @@ impl Command {
             left_deg: self.left_deg,
             right_deg: self.right_deg,
             in_flight_action: 0,
+            reserved: 0,
+            plans: 0,
         })
     }
 }
@@ -604,7 +620,7 @@ mod tests {
         // protocol change and must be deliberate.
         assert_eq!(core::mem::size_of::<FeatureBits>(), 8 * FEATURE_WORDS);
         assert_eq!(core::mem::size_of::<Observation>(), 96);
-        assert_eq!(core::mem::size_of::<Command>(), 48);
+        assert_eq!(core::mem::size_of::<Command>(), 64);
         assert_eq!(core::mem::size_of::<MotorState>(), 64);
         assert_eq!(core::mem::size_of::<Progress>(), 64);
         assert_eq!(FEATURE_CAPACITY, 320);

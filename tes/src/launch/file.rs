@@ -51,6 +51,9 @@ pub struct LaunchSection {
     /// names the process holding it up and stops the group (`restart = "never"`) or
     /// restarts that process (`on-failure`), ms of wall time (default 10000, at least 500).
     pub stall_timeout_ms: u64,
+    /// Record the run to this MCAP file (`tes launch --record`); unset (the default): no
+    /// recording.
+    pub record: Option<PathBuf>,
 }
 
 impl Default for LaunchSection {
@@ -69,6 +72,7 @@ impl Default for LaunchSection {
             keep_runs: 20,
             seed: 1,
             stall_timeout_ms: 10_000,
+            record: None,
         }
     }
 }

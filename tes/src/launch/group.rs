@@ -125,6 +125,11 @@ pub(crate) fn run_group(
         }
         report = Some(path);
     }
+    // Subscribed before any child starts, so it misses nothing.
+    let recorder = crate::record::start(file, &prepared.specs, prefix, &library)?;
+    if let Some(r) = &recorder {
+        note(format!("launch: recording to {}", r.path().display()));
+    }
     let title = format!(
         "TES launch: arena Env {}, services {prefix}*, run folder {}",
         file.arena(),
@@ -326,6 +331,12 @@ pub(crate) fn run_group(
     let episodes = relay.episodes;
     let drawn = relay.record.finish();
     let mut failed: Vec<String> = failure.into_iter().collect();
+    if let Some(r) = recorder {
+        match crate::record::finish(r) {
+            Ok(line) => note(line),
+            Err(e) => failed.push(format!("recorder: {e:#}")),
+        }
+    }
     for c in &children {
         match c.status {
             Some(s) if !s.success() && !stopped_by_us(s) => {

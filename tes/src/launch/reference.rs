@@ -280,6 +280,13 @@ pub(crate) const KEYS: &[Key] = &[
          names the process holding it up and stops the group (`restart = \"never\"`) or \
          restarts that process (`on-failure`).",
     ),
+    key(
+        "launch",
+        "record",
+        "path of an MCAP file",
+        "Record the run to this file (`tes launch --record` overrides it): the world map and          every observation, command, keep-alive and motor state, with the run's settings, seed          and starting library; `tes replay` reads it (docs/recording.md). A relative path is          taken from the directory `tes launch` runs in. Unset: no recording.",
+    )
+    .example("\"run.mcap\""),
     // [perception]
     key(
         "perception",

@@ -1,0 +1,282 @@
+//! Replaying a recording: the recorded observations fed to the controller's acting loop,
+//! with the recorded settings, seed and starting library, each decision compared with the
+//! recorded command.
+//!
+//! A live run's plans arrive when the planner finishes them, so which plan a decision used
+//! depends on timing. Each recorded command carries [`Command::plans`], the plans its
+//! controller had adopted: at most one plan is in flight and plans come back in the order
+//! they were handed over, so that count names the hand-over the deciding plan came from. The
+//! replay plans on the acting thread in pieces ([`SlicedPlanner`], whose plans equal a
+//! planner thread's bit for bit), holds every finished plan back, and lets one be adopted
+//! exactly at the observation where the recorded count says the run adopted it. Every
+//! hand-over then happens where it happened live (a hand-over is tried once per
+//! observation, and succeeds exactly when the planner is idle and the model has changed).
+//! An observation that ended an episode has no command; a plan adopted there is told by the
+//! next command's count (two more plans: one at the end, one at the start).
+
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::time::Duration;
+
+use tes_controller::acting::{ActingError, ActingLoop, Step};
+use tes_controller::config::{ConfigError, ControllerConfig};
+use tes_controller::process::{acting_settings, empty_library_params};
+use tes_controller::realtime::{Planner, PlannerThreadError, SlicedPlanner};
+use tes_learning::library::{LibraryError, ViewLibrary};
+use tes_learning::plan::PlannerParams;
+use tes_runtime::clock::ManualClock;
+use tes_topics::{Command, Observation, observation_flags};
+
+use crate::reader::Recording;
+
+/// Why a recording cannot be replayed.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    /// It has no world map.
+    #[error("the recording has no world map (the run never started)")]
+    NoMap,
+    /// Its controller settings do not parse.
+    #[error("the recording's controller settings: {0}")]
+    Config(#[from] ConfigError),
+    /// Its starting library does not decode.
+    #[error("the recording's starting library: {0}")]
+    Library(String),
+    /// The empty library cannot be built.
+    #[error("view library: {0}")]
+    EmptyLibrary(#[from] LibraryError),
+    /// The acting loop failed.
+    #[error(transparent)]
+    Acting(#[from] ActingError),
+    /// The planner failed.
+    #[error(transparent)]
+    Planner(#[from] PlannerThreadError),
+}
+
+/// What a decision was: its action and wheel targets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Decision {
+    /// The action.
+    pub action: u32,
+    /// Left wheel target, degrees.
+    pub left_deg: i32,
+    /// Right wheel target, degrees.
+    pub right_deg: i32,
+}
+
+impl Decision {
+    fn of(c: &Command) -> Self {
+        Self {
+            action: c.action,
+            left_deg: c.left_deg,
+            right_deg: c.right_deg,
+        }
+    }
+}
+
+impl std::fmt::Display for Decision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "action {} (wheels {}°, {}°)",
+            self.action, self.left_deg, self.right_deg
+        )
+    }
+}
+
+/// The first place a replay went another way than the recording.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Divergence {
+    /// The observation's sequence number.
+    pub seq: u64,
+    /// Its episode.
+    pub episode: u32,
+    /// Its step in the episode.
+    pub step: u32,
+    /// What the recording says (`None`: no command answered it).
+    pub expected: Option<Decision>,
+    /// What the replay did (`None`: no command).
+    pub got: Option<Decision>,
+    /// Anything else to say (a plan adoption the replay could not redo).
+    pub note: Option<String>,
+}
+
+impl std::fmt::Display for Divergence {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let show = |d: &Option<Decision>| d.map_or("no command".to_owned(), |d| d.to_string());
+        write!(
+            f,
+            "first divergence at step {} of episode {} (observation {}): expected {}, got {}",
+            self.step,
+            self.episode,
+            self.seq,
+            show(&self.expected),
+            show(&self.got)
+        )?;
+        if let Some(note) = &self.note {
+            write!(f, " ({note})")?;
+        }
+        Ok(())
+    }
+}
+
+/// How a replay went.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ReplayOutcome {
+    /// Recorded commands compared.
+    pub compared: u64,
+    /// Of those, identical in action and wheel targets.
+    pub identical: u64,
+    /// The first divergence (the replay stops there).
+    pub divergence: Option<Divergence>,
+    /// Observations fed to the acting loop.
+    pub observations: u64,
+}
+
+impl std::fmt::Display for ReplayOutcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.divergence {
+            None => write!(
+                f,
+                "{} of {} commands identical",
+                self.identical, self.compared
+            ),
+            Some(d) => write!(f, "{d}; {} commands identical before it", self.identical),
+        }
+    }
+}
+
+/// How long the replay waits for one plan (it plans on this thread: never in practice).
+const PLAN_PATIENCE: Duration = Duration::from_secs(300);
+
+/// Replays `recording` (see the [module docs](self)).
+pub fn replay(recording: &Recording) -> Result<ReplayOutcome, ReplayError> {
+    let map = recording.world_map.clone().ok_or(ReplayError::NoMap)?;
+    let config = ControllerConfig::from_toml(recording.run_value("controller_toml"))?;
+    let checked = config.check()?;
+    let settings = acting_settings(&config, &checked);
+    let library = match &recording.library {
+        Some(bytes) => {
+            tes_learning::library::store::decode(bytes)
+                .map_err(|e| ReplayError::Library(e.to_string()))?
+                .library
+        }
+        None => ViewLibrary::new(
+            map.n_actions as usize,
+            map.n_effects as usize,
+            map.n_features as usize,
+            empty_library_params(&config),
+        )?,
+    };
+    let params = PlannerParams {
+        max_sweeps: config.plan_sweeps,
+        ..PlannerParams::default()
+    };
+    let planner = move |structure: Arc<_>| -> Result<Planner, PlannerThreadError> {
+        Ok(Planner::BetweenPolls(Box::new(SlicedPlanner::new(
+            structure,
+            params,
+            usize::MAX,
+        )?)))
+    };
+    let mut acting = ActingLoop::new(map, library, settings, planner)?;
+    acting.hold_plans(true);
+    let clock = ManualClock::new(1_000_000_000).stepping(1_000);
+
+    let by_answer: HashMap<u64, &Command> =
+        recording.commands.iter().map(|c| (c.answers, c)).collect();
+    let last_answered = recording.commands.iter().map(|c| c.answers).max();
+    let mut observations: Vec<&Observation> = recording
+        .observations
+        .iter()
+        .filter(|o| last_answered.is_some_and(|last| o.seq <= last))
+        .collect();
+    observations.sort_by_key(|o| o.seq);
+    // For each observation, the plans count of the next command after it.
+    let mut next_plans = vec![None; observations.len()];
+    let mut upcoming = None;
+    for (i, o) in observations.iter().enumerate().rev() {
+        next_plans[i] = upcoming;
+        if let Some(c) = by_answer.get(&o.seq) {
+            upcoming = Some(c.plans);
+        }
+    }
+    let mut outcome = ReplayOutcome {
+        compared: 0,
+        identical: 0,
+        divergence: None,
+        observations: 0,
+    };
+    for (i, obs) in observations.iter().enumerate() {
+        let expected = by_answer.get(&obs.seq).copied();
+        let current = acting.plans();
+        let ends = obs.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0;
+        let target = match expected {
+            Some(c) => c.plans,
+            None if ends && next_plans[i].is_some_and(|n| n >= current + 2) => current + 1,
+            None => current,
+        };
+        let diverge = |got: Option<Decision>, note: Option<String>| Divergence {
+            seq: obs.seq,
+            episode: obs.episode,
+            step: obs.step,
+            expected: expected.map(Decision::of),
+            got,
+            note,
+        };
+        if target > current + 1 || target < current {
+            outcome.divergence = Some(diverge(
+                None,
+                Some(format!(
+                    "the run had adopted {target} plans here, the replay {current}"
+                )),
+            ));
+            break;
+        }
+        let adopt = target == current + 1;
+        if adopt {
+            acting.settle_planner(PLAN_PATIENCE)?;
+            acting.hold_plans(false);
+        }
+        let step = acting.on_observation(obs, &clock)?;
+        if adopt {
+            acting.hold_plans(true);
+        }
+        outcome.observations += 1;
+        let got = match step {
+            Step::Act { command, .. } => {
+                acting.command_sent(&clock)?;
+                Some(Decision::of(&command))
+            }
+            Step::EpisodeEnded { .. } | Step::Refused(_) => None,
+        };
+        if acting.plans() != target && got.is_some() {
+            outcome.divergence = Some(diverge(
+                got,
+                Some(format!(
+                    "the run decided with {target} plans adopted, the replay with {}",
+                    acting.plans()
+                )),
+            ));
+            break;
+        }
+        match (expected, got) {
+            (None, None) => {}
+            (Some(e), Some(g)) if Decision::of(e) == g => {
+                outcome.compared += 1;
+                outcome.identical += 1;
+            }
+            (e, g) => {
+                if e.is_some() {
+                    outcome.compared += 1;
+                }
+                outcome.divergence = Some(diverge(g, None));
+                break;
+            }
+        }
+    }
+    if outcome.divergence.is_some() {
+        // Everything recorded counts: "k of N identical" is over the whole run.
+        outcome.compared = recording.commands.len() as u64;
+    }
+    Ok(outcome)
+}

@@ -1,0 +1,284 @@
+//! What a recording says about its run, from the file alone: its episodes as `tes launch`
+//! printed them, the decision latencies, and per-topic CSV files.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use tes_runtime::latency::LatencyRecorder;
+use tes_topics::observation_flags;
+
+use crate::reader::Recording;
+use crate::schema::Topic;
+
+/// One episode of a recorded run.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Episode {
+    /// Its index.
+    pub episode: u32,
+    /// Rewards of the moves learned from (the controller's sum).
+    pub reward: f64,
+    /// Commands that answered its observations.
+    pub steps: u32,
+    /// Decision latency (observation stamped → command stamped), median, µs.
+    pub p50_us: u64,
+    /// … 99th percentile, µs.
+    pub p99_us: u64,
+    /// … the slowest, µs.
+    pub max_us: u64,
+    /// Decisions over the controller's budget (`[controller] budget_us`).
+    pub misses: u64,
+    /// Whether it ended (a terminal or truncated observation is in the file).
+    pub ended: bool,
+}
+
+/// A recorded run's summary.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Summary {
+    /// Its episodes, in order.
+    pub episodes: Vec<Episode>,
+    /// Decisions.
+    pub actions: u64,
+    /// Decision latency over the run: p50, p90, p99, max, µs.
+    pub latency_us: [u64; 4],
+}
+
+/// Summarises `recording`: the latencies go through the controller's own recorder
+/// ([`LatencyRecorder`]), so the percentiles are the ones `tes launch` printed.
+pub fn summarise(recording: &Recording) -> Summary {
+    // The budget the controller counted misses against (its default if the file has none).
+    let budget_us =
+        tes_controller::config::ControllerConfig::from_toml(recording.run_value("controller_toml"))
+            .map_or(1000, |c| c.budget_us);
+    let mut episodes: Vec<Episode> = Vec::new();
+    let mut episode_latency = LatencyRecorder::new(budget_us, 0);
+    let mut all = LatencyRecorder::new(budget_us, 0);
+    let mut sorted = Vec::new();
+    let by_answer: std::collections::HashMap<u64, &tes_topics::Command> =
+        recording.commands.iter().map(|c| (c.answers, c)).collect();
+    let mut observations: Vec<_> = recording.observations.iter().collect();
+    observations.sort_by_key(|o| o.seq);
+    let close = |e: &mut Episode, l: &mut LatencyRecorder| {
+        (e.p50_us, e.p99_us, e.max_us, e.misses) = (
+            l.quantile_us(0.5),
+            l.quantile_us(0.99),
+            l.max_us(),
+            l.misses(),
+        );
+        l.reset();
+    };
+    for o in observations {
+        if episodes.last().is_none_or(|e| e.episode != o.episode) {
+            if let Some(e) = episodes.last_mut() {
+                close(e, &mut episode_latency);
+            }
+            episodes.push(Episode {
+                episode: o.episode,
+                reward: 0.0,
+                steps: 0,
+                p50_us: 0,
+                p99_us: 0,
+                max_us: 0,
+                misses: 0,
+                ended: false,
+            });
+        }
+        let Some(e) = episodes.last_mut() else {
+            continue;
+        };
+        if o.flags & (observation_flags::EPISODE_START | observation_flags::RESYNC) == 0 {
+            e.reward += f64::from(o.reward);
+        }
+        if o.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0 {
+            e.ended = true;
+        }
+        if let Some(c) = by_answer.get(&o.seq) {
+            e.steps += 1;
+            let ns = c.stamp_ns.saturating_sub(c.observed_ns);
+            episode_latency.record_ns(ns);
+            all.record_ns(ns);
+            sorted.push(ns / 1000);
+        }
+    }
+    if let Some(e) = episodes.last_mut() {
+        close(e, &mut episode_latency);
+    }
+    sorted.sort_unstable();
+    Summary {
+        episodes,
+        actions: sorted.len() as u64,
+        latency_us: [
+            all.quantile_us(0.5),
+            all.quantile_us(0.9),
+            all.quantile_us(0.99),
+            sorted.last().copied().unwrap_or(0),
+        ],
+    }
+}
+
+impl std::fmt::Display for Summary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        for e in &self.episodes {
+            // The line `tes launch` printed for the episode.
+            let line = tes_controller::summary::EpisodeLine {
+                episode: e.episode,
+                reward: e.reward,
+                steps: e.steps,
+                p50_us: e.p50_us,
+                p99_us: e.p99_us,
+                max_us: e.max_us,
+                misses: e.misses,
+            };
+            writeln!(f, "{line}{}", if e.ended { "" } else { " (did not end)" })?;
+        }
+        let ended = self.episodes.iter().filter(|e| e.ended).count();
+        let [p50, p90, p99, max] = self.latency_us;
+        write!(
+            f,
+            "{ended} episodes, {} actions; decision latency p50 {p50} us, p90 {p90} us, p99 {p99} us, max {max} us",
+            self.actions
+        )
+    }
+}
+
+/// Why the CSV export failed.
+#[derive(Debug, thiserror::Error)]
+#[error("cannot write {}: {error}", path.display())]
+pub struct ExportError {
+    /// The file or directory.
+    pub path: PathBuf,
+    /// Why.
+    pub error: std::io::Error,
+}
+
+/// Writes one CSV file per topic with messages into `dir` (created if missing): a header,
+/// then a row per message; feature lists as space-separated indices. Returns the files.
+pub fn export_csv(recording: &Recording, dir: &Path) -> Result<Vec<PathBuf>, ExportError> {
+    let fail = |path: &Path| {
+        let path = path.to_owned();
+        move |error| ExportError { path, error }
+    };
+    std::fs::create_dir_all(dir).map_err(fail(dir))?;
+    let mut written = Vec::new();
+    let mut file = |topic: Topic, header: &str, rows: Vec<String>| -> Result<(), ExportError> {
+        let path = dir.join(format!("{}.csv", topic.stem()));
+        let mut out = std::io::BufWriter::new(std::fs::File::create(&path).map_err(fail(&path))?);
+        writeln!(out, "{header}").map_err(fail(&path))?;
+        for row in rows {
+            writeln!(out, "{row}").map_err(fail(&path))?;
+        }
+        out.flush().map_err(fail(&path))?;
+        written.push(path);
+        Ok(())
+    };
+    let features = |f: &tes_topics::FeatureBits| {
+        f.iter_ones()
+            .map(|i| i.to_string())
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    file(
+        Topic::Observation,
+        "seq,stamp_ns,after_command,episode,step,x,y,orientation,n_features,reward,flags,features",
+        recording
+            .observations
+            .iter()
+            .map(|o| {
+                format!(
+                    "{},{},{},{},{},{},{},{},{},{},{},{}",
+                    o.seq,
+                    o.stamp_ns,
+                    o.after_command,
+                    o.episode,
+                    o.step,
+                    o.state.x,
+                    o.state.y,
+                    o.state.orientation,
+                    o.n_features,
+                    o.reward,
+                    o.flags,
+                    features(&o.features)
+                )
+            })
+            .collect(),
+    )?;
+    let commands = |cs: &[tes_topics::Command]| {
+        cs.iter()
+            .map(|c| {
+                format!(
+                    "{},{},{},{},{},{},{},{},{}",
+                    c.seq,
+                    c.answers,
+                    c.stamp_ns,
+                    c.observed_ns,
+                    c.action,
+                    c.left_deg,
+                    c.right_deg,
+                    c.in_flight_action,
+                    c.plans
+                )
+            })
+            .collect()
+    };
+    let command_header =
+        "seq,answers,stamp_ns,observed_ns,action,left_deg,right_deg,in_flight_action,plans";
+    file(
+        Topic::Command,
+        command_header,
+        commands(&recording.commands),
+    )?;
+    file(
+        Topic::KeepAlive,
+        command_header,
+        commands(&recording.keepalives),
+    )?;
+    file(
+        Topic::MotorState,
+        "seq,after_command,stamp_ns,tacho_a,tacho_b,tacho_c,rotation_a,rotation_b,rotation_c,run_a,run_b,run_c,battery_mv,flags",
+        recording
+            .motor_states
+            .iter()
+            .map(|m| {
+                format!(
+                    "{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+                    m.seq,
+                    m.after_command,
+                    m.stamp_ns,
+                    m.tacho_count[0],
+                    m.tacho_count[1],
+                    m.tacho_count[2],
+                    m.rotation_count[0],
+                    m.rotation_count[1],
+                    m.rotation_count[2],
+                    m.run_state[0],
+                    m.run_state[1],
+                    m.run_state[2],
+                    m.battery_mv,
+                    m.flags
+                )
+            })
+            .collect(),
+    )?;
+    if let Some(map) = &recording.world_map {
+        let rows = (0..map.n_states as usize)
+            .map(|s| {
+                let next = map.next_state[s][..map.n_effects as usize]
+                    .iter()
+                    .map(|n| n.to_string())
+                    .collect::<Vec<_>>()
+                    .join(" ");
+                format!(
+                    "{s},{},{},{next},{}",
+                    map.reward[s],
+                    map.terminal[s],
+                    features(&map.features[s])
+                )
+            })
+            .collect();
+        file(
+            Topic::WorldMap,
+            "state,reward,terminal,next_state_per_effect,features",
+            rows,
+        )?;
+    }
+    Ok(written)
+}

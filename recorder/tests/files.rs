@@ -1,0 +1,175 @@
+//! Bad files get a clear error naming the file and the problem, and a truncated recording is
+//! read up to its last complete record; nothing panics.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use tes_recorder::reader::{ReadError, Recording};
+use tes_recorder::writer::{RecordCounts, RunInfo, RunWriter};
+use tes_topics::{Command, Observation};
+
+fn info() -> RunInfo {
+    RunInfo {
+        tes_version: "0.1.0".into(),
+        seed: 7,
+        controller_toml: "seed = 7\n".into(),
+        ..RunInfo::default()
+    }
+}
+
+/// A complete recording of `n` observations and commands.
+fn recording(path: &Path, n: u64) -> RecordCounts {
+    let mut w = RunWriter::create(path, &info()).unwrap();
+    for seq in 1..=n {
+        w.observation(&Observation {
+            seq,
+            stamp_ns: seq * 1000,
+            reward: -0.05,
+            ..Observation::default()
+        })
+        .unwrap();
+        w.command(&Command {
+            seq,
+            answers: seq,
+            stamp_ns: seq * 1000 + 40_000,
+            observed_ns: seq * 1000,
+            action: (seq % 3) as u32,
+            ..Command::default()
+        })
+        .unwrap();
+        if seq % 100 == 0 {
+            w.flush().unwrap();
+        }
+    }
+    w.finish(RecordCounts::default()).unwrap()
+}
+
+#[test]
+fn a_complete_recording_reads_back_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.mcap");
+    let counts = recording(&path, 500);
+    assert_eq!(counts.written[1], 500);
+    let r = Recording::open(&path).unwrap();
+    assert_eq!((r.observations.len(), r.commands.len()), (500, 500));
+    assert_eq!(r.truncated, None);
+    assert_eq!(r.run_value("seed"), "7");
+    assert!(r.end.is_some());
+    assert!(r.library.is_none());
+}
+
+#[test]
+fn a_truncated_recording_is_read_up_to_its_last_complete_chunk() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.mcap");
+    recording(&path, 2000);
+    let bytes = std::fs::read(&path).unwrap();
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let r = Recording::open(&cut).unwrap();
+    let why = r.truncated.as_deref().expect("said to be truncated");
+    assert!(why.contains("records"), "{why}");
+    assert!(
+        r.observations.len() > 100 && r.observations.len() < 2000,
+        "{}",
+        r.observations.len()
+    );
+    assert!(r.end.is_none());
+    // Every cut point is refused or read, never a panic.
+    for len in (0..bytes.len()).step_by(997) {
+        let _ = Recording::from_bytes(&cut, &bytes[..len]);
+    }
+}
+
+#[test]
+fn what_is_not_a_tes_recording_is_refused_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = dir.path().join("notes.mcap");
+    std::fs::write(&text, "hello").unwrap();
+    let e = Recording::open(&text).unwrap_err();
+    assert!(matches!(e, ReadError::NotMcap { .. }), "{e}");
+    assert!(e.to_string().contains("notes.mcap") && e.to_string().contains("not an MCAP file"));
+
+    let empty = dir.path().join("empty.mcap");
+    std::fs::write(&empty, "").unwrap();
+    let e = Recording::open(&empty).unwrap_err();
+    assert!(e.to_string().contains("empty"), "{e}");
+
+    let missing = Recording::open(&dir.path().join("none.mcap")).unwrap_err();
+    assert!(missing.to_string().contains("none.mcap"), "{missing}");
+
+    // Another program's MCAP: a channel of its own, no TES metadata.
+    let other = dir.path().join("other.mcap");
+    {
+        let mut w = mcap::Writer::new(std::io::BufWriter::new(
+            std::fs::File::create(&other).unwrap(),
+        ))
+        .unwrap();
+        let ch = w
+            .add_channel(0, "/camera", "raw", &BTreeMap::new())
+            .unwrap();
+        w.write_to_known_channel(
+            &mcap::records::MessageHeader {
+                channel_id: ch,
+                sequence: 1,
+                log_time: 1,
+                publish_time: 1,
+            },
+            b"pixels",
+        )
+        .unwrap();
+        w.finish().unwrap();
+    }
+    let e = Recording::open(&other).unwrap_err();
+    assert!(matches!(e, ReadError::NotTes { .. }), "{e}");
+    let shown = e.to_string();
+    assert!(
+        shown.contains("other.mcap")
+            && shown.contains("not a TES recording")
+            && shown.contains("/camera"),
+        "{shown}"
+    );
+}
+
+#[test]
+fn a_recording_of_a_future_version_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let future = dir.path().join("future.mcap");
+    {
+        let mut w = mcap::Writer::new(std::io::BufWriter::new(
+            std::fs::File::create(&future).unwrap(),
+        ))
+        .unwrap();
+        w.write_metadata(&mcap::records::Metadata {
+            name: "tes.run".into(),
+            metadata: BTreeMap::from([("format_version".to_owned(), "2".to_owned())]),
+        })
+        .unwrap();
+        w.finish().unwrap();
+    }
+    let e = Recording::open(&future).unwrap_err();
+    assert!(matches!(e, ReadError::FutureVersion { .. }), "{e}");
+    assert!(e.to_string().contains("format version 2"), "{e}");
+}
+
+#[test]
+fn a_message_that_does_not_decode_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.mcap");
+    recording(&path, 3);
+    let mut bytes = std::fs::read(&path).unwrap();
+    // Break the second observation's JSON: `"seq":2` becomes `"seq":x`.
+    let at = bytes
+        .windows(8)
+        .position(|w| w == b"\"seq\":2,")
+        .expect("the second observation");
+    bytes[at + 6] = b'x';
+    let e = Recording::from_bytes(&path, &bytes).unwrap_err();
+    let shown = e.to_string();
+    assert!(
+        shown.contains("run.mcap")
+            && shown.contains("/tes/observation")
+            && shown.contains("message 1"),
+        "{shown}"
+    );
+}

@@ -1,0 +1,229 @@
+//! `tes launch --record` and `tes replay` with the real process group: the file is valid for
+//! an independent MCAP reader (PyPI's `mcap`, installed by `.ci/run`), holds every
+//! observation and command the run reported, and replays identically with a planner thread
+//! and with planning between polls; a changed observation is reported at its step; a run
+//! stopped by Ctrl-C leaves a complete file and one whose launcher was killed a readable one.
+//!
+//! Every group runs under its own service prefix and data directory; the guard kills the
+//! launcher (its children die with it) and removes stale iceoryx2 resources even when a test
+//! fails.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Duration;
+
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+use tes_recorder::reader::Recording;
+
+mod common;
+use common::*;
+
+const LIMIT: Duration = Duration::from_secs(180);
+
+/// Launches `episodes` episodes recorded to `dir/run.mcap`, with `extra` after the
+/// `[launch]` table's first keys; returns the file and the launcher's stdout.
+fn record(dir: &Path, extra: &str, episodes: u32) -> (PathBuf, Vec<String>) {
+    let file = dir.join("run.mcap");
+    let toml = launch_file(dir, &format!("record = \"{}\"\n{extra}", file.display()));
+    let mut group = Group::start(dir, &toml, episodes);
+    let (ok, out, err) = group.finish(LIMIT);
+    assert!(ok, "the launch failed: {out:?} {err:?}");
+    assert!(
+        err.iter().any(|l| l.starts_with("launch: recorded ")),
+        "{err:?}"
+    );
+    (file, out)
+}
+
+/// The actions the controller's summary line reports (`controller: 3 episodes, 89 actions, …`).
+fn reported_actions(out: &[String]) -> u64 {
+    out.iter()
+        .find_map(|l| {
+            let rest = l.strip_prefix("controller: ")?;
+            let actions = rest.split(", ").nth(1)?.strip_suffix(" actions")?;
+            actions.parse().ok()
+        })
+        .unwrap_or_else(|| panic!("no controller summary in {out:?}"))
+}
+
+fn replay(file: &Path, args: &[&str]) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_tes"))
+        .arg("replay")
+        .arg(file)
+        .args(args)
+        .output()
+        .expect("tes replay runs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// What PyPI's `mcap` reader sees: `topic schema-name schema-encoding message-encoding count`
+/// per channel, or `None` if the package is not installed.
+fn python_view(file: &Path) -> Option<Vec<String>> {
+    let script = r#"
+import json, sys
+from mcap.reader import make_reader
+with open(sys.argv[1], "rb") as f:
+    reader = make_reader(f)
+    summary = reader.get_summary()
+    counts = summary.statistics.channel_message_counts
+    for channel in sorted(summary.channels.values(), key=lambda c: c.topic):
+        schema = summary.schemas[channel.schema_id]
+        json.loads(schema.data)
+        print(channel.topic, schema.name, schema.encoding, channel.message_encoding,
+              counts.get(channel.id, 0))
+    for _, _, message in reader.iter_messages():
+        json.loads(message.data)
+    print("metadata", *sorted(m.name for m in reader.iter_metadata()))
+"#;
+    let probe = Command::new("python3").args(["-c", "import mcap"]).output();
+    if !probe.is_ok_and(|o| o.status.success()) {
+        eprintln!("SKIPPED the independent reader: python3 cannot import mcap (pip install mcap)");
+        return None;
+    }
+    let out = Command::new("python3")
+        .args(["-c", script])
+        .arg(file)
+        .output()
+        .expect("python3 runs");
+    assert!(
+        out.status.success(),
+        "the mcap package could not read {}: {}",
+        file.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    Some(
+        String::from_utf8_lossy(&out.stdout)
+            .lines()
+            .map(str::to_owned)
+            .collect(),
+    )
+}
+
+/// A recorded run with a planner thread: an independent reader sees our channels, schemas
+/// and as many commands as the run reported actions; the replay makes every decision again;
+/// a changed observation is reported at its step.
+#[test]
+fn a_recorded_run_is_valid_mcap_and_replays_identically_with_a_planner_thread() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (file, out) = record(dir.path(), "[controller]\nplanning = \"thread\"\n", 4);
+    let actions = reported_actions(&out);
+    let recording = Recording::open(&file).expect("the recording reads");
+    assert_eq!(recording.truncated, None);
+    assert_eq!(recording.commands.len() as u64, actions);
+    assert!(recording.world_map.is_some());
+    assert!(recording.observations.len() as u64 > actions);
+    assert!(!recording.motor_states.is_empty());
+
+    if let Some(lines) = python_view(&file) {
+        let expect = [
+            format!("/tes/command tes.Command jsonschema json {actions}"),
+            "/tes/keep-alive tes.Command jsonschema json 0".to_owned(),
+            format!(
+                "/tes/motor-state tes.MotorState jsonschema json {}",
+                recording.motor_states.len()
+            ),
+            format!(
+                "/tes/observation tes.Observation jsonschema json {}",
+                recording.observations.len()
+            ),
+            "/tes/world-map tes.WorldMap jsonschema json 1".to_owned(),
+            "metadata tes.recorder tes.run".to_owned(),
+        ];
+        assert_eq!(lines, expect);
+    }
+
+    let (ok, stdout, stderr) = replay(&file, &[]);
+    assert!(ok, "{stdout} {stderr}");
+    assert_eq!(
+        stdout.trim(),
+        format!("replay: {actions} of {actions} commands identical")
+    );
+
+    // One observation in the middle changed to a cell off the map: the replay's controller
+    // refuses it where the run answered it, and says so at that step.
+    let mut changed = recording.clone();
+    let k = recording.commands[recording.commands.len() / 2].answers;
+    let obs = changed
+        .observations
+        .iter_mut()
+        .find(|o| o.seq == k)
+        .expect("the answered observation");
+    let (episode, step) = (obs.episode, obs.step);
+    obs.state.x = 200;
+    let outcome = tes_recorder::replay::replay(&changed).expect("replays");
+    let d = outcome.divergence.expect("a divergence");
+    assert_eq!((d.seq, d.episode, d.step, d.got), (k, episode, step, None));
+    assert!(d.expected.is_some());
+    assert!(d.to_string().starts_with(&format!(
+        "first divergence at step {step} of episode {episode} (observation {k}): expected action"
+    )));
+
+    // The summary from the file alone: the episodes the launch printed.
+    let (ok, summary, _) = replay(&file, &["--summary"]);
+    assert!(ok);
+    for line in out.iter().filter(|l| l.starts_with("episode ")) {
+        assert!(summary.contains(line.as_str()), "{line:?} not in {summary}");
+    }
+    let csv = dir.path().join("csv");
+    let (ok, _, _) = replay(&file, &["--export-csv", csv.to_str().unwrap()]);
+    assert!(ok);
+    let commands = std::fs::read_to_string(csv.join("command.csv")).unwrap();
+    assert_eq!(commands.lines().count() as u64, actions + 1);
+}
+
+/// With planning between polls (a spinning wait), the replay makes every decision again too.
+#[test]
+fn a_recorded_run_replays_identically_with_planning_between_polls() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (file, out) = record(
+        dir.path(),
+        "wait = \"spin-then-block:200\"\n[controller]\nplanning = \"between-polls\"\n",
+        4,
+    );
+    let actions = reported_actions(&out);
+    let (ok, stdout, stderr) = replay(&file, &[]);
+    assert!(ok, "{stdout} {stderr}");
+    assert_eq!(
+        stdout.trim(),
+        format!("replay: {actions} of {actions} commands identical")
+    );
+}
+
+/// Ctrl-C mid-run leaves a complete file; a killed launcher (and recorder) leaves one that is
+/// read up to its last flushed chunk, and `tes replay` says how far it got.
+#[test]
+fn a_stopped_or_killed_run_leaves_a_readable_recording() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let file = dir.path().join("run.mcap");
+    let toml = launch_file(dir.path(), &format!("record = \"{}\"\n", file.display()));
+    let mut group = Group::start(dir.path(), &toml, 1000);
+    group.wait_for_episodes(2, LIMIT);
+    kill(Pid::from_raw(group.launcher.id() as i32), Signal::SIGINT).expect("SIGINT");
+    let (_, _, _) = group.finish(LIMIT);
+    let stopped = Recording::open(&file).expect("readable after Ctrl-C");
+    assert_eq!(stopped.truncated, None, "finalised on shutdown");
+    assert!(stopped.commands.len() > 1);
+
+    let killed_dir = dir.path().join("killed");
+    std::fs::create_dir_all(&killed_dir).unwrap();
+    let file = killed_dir.join("run.mcap");
+    let toml = launch_file(&killed_dir, &format!("record = \"{}\"\n", file.display()));
+    let mut group = Group::start(&killed_dir, &toml, 1000);
+    group.wait_for_episodes(2, LIMIT);
+    // Past the recorder's next flush.
+    std::thread::sleep(Duration::from_millis(1500));
+    kill(Pid::from_raw(group.launcher.id() as i32), Signal::SIGKILL).expect("SIGKILL");
+    let _ = group.finish(LIMIT);
+    let killed = Recording::open(&file).expect("readable after SIGKILL");
+    assert!(killed.truncated.is_some(), "no footer after SIGKILL");
+    assert!(!killed.commands.is_empty());
+    let (ok, stdout, stderr) = replay(&file, &[]);
+    assert!(stderr.contains("is incomplete"), "{stderr}");
+    assert!(ok, "{stdout} {stderr}");
+    assert!(stdout.contains("commands identical"), "{stdout}");
+}
