@@ -354,23 +354,7 @@ pub fn summarise_dir(out: &Path) -> Result<GridReport> {
     let manifest = Manifest::read(out)?;
     let config: GridConfig = manifest.settings()?;
     let envs = environments(&config)?;
-    let jobs = job_list(&config);
-    let results = jobs::run_jobs(
-        out,
-        &manifest,
-        JobOptions {
-            shard: jobs::Shard::ALL,
-            resume: true,
-        },
-        &|_, _| {},
-        |index| {
-            anyhow::bail!(
-                "job {index} of {} is missing from {}",
-                jobs.len(),
-                out.display()
-            )
-        },
-    )?;
+    let results = jobs::read_all(out, &manifest)?;
     report_from(&config, &envs, results, out, started)
 }
 

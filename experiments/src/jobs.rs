@@ -240,6 +240,25 @@ pub fn prepare(out: &Path, manifest: &Manifest) -> Result<()> {
     manifest.write(out)
 }
 
+/// Every job record of the finished folder `out` (described by its `manifest`), by job
+/// index; a missing record is an error naming it (nothing is run).
+pub fn read_all<R>(out: &Path, manifest: &Manifest) -> Result<BTreeMap<usize, R>>
+where
+    R: Serialize + DeserializeOwned + Send,
+{
+    let total = manifest.jobs;
+    run_jobs(
+        out,
+        manifest,
+        JobOptions {
+            shard: Shard::ALL,
+            resume: true,
+        },
+        &|_, _| {},
+        |index| anyhow::bail!("job {index} of {total} is missing from {}", out.display()),
+    )
+}
+
 /// Runs this shard's jobs of an experiment into `out` (records as they finish, in parallel
 /// on the rayon pool) and returns their results read back from disk, by job index.
 ///

@@ -417,17 +417,7 @@ pub fn summarise_dir(out: &Path) -> Result<RobotReport> {
     let manifest = Manifest::read(out)?;
     let config: RobotConfig = manifest.settings()?;
     check(&config)?;
-    let total = manifest.jobs;
-    let results = jobs::run_jobs(
-        out,
-        &manifest,
-        JobOptions {
-            shard: jobs::Shard::ALL,
-            resume: true,
-        },
-        &|_, _| {},
-        |index| anyhow::bail!("job {index} of {total} is missing from {}", out.display()),
-    )?;
+    let results = jobs::read_all(out, &manifest)?;
     report_from(&config, results, out, started)
 }
 

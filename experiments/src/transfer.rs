@@ -353,17 +353,7 @@ pub fn summarise_dir(out: &Path) -> Result<TransferReport> {
     let config: TransferConfig = manifest.settings()?;
     config.check()?;
     let envs = environments(&config)?;
-    let total = manifest.jobs;
-    let results = jobs::run_jobs(
-        out,
-        &manifest,
-        JobOptions {
-            shard: jobs::Shard::ALL,
-            resume: true,
-        },
-        &|_, _| {},
-        |index| anyhow::bail!("job {index} of {total} is missing from {}", out.display()),
-    )?;
+    let results = jobs::read_all(out, &manifest)?;
     report_from(
         &config,
         &envs,

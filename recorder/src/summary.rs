@@ -3,6 +3,7 @@
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use tes_controller::summary::EpisodeLine;
 
 use tes_runtime::latency::LatencyRecorder;
 use tes_topics::observation_flags;
@@ -13,20 +14,10 @@ use crate::schema::Topic;
 /// One episode of a recorded run.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Episode {
-    /// Its index.
-    pub episode: u32,
-    /// Rewards of the moves learned from (the controller's sum).
-    pub reward: f64,
-    /// Commands that answered its observations.
-    pub steps: u32,
-    /// Decision latency (observation stamped → command stamped), median, µs.
-    pub p50_us: u64,
-    /// … 99th percentile, µs.
-    pub p99_us: u64,
-    /// … the slowest, µs.
-    pub max_us: u64,
-    /// Decisions over the controller's budget (`[controller] budget_us`).
-    pub misses: u64,
+    /// Its line as `tes launch` printed it: reward (of the moves learned from), steps
+    /// (commands that answered its observations), decision latency (observation stamped →
+    /// command stamped) and misses against `[controller] budget_us`.
+    pub line: EpisodeLine,
     /// Whether it ended (a terminal or truncated observation is in the file).
     pub ended: bool,
 }
@@ -58,7 +49,8 @@ pub fn summarise(recording: &Recording) -> Summary {
     let mut observations: Vec<_> = recording.observations.iter().collect();
     observations.sort_by_key(|o| o.seq);
     let close = |e: &mut Episode, l: &mut LatencyRecorder| {
-        (e.p50_us, e.p99_us, e.max_us, e.misses) = (
+        let line = &mut e.line;
+        (line.p50_us, line.p99_us, line.max_us, line.misses) = (
             l.quantile_us(0.5),
             l.quantile_us(0.99),
             l.max_us(),
@@ -67,18 +59,20 @@ pub fn summarise(recording: &Recording) -> Summary {
         l.reset();
     };
     for o in observations {
-        if episodes.last().is_none_or(|e| e.episode != o.episode) {
+        if episodes.last().is_none_or(|e| e.line.episode != o.episode) {
             if let Some(e) = episodes.last_mut() {
                 close(e, &mut episode_latency);
             }
             episodes.push(Episode {
-                episode: o.episode,
-                reward: 0.0,
-                steps: 0,
-                p50_us: 0,
-                p99_us: 0,
-                max_us: 0,
-                misses: 0,
+                line: EpisodeLine {
+                    episode: o.episode,
+                    reward: 0.0,
+                    steps: 0,
+                    p50_us: 0,
+                    p99_us: 0,
+                    max_us: 0,
+                    misses: 0,
+                },
                 ended: false,
             });
         }
@@ -86,13 +80,13 @@ pub fn summarise(recording: &Recording) -> Summary {
             continue;
         };
         if o.flags & (observation_flags::EPISODE_START | observation_flags::RESYNC) == 0 {
-            e.reward += f64::from(o.reward);
+            e.line.reward += f64::from(o.reward);
         }
         if o.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0 {
             e.ended = true;
         }
         if let Some(c) = by_answer.get(&o.seq) {
-            e.steps += 1;
+            e.line.steps += 1;
             let ns = c.stamp_ns.saturating_sub(c.observed_ns);
             episode_latency.record_ns(ns);
             all.record_ns(ns);
@@ -118,17 +112,12 @@ pub fn summarise(recording: &Recording) -> Summary {
 impl std::fmt::Display for Summary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         for e in &self.episodes {
-            // The line `tes launch` printed for the episode.
-            let line = tes_controller::summary::EpisodeLine {
-                episode: e.episode,
-                reward: e.reward,
-                steps: e.steps,
-                p50_us: e.p50_us,
-                p99_us: e.p99_us,
-                max_us: e.max_us,
-                misses: e.misses,
-            };
-            writeln!(f, "{line}{}", if e.ended { "" } else { " (did not end)" })?;
+            writeln!(
+                f,
+                "{}{}",
+                e.line,
+                if e.ended { "" } else { " (did not end)" }
+            )?;
         }
         let ended = self.episodes.iter().filter(|e| e.ended).count();
         let [p50, p90, p99, max] = self.latency_us;
