@@ -50,7 +50,9 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use crossbeam::channel::{self, Receiver, RecvTimeoutError, Sender, TryRecvError};
-use tes_runtime::affinity::{AffinityError, check_cpu, pin_this_thread};
+use tes_runtime::affinity::{
+    AffinityError, check_cpu, lower_this_threads_priority, pin_this_thread,
+};
 use thiserror::Error;
 
 use tes_learning::cmdp::{CmdpError, CmdpStructure};
@@ -621,33 +623,6 @@ impl Planner {
             }
         }
     }
-}
-
-/// `SCHED_IDLE` for the calling thread, or nice +19 if that is refused (Linux schedules
-/// threads individually); best effort — planning still works at normal priority. Returns
-/// whether the thread runs under `SCHED_IDLE`.
-pub(crate) fn lower_this_threads_priority() -> bool {
-    #[cfg(target_os = "linux")]
-    {
-        let param = libc::sched_param { sched_priority: 0 };
-        // SAFETY: pid 0 is the calling thread; `param` outlives the call.
-        let idle = unsafe { libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) };
-        if idle == 0 {
-            return true;
-        }
-        // SAFETY: plain syscalls on the calling thread's own id; no memory is shared.
-        let nice = unsafe {
-            let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
-            libc::setpriority(libc::PRIO_PROCESS, tid, 19)
-        };
-        if nice != 0 {
-            tracing::debug!(
-                error = %std::io::Error::last_os_error(),
-                "could not lower the planner thread's priority"
-            );
-        }
-    }
-    false
 }
 
 impl Drop for PlannerThread {

@@ -103,7 +103,7 @@ impl Saver {
             .name("library-saver".into())
             .spawn(move || {
                 // Best effort: saving works at any priority.
-                let _ = crate::realtime::lower_this_threads_priority();
+                let _ = tes_runtime::affinity::lower_this_threads_priority();
                 while let Ok(agent) = queue.recv() {
                     if let Err(e) = save_library(*agent, &path, &names) {
                         failed.fetch_add(1, std::sync::atomic::Ordering::Relaxed);

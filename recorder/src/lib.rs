@@ -28,6 +28,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+mod framing;
 pub mod live;
 pub mod reader;
 pub mod replay;

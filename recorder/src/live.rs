@@ -13,7 +13,10 @@
 //!   memory that allocates nothing and notifies nobody), which the recorder reads;
 //! * the world map is published with history, so it reaches the recorder whenever it joins.
 //!
-//! Nothing is formatted or written on the controller's side. A sample the recorder could not
+//! The thread runs under `SCHED_IDLE` (else nice +19): formatting and writing take only time
+//! the group's processes do not want, and a waking process preempts it at once, so the
+//! recorder costs the acting path no wake-up delay. Nothing is formatted or written on the
+//! controller's side. A sample the recorder could not
 //! take in time (a machine that kept it from running for a whole buffer's worth of actions)
 //! is counted from the gaps in the sequence numbers and written in the file's end record.
 
@@ -175,6 +178,10 @@ fn record(
     stop: &AtomicBool,
     ready: std::sync::mpsc::Sender<Result<(), RecordError>>,
 ) -> Result<RecordCounts, RecordError> {
+    // Best effort: recording works at any priority, at some cost to the group's latency.
+    if !tes_runtime::affinity::lower_this_threads_priority() {
+        tracing::warn!("the recorder runs at nice +19 or normal priority, not SCHED_IDLE");
+    }
     let opened = (|| -> Result<_, RecordError> {
         let names = ServiceNames::with_prefix(prefix);
         let node = channel::node(false)?;

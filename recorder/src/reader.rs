@@ -116,6 +116,9 @@ impl Recording {
                 },
             });
         }
+        // Read up to where the framing breaks, if it does: the mcap crate trusts the lengths.
+        let broken = crate::framing::check(bytes).err();
+        let bytes = broken.as_ref().map_or(bytes, |b| &bytes[..b.offset]);
         let records = mcap::read::ChunkFlattener::new_with_options(
             bytes,
             mcap::read::Options::IgnoreEndMagic.into(),
@@ -170,6 +173,12 @@ impl Recording {
                 Record::Footer(_) | Record::DataEnd(_) => complete = true,
                 _ => {}
             }
+        }
+        if let Some(b) = &broken {
+            rec.truncated = Some(format!(
+                "the file breaks after {records_read} records: {}",
+                b.why
+            ));
         }
         if rec.truncated.is_none() && !complete {
             rec.truncated = Some(format!(

@@ -185,6 +185,36 @@ pub fn pin_this_thread(cpu: usize) -> Result<(), AffinityError> {
     }
 }
 
+/// `SCHED_IDLE` for the calling thread, or nice +19 if that is refused (Linux schedules
+/// threads individually): for background work (planning, saving, recording) that must take
+/// only time the acting path does not want. Under `SCHED_IDLE` a waking thread of normal
+/// priority preempts it at once; a merely niced thread is let finish its slice first. Best
+/// effort — the work still runs at normal priority if both are refused. Returns whether the
+/// thread runs under `SCHED_IDLE`.
+pub fn lower_this_threads_priority() -> bool {
+    #[cfg(target_os = "linux")]
+    {
+        let param = libc::sched_param { sched_priority: 0 };
+        // SAFETY: pid 0 is the calling thread; `param` outlives the call.
+        let idle = unsafe { libc::sched_setscheduler(0, libc::SCHED_IDLE, &param) };
+        if idle == 0 {
+            return true;
+        }
+        // SAFETY: plain syscalls on the calling thread's own id; no memory is shared.
+        let nice = unsafe {
+            let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
+            libc::setpriority(libc::PRIO_PROCESS, tid, 19)
+        };
+        if nice != 0 {
+            tracing::debug!(
+                error = %std::io::Error::last_os_error(),
+                "could not lower a background thread's priority"
+            );
+        }
+    }
+    false
+}
+
 #[cfg(test)]
 mod placement_tests {
     use super::*;

@@ -101,10 +101,15 @@ pub struct LatencyArgs {
     /// [default: the controller's, 5000; 0 = sleeps at once].
     #[arg(long)]
     planner_idle_spin_us: Option<u64>,
-    /// Also run the group with the recorder (`tes launch --record`), from the same library,
-    /// and compare its latency with the run without.
+    /// Also compare the group with and without the recorder (`tes launch --record`): after
+    /// the main run and the floor, blocks of each kind alternate (without, with, with,
+    /// without, …), each from the same library, and the medians over the blocks are compared.
     #[arg(long)]
     record: bool,
+    /// With `--record`: blocks of each kind; each measures `--actions / N` actions after the
+    /// warm-up.
+    #[arg(long, default_value_t = 4, value_name = "N")]
+    record_blocks: u64,
 }
 
 /// Arguments of `tes bench scaling`.
@@ -191,18 +196,61 @@ struct LatencyResult {
     plans: u64,
     /// Who planned: `thread` or `between-polls`.
     planning: String,
-    /// With `--record`: the same group, recorded (null without).
-    recorded: Option<RecordedRun>,
+    /// With `--record`: the group with and without the recorder, in alternating blocks
+    /// (null without `--record`).
+    recorder: Option<RecorderComparison>,
 }
 
-/// The recorded run of `tes bench latency --record`: observation → bridge latency and the
-/// controller's acting-path allocations.
+/// One block of `tes bench latency --record`: a run of the group from the starting library,
+/// with or without the recorder.
 #[derive(Debug, Clone, Copy, Serialize)]
-struct RecordedRun {
+struct RecorderBlock {
+    /// Whether the launcher's recorder ran.
+    recorded: bool,
+    /// Observation → bridge.
     p50_us: u64,
     p99_us: u64,
     misses: u64,
+    /// Heap allocations on the controller's acting path (null if not counted).
     allocations: Option<u64>,
+    /// With the recorder: the observations, commands and motor states it wrote.
+    written: Option<[u64; 3]>,
+    /// With the recorder: the samples it could not take in time.
+    missed: Option<u64>,
+}
+
+/// `tes bench latency --record`: the recorder's cost as the medians over blocks of each kind.
+#[derive(Debug, Clone, Serialize)]
+struct RecorderComparison {
+    /// In the order they ran.
+    blocks: Vec<RecorderBlock>,
+    /// Medians over the blocks without the recorder, then with it.
+    without_p50_us: f64,
+    without_p99_us: f64,
+    with_p50_us: f64,
+    with_p99_us: f64,
+    /// `with / without − 1` of the medians (0.05 = 5 % slower with the recorder).
+    change_p50: f64,
+    change_p99: f64,
+    /// The most allocations any block counted on the acting path with the recorder.
+    allocations_with: Option<u64>,
+}
+
+/// The median of `values` (the mean of the middle two for an even count); 0 for none.
+fn median(values: impl IntoIterator<Item = u64>) -> f64 {
+    let mut v: Vec<u64> = values.into_iter().collect();
+    v.sort_unstable();
+    match v.len() {
+        0 => 0.0,
+        n if n % 2 == 1 => v[n / 2] as f64,
+        n => (v[n / 2 - 1] + v[n / 2]) as f64 / 2.0,
+    }
+}
+
+/// Whether block `i` of the comparison runs with the recorder: without, with, with, without,
+/// and again, so that a drift of the machine over the run weighs on both kinds alike.
+fn block_is_recorded(i: u64) -> bool {
+    matches!(i % 4, 1 | 2)
 }
 
 fn ratio(ours: u64, floor: u64) -> f64 {
@@ -251,27 +299,17 @@ fn latency(args: &LatencyArgs) -> Result<()> {
     );
     let library = fixtures::arena_library(args.views, 3000, args.seed)?;
     let files = RunFiles::in_dir(dir);
-    let library_path = &files.library;
     let stored = StoredLibrary {
         library,
         world: "arena 1+2 (bench)".into(),
         action_names: Vec::new(),
         feature_names: Vec::new(),
     };
-    store::save(library_path, &stored)?;
     eprintln!("bench: ours — perception-sim → controller → bridge on Env 3, {total} actions");
-    let (controller_report, bridge_report) = (&files.controller_report, &files.bridge_report);
     let file = group_file(dir, &prefix, wait, args, placement, &files)?;
     let started = Instant::now();
-    launch::run_file(&file, false).context("the process group failed")?;
+    let (ours, controller) = run_group(&file, &stored, &files)?;
     let elapsed = started.elapsed();
-    let ours = LatencyReport::load(bridge_report)
-        .with_context(|| format!("no bridge report at {}", bridge_report.display()))?;
-    let controller: ControllerSummary = serde_json::from_str(
-        &std::fs::read_to_string(controller_report)
-            .with_context(|| format!("no controller report at {}", controller_report.display()))?,
-    )
-    .context("the controller's report is malformed")?;
     if ours.count < args.actions {
         bail!(
             "the bridge saw {} measured commands, expected {} (see the run's files with --out)",
@@ -290,30 +328,8 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         "bench: the floor — a raw iceoryx2 two-hop relay, {total} round trips, wait {wait}, one every {cycle_us} us"
     );
     let (floor, floor_decision) = run_floor(dir, &prefix, wait, cycle_us, args, placement.acting)?;
-    let recorded = if args.record {
-        // The same library again (the first run saved what it learned).
-        store::save(library_path, &stored)?;
-        let mut with = file.clone();
-        let mcap = dir.join("bench.mcap");
-        with.launch.record = Some(mcap.clone());
-        eprintln!(
-            "bench: ours again, recorded to {} by the launcher's recorder thread",
-            mcap.display()
-        );
-        launch::run_file(&with, false).context("the recorded process group failed")?;
-        let report = LatencyReport::load(bridge_report)
-            .with_context(|| format!("no bridge report at {}", bridge_report.display()))?;
-        let summary: ControllerSummary =
-            serde_json::from_str(&std::fs::read_to_string(controller_report).with_context(
-                || format!("no controller report at {}", controller_report.display()),
-            )?)
-            .context("the controller's report is malformed")?;
-        Some(RecordedRun {
-            p50_us: report.p50_us,
-            p99_us: report.p99_us,
-            misses: report.misses,
-            allocations: summary.allocations,
-        })
+    let recorder = if args.record {
+        Some(compare_recorder(&file, &stored, &files, dir, args)?)
     } else {
         None
     };
@@ -351,7 +367,7 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         planner_cpu: placement.planner,
         plans: controller.plans,
         planning: controller.planning.clone(),
-        recorded,
+        recorder,
     };
     if args.json {
         println!("{}", serde_json::to_string(&result)?);
@@ -399,17 +415,8 @@ fn latency(args: &LatencyArgs) -> Result<()> {
             _ => "not counted".to_owned(),
         }
     );
-    if let Some(r) = &result.recorded {
-        println!(
-            "with the recorder: observation -> bridge p50 {} us ({:+.1} %), p99 {} us ({:+.1} %), {} misses; allocations on the acting path: {}",
-            r.p50_us,
-            (ratio(r.p50_us, ours.p50_us) - 1.0) * 100.0,
-            r.p99_us,
-            (ratio(r.p99_us, ours.p99_us) - 1.0) * 100.0,
-            r.misses,
-            r.allocations
-                .map_or("not counted".to_owned(), |n| n.to_string())
-        );
+    if let Some(r) = &result.recorder {
+        print_recorder(r);
     }
     // A planner thread yields to everything: where the measured loops keep both CPUs busy
     // (spin on two cores) it barely runs, and the agent acts on an old policy.
@@ -429,7 +436,163 @@ fn latency(args: &LatencyArgs) -> Result<()> {
     Ok(())
 }
 
-/// The launch file of the measured group.
+/// Runs the group from the starting library `stored` and reads the bridge's latency report
+/// and the controller's summary.
+fn run_group(
+    file: &LaunchFile,
+    stored: &StoredLibrary,
+    files: &RunFiles,
+) -> Result<(LatencyReport, ControllerSummary)> {
+    // Every run starts from the same library (the previous one saved what it learned).
+    store::save(&files.library, stored)?;
+    launch::run_file(file, false).context("the process group failed")?;
+    let report = LatencyReport::load(&files.bridge_report)
+        .with_context(|| format!("no bridge report at {}", files.bridge_report.display()))?;
+    let path = &files.controller_report;
+    let summary: ControllerSummary = serde_json::from_str(
+        &std::fs::read_to_string(path)
+            .with_context(|| format!("no controller report at {}", path.display()))?,
+    )
+    .context("the controller's report is malformed")?;
+    Ok((report, summary))
+}
+
+/// `--record`: blocks without and with the recorder, alternating, each of
+/// `--actions / --record-blocks` measured actions.
+fn compare_recorder(
+    file: &LaunchFile,
+    stored: &StoredLibrary,
+    files: &RunFiles,
+    dir: &Path,
+    args: &LatencyArgs,
+) -> Result<RecorderComparison> {
+    if args.record_blocks == 0 {
+        bail!("--record-blocks must be at least 1");
+    }
+    let measured = (args.actions / args.record_blocks).max(1);
+    let mut block_file = file.clone();
+    block_file.perception.actions = measured + args.warmup;
+    let mcap = dir.join("bench.mcap");
+    let kinds = 2 * args.record_blocks;
+    let mut blocks = Vec::new();
+    for i in 0..kinds {
+        let recorded = block_is_recorded(i);
+        eprintln!(
+            "bench: recorder comparison, block {} of {kinds}: {} the recorder, {measured} actions",
+            i + 1,
+            if recorded { "with" } else { "without" }
+        );
+        let mut f = block_file.clone();
+        f.launch.record = recorded.then(|| mcap.clone());
+        let (report, summary) = run_group(&f, stored, files)?;
+        if report.count < measured {
+            bail!(
+                "block {}: the bridge saw {} measured commands, expected {measured}",
+                i + 1,
+                report.count
+            );
+        }
+        let (written, missed) = if recorded {
+            let recording = tes_recorder::reader::Recording::open(&mcap)?;
+            if let Some(why) = &recording.truncated {
+                bail!("block {}: the recording is incomplete: {why}", i + 1);
+            }
+            let missed = recording.end.as_ref().map_or(0, |end| {
+                [
+                    "missed_observations",
+                    "missed_commands",
+                    "missed_motor_states",
+                ]
+                .iter()
+                .filter_map(|k| end.get(*k).and_then(|v| v.parse::<u64>().ok()))
+                .sum()
+            });
+            let written = [
+                recording.observations.len() as u64,
+                recording.commands.len() as u64,
+                recording.motor_states.len() as u64,
+            ];
+            (Some(written), Some(missed))
+        } else {
+            (None, None)
+        };
+        blocks.push(RecorderBlock {
+            recorded,
+            p50_us: report.p50_us,
+            p99_us: report.p99_us,
+            misses: report.misses,
+            allocations: summary.allocations,
+            written,
+            missed,
+        });
+    }
+    let of = |recorded: bool, pick: fn(&RecorderBlock) -> u64| {
+        median(blocks.iter().filter(|b| b.recorded == recorded).map(pick))
+    };
+    let (without_p50_us, without_p99_us) = (of(false, |b| b.p50_us), of(false, |b| b.p99_us));
+    let (with_p50_us, with_p99_us) = (of(true, |b| b.p50_us), of(true, |b| b.p99_us));
+    let change = |with: f64, without: f64| with / without.max(1.0) - 1.0;
+    let allocations_with = blocks
+        .iter()
+        .filter(|b| b.recorded)
+        .map(|b| b.allocations)
+        .try_fold(0, |most, n| n.map(|n| most.max(n)));
+    Ok(RecorderComparison {
+        change_p50: change(with_p50_us, without_p50_us),
+        change_p99: change(with_p99_us, without_p99_us),
+        blocks,
+        without_p50_us,
+        without_p99_us,
+        with_p50_us,
+        with_p99_us,
+        allocations_with,
+    })
+}
+
+/// The recorder comparison's blocks and medians, as a table.
+fn print_recorder(r: &RecorderComparison) {
+    println!("the recorder's cost (blocks in the order they ran; observation -> bridge):");
+    println!(
+        "{:>5} {:>9} {:>8} {:>8} {:>7} {:>12} {:>24} {:>7}",
+        "block",
+        "recorder",
+        "p50 us",
+        "p99 us",
+        "misses",
+        "allocations",
+        "written obs/cmd/motor",
+        "missed"
+    );
+    for (i, b) in r.blocks.iter().enumerate() {
+        let written = b
+            .written
+            .map_or("-".to_owned(), |[o, c, m]| format!("{o}/{c}/{m}"));
+        println!(
+            "{:>5} {:>9} {:>8} {:>8} {:>7} {:>12} {:>24} {:>7}",
+            i + 1,
+            if b.recorded { "with" } else { "without" },
+            b.p50_us,
+            b.p99_us,
+            b.misses,
+            b.allocations.map_or("-".to_owned(), |n| n.to_string()),
+            written,
+            b.missed.map_or("-".to_owned(), |n| n.to_string()),
+        );
+    }
+    println!(
+        "medians: without p50 {:.1} us, p99 {:.1} us; with p50 {:.1} us ({:+.1} %), p99 {:.1} us ({:+.1} %); \
+         allocations on the acting path with the recorder: {}",
+        r.without_p50_us,
+        r.without_p99_us,
+        r.with_p50_us,
+        100.0 * r.change_p50,
+        r.with_p99_us,
+        100.0 * r.change_p99,
+        r.allocations_with
+            .map_or("not counted".to_owned(), |n| n.to_string())
+    );
+}
+
 /// The files of one `tes bench latency` run, in its directory.
 struct RunFiles {
     /// The controller's view library.

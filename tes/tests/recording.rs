@@ -227,3 +227,45 @@ fn a_stopped_or_killed_run_leaves_a_readable_recording() {
     assert!(ok, "{stdout} {stderr}");
     assert!(stdout.contains("commands identical"), "{stdout}");
 }
+
+/// A child that crashes mid-run stops the group (`restart = "never"`, the default); the
+/// launcher still finishes the recording: complete for the independent reader, with every
+/// command the controller sent, and it replays identically up to where the run ended.
+#[test]
+fn a_run_stopped_by_a_crashed_child_leaves_a_complete_recording() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let file = dir.path().join("run.mcap");
+    let toml = launch_file(dir.path(), &format!("record = \"{}\"\n", file.display()));
+    let mut group = Group::start(dir.path(), &toml, 1000);
+    group.wait_for_episodes(2, LIMIT);
+    kill(group.child("bridge"), Signal::SIGKILL).expect("kill the bridge");
+    let (ok, out, err) = group.finish(LIMIT);
+    assert!(!ok, "a crashed child fails the launch: {out:?}");
+    assert!(
+        err.iter()
+            .any(|l| l.contains("bridge was killed by SIGKILL")),
+        "{err:?}"
+    );
+    assert!(
+        err.iter().any(|l| l.starts_with("launch: recorded ")),
+        "{err:?}"
+    );
+
+    let recording = Recording::open(&file).expect("readable after a crashed child");
+    assert_eq!(recording.truncated, None, "finalised on shutdown");
+    assert!(recording.commands.len() > 1);
+    if let Some(lines) = python_view(&file) {
+        let commands = format!(
+            "/tes/command tes.Command jsonschema json {}",
+            recording.commands.len()
+        );
+        assert!(lines.contains(&commands), "{lines:?}");
+    }
+    let n = recording.commands.len();
+    let (ok, stdout, stderr) = replay(&file, &[]);
+    assert!(ok, "{stdout} {stderr}");
+    assert_eq!(
+        stdout.trim(),
+        format!("replay: {n} of {n} commands identical")
+    );
+}
