@@ -1,8 +1,10 @@
 //! The recorder: a thread of its own (in the launcher, never in the controller) reading the
 //! group's services and writing what it finds to a [`RunWriter`].
 //!
-//! It polls every few milliseconds and is woken by nothing, so no process of the group
-//! notifies it, and it never waits on the loop. What each service guarantees decides how it
+//! It is woken by nothing, so no process of the group notifies it, and it never waits on the
+//! loop: every half millisecond it reads one entry of the command log, and when a new
+//! command is out (the robot is moving, the next decision is a motion away) it takes
+//! everything queued and writes it; at least every 20 ms in any case. What each service guarantees decides how it
 //! is read:
 //!
 //! * observations and motor states are publish–subscribe: the recorder's subscribers (no
@@ -51,9 +53,14 @@ pub enum RecordError {
 /// How often the file is flushed (the open chunk closed and written out).
 const FLUSH_EVERY: Duration = Duration::from_millis(500);
 
-/// How often the recorder looks at the services: well within what their buffers hold at the
-/// fastest real-time factor (a thousand samples; about eight motor states per action).
-const POLL_EVERY: Duration = Duration::from_millis(2);
+/// How often the recorder looks whether a new command is out: one entry of the command log
+/// read, nothing else.
+const LOOK_EVERY: Duration = Duration::from_micros(500);
+
+/// The longest the recorder leaves the services undrained while no command comes (between
+/// runs, or a controller that stopped deciding): well within what their buffers hold at the
+/// fastest real-time factor (`RECORDER_BUFFER` samples; about 17 motor states per action).
+const DRAIN_AT_LEAST: Duration = Duration::from_millis(20);
 
 /// A running recorder; [`stop`](Self::stop) finishes the file.
 #[derive(Debug)]
@@ -206,10 +213,17 @@ fn record(
     let (mut seen_obs, mut seen_cmd, mut seen_motor) =
         (Gaps::default(), Gaps::default(), Gaps::default());
     let mut have_map = false;
-    let mut last_flush = Instant::now();
+    let (mut last_flush, mut last_drain) = (Instant::now(), Instant::now());
     loop {
         // Read after the stop too: what the group sent last is still queued.
         let stopping = stop.load(Ordering::SeqCst);
+        // The work waits for a command: then the observation has been answered and the robot
+        // moves, so the formatting and writing fall between decisions, not across one.
+        if !(stopping || commands.has_new() || last_drain.elapsed() >= DRAIN_AT_LEAST) {
+            std::thread::sleep(LOOK_EVERY);
+            continue;
+        }
+        last_drain = Instant::now();
         if !have_map {
             drain(&maps, |m| {
                 if !have_map {
@@ -224,7 +238,12 @@ fn record(
             seen_obs.see(o.seq);
             Ok(writer.observation(&o)?)
         })?;
-        for c in commands.take_new() {
+        let new_commands = if stopping {
+            commands.take_new_scanning()
+        } else {
+            commands.take_new()
+        };
+        for c in new_commands {
             seen_cmd.see(c.seq);
             writer.command(c)?;
         }
@@ -239,7 +258,6 @@ fn record(
             writer.flush()?;
             last_flush = Instant::now();
         }
-        std::thread::sleep(POLL_EVERY);
     }
     let missed = RecordCounts {
         missed_observations: seen_obs.missed,

@@ -131,10 +131,46 @@ impl<T: Sequenced> RingReader<T> {
         })
     }
 
-    /// The values written since the last call, oldest first. A value overwritten before
-    /// this call (more than [`RING`] writes since) is lost: the caller sees the gap in the
-    /// sequence numbers.
+    /// Whether the value after the last one taken has been written: one entry read, so a
+    /// reader can look often at little cost to the cache it shares with the writer. False
+    /// also when that value was overwritten (the reader fell a whole ring behind) or the
+    /// numbering jumped; [`take_new`](Self::take_new) finds those by a scan.
+    pub fn has_new(&self) -> bool {
+        self.entry_after(1).is_some()
+    }
+
+    /// The value `k` after the last taken, if it is in its entry.
+    fn entry_after(&self, k: u64) -> Option<T> {
+        let seq = self.last.wrapping_add(k);
+        let v = *self.entries.get(seq as usize % RING)?.get();
+        (v.seq() == seq).then_some(v)
+    }
+
+    /// The values written since the last call, oldest first, read forward from the entry
+    /// after the last taken (only the entries written since). A value overwritten before
+    /// this call (more than [`RING`] writes since) is lost; so is a jump in the numbering (a
+    /// new writer numbering from elsewhere) until [`take_new_scanning`](Self::take_new_scanning).
     pub fn take_new(&mut self) -> &[T] {
+        self.scratch.clear();
+        for k in 1..=RING as u64 {
+            match self.entry_after(k) {
+                Some(v) => self.scratch.push(v),
+                None => break,
+            }
+        }
+        if let Some(v) = self.scratch.last() {
+            self.last = v.seq();
+        }
+        if self.scratch.is_empty() {
+            // The next value was overwritten unread, or lost: find the newest by a scan.
+            return self.take_new_scanning();
+        }
+        &self.scratch
+    }
+
+    /// [`take_new`](Self::take_new) by reading every entry: also finds values after a gap
+    /// or a jump in the numbering (the caller sees the gap in the sequence numbers).
+    pub fn take_new_scanning(&mut self) -> &[T] {
         self.scratch.clear();
         for entry in &self.entries {
             let v = *entry.get();
@@ -176,9 +212,21 @@ mod tests {
         for seq in 701..=700 + RING as u64 + 10 {
             writer.put(command(seq));
         }
+        // The entry after the last taken was overwritten: only a scan finds the rest.
+        assert!(!reader.has_new());
         let seen = reader.take_new();
         assert_eq!(seen.len(), RING);
         assert_eq!(seen[0].seq, 711);
+        assert!(!reader.has_new());
         assert!(reader.take_new().is_empty());
+        // A new writer numbering from elsewhere (a respawned controller): found by a scan.
+        writer.put(command(1_000_000));
+        writer.put(command(1_000_001));
+        assert!(!reader.has_new());
+        let seen: Vec<u64> = reader.take_new().iter().map(|c| c.seq).collect();
+        assert_eq!(seen, [1_000_000, 1_000_001]);
+        writer.put(command(1_000_002));
+        assert!(reader.has_new());
+        assert_eq!(reader.take_new()[0].seq, 1_000_002);
     }
 }
