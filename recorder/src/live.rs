@@ -189,6 +189,13 @@ fn record(
     if !tes_runtime::affinity::lower_this_threads_priority() {
         tracing::warn!("the recorder runs at nice +19 or normal priority, not SCHED_IDLE");
     }
+    // Off the CPU the controller's acting thread is pinned to by default, so the recorder's
+    // wake-ups and writes never sit between that thread and its next observation.
+    if let Some((_, helper_cpu)) = tes_runtime::affinity::auto_pair()
+        && let Err(e) = tes_runtime::affinity::pin_this_thread(helper_cpu)
+    {
+        tracing::debug!("the recorder thread stays unpinned: {e}");
+    }
     let opened = (|| -> Result<_, RecordError> {
         let names = ServiceNames::with_prefix(prefix);
         let node = channel::node(false)?;
