@@ -57,6 +57,7 @@ pub use child::run_child;
 pub(crate) use file::*;
 pub(crate) use group::*;
 use logs::ChildLine;
+pub(crate) use reference::render_resolved as render_launch_file;
 use run_folder::RUNS;
 
 /// Arguments of `tes launch`.
@@ -92,6 +93,11 @@ pub struct LaunchArgs {
     /// command and motor state, for `tes replay` and viewers such as Foxglove.
     #[arg(long, value_name = "FILE.mcap")]
     record: Option<PathBuf>,
+    /// Start only these processes (comma-separated: perception-sim, controller, bridge;
+    /// overrides `[launch] roles`); the others run on other hosts, reached over Zenoh
+    /// (`[launch.link]`, docs/multi-host.md).
+    #[arg(long, value_delimiter = ',', value_name = "ROLE,...")]
+    roles: Option<Vec<String>>,
 }
 
 /// Runs `tes launch`.
@@ -111,6 +117,13 @@ pub fn run(args: &LaunchArgs) -> Result<()> {
     }
     if let Some(path) = &args.record {
         file.launch.record = Some(path.clone());
+    }
+    if let Some(roles) = &args.roles {
+        file.launch.roles.clone_from(roles);
+        // Said by the user, so placed as theirs: a bad role is named with the flag.
+        if let Err(e) = check_launch(&file.launch) {
+            bail!("--roles: {}; nothing was started", e.reason);
+        }
     }
     let prepared = prepare(&file)?;
     run_group(&file, prepared, true, args.tui).map(|_| ())
