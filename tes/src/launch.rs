@@ -86,7 +86,7 @@ pub struct LaunchArgs {
         num_args = 0..=1,
         require_equals = true,
         default_missing_value = "toml",
-        conflicts_with_all = ["config", "episodes", "tui", "record"]
+        conflicts_with_all = ["config", "episodes", "tui", "record", "roles"]
     )]
     print_config: Option<reference::Format>,
     /// Record the run to this MCAP file (overrides `[launch] record`): every observation,

@@ -763,12 +763,15 @@ fn inbound(
         let mut checker = Checker::default();
         let mut connected = Instant::now();
         while !stop.load(Ordering::Relaxed) {
+            let received = rx.recv_timeout(IDLE);
+            // The map published here may have come while this thread waited: what arrived
+            // is checked against the latest.
             if let Some(inbox) = &ports.local_map
                 && let Some(m) = inbox.try_next()?
             {
                 let _ = checker.world_map(&m);
             }
-            let (topic, bytes) = match rx.recv_timeout(IDLE) {
+            let (topic, bytes) = match received {
                 Ok(x) => x,
                 Err(mpsc::RecvTimeoutError::Timeout) => {
                     // Processes that started since get what the link republishes.
@@ -945,15 +948,17 @@ mod tests {
             group: group.clone(),
             listen: vec![format!("tcp/127.0.0.1:{port}")],
             multicast_scouting: Some(false),
+            restamp: false,
             ..LinkSection::default()
         };
         let names =
             ServiceNames::with_prefix(&format!("tes-test/link-{test}/{}/", std::process::id()));
         let node = channel::node(false).expect("node");
         // The world map, as perception on this host publishes it.
+        // (The link opens before the processes start, as in a launch.)
+        let link = Link::open(&settings, &[Role::Perception, Role::Bridge], &names).expect("link");
         let maps = Outbox::open(&node, &names.world_map, &names.world_map_event, 1).expect("map");
         maps.send(map()).expect("map sent");
-        let link = Link::open(&settings, &[Role::Perception, Role::Bridge], &names).expect("link");
         let commands = LatestInbox::open(
             &node,
             &names.command,
@@ -1060,7 +1065,9 @@ mod tests {
             }
             assert!(
                 start.elapsed() < Duration::from_secs(10),
-                "nothing on the board"
+                "nothing on the board: {} ({:?})",
+                rig.link.counts(),
+                rig.link.events()
             );
             std::thread::sleep(Duration::from_millis(5));
         };

@@ -92,8 +92,13 @@ impl Host {
                 let path = e.path();
                 if path.is_dir() {
                     dirs.push(path);
-                } else if e.file_name().to_string_lossy().starts_with(&prefix) {
-                    found.push(path);
+                } else {
+                    let name = e.file_name().to_string_lossy().into_owned();
+                    // iceoryx2 keeps one management segment per domain, by design, whoever
+                    // ran in it: not a resource of the group.
+                    if name.starts_with(&prefix) && !name.ends_with(".global_mgmt") {
+                        found.push(path);
+                    }
                 }
             }
         }
@@ -109,6 +114,15 @@ impl Drop for Host {
             .args(["status", "--clean"])
             .env("TES_IPC_DOMAIN", &self.domain)
             .output();
+        // The domain's management segment goes with the test's domain.
+        if let Ok(entries) = std::fs::read_dir("/dev/shm") {
+            let prefix = format!("iox2_{}_", self.domain);
+            for e in entries.filter_map(Result::ok) {
+                if e.file_name().to_string_lossy().starts_with(&prefix) {
+                    let _ = std::fs::remove_file(e.path());
+                }
+            }
+        }
     }
 }
 
