@@ -33,9 +33,11 @@ struct Host {
 
 impl Host {
     fn new(name: &str) -> Self {
+        static HOSTS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
         let dir = tempfile::tempdir().expect("temp dir");
-        // Short and unique: iceoryx2 names files after it.
-        let domain = format!("t{}{name}", std::process::id());
+        // Short and unique (tests run side by side): iceoryx2 names files after it.
+        let n = HOSTS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let domain = format!("t{}-{n}{name}", std::process::id());
         Self {
             dir,
             domain,
@@ -59,7 +61,7 @@ impl Host {
     ) -> &mut Group {
         let text = format!(
             "{}{launch}\n[launch.link]\nmulticast_scouting = false\nrestamp = false\n\
-             peer_timeout_ms = 60000\n{link}\n{tables}\n",
+             {link}\n{tables}\n",
             launch_file(self.dir.path(), "")
         );
         let group = Group::start_in(
@@ -129,9 +131,14 @@ impl Drop for Host {
 /// The `[launch]` lines of the two hosts of group `group`, the robot's host listening on
 /// `port`.
 fn split(group: &str, port: u16) -> (String, String) {
-    let robot = format!("group = \"{group}\"\nlisten = [\"tcp/127.0.0.1:{port}\"]\nconnect = []\n");
-    let workstation =
-        format!("group = \"{group}\"\nlisten = []\nconnect = [\"tcp/127.0.0.1:{port}\"]\n");
+    let robot = format!(
+        "group = \"{group}\"\nlisten = [\"tcp/127.0.0.1:{port}\"]\nconnect = []\n\
+         peer_timeout_ms = 60000\n"
+    );
+    let workstation = format!(
+        "group = \"{group}\"\nlisten = []\nconnect = [\"tcp/127.0.0.1:{port}\"]\n\
+         peer_timeout_ms = 60000\n"
+    );
     (robot, workstation)
 }
 
