@@ -162,6 +162,8 @@ pub fn run(args: &BenchArgs) -> Result<()> {
 /// What `tes bench latency --json` prints.
 #[derive(Debug, Serialize)]
 struct LatencyResult {
+    /// How the processes reached each other: `shm` or `zenoh`.
+    via: &'static str,
     wait: String,
     actions: u64,
     budget_us: u64,
@@ -342,18 +344,16 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         );
     }
     let cycle_us = (elapsed.as_micros() / u128::from(total)) as u64;
+    let floor_kind = match args.via {
+        Via::Shm => "a raw iceoryx2 two-hop relay",
+        Via::Zenoh => "the same two hops over a Zenoh link on loopback TCP, with no work",
+    };
     eprintln!(
-        "bench: the floor — a raw iceoryx2 two-hop relay, {total} round trips, wait {wait}, one every {cycle_us} us"
+        "bench: the floor — {floor_kind}, {total} round trips, wait {wait}, one every {cycle_us} us"
     );
     let (floor, floor_decision) = match args.via {
         Via::Shm => run_floor(dir, &prefix, wait, cycle_us, args, placement.acting)?,
-        Via::Zenoh => {
-            eprintln!(
-                "bench: (--via zenoh) the floor is the same two hops over a Zenoh link on \
-                 loopback TCP, with no work"
-            );
-            zenoh_floor(cycle_us, args)?
-        }
+        Via::Zenoh => zenoh_floor(cycle_us, args)?,
     };
     let recorder = if args.record {
         Some(compare_recorder(&file, &stored, &files, dir, args)?)
@@ -361,6 +361,10 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         None
     };
     let result = LatencyResult {
+        via: match args.via {
+            Via::Shm => "shm",
+            Via::Zenoh => "zenoh",
+        },
         wait: wait.to_string(),
         actions: ours.count,
         budget_us: args.budget_us,

@@ -19,6 +19,10 @@
 //!   ROS 2 launch does: SIGINT, then SIGTERM after `grace_ms`, then SIGKILL after another
 //!   `grace_ms`. The controller saves the library on the way out.
 //!
+//! * with `--roles` (`[launch] roles`), starts only those children and reaches the others,
+//!   in launches on other hosts, through its link ([`crate::link`]): it waits for them before
+//!   starting anything, stops with them, and stops (non-zero) when one is lost.
+//!
 //! It exits non-zero if a child failed.
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};

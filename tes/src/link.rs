@@ -798,7 +798,7 @@ fn inbound(
                 Ok(false) => {}
                 Err(why) => {
                     let count = shared.refused[topic].fetch_add(1, Ordering::Relaxed) + 1;
-                    if count == 1 || count % 100 == 0 {
+                    if count == 1 || count.is_multiple_of(100) {
                         shared.push(LinkEvent::Refused {
                             topic: TOPICS[topic],
                             why,
