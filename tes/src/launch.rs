@@ -209,6 +209,56 @@ mod tests {
         }
     }
 
+    /// `roles` starts only the named children; an unknown or repeated role, and link settings
+    /// that cannot work, are refused naming their key.
+    #[test]
+    fn roles_name_the_children_and_bad_roles_or_link_settings_are_refused() {
+        let (_, ok) = prepared("roles = [\"controller\"]\n");
+        let specs = ok.expect("prepared").specs;
+        assert_eq!(
+            specs.iter().map(|s| s.role).collect::<Vec<_>>(),
+            ["controller"]
+        );
+        let (_, ok) = prepared("roles = [\"bridge\", \"perception-sim\"]\n");
+        let specs = ok.expect("prepared").specs;
+        assert_eq!(
+            specs.iter().map(|s| s.role).collect::<Vec<_>>(),
+            ["bridge", "perception-sim"]
+        );
+        for (extra, key, reason) in [
+            ("roles = [\"brige\"]\n", "roles", "unknown role \"brige\""),
+            (
+                "roles = [\"bridge\", \"bridge\"]\n",
+                "roles",
+                "\"bridge\" is listed twice",
+            ),
+            (
+                "roles = [\"bridge\"]\n[launch.link]\ngroup = \"a*b\"\n",
+                "link.group",
+                "is not a group name",
+            ),
+            (
+                "roles = [\"bridge\"]\n[launch.link]\nconnect = [\"udp/10.0.0.1:7447\"]\n",
+                "link.connect",
+                "is not a TCP endpoint",
+            ),
+            (
+                "roles = [\"bridge\"]\n[launch.link]\npeer_timeout_ms = 5\n",
+                "link.peer_timeout_ms",
+                "at least 100",
+            ),
+        ] {
+            let (_, bad) = prepared(extra);
+            let err = bad.expect_err(extra);
+            let e = setting(&err);
+            assert_eq!((e.process, e.key.as_str()), ("launch", key), "{extra}");
+            assert!(e.reason.contains(reason), "{extra}: {}", e.reason);
+        }
+        // Link settings are not checked without roles: nothing uses them.
+        let (_, ok) = prepared("[launch.link]\npeer_timeout_ms = 5\n");
+        assert!(ok.is_ok());
+    }
+
     #[test]
     fn keep_alives_must_come_well_within_the_watchdog_deadline() {
         let (_, ok) = prepared("");
