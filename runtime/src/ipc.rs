@@ -31,6 +31,40 @@ pub fn ipc_err<E: fmt::Debug>(context: &'static str) -> impl FnOnce(E) -> IpcErr
     }
 }
 
+/// The environment variable that names a process's iceoryx2 domain: processes with different
+/// domains share no iceoryx2 resource (their files start with `iox2_<domain>_`), so two
+/// groups on one machine cannot reach each other through shared memory (the multi-host
+/// tests run two "hosts" this way). Unset or empty: iceoryx2's default domain.
+pub const DOMAIN_VAR: &str = "TES_IPC_DOMAIN";
+
+/// The iceoryx2 config of this process: the defaults, in the domain [`DOMAIN_VAR`] names.
+/// A domain name iceoryx2 cannot use as a file name prefix is ignored with a warning.
+pub fn config() -> &'static Config {
+    static CONFIG: std::sync::OnceLock<Config> = std::sync::OnceLock::new();
+    CONFIG.get_or_init(|| {
+        let mut config = Config::default();
+        if let Ok(domain) = std::env::var(DOMAIN_VAR)
+            && !domain.is_empty()
+        {
+            let prefix = format!("iox2_{domain}_");
+            match iceoryx2::prelude::FileName::new(prefix.as_bytes()) {
+                Ok(name)
+                    if domain
+                        .bytes()
+                        .all(|b| b.is_ascii_alphanumeric() || b == b'-') =>
+                {
+                    config.global.prefix = name;
+                }
+                _ => eprintln!(
+                    "{DOMAIN_VAR}={domain:?} is not a domain name (ASCII letters, digits, '-'); \
+                     using the default domain"
+                ),
+            }
+        }
+        config
+    })
+}
+
 /// Creates a process's iceoryx2 node with an explicit default config (no "no config file"
 /// warning); `handle_signals` lets iceoryx2 turn SIGINT/SIGTERM into a termination request
 /// (a launcher that handles signals itself passes `false`).
@@ -41,7 +75,7 @@ pub fn node(handle_signals: bool) -> Result<Node<ipc::Service>, IpcError> {
         SignalHandlingMode::Disabled
     };
     NodeBuilder::new()
-        .config(&Config::default())
+        .config(config())
         .signal_handling_mode(mode)
         .create::<ipc::Service>()
         .map_err(ipc_err("create the node"))
@@ -66,7 +100,7 @@ pub fn node_named(name: &str, handle_signals: bool) -> Result<Node<ipc::Service>
     };
     NodeBuilder::new()
         .name(&node_name)
-        .config(&Config::default())
+        .config(config())
         .signal_handling_mode(mode)
         .create::<ipc::Service>()
         .map_err(ipc_err("create the node"))
@@ -156,7 +190,7 @@ pub struct NodeEntry {
 pub fn list_nodes() -> Result<Vec<NodeEntry>, IpcError> {
     use iceoryx2::node::NodeView;
     let mut nodes = Vec::new();
-    Node::<ipc::Service>::list(&Config::default(), |state| {
+    Node::<ipc::Service>::list(config(), |state| {
         let (details, liveness) = match &state {
             NodeState::Alive(view) => (view.details().as_ref(), NodeLiveness::Alive),
             NodeState::Dead(view) => (view.details().as_ref(), NodeLiveness::Dead),
@@ -179,7 +213,7 @@ pub fn list_nodes() -> Result<Vec<NodeEntry>, IpcError> {
 pub fn clean_stale_resources() -> Result<usize, IpcError> {
     let mut cleaned = 0;
     let mut failures = Vec::new();
-    Node::<ipc::Service>::list(&Config::default(), |state| {
+    Node::<ipc::Service>::list(config(), |state| {
         if let NodeState::<ipc::Service>::Dead(view) = state {
             match view.try_remove_stale_resources() {
                 Ok(()) => cleaned += 1,
@@ -246,7 +280,7 @@ fn max_buffer_of(name: &str, history: usize) -> usize {
 pub fn services_with_prefix(prefix: &str) -> Result<Vec<String>, IpcError> {
     use iceoryx2::service::Service as _;
     let mut names = Vec::new();
-    ipc::Service::list(&Config::default(), |service| {
+    ipc::Service::list(config(), |service| {
         let name = service.static_details.name().to_string();
         if name.starts_with(prefix) {
             names.push(name);

@@ -110,6 +110,21 @@ pub struct LatencyArgs {
     /// warm-up.
     #[arg(long, default_value_t = 4, value_name = "N")]
     record_blocks: u64,
+    /// How the processes reach each other: shm (one host, iceoryx2 only; the floor a raw
+    /// iceoryx2 relay) or zenoh (the group split in two launches, perception-sim and bridge
+    /// in one, the controller in the other, each in an iceoryx2 domain of its own, linked by
+    /// Zenoh over loopback TCP; the floor the same two hops over a Zenoh link with no work).
+    #[arg(long, value_enum, default_value = "shm")]
+    via: Via,
+}
+
+/// `tes bench latency --via`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Via {
+    /// One host, shared memory.
+    Shm,
+    /// Two launches linked by Zenoh.
+    Zenoh,
 }
 
 /// Arguments of `tes bench scaling`.
@@ -147,6 +162,8 @@ pub fn run(args: &BenchArgs) -> Result<()> {
 /// What `tes bench latency --json` prints.
 #[derive(Debug, Serialize)]
 struct LatencyResult {
+    /// How the processes reached each other: `shm` or `zenoh`.
+    via: &'static str,
     wait: String,
     actions: u64,
     budget_us: u64,
@@ -308,7 +325,10 @@ fn latency(args: &LatencyArgs) -> Result<()> {
     eprintln!("bench: ours — perception-sim → controller → bridge on Env 3, {total} actions");
     let file = group_file(dir, &prefix, wait, args, placement, &files)?;
     let started = Instant::now();
-    let (ours, controller) = run_group(&file, &stored, &files)?;
+    let (ours, controller) = match args.via {
+        Via::Shm => run_group(&file, &stored, &files)?,
+        Via::Zenoh => run_split_group(&file, &stored, &files, dir)?,
+    };
     let elapsed = started.elapsed();
     if ours.count < args.actions {
         bail!(
@@ -324,16 +344,27 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         );
     }
     let cycle_us = (elapsed.as_micros() / u128::from(total)) as u64;
+    let floor_kind = match args.via {
+        Via::Shm => "a raw iceoryx2 two-hop relay",
+        Via::Zenoh => "the same two hops over a Zenoh link on loopback TCP, with no work",
+    };
     eprintln!(
-        "bench: the floor — a raw iceoryx2 two-hop relay, {total} round trips, wait {wait}, one every {cycle_us} us"
+        "bench: the floor — {floor_kind}, {total} round trips, wait {wait}, one every {cycle_us} us"
     );
-    let (floor, floor_decision) = run_floor(dir, &prefix, wait, cycle_us, args, placement.acting)?;
+    let (floor, floor_decision) = match args.via {
+        Via::Shm => run_floor(dir, &prefix, wait, cycle_us, args, placement.acting)?,
+        Via::Zenoh => zenoh_floor(cycle_us, args)?,
+    };
     let recorder = if args.record {
         Some(compare_recorder(&file, &stored, &files, dir, args)?)
     } else {
         None
     };
     let result = LatencyResult {
+        via: match args.via {
+            Via::Shm => "shm",
+            Via::Zenoh => "zenoh",
+        },
         wait: wait.to_string(),
         actions: ours.count,
         budget_us: args.budget_us,
@@ -397,7 +428,13 @@ fn latency(args: &LatencyArgs) -> Result<()> {
             name, r.p50_us, r.p90_us, r.p99_us, r.p999_us, r.max_us, r.misses
         );
     };
-    row("floor (raw two-hop relay)", &floor);
+    row(
+        match args.via {
+            Via::Shm => "floor (raw two-hop relay)",
+            Via::Zenoh => "floor (two hops over Zenoh)",
+        },
+        &floor,
+    );
     row("floor: first hop only", &result.floor_decision);
     row("ours: observation -> bridge", &ours);
     row("ours: controller decision only", &controller.latency);
@@ -455,6 +492,217 @@ fn run_group(
     )
     .context("the controller's report is malformed")?;
     Ok((report, summary))
+}
+
+/// [`run_group`] split in two launches linked by Zenoh over loopback TCP: perception-sim and
+/// the bridge in this process's launch, the controller in a `tes launch` of its own with an
+/// iceoryx2 domain of its own (so only the link connects them).
+fn run_split_group(
+    file: &LaunchFile,
+    stored: &StoredLibrary,
+    files: &RunFiles,
+    dir: &Path,
+) -> Result<(LatencyReport, ControllerSummary)> {
+    store::save(&files.library, stored)?;
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .context("no free TCP port on loopback")?;
+    let group = format!("tes-bench/{}", std::process::id());
+    let mut robot = file.clone();
+    robot.launch.roles = vec!["perception-sim".into(), "bridge".into()];
+    let link = &mut robot.launch.link;
+    link.group.clone_from(&group);
+    link.listen = vec![format!("tcp/127.0.0.1:{port}")];
+    link.connect = Vec::new();
+    link.multicast_scouting = Some(false);
+    // One machine, one clock: the latency is measured across the link.
+    link.restamp = false;
+    let mut workstation = robot.clone();
+    workstation.launch.roles = vec!["controller".into()];
+    workstation.launch.run_dir = Some(dir.join("run-controller"));
+    let link = &mut workstation.launch.link;
+    link.listen = Vec::new();
+    link.connect = vec![format!("tcp/127.0.0.1:{port}")];
+    let text = crate::launch::render_launch_file(&workstation)?;
+    let path = dir.join("controller-launch.toml");
+    std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
+    let exe = std::env::current_exe().context("cannot find the tes executable")?;
+    let log = std::fs::File::create(dir.join("controller-launch.log"))
+        .context("cannot create the controller launch's log")?;
+    let mut other = std::process::Command::new(exe)
+        .arg("launch")
+        .arg("--config")
+        .arg(&path)
+        .env(
+            tes_runtime::channel::DOMAIN_VAR,
+            format!("bench{}", std::process::id()),
+        )
+        .stdin(std::process::Stdio::null())
+        .stdout(log.try_clone().context("cannot share the log")?)
+        .stderr(log)
+        .spawn()
+        .context("cannot start the controller's launch")?;
+    let ran = launch::run_file(&robot, false).context("the robot's launch failed");
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let status = loop {
+        if let Some(s) = other
+            .try_wait()
+            .context("cannot poll the controller's launch")?
+        {
+            break Some(s);
+        }
+        if Instant::now() > deadline {
+            let _ = other.kill();
+            let _ = other.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    ran?;
+    match status {
+        Some(s) if s.success() => {}
+        Some(s) => bail!(
+            "the controller's launch {} (see {})",
+            launch::describe(s),
+            dir.join("controller-launch.log").display()
+        ),
+        None => bail!("the controller's launch did not stop"),
+    }
+    let report = LatencyReport::load(&files.bridge_report)
+        .with_context(|| format!("no bridge report at {}", files.bridge_report.display()))?;
+    let path = &files.controller_report;
+    let summary: ControllerSummary = serde_json::from_str(
+        &std::fs::read_to_string(path)
+            .with_context(|| format!("no controller report at {}", path.display()))?,
+    )
+    .context("the controller's report is malformed")?;
+    Ok((report, summary))
+}
+
+/// The floor of `--via zenoh`: the loop's two hops over a Zenoh link on loopback TCP with no
+/// work — an observation's bytes out, a command's bytes back at once — one round trip every
+/// `cycle_us`; the round trip, and its first hop alone.
+fn zenoh_floor(cycle_us: u64, args: &LatencyArgs) -> Result<(LatencyReport, LatencyReport)> {
+    use std::sync::mpsc;
+    use tes_topics::wire::as_bytes;
+    use zenoh::Wait;
+
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .context("no free TCP port on loopback")?;
+    let group = format!("tes-bench-floor/{}", std::process::id());
+    let config = |listen: Vec<String>, connect: Vec<String>| {
+        crate::link::LinkSection {
+            group: group.clone(),
+            listen,
+            connect,
+            multicast_scouting: Some(false),
+            ..crate::link::LinkSection::default()
+        }
+        .zenoh_config()
+    };
+    let here = zenoh::open(config(vec![format!("tcp/127.0.0.1:{port}")], Vec::new())?)
+        .wait()
+        .map_err(|e| anyhow::anyhow!("cannot open the floor's Zenoh session: {e}"))?;
+    let there = zenoh::open(config(Vec::new(), vec![format!("tcp/127.0.0.1:{port}")])?)
+        .wait()
+        .map_err(|e| anyhow::anyhow!("cannot open the floor's Zenoh session: {e}"))?;
+    let publisher = |s: &zenoh::Session, key: String| {
+        s.declare_publisher(key)
+            .congestion_control(zenoh::qos::CongestionControl::Block)
+            .express(true)
+            .wait()
+            .map_err(|e| anyhow::anyhow!("cannot publish on the floor's link: {e}"))
+    };
+    let observations = publisher(&here, format!("{group}/observation"))?;
+    let commands = publisher(&there, format!("{group}/command"))?;
+    let (hop_tx, hop_rx) = mpsc::channel::<u64>();
+    let _hop = there
+        .declare_subscriber(format!("{group}/observation"))
+        .callback(move |sample| {
+            let now = tes_runtime::clock::monotonic_ns();
+            let bytes = sample.payload().to_bytes();
+            let stamp = bytes
+                .get(8..16)
+                .and_then(|b| <[u8; 8]>::try_from(b).ok())
+                .map_or(0, u64::from_ne_bytes);
+            let _ = hop_tx.send(now.saturating_sub(stamp));
+            let command = tes_topics::Command {
+                observed_ns: stamp,
+                stamp_ns: now,
+                ..tes_topics::Command::default()
+            };
+            let _ = commands.put(as_bytes(&command)).wait();
+        })
+        .wait()
+        .map_err(|e| anyhow::anyhow!("cannot subscribe on the floor's link: {e}"))?;
+    let (back_tx, back_rx) = mpsc::channel::<u64>();
+    let _back = here
+        .declare_subscriber(format!("{group}/command"))
+        .callback(move |sample| {
+            let now = tes_runtime::clock::monotonic_ns();
+            let bytes = sample.payload().to_bytes();
+            // `observed_ns` is the command's fourth u64.
+            let stamp = bytes
+                .get(24..32)
+                .and_then(|b| <[u8; 8]>::try_from(b).ok())
+                .map_or(0, u64::from_ne_bytes);
+            let _ = back_tx.send(now.saturating_sub(stamp));
+        })
+        .wait()
+        .map_err(|e| anyhow::anyhow!("cannot subscribe on the floor's link: {e}"))?;
+    let mut round = tes_runtime::latency::LatencyRecorder::new(args.budget_us, args.warmup);
+    let mut hop = tes_runtime::latency::LatencyRecorder::new(args.budget_us, args.warmup);
+    let total = args.actions + args.warmup;
+    let gap = Duration::from_micros(cycle_us);
+    let mut sent = 0u64;
+    let started = Instant::now();
+    // The link's first samples may precede the subscriptions being known: wait for a first
+    // round trip before measuring.
+    while back_rx.try_recv().is_err() {
+        if started.elapsed() > Duration::from_secs(20) {
+            bail!("the floor's Zenoh link never carried a sample");
+        }
+        let o = tes_topics::Observation {
+            stamp_ns: tes_runtime::clock::monotonic_ns(),
+            ..tes_topics::Observation::default()
+        };
+        let _ = observations.put(as_bytes(&o)).wait();
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    while hop_rx.try_recv().is_ok() {}
+    while back_rx.try_recv().is_ok() {}
+    while sent < total {
+        let next = Instant::now() + gap;
+        let o = tes_topics::Observation {
+            seq: sent + 1,
+            stamp_ns: tes_runtime::clock::monotonic_ns(),
+            ..tes_topics::Observation::default()
+        };
+        observations
+            .put(as_bytes(&o))
+            .wait()
+            .map_err(|e| anyhow::anyhow!("the floor's link: {e}"))?;
+        sent += 1;
+        let back = back_rx
+            .recv_timeout(Duration::from_secs(5))
+            .context("the floor's link lost a round trip")?;
+        round.record_ns(back);
+        if let Ok(h) = hop_rx.recv_timeout(Duration::from_secs(1)) {
+            hop.record_ns(h);
+        }
+        let left = next.saturating_duration_since(Instant::now());
+        if !left.is_zero() {
+            std::thread::sleep(left);
+        }
+    }
+    drop(_hop);
+    drop(_back);
+    let _ = here.close().wait();
+    let _ = there.close().wait();
+    Ok((round.report(), hop.report()))
 }
 
 /// `--record`: blocks without and with the recorder, alternating, each of

@@ -19,6 +19,10 @@
 //!   ROS 2 launch does: SIGINT, then SIGTERM after `grace_ms`, then SIGKILL after another
 //!   `grace_ms`. The controller saves the library on the way out.
 //!
+//! * with `--roles` (`[launch] roles`), starts only those children and reaches the others,
+//!   in launches on other hosts, through its link ([`crate::link`]): it waits for them before
+//!   starting anything, stops with them, and stops (non-zero) when one is lost.
+//!
 //! It exits non-zero if a child failed.
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
@@ -57,6 +61,7 @@ pub use child::run_child;
 pub(crate) use file::*;
 pub(crate) use group::*;
 use logs::ChildLine;
+pub(crate) use reference::render_resolved as render_launch_file;
 use run_folder::RUNS;
 
 /// Arguments of `tes launch`.
@@ -85,13 +90,18 @@ pub struct LaunchArgs {
         num_args = 0..=1,
         require_equals = true,
         default_missing_value = "toml",
-        conflicts_with_all = ["config", "episodes", "tui", "record"]
+        conflicts_with_all = ["config", "episodes", "tui", "record", "roles"]
     )]
     print_config: Option<reference::Format>,
     /// Record the run to this MCAP file (overrides `[launch] record`): every observation,
     /// command and motor state, for `tes replay` and viewers such as Foxglove.
     #[arg(long, value_name = "FILE.mcap")]
     record: Option<PathBuf>,
+    /// Start only these processes (comma-separated: perception-sim, controller, bridge;
+    /// overrides `[launch] roles`); the others run on other hosts, reached over Zenoh
+    /// (`[launch.link]`, docs/multi-host.md).
+    #[arg(long, value_delimiter = ',', value_name = "ROLE,...")]
+    roles: Option<Vec<String>>,
 }
 
 /// Runs `tes launch`.
@@ -111,6 +121,13 @@ pub fn run(args: &LaunchArgs) -> Result<()> {
     }
     if let Some(path) = &args.record {
         file.launch.record = Some(path.clone());
+    }
+    if let Some(roles) = &args.roles {
+        file.launch.roles.clone_from(roles);
+        // Said by the user, so placed as theirs: a bad role is named with the flag.
+        if let Err(e) = check_launch(&file.launch) {
+            bail!("--roles: {}; nothing was started", e.reason);
+        }
     }
     let prepared = prepare(&file)?;
     run_group(&file, prepared, true, args.tui).map(|_| ())
@@ -190,6 +207,56 @@ mod tests {
                 "{shown}"
             );
         }
+    }
+
+    /// `roles` starts only the named children; an unknown or repeated role, and link settings
+    /// that cannot work, are refused naming their key.
+    #[test]
+    fn roles_name_the_children_and_bad_roles_or_link_settings_are_refused() {
+        let (_, ok) = prepared("roles = [\"controller\"]\n");
+        let specs = ok.expect("prepared").specs;
+        assert_eq!(
+            specs.iter().map(|s| s.role).collect::<Vec<_>>(),
+            ["controller"]
+        );
+        let (_, ok) = prepared("roles = [\"bridge\", \"perception-sim\"]\n");
+        let specs = ok.expect("prepared").specs;
+        assert_eq!(
+            specs.iter().map(|s| s.role).collect::<Vec<_>>(),
+            ["bridge", "perception-sim"]
+        );
+        for (extra, key, reason) in [
+            ("roles = [\"brige\"]\n", "roles", "unknown role \"brige\""),
+            (
+                "roles = [\"bridge\", \"bridge\"]\n",
+                "roles",
+                "\"bridge\" is listed twice",
+            ),
+            (
+                "roles = [\"bridge\"]\n[launch.link]\ngroup = \"a*b\"\n",
+                "link.group",
+                "is not a group name",
+            ),
+            (
+                "roles = [\"bridge\"]\n[launch.link]\nconnect = [\"udp/10.0.0.1:7447\"]\n",
+                "link.connect",
+                "is not a TCP endpoint",
+            ),
+            (
+                "roles = [\"bridge\"]\n[launch.link]\npeer_timeout_ms = 5\n",
+                "link.peer_timeout_ms",
+                "at least 100",
+            ),
+        ] {
+            let (_, bad) = prepared(extra);
+            let err = bad.expect_err(extra);
+            let e = setting(&err);
+            assert_eq!((e.process, e.key.as_str()), ("launch", key), "{extra}");
+            assert!(e.reason.contains(reason), "{extra}: {}", e.reason);
+        }
+        // Link settings are not checked without roles: nothing uses them.
+        let (_, ok) = prepared("[launch.link]\npeer_timeout_ms = 5\n");
+        assert!(ok.is_ok());
     }
 
     #[test]

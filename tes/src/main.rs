@@ -10,6 +10,7 @@ mod experiment;
 mod fit;
 mod launch;
 mod library;
+mod link;
 mod record;
 mod status;
 

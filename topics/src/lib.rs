@@ -34,6 +34,7 @@
 use iceoryx2::prelude::ZeroCopySend;
 
 pub mod names;
+pub mod wire;
 mod world_map;
 
 pub use world_map::{MAX_ACTIONS, MAX_EFFECTS, MAX_STATES, WorldMap};
@@ -345,7 +346,7 @@ pub fn effect_between(
 }
 
 /// Which process of the group a [`Progress`] report comes from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 #[repr(u32)]
 pub enum Role {
     /// perception-sim: the world and its camera.

@@ -54,6 +54,12 @@ pub struct LaunchSection {
     /// Record the run to this MCAP file (`tes launch --record`); unset (the default): no
     /// recording.
     pub record: Option<PathBuf>,
+    /// The processes this launch starts (`tes launch --roles`): some of `perception-sim`,
+    /// `controller`, `bridge`; the others run on other hosts, reached through the link
+    /// (`[launch.link]`). Empty (the default): all three, on this host, and no link.
+    pub roles: Vec<String>,
+    /// How a launch with roles reaches the other hosts.
+    pub link: crate::link::LinkSection,
 }
 
 impl Default for LaunchSection {
@@ -73,6 +79,8 @@ impl Default for LaunchSection {
             seed: 1,
             stall_timeout_ms: 10_000,
             record: None,
+            roles: Vec::new(),
+            link: crate::link::LinkSection::default(),
         }
     }
 }
@@ -211,6 +219,16 @@ impl LaunchFile {
     /// (what writing the key in the table does in a file).
     pub(crate) fn keep(&mut self, table: &str, key: &str) {
         self.own.insert(format!("{table}.{key}"));
+    }
+
+    /// The roles this launch plays, in [`Role::ALL`] order; `None` when it plays all three on
+    /// one host (no link).
+    pub(crate) fn roles(&self) -> Option<Vec<Role>> {
+        let roles: Vec<Role> = Role::ALL
+            .into_iter()
+            .filter(|r| self.launch.roles.iter().any(|n| n == r.name()))
+            .collect();
+        (!roles.is_empty() && roles.len() < Role::ALL.len()).then_some(roles)
     }
 
     /// The arena perception runs: its own `arena` if its table sets one, else `[launch] arena`.
@@ -360,6 +378,24 @@ pub(crate) fn check_launch(l: &LaunchSection) -> Result<(), SettingError> {
     }
     if l.service_prefix.len() > 64 {
         return bad("service_prefix", "must be at most 64 bytes".into());
+    }
+    let mut seen = BTreeSet::new();
+    for role in &l.roles {
+        if crate::link::parse_role(role).is_none() {
+            return bad(
+                "roles",
+                format!(
+                    "unknown role {role:?}: the roles are \"perception-sim\", \"controller\" \
+                     and \"bridge\""
+                ),
+            );
+        }
+        if !seen.insert(role.as_str()) {
+            return bad("roles", format!("{role:?} is listed twice"));
+        }
+    }
+    if !l.roles.is_empty() {
+        l.link.check().or_else(|(key, reason)| bad(key, reason))?;
     }
     Ok(())
 }
@@ -535,7 +571,9 @@ pub(crate) fn prepare(file: &LaunchFile) -> Result<Prepared, LaunchFileError> {
         ("perception-sim", toml::to_string(&children.perception)),
     ];
     let mut specs = Vec::new();
-    for (role, text) in texts {
+    let plays =
+        |role: &str| file.launch.roles.is_empty() || file.launch.roles.iter().any(|r| r == role);
+    for (role, text) in texts.into_iter().filter(|(role, _)| plays(role)) {
         let text = text
             .with_context(|| format!("cannot write the {role}'s settings"))
             .map_err(unwritable)?;

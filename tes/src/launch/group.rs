@@ -2,6 +2,7 @@
 //! them.
 
 use super::*;
+use crate::link::{Link, LinkEvent};
 
 /// The roles this executable plays as a child.
 pub const ROLES: [&str; 3] = ["bridge", "controller", "perception-sim"];
@@ -96,11 +97,19 @@ pub(crate) fn run_group(
             launch.keep_runs
         ));
     }
+    // A launch of some roles reaches the others over its link, and starts nothing before
+    // they are all there.
+    let mut link = match file.roles() {
+        Some(local) => Some(open_link(file, &local, &names, &stop, &say, echo)?),
+        None => None,
+    };
     let record =
         run_record::RunRecord::create(&prepared.run_dir, file.controller.budget_us, file.arena())?;
     let run_dir = prepared.run_dir.clone();
     let library = file.controller.library_path();
+    let plays_controller = prepared.specs.iter().any(|s| s.role == "controller");
     match std::fs::symlink_metadata(&library) {
+        _ if !plays_controller => {}
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => note(format!(
             "launch: no view library at {}; the controller starts from an empty one",
             library.display()
@@ -181,11 +190,66 @@ pub(crate) fn run_group(
     // group may go without a new one.
     let mut last_steps = None;
     let mut stall_deadline = Instant::now() + START_ALLOWANCE + stall_timeout;
+    // Why this launch stopped, for its peers; `None` when a peer stopped it.
+    let mut stop_reason = Some("the group stopped".to_owned());
     'supervise: loop {
         relay.drain(&lines);
         if stop.load(Ordering::Relaxed) {
             say.err("launch: stop requested; stopping the group");
+            stop_reason = Some("stop requested (Ctrl-C or SIGTERM) on a peer".into());
             break;
+        }
+        if let Some(l) = &link {
+            for event in l.events() {
+                match event {
+                    LinkEvent::Joined(role) => {
+                        note(format!("launch: link: the {} joined again", role.name()))
+                    }
+                    LinkEvent::Refused { topic, why, count } => say.err(&format!(
+                        "launch: link: warning: refused a {topic} sample from a peer: {why} \
+                         ({count} refused so far)"
+                    )),
+                    LinkEvent::Left(role) => {
+                        let lost = format!(
+                            "link: the {}'s launch left the group (its host stopped, was killed \
+                             or cannot be reached)",
+                            role.name()
+                        );
+                        say.err(&format!("launch: {lost}; stopping the group"));
+                        if role == Role::Controller
+                            && children.iter().any(|c| c.spec.role == "bridge")
+                        {
+                            // As with a controller that dies on this host: a motion under way
+                            // is braked by the bridge's watchdog, not cut short by the stop.
+                            std::thread::sleep(watchdog_wall(file));
+                        }
+                        stop_reason = Some(lost.clone());
+                        failure = Some(lost);
+                        break 'supervise;
+                    }
+                    LinkEvent::Twice(role) => {
+                        let twice = format!(
+                            "link: another launch of group {:?} plays the {} too",
+                            launch.link.group,
+                            role.name()
+                        );
+                        say.err(&format!("launch: {twice}; stopping the group"));
+                        stop_reason = Some(twice.clone());
+                        failure = Some(twice);
+                        break 'supervise;
+                    }
+                    LinkEvent::Stop { clean, reason } => {
+                        say.err(&format!(
+                            "launch: link: a peer stopped the group ({reason}); stopping"
+                        ));
+                        if !clean {
+                            failure = Some(format!("a peer failed: {reason}"));
+                        }
+                        stop_reason = None;
+                        break 'supervise;
+                    }
+                }
+            }
         }
         let mut respawned = Vec::new();
         for i in 0..children.len() {
@@ -200,6 +264,7 @@ pub(crate) fn run_group(
             if role == "perception-sim" && status.success() {
                 note("launch: perception-sim finished its episodes; stopping the group".into());
                 children[i].status = Some(status);
+                stop_reason = Some("perception-sim finished its episodes".into());
                 break 'supervise;
             }
             let why = describe(status);
@@ -320,6 +385,13 @@ pub(crate) fn run_group(
     // The terminal is the user's again: the shutdown and the summary are printed.
     drop(view);
     say.release();
+    // The peers stop too, told why: cleanly unless something failed here.
+    if let (Some(l), Some(reason)) = (&link, &stop_reason) {
+        match &failure {
+            Some(f) => l.send_stop(false, f),
+            None => l.send_stop(true, reason),
+        }
+    }
     shutdown(&mut children, grace);
     // Every child has exited; take what they wrote last (the controller reports its last
     // episode and its summary on the way out).
@@ -329,6 +401,10 @@ pub(crate) fn run_group(
         relay.take(line);
     }
     let episodes = relay.episodes;
+    if let Some(mut l) = link.take() {
+        note(format!("launch: link: from peers {}", l.counts()));
+        l.close();
+    }
     let drawn = relay.record.finish();
     let mut failed: Vec<String> = failure.into_iter().collect();
     if let Some(r) = recorder {
@@ -372,9 +448,12 @@ pub(crate) fn run_group(
                 run_dir.display()
             )),
         }
-        let end = LibraryOutcome::read(report.as_deref(), &library, library_at_start);
-        for line in end.lines(&library, &default_library) {
-            say.out(&line);
+        // The library is the controller's: a launch without it says nothing of it.
+        if report.is_some() {
+            let end = LibraryOutcome::read(report.as_deref(), &library, library_at_start);
+            for line in end.lines(&library, &default_library) {
+                say.out(&line);
+            }
         }
 
         say.out(&format!(
@@ -600,6 +679,110 @@ impl LibraryOutcome {
             });
         }
         lines
+    }
+}
+
+/// The bridge's watchdog deadline in wall time (its settings are in brick time).
+fn watchdog_wall(file: &LaunchFile) -> Duration {
+    match file.children() {
+        Ok(c) => {
+            let scale = if c.bridge.transport == TransportKind::Sim {
+                c.bridge.brick.time_scale.max(1e-3)
+            } else {
+                1.0
+            };
+            Duration::from_secs_f64(c.bridge.watchdog.deadline_ms as f64 / 1000.0 / scale)
+                + Duration::from_millis(200)
+        }
+        Err(_) => Duration::from_secs(1),
+    }
+}
+
+/// Opens the link of a launch playing `local` and waits until every other role's launch is
+/// there (at most `[launch.link] peer_timeout_ms`), saying whom it waits for.
+fn open_link(
+    file: &LaunchFile,
+    local: &[Role],
+    names: &ServiceNames,
+    stop: &AtomicBool,
+    say: &logs::Say,
+    echo: bool,
+) -> Result<Link> {
+    let settings = &file.launch.link;
+    let link = Link::open(settings, local, names).context("nothing was started")?;
+    let list = |roles: &[Role]| {
+        roles
+            .iter()
+            .map(|r| r.name())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    if echo {
+        say.err(&format!(
+            "launch: link: this launch plays {} in group {:?} (Zenoh {:?}, id {}, listen {:?}, \
+             connect {:?})",
+            list(local),
+            settings.group,
+            settings.mode,
+            link.zid(),
+            settings.listen,
+            settings.connect
+        ));
+    }
+    let timeout = Duration::from_millis(settings.peer_timeout_ms);
+    let start = Instant::now();
+    let mut said = Instant::now() - Duration::from_secs(10);
+    loop {
+        for event in link.events() {
+            match event {
+                LinkEvent::Twice(role) => bail!(
+                    "two launches of group {:?} play the {}: give each role to one launch; \
+                     nothing was started",
+                    settings.group,
+                    role.name()
+                ),
+                LinkEvent::Stop { reason, .. } => bail!(
+                    "a peer stopped the group while this launch waited ({reason}); nothing \
+                     was started"
+                ),
+                LinkEvent::Joined(role) if echo => {
+                    say.err(&format!("launch: link: the {} is there", role.name()))
+                }
+                _ => {}
+            }
+        }
+        let missing = link.missing();
+        if missing.is_empty() {
+            return Ok(link);
+        }
+        if stop.load(Ordering::Relaxed) {
+            bail!(
+                "stop requested while waiting for the {}; nothing was started",
+                list(&missing)
+            );
+        }
+        if start.elapsed() >= timeout {
+            bail!(
+                "no launch of group {:?} playing the {} was reached within {:.1} s \
+                 ([launch.link] peer_timeout_ms): is it started, with the same group, and can \
+                 this host reach it (listen {:?}, connect {:?})?; nothing was started",
+                settings.group,
+                list(&missing),
+                timeout.as_secs_f64(),
+                settings.listen,
+                settings.connect
+            );
+        }
+        if echo && said.elapsed() >= Duration::from_secs(5) {
+            said = Instant::now();
+            say.err(&format!(
+                "launch: link: waiting for the {} (group {:?}; gives up after {:.0} s)",
+                list(&missing),
+                settings.group,
+                timeout.as_secs_f64()
+            ));
+        }
+        std::thread::sleep(Duration::from_millis(20));
     }
 }
 

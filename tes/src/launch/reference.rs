@@ -114,6 +114,13 @@ pub(crate) const TABLES: &[Table] = &[
                 into the children's tables (the inherited keys).",
     },
     Table {
+        name: "launch.link",
+        array: false,
+        about: "How a launch that starts only some of the processes (`roles`) reaches the \
+                others on other hosts: one Zenoh session (docs/multi-host.md). Unused without \
+                `roles`.",
+    },
+    Table {
         name: "perception",
         array: false,
         about: "The perception-sim process: the simulated world, which publishes an \
@@ -287,6 +294,68 @@ pub(crate) const KEYS: &[Key] = &[
         "Record the run to this file (`tes launch --record` overrides it): the world map and          every observation, command, keep-alive and motor state, with the run's settings, seed          and starting library; `tes replay` reads it (docs/recording.md). A relative path is          taken from the directory `tes launch` runs in. Unset: no recording.",
     )
     .example("\"run.mcap\""),
+    key(
+        "launch",
+        "roles",
+        "list of `perception-sim`, `controller`, `bridge`",
+        "The processes this launch starts (`tes launch --roles` overrides it); the others \
+         run on other hosts, reached through the link (`[launch.link]`, docs/multi-host.md). \
+         Empty: all three on this host, over shared memory only, and no link.",
+    ),
+    // [launch.link]
+    key(
+        "launch.link",
+        "group",
+        "text: ASCII letters, digits, `-`, `_`, `.`, parts separated by `/`; at most 64 bytes",
+        "The group's name on Zenoh, the first part of every key: the launches of one group \
+         give the same, two groups on one network different ones.",
+    ),
+    key(
+        "launch.link",
+        "mode",
+        "`peer` | `client`",
+        "`peer`: the launches connect to each other directly; `client`: through a Zenoh \
+         router that `connect` names.",
+    ),
+    key(
+        "launch.link",
+        "listen",
+        "list of TCP endpoints (`tcp/ADDRESS:PORT`)",
+        "Where this launch accepts its peers' connections. The default listens on loopback \
+         only; a host that other machines connect to names an address of its own, e.g. \
+         `[\"tcp/192.168.1.20:7447\"]`.",
+    ),
+    key(
+        "launch.link",
+        "connect",
+        "list of TCP endpoints (`tcp/ADDRESS:PORT`)",
+        "The peers (or the router) this launch connects to.",
+    ),
+    key(
+        "launch.link",
+        "multicast_scouting",
+        BOOL,
+        "Find peers on the local network by UDP multicast (224.0.0.224:7446). Unset: on when \
+         `connect` is empty, off when it names peers.",
+    )
+    .example("false"),
+    key(
+        "launch.link",
+        "peer_timeout_ms",
+        "ms, at least 100",
+        "How long a launch waits for the launches of the other roles before it gives up \
+         (non-zero exit; it names the roles it waited for). Nothing starts before they are \
+         all there.",
+    ),
+    key(
+        "launch.link",
+        "restamp",
+        BOOL,
+        "Stamp observations and commands that arrive from a peer with this host's clock, \
+         keeping the differences between their stamps (hosts' monotonic clocks differ); \
+         `false` keeps the sender's stamps, for launches on one machine (tests, `tes bench \
+         latency --via zenoh`).",
+    ),
     // [perception]
     key(
         "perception",
@@ -1320,6 +1389,7 @@ mod tests {
     fn struct_fields() -> Vec<(&'static str, &'static [&'static str])> {
         vec![
             ("launch", fields_of::<LaunchSection>()),
+            ("launch.link", fields_of::<crate::link::LinkSection>()),
             ("perception", fields_of::<PerceptionConfig>()),
             ("controller", fields_of::<ControllerConfig>()),
             ("bridge", fields_of::<BridgeSettings>()),

@@ -38,11 +38,37 @@ impl Group {
     }
 
     fn launch(dir: &Path, config: Option<&Path>, episodes: u32) -> Self {
+        Self::launch_with(dir, config, episodes, &[], &[])
+    }
+
+    /// Launches `launch_toml` (written to `dir/launch.toml`) with `args` after the launch's
+    /// own and the environment variables `env` set (an iceoryx2 domain of its own, say).
+    pub fn start_in(
+        dir: &Path,
+        launch_toml: &str,
+        episodes: u32,
+        args: &[&str],
+        env: &[(&str, &str)],
+    ) -> Self {
+        let config = dir.join("launch.toml");
+        std::fs::write(&config, launch_toml).expect("launch file");
+        Self::launch_with(dir, Some(&config), episodes, args, env)
+    }
+
+    fn launch_with(
+        dir: &Path,
+        config: Option<&Path>,
+        episodes: u32,
+        args: &[&str],
+        env: &[(&str, &str)],
+    ) -> Self {
         let mut command = Command::new(env!("CARGO_BIN_EXE_tes"));
         command.arg("launch");
         if let Some(config) = config {
             command.arg("--config").arg(config);
         }
+        command.args(args);
+        command.envs(env.iter().copied());
         let mut launcher = command
             .arg("--episodes")
             .arg(episodes.to_string())
