@@ -504,3 +504,40 @@ proptest::proptest! {
         }
     }
 }
+
+/// The tracking does skip: once a plan has converged to the bit (values no longer move), a
+/// further tracked sweep finds no state to back up; changing one row flags that state
+/// alone.
+#[test]
+fn a_sweep_over_an_unchanged_model_backs_up_nothing() {
+    let c = Arc::new(corridor(20, &[]));
+    let mut model = PlannedModel::new(c.clone(), tight()).unwrap();
+    for s in 0..20 {
+        model.set(0, s, &[0.7, 0.2, 0.1]);
+        model.set(1, s, &[0.2, 0.7, 0.1]);
+    }
+    model.replan().unwrap();
+    // Sweep until no value changes bit for bit (Gauss–Seidel on a chain gets there).
+    for _ in 0..10_000 {
+        let mut tally = SweepTally::new();
+        model
+            .planner
+            .sweep_tracked(&c, &mut model.table, 0..20, &mut tally);
+        if tally.residual == 0.0 {
+            break;
+        }
+    }
+    assert!(model.planner.tracking);
+    // (Terminal states are never backed up, so their flags do not matter.)
+    let stale = (0..20).filter(|&s| !c.is_terminal(s) && model.planner.stale[s]);
+    assert_eq!(stale.count(), 0, "no successor moved");
+    let fresh = (0..20).filter(|&s| !c.is_terminal(s) && model.table.parts().fresh[s]);
+    assert_eq!(fresh.count(), 0, "no row moved");
+    model.set(1, 7, &[0.2, 0.6, 0.2]);
+    let fresh: Vec<usize> = (1..19).filter(|&s| model.table.parts().fresh[s]).collect();
+    assert_eq!(fresh, [7]);
+    // Writing a row's own bits again flags nothing.
+    let row = model.table().probs(0, 3).to_vec();
+    model.set(0, 3, &row);
+    assert!(!model.table.parts().fresh[3]);
+}
