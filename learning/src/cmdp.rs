@@ -86,6 +86,10 @@ pub struct CmdpStructure {
     /// The transpose, CSR: feature `i` is on in states `holders[holder_offsets[i]..holder_offsets[i+1]]`.
     holder_offsets: Vec<usize>,
     holders: Vec<u32>,
+    /// The reverse of `next`, CSR: some effect leads from each of
+    /// `preds[pred_offsets[s]..pred_offsets[s+1]]` to `s` (each such state once).
+    pred_offsets: Vec<usize>,
+    preds: Vec<u32>,
 }
 
 impl CmdpStructure {
@@ -167,6 +171,7 @@ impl CmdpStructure {
                 fill[i as usize] += 1;
             }
         }
+        let (pred_offsets, preds) = predecessors(n_states, n_effects, &next);
         Ok(Self {
             n_states,
             n_actions,
@@ -179,6 +184,8 @@ impl CmdpStructure {
             indices,
             holder_offsets,
             holders,
+            pred_offsets,
+            preds,
         })
     }
 
@@ -239,6 +246,13 @@ impl CmdpStructure {
         &self.holders[self.holder_offsets[i]..self.holder_offsets[i + 1]]
     }
 
+    /// The states from which some effect leads to `s`, each once, in increasing order (the
+    /// states whose backups read `V(s)`).
+    #[inline]
+    pub fn predecessors(&self, s: usize) -> &[u32] {
+        &self.preds[self.pred_offsets[s]..self.pred_offsets[s + 1]]
+    }
+
     /// Which effect leads from `s` to `next`, if one does (the lowest such effect id).
     ///
     /// Used where only states are observed; when several effects lead to the same state (a
@@ -246,6 +260,37 @@ impl CmdpStructure {
     pub fn effect_between(&self, s: usize, next: usize) -> Option<usize> {
         (0..self.n_effects).find(|&e| self.next_state(s, e) == next)
     }
+}
+
+/// The reverse of the successor table `next` (`next[s * E + e]`), CSR: each state's
+/// predecessors, each once, in increasing order.
+fn predecessors(n_states: usize, n_effects: usize, next: &[u32]) -> (Vec<usize>, Vec<u32>) {
+    // Each distinct (from, to) pair once: a state's effects may share a successor.
+    let distinct = |s: usize| {
+        let succ = &next[s * n_effects..(s + 1) * n_effects];
+        succ.iter()
+            .enumerate()
+            .filter(move |&(e, t)| !succ[..e].contains(t))
+            .map(|(_, &t)| t as usize)
+    };
+    let mut offsets = vec![0usize; n_states + 1];
+    for s in 0..n_states {
+        for t in distinct(s) {
+            offsets[t + 1] += 1;
+        }
+    }
+    for t in 0..n_states {
+        offsets[t + 1] += offsets[t];
+    }
+    let mut fill = offsets.clone();
+    let mut preds = vec![0u32; offsets[n_states]];
+    for s in 0..n_states {
+        for t in distinct(s) {
+            preds[fill[t]] = s as u32;
+            fill[t] += 1;
+        }
+    }
+    (offsets, preds)
 }
 
 /// `P(e | x(s), a)` for every action, state and effect: the learned half of the transition
@@ -258,6 +303,13 @@ pub struct EffectTable {
     n_effects: usize,
     /// `probs[(a * S + s) * E + e]`.
     probs: Vec<f64>,
+    /// The same probabilities by state, for models of at most [`LANES`] actions (else empty):
+    /// `lanes[(s * E + e) * LANES + a]`, the lanes of actions the model lacks 0. The planner
+    /// computes a state's Q-values of all actions side by side (one SIMD lane each).
+    lanes: Vec<f64>,
+    /// Per state: some action's row changed since the planner last backed the state up
+    /// ([`EffectTable::parts`]).
+    fresh: Vec<bool>,
     /// Working memory of [`EffectTable::refresh`].
     scratch: RefreshScratch,
 }
@@ -268,6 +320,19 @@ impl PartialEq for EffectTable {
             && self.n_effects == other.n_effects
             && self.probs == other.probs
     }
+}
+
+/// Actions whose probabilities [`EffectTable`] also keeps side by side per state and effect.
+pub(crate) const LANES: usize = 4;
+
+/// What the planner reads of an [`EffectTable`] and the flags it clears ([`EffectTable::parts`]).
+pub(crate) struct TableParts<'a> {
+    /// `probs[(a * S + s) * E + e]`.
+    pub(crate) probs: &'a [f64],
+    /// `lanes[(s * E + e) * LANES + a]`, or empty.
+    pub(crate) lanes: &'a [f64],
+    /// Per state: some row changed since the planner last backed it up.
+    pub(crate) fresh: &'a mut [bool],
 }
 
 /// How many of a view's feature columns [`EffectTable::refresh`] tracks as a per-state bit
@@ -357,11 +422,51 @@ impl EffectTable {
             structure.n_actions(),
             structure.n_effects(),
         );
+        let mut lanes = Vec::new();
+        if a <= LANES {
+            lanes = vec![0.0; s * e * LANES];
+            for lane in lanes.chunks_exact_mut(LANES) {
+                lane[..a].fill(1.0 / e as f64);
+            }
+        }
         Self {
             n_states: s,
             n_effects: e,
             probs: vec![1.0 / e as f64; a * s * e],
+            lanes,
+            fresh: vec![true; s],
             scratch: RefreshScratch::new(s, e),
+        }
+    }
+
+    /// The probabilities (both layouts) and the per-state flags of rows changed since the
+    /// planner last backed a state up, which it clears as it does.
+    pub(crate) fn parts(&mut self) -> TableParts<'_> {
+        TableParts {
+            probs: &self.probs,
+            lanes: &self.lanes,
+            fresh: &mut self.fresh,
+        }
+    }
+
+    /// The probabilities by action and, if kept, by state ([`TableParts`] without the flags).
+    pub(crate) fn layouts(&self) -> (&[f64], &[f64]) {
+        (&self.probs, &self.lanes)
+    }
+
+    /// Copies row `(a, s)` of `probs` into `lanes` and flags `s` when its bits changed.
+    #[inline]
+    fn mirror_row(&mut self, a: usize, s: usize, changed: bool) {
+        if changed {
+            self.fresh[s] = true;
+        }
+        if self.lanes.is_empty() {
+            return;
+        }
+        let e = self.n_effects;
+        let start = (a * self.n_states + s) * e;
+        for (k, &p) in self.probs[start..start + e].iter().enumerate() {
+            self.lanes[(s * e + k) * LANES + a] = p;
         }
     }
 
@@ -572,7 +677,15 @@ impl EffectTable {
             };
             let new = &scratch.rows[slot * e..slot * e + e];
             moved = moved.max(l1_distance(&old[..e], new));
-            old[..e].copy_from_slice(new);
+            if !same_bits(&old[..e], new) {
+                old[..e].copy_from_slice(new);
+                self.fresh[s] = true;
+                if !self.lanes.is_empty() {
+                    for (k, &p) in new.iter().enumerate() {
+                        self.lanes[(s * e + k) * LANES + a] = p;
+                    }
+                }
+            }
         }
         moved
     }
@@ -594,6 +707,10 @@ impl EffectTable {
         let e = self.n_effects;
         let span = rows.start * e..rows.end * e;
         self.probs[span.clone()].copy_from_slice(&other.probs[span]);
+        for row in rows {
+            let (a, s) = (row / self.n_states, row % self.n_states);
+            self.mirror_row(a, s, true);
+        }
         Ok(())
     }
 
@@ -610,9 +727,17 @@ impl EffectTable {
         let start = (a * self.n_states + s) * self.n_effects;
         let row = &mut self.probs[start..start + self.n_effects];
         let moved = l1_distance(row, probs);
+        let changed = !same_bits(row, probs);
         row.copy_from_slice(probs);
+        self.mirror_row(a, s, changed);
         moved
     }
+}
+
+/// Whether `p` and `q` hold the same bits (unlike `==`, which holds `0.0 == -0.0`).
+#[inline]
+fn same_bits(p: &[f64], q: &[f64]) -> bool {
+    p.len() == q.len() && p.iter().zip(q).all(|(a, b)| a.to_bits() == b.to_bits())
 }
 
 /// `Σ |p_i − q_i|`.

@@ -314,9 +314,10 @@ impl PlannedModel {
         if !self.plans_here() || !self.needs_plan() {
             return None;
         }
+        let good_enough = self.good_enough();
         let stats = self
             .planner
-            .plan_inner(&self.structure, &self.table, None, self.good_enough());
+            .plan_tracked(&self.structure, &mut self.table, good_enough);
         self.planned(stats, self.planner.backup_span);
         Some(stats)
     }

@@ -248,10 +248,9 @@ impl PlannedModel {
                     good_enough,
                 } => {
                     let end = step(next, n);
-                    self.planner.sweep_states(
+                    self.planner.sweep_tracked(
                         &self.structure,
-                        &self.table,
-                        None,
+                        &mut self.table,
                         next..end,
                         &mut tally,
                     );

@@ -259,3 +259,285 @@ fn adopting_by_swapping_equals_adopting_by_copying() {
     );
     assert_eq!(short.len(), 3);
 }
+
+/// A random CMDP for the sweep tests: any successors, rewards and terminal states;
+/// probabilities of any sign pattern a model can hold, zeros (of both signs) included.
+fn random_cmdp(
+    rng: &mut rand_chacha::ChaCha8Rng,
+    n: usize,
+    actions: usize,
+    effects: usize,
+) -> crate::cmdp::CmdpStructure {
+    use rand::RngExt;
+    let next: Vec<usize> = (0..n * effects).map(|_| rng.random_range(0..n)).collect();
+    let reward = (0..n)
+        .map(|_| [-0.01, 1.0, -1.0, 0.0, -0.0][rng.random_range(0..5)])
+        .collect();
+    let terminal = (0..n).map(|_| rng.random::<f64>() < 0.15).collect();
+    let none: [u32; 0] = [];
+    crate::cmdp::CmdpStructure::new(
+        n,
+        actions,
+        effects,
+        1,
+        |s, e| next[s * effects + e],
+        reward,
+        terminal,
+        |_| &none,
+    )
+    .unwrap()
+}
+
+/// A random effect distribution; sometimes with zeros or a one-hot row.
+fn random_row(rng: &mut rand_chacha::ChaCha8Rng, effects: usize) -> Vec<f64> {
+    use rand::RngExt;
+    let mut row: Vec<f64> = (0..effects)
+        .map(|_| match rng.random_range(0..6) {
+            0 => 0.0,
+            1 => -0.0,
+            _ => rng.random::<f64>(),
+        })
+        .collect();
+    let total: f64 = row.iter().sum();
+    if total > 0.0 {
+        row.iter_mut().for_each(|p| *p /= total);
+    } else {
+        row[rng.random_range(0..effects)] = 1.0;
+    }
+    row
+}
+
+/// The sweep as it was written before it was vectorised and tracked: every state, every
+/// action's sum of products in effect order. What the faster sweeps must equal bit for bit.
+fn reference_sweep(
+    values: &mut [f64],
+    policy: &mut [u32],
+    c: &crate::cmdp::CmdpStructure,
+    table: &EffectTable,
+    gamma: f64,
+    optimism: Option<Optimism<'_>>,
+) -> SweepTally {
+    let mut tally = SweepTally::new();
+    for s in 0..c.n_states() {
+        let terminal = c.is_terminal(s);
+        if !terminal {
+            let backup: Vec<f64> = c
+                .successors(s)
+                .iter()
+                .map(|&next| {
+                    let next = next as usize;
+                    let future = if c.is_terminal(next) {
+                        0.0
+                    } else {
+                        gamma * values[next]
+                    };
+                    c.reward(next) + future
+                })
+                .collect();
+            let mut best = (0, f64::NEG_INFINITY);
+            for a in 0..c.n_actions() {
+                let q = match optimism {
+                    Some(o) if o.unknown[a * c.n_states() + s] => o.value,
+                    _ => table
+                        .probs(a, s)
+                        .iter()
+                        .zip(&backup)
+                        .map(|(&p, &b)| p * b)
+                        .sum(),
+                };
+                if q > best.1 {
+                    best = (a, q);
+                }
+            }
+            tally.residual = tally.residual.max((best.1 - values[s]).abs());
+            values[s] = best.1;
+            policy[s] = best.0 as u32;
+        }
+        let b = c.reward(s) + if terminal { 0.0 } else { gamma * values[s] };
+        tally.lo = tally.lo.min(b);
+        tally.hi = tally.hi.max(b);
+    }
+    tally
+}
+
+fn bits(values: &[f64]) -> Vec<u64> {
+    values.iter().map(|v| v.to_bits()).collect()
+}
+
+proptest::proptest! {
+    /// One sweep from the same values gives the reference's bits — values, policy, residual
+    /// and span — built for the default target or for AVX2, with or without optimism,
+    /// tracked (from scratch) or not, for 1 to 6 actions (by lanes up to 4) and 3, 5 or 20
+    /// effects (specialised and generic code).
+    #[test]
+    fn every_sweep_equals_the_scalar_reference(
+        seed in 0u64..10_000,
+        n in 1usize..40,
+        actions in 1usize..7,
+        effects in proptest::sample::select(vec![3usize, 5, 20]),
+        optimistic in proptest::bool::ANY,
+    ) {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let c = random_cmdp(&mut rng, n, actions, effects);
+        let mut table = EffectTable::uniform(&c);
+        for a in 0..actions {
+            for s in 0..n {
+                table.set(a, s, &random_row(&mut rng, effects));
+            }
+        }
+        let unknown: Vec<bool> = (0..actions * n).map(|_| rng.random::<f64>() < 0.3).collect();
+        let optimism = optimistic.then_some(Optimism { unknown: &unknown, value: 20.0 });
+        let mut start = ValueIteration::new(&c, PlannerParams::default()).unwrap();
+        for v in &mut start.values {
+            *v = rng.random::<f64>() * 4.0 - 2.0;
+        }
+        let (mut values, mut policy) = (start.values.clone(), start.policy.clone());
+        let want = reference_sweep(&mut values, &mut policy, &c, &table, 0.95, optimism);
+        let mut runs: Vec<(&str, ValueIteration, SweepTally)> = Vec::new();
+        let mut untracked = start.clone();
+        let mut t = SweepTally::new();
+        untracked.sweep_states(&c, &table, optimism, 0..n, &mut t);
+        runs.push(("dispatched", untracked, t));
+        let (probs, lanes) = table.layouts();
+        let parts = || crate::cmdp::TableParts { probs, lanes, fresh: &mut [] };
+        let mut portable = start.clone();
+        let mut t = SweepTally::new();
+        portable.sweep_portable::<false>(&c, parts(), optimism, 0..n, &mut t);
+        runs.push(("portable", portable, t));
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            let mut avx2 = start.clone();
+            let mut t = SweepTally::new();
+            // SAFETY: the CPU has AVX2.
+            unsafe { avx2.sweep_avx2::<false>(&c, parts(), optimism, 0..n, &mut t) };
+            runs.push(("avx2", avx2, t));
+        }
+        if !optimistic {
+            let mut tracked = start.clone();
+            let mut t = SweepTally::new();
+            tracked.sweep_tracked(&c, &mut table.clone(), 0..n, &mut t);
+            runs.push(("tracked", tracked, t));
+        }
+        for (name, vi, t) in runs {
+            proptest::prop_assert_eq!(bits(&vi.values), bits(&values), "{}", name);
+            proptest::prop_assert_eq!(&vi.policy, &policy, "{}", name);
+            proptest::prop_assert_eq!(t.residual.to_bits(), want.residual.to_bits(), "{}", name);
+            proptest::prop_assert_eq!(t.lo.to_bits(), want.lo.to_bits(), "{}", name);
+            proptest::prop_assert_eq!(t.hi.to_bits(), want.hi.to_bits(), "{}", name);
+        }
+    }
+
+    /// A planned model that keeps changing — rows rewritten (some to the bits they had), a
+    /// plan adopted, pieces of any size — plans exactly as the reference would: the same
+    /// sweeps, values, policy, statistics and span after every re-plan, though its tracked
+    /// sweeps skip the states nothing reached.
+    #[test]
+    fn tracked_replans_equal_the_reference_plans(
+        seed in 0u64..10_000,
+        n in 2usize..40,
+        actions in proptest::sample::select(vec![2usize, 4, 5]),
+        effects in proptest::sample::select(vec![3usize, 5, 20]),
+        stop_at_drift in proptest::bool::ANY,
+        piece in 1usize..50,
+    ) {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let c = Arc::new(random_cmdp(&mut rng, n, actions, effects));
+        let params = PlannerParams { max_sweeps: 4, stop_at_drift, ..PlannerParams::default() };
+        let mut model = PlannedModel::new(c.clone(), params).unwrap();
+        let (mut values, mut policy) = (vec![0.0; n], vec![0u32; n]);
+        let reference_plan = |model: &PlannedModel, values: &mut Vec<f64>,
+                                  policy: &mut Vec<u32>, good_enough: f64| {
+            let mut stats = PlanStats::NONE;
+            loop {
+                let t = reference_sweep(values, policy, &c, model.table(), params.gamma, None);
+                stats.sweeps += 1;
+                stats.residual = t.residual;
+                if t.residual <= params.tolerance {
+                    stats.converged = true;
+                }
+                if stats.converged || t.residual <= good_enough || stats.sweeps >= params.max_sweeps {
+                    return (stats, t.hi - t.lo);
+                }
+            }
+        };
+        for step in 0..40 {
+            // A few rows change; some are written again with the bits they hold.
+            for _ in 0..rng.random_range(0..4) {
+                let (a, s) = (rng.random_range(0..actions), rng.random_range(0..n));
+                let row = if rng.random::<f64>() < 0.3 {
+                    model.table().probs(a, s).to_vec()
+                } else {
+                    random_row(&mut rng, effects)
+                };
+                model.set(a, s, &row);
+            }
+            if step == 20 {
+                // An adopted plan: the next tracked sweep must back up every state.
+                let adopted: Vec<f64> = (0..n).map(|_| rng.random::<f64>()).collect();
+                let stats = model.last_plan();
+                model.adopt(&adopted, &policy, stats, model.plan_span()).unwrap();
+                values.clone_from(&adopted);
+            }
+            let good_enough = model.good_enough();
+            let needed = model.needs_plan();
+            let planned = if step % 3 == 0 {
+                // In pieces, as a planner between polls makes it.
+                let changes = crate::plan::ModelChanges::new(&c);
+                let mut pieces = model.begin_pieces(&changes);
+                while !model.advance(&changes, &mut pieces, piece).unwrap() {}
+                needed.then(|| model.last_plan())
+            } else {
+                model.replan()
+            };
+            proptest::prop_assert_eq!(planned.is_some(), needed);
+            if let Some(stats) = planned {
+                let (want, span) = reference_plan(&model, &mut values, &mut policy, good_enough);
+                proptest::prop_assert_eq!(stats.sweeps, want.sweeps);
+                proptest::prop_assert_eq!(stats.converged, want.converged);
+                proptest::prop_assert_eq!(stats.residual.to_bits(), want.residual.to_bits());
+                proptest::prop_assert_eq!(model.plan_span().to_bits(), span.to_bits());
+            }
+            proptest::prop_assert_eq!(bits(model.planner().values()), bits(&values));
+            proptest::prop_assert_eq!(model.planner().policy(), &policy[..]);
+        }
+    }
+}
+
+/// The tracking does skip: once a plan has converged to the bit (values no longer move), a
+/// further tracked sweep finds no state to back up; changing one row flags that state
+/// alone.
+#[test]
+fn a_sweep_over_an_unchanged_model_backs_up_nothing() {
+    let c = Arc::new(corridor(20, &[]));
+    let mut model = PlannedModel::new(c.clone(), tight()).unwrap();
+    for s in 0..20 {
+        model.set(0, s, &[0.7, 0.2, 0.1]);
+        model.set(1, s, &[0.2, 0.7, 0.1]);
+    }
+    model.replan().unwrap();
+    // Sweep until no value changes bit for bit (Gauss–Seidel on a chain gets there).
+    for _ in 0..10_000 {
+        let mut tally = SweepTally::new();
+        model
+            .planner
+            .sweep_tracked(&c, &mut model.table, 0..20, &mut tally);
+        if tally.residual == 0.0 {
+            break;
+        }
+    }
+    assert!(model.planner.tracking);
+    // (Terminal states are never backed up, so their flags do not matter.)
+    let stale = (0..20).filter(|&s| !c.is_terminal(s) && model.planner.stale[s]);
+    assert_eq!(stale.count(), 0, "no successor moved");
+    let fresh = (0..20).filter(|&s| !c.is_terminal(s) && model.table.parts().fresh[s]);
+    assert_eq!(fresh.count(), 0, "no row moved");
+    model.set(1, 7, &[0.2, 0.6, 0.2]);
+    let fresh: Vec<usize> = (1..19).filter(|&s| model.table.parts().fresh[s]).collect();
+    assert_eq!(fresh, [7]);
+    // Writing a row's own bits again flags nothing.
+    let row = model.table().probs(0, 3).to_vec();
+    model.set(0, 3, &row);
+    assert!(!model.table.parts().fresh[3]);
+}

@@ -3,15 +3,15 @@
 use std::ops::Range;
 
 use super::{PlanError, PlanStats, PlannerParams};
-use crate::cmdp::{CmdpStructure, EffectTable};
+use crate::cmdp::{CmdpStructure, EffectTable, LANES, TableParts};
 
 /// What a sweep in progress has found: the largest value change so far and the range of
 /// `R(s) + γV(s)` over the states visited.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct SweepTally {
-    residual: f64,
-    lo: f64,
-    hi: f64,
+    pub(super) residual: f64,
+    pub(super) lo: f64,
+    pub(super) hi: f64,
 }
 
 impl SweepTally {
@@ -35,7 +35,10 @@ pub struct Optimism<'a> {
 }
 
 /// Value iteration with its values and greedy policy kept between plans (the warm start).
-#[derive(Debug, Clone, PartialEq)]
+///
+/// Two planners are equal when their settings, values, policies and last spans are (not
+/// their bookkeeping of which states changed).
+#[derive(Debug, Clone)]
 pub struct ValueIteration {
     pub(super) params: PlannerParams,
     pub(super) values: Vec<f64>,
@@ -44,6 +47,21 @@ pub struct ValueIteration {
     pub(super) backup: Vec<f64>,
     /// The spread of `R(s) + γV(s)` over all states after the last sweep made here.
     pub(super) backup_span: f64,
+    /// Per state, for [`sweep_tracked`](Self::sweep_tracked): a successor's value changed
+    /// since the state was last backed up.
+    pub(super) stale: Vec<bool>,
+    /// Whether `stale` is up to date (else the next tracked sweep backs up every state).
+    pub(super) tracking: bool,
+}
+
+impl PartialEq for ValueIteration {
+    fn eq(&self, other: &Self) -> bool {
+        self.params == other.params
+            && self.values == other.values
+            && self.policy == other.policy
+            && self.backup == other.backup
+            && self.backup_span == other.backup_span
+    }
 }
 
 impl ValueIteration {
@@ -64,6 +82,8 @@ impl ValueIteration {
             policy: vec![0; structure.n_states()],
             backup: vec![0.0; structure.n_effects()],
             backup_span: 0.0,
+            stale: vec![true; structure.n_states()],
+            tracking: false,
         })
     }
 
@@ -76,6 +96,7 @@ impl ValueIteration {
     pub fn reset(&mut self) {
         self.values.fill(0.0);
         self.policy.fill(0);
+        self.tracking = false;
     }
 
     /// `Q(s, a)` under the current values.
@@ -118,34 +139,139 @@ impl ValueIteration {
         states: Range<usize>,
         tally: &mut SweepTally,
     ) {
+        // Values change here without the table's flags being read: a tracked sweep must
+        // start over.
+        self.tracking = false;
+        let (probs, lanes) = table.layouts();
+        let table = TableParts {
+            probs,
+            lanes,
+            fresh: &mut [],
+        };
+        self.dispatch::<false>(structure, table, optimism, states, tally);
+    }
+
+    /// [`sweep_states`](Self::sweep_states) without optimism that skips every state whose
+    /// backup would give the bits it gave last time: neither a successor's value nor any of
+    /// its rows in `table` changed since this planner last backed it up. Such a state's value
+    /// and action are already what the backup would write, and its change (0) cannot raise
+    /// the residual, so the sweep's outcome is the same bit for bit.
+    ///
+    /// The caller must sweep the same `table` every time (a [`PlannedModel`] does, its own);
+    /// anything else that changes the values ([`adopt`](Self::adopt),
+    /// [`reset`](Self::reset), an untracked sweep) makes the next tracked sweep back up
+    /// every state once.
+    ///
+    /// [`PlannedModel`]: super::PlannedModel
+    pub(crate) fn sweep_tracked(
+        &mut self,
+        structure: &CmdpStructure,
+        table: &mut EffectTable,
+        states: Range<usize>,
+        tally: &mut SweepTally,
+    ) {
+        if !self.tracking {
+            self.stale.fill(true);
+            self.tracking = true;
+        }
+        self.dispatch::<true>(structure, table.parts(), None, states, tally);
+    }
+
+    /// Picks the sweep specialised for the effect count and, on x86-64, the AVX2 build of
+    /// it when the CPU has AVX2.
+    fn dispatch<const TRACK: bool>(
+        &mut self,
+        structure: &CmdpStructure,
+        table: TableParts<'_>,
+        optimism: Option<Optimism<'_>>,
+        states: Range<usize>,
+        tally: &mut SweepTally,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: `sweep_avx2` needs AVX2 and nothing else, and the CPU has it.
+            unsafe { self.sweep_avx2::<TRACK>(structure, table, optimism, states, tally) };
+            return;
+        }
+        self.sweep_portable::<TRACK>(structure, table, optimism, states, tally);
+    }
+
+    /// The sweep built for the default target (on x86-64, SSE2).
+    pub(super) fn sweep_portable<const TRACK: bool>(
+        &mut self,
+        structure: &CmdpStructure,
+        table: TableParts<'_>,
+        optimism: Option<Optimism<'_>>,
+        states: Range<usize>,
+        tally: &mut SweepTally,
+    ) {
         // The grid tasks have 5 effects, the robot arenas 20.
         match structure.n_effects() {
-            5 => self.sweep::<5>(structure, table, optimism, states, tally),
-            20 => self.sweep::<20>(structure, table, optimism, states, tally),
-            _ => self.sweep::<0>(structure, table, optimism, states, tally),
+            5 => self.sweep::<5, TRACK>(structure, table, optimism, states, tally),
+            20 => self.sweep::<20, TRACK>(structure, table, optimism, states, tally),
+            _ => self.sweep::<0, TRACK>(structure, table, optimism, states, tally),
         }
     }
 
-    /// [`sweep_states`](Self::sweep_states) for `E` effects.
+    /// The same sweep compiled with AVX2: the per-action sums of a state, one lane per
+    /// action, in 256-bit registers. Each lane adds the same products in the same order
+    /// (no fused multiply-add: Rust never contracts), so the bits are the portable sweep's.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    pub(super) fn sweep_avx2<const TRACK: bool>(
+        &mut self,
+        structure: &CmdpStructure,
+        table: TableParts<'_>,
+        optimism: Option<Optimism<'_>>,
+        states: Range<usize>,
+        tally: &mut SweepTally,
+    ) {
+        match structure.n_effects() {
+            5 => self.sweep::<5, TRACK>(structure, table, optimism, states, tally),
+            20 => self.sweep::<20, TRACK>(structure, table, optimism, states, tally),
+            _ => self.sweep::<0, TRACK>(structure, table, optimism, states, tally),
+        }
+    }
+
+    /// The sweep for `E` effects, skipping unchanged states when `TRACK`.
     ///
     /// `E` is the number of effects when it is one the planner is specialised for, 0 for any
     /// other: with the count a constant the compiler unrolls the per-effect loops and drops
     /// their bounds checks (the sweep is most of an agent's time per step). Every
-    /// specialisation runs the same code in the same order, so all give the same bits.
-    pub(super) fn sweep<const E: usize>(
+    /// specialisation runs the same arithmetic in the same order, so all give the same bits.
+    /// Inlined into each caller, so that the AVX2 caller's copy is compiled with AVX2.
+    #[inline(always)]
+    fn sweep<const E: usize, const TRACK: bool>(
         &mut self,
         structure: &CmdpStructure,
-        table: &EffectTable,
+        table: TableParts<'_>,
         optimism: Option<Optimism<'_>>,
         states: Range<usize>,
         tally: &mut SweepTally,
     ) {
         let n_effects = if E == 0 { structure.n_effects() } else { E };
+        let n_states = structure.n_states();
+        let n_actions = structure.n_actions();
         let gamma = self.params.gamma;
-        let backup = &mut self.backup[..n_effects];
+        // What `Iterator::sum` starts from (the scalar sum of products this reproduces).
+        let zero: f64 = std::iter::empty::<f64>().sum();
+        let by_lanes = optimism.is_none() && !table.lanes.is_empty();
+        let Self {
+            values,
+            policy,
+            backup,
+            stale,
+            ..
+        } = self;
+        let backup = &mut backup[..n_effects];
+        let TableParts {
+            probs,
+            lanes,
+            fresh,
+        } = table;
         for s in states {
             let terminal = structure.is_terminal(s);
-            if !terminal {
+            if !terminal && (!TRACK || stale[s] || fresh[s]) {
                 // Every action's Q-value in `s` reads the same successors (effects, not
                 // actions, decide where the agent lands), so each successor's `R + γV` is
                 // computed once and shared by all actions: `E` lookups per state, not `A × E`.
@@ -155,37 +281,64 @@ impl ValueIteration {
                     let future = if structure.is_terminal(next) {
                         0.0
                     } else {
-                        gamma * self.values[next]
+                        gamma * values[next]
                     };
                     *b = structure.reward(next) + future;
                 }
                 // The best action (lowest id on ties) and its value.
                 let mut best = (0, f64::NEG_INFINITY);
-                for a in 0..structure.n_actions() {
-                    let q = match optimism {
-                        Some(o) if o.unknown[a * structure.n_states() + s] => o.value,
-                        _ => table.probs(a, s)[..n_effects]
-                            .iter()
-                            .zip(backup.iter())
-                            .map(|(&p, &b)| p * b)
-                            .sum(),
-                    };
-                    if q > best.1 {
-                        best = (a, q);
+                if by_lanes {
+                    // All actions at once: lane `a` sums `P(e | s, a) · backup[e]` over `e`
+                    // in order, as the scalar sum does.
+                    let rows = &lanes[s * n_effects * LANES..(s + 1) * n_effects * LANES];
+                    let (rows, _) = rows.as_chunks::<LANES>();
+                    let mut q = [zero; LANES];
+                    for (p, &b) in rows[..n_effects].iter().zip(backup.iter()) {
+                        for l in 0..LANES {
+                            q[l] += p[l] * b;
+                        }
+                    }
+                    for (a, &q) in q[..n_actions].iter().enumerate() {
+                        if q > best.1 {
+                            best = (a, q);
+                        }
+                    }
+                } else {
+                    for a in 0..n_actions {
+                        let q = match optimism {
+                            Some(o) if o.unknown[a * n_states + s] => o.value,
+                            _ => {
+                                let row = (a * n_states + s) * n_effects;
+                                probs[row..row + n_effects]
+                                    .iter()
+                                    .zip(backup.iter())
+                                    .map(|(&p, &b)| p * b)
+                                    .sum()
+                            }
+                        };
+                        if q > best.1 {
+                            best = (a, q);
+                        }
                     }
                 }
                 let (a, v) = best;
-                tally.residual = tally.residual.max((v - self.values[s]).abs());
-                self.values[s] = v;
-                self.policy[s] = a as u32;
+                tally.residual = tally.residual.max((v - values[s]).abs());
+                if TRACK {
+                    stale[s] = false;
+                    fresh[s] = false;
+                    if v.to_bits() != values[s].to_bits() {
+                        // Every state whose backup reads `V(s)` must be backed up again (if
+                        // before `s`, in the next sweep; `s` itself, when it can stay).
+                        for &p in structure.predecessors(s) {
+                            stale[p as usize] = true;
+                        }
+                    }
+                }
+                values[s] = v;
+                policy[s] = a as u32;
             }
             // `V(s)` is final for this sweep once its state has been visited.
-            let b = structure.reward(s)
-                + if terminal {
-                    0.0
-                } else {
-                    gamma * self.values[s]
-                };
+            let b = structure.reward(s) + if terminal { 0.0 } else { gamma * values[s] };
             tally.lo = tally.lo.min(b);
             tally.hi = tally.hi.max(b);
         }
@@ -248,6 +401,25 @@ impl ValueIteration {
         }
     }
 
+    /// [`plan_inner`](Self::plan_inner) without optimism by tracked sweeps (see
+    /// [`sweep_tracked`](Self::sweep_tracked)): the same plan, bit for bit.
+    pub(super) fn plan_tracked(
+        &mut self,
+        structure: &CmdpStructure,
+        table: &mut EffectTable,
+        good_enough: f64,
+    ) -> PlanStats {
+        let mut stats = PlanStats::NONE;
+        let n = structure.n_states();
+        loop {
+            let mut tally = SweepTally::new();
+            self.sweep_tracked(structure, table, 0..n, &mut tally);
+            if self.end_sweep(&mut stats, tally, good_enough) {
+                return stats;
+            }
+        }
+    }
+
     /// `V(s)` from the last plan.
     #[inline]
     pub fn value(&self, s: usize) -> f64 {
@@ -276,6 +448,7 @@ impl ValueIteration {
         self.check_solution(values, policy)?;
         self.values.copy_from_slice(values);
         self.policy.copy_from_slice(policy);
+        self.tracking = false;
         Ok(())
     }
 
@@ -290,6 +463,7 @@ impl ValueIteration {
         self.check_solution(values, policy)?;
         std::mem::swap(&mut self.values, values);
         std::mem::swap(&mut self.policy, policy);
+        self.tracking = false;
         Ok(())
     }
 
