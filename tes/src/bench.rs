@@ -585,7 +585,7 @@ fn run_split_group(
 /// `cycle_us`; the round trip, and its first hop alone.
 fn zenoh_floor(cycle_us: u64, args: &LatencyArgs) -> Result<(LatencyReport, LatencyReport)> {
     use std::sync::mpsc;
-    use tes_topics::wire::as_bytes;
+    use tes_topics::wire::{as_bytes, from_bytes};
     use zenoh::Wait;
 
     let port = std::net::TcpListener::bind("127.0.0.1:0")
@@ -623,11 +623,8 @@ fn zenoh_floor(cycle_us: u64, args: &LatencyArgs) -> Result<(LatencyReport, Late
         .declare_subscriber(format!("{group}/observation"))
         .callback(move |sample| {
             let now = tes_runtime::clock::monotonic_ns();
-            let bytes = sample.payload().to_bytes();
-            let stamp = bytes
-                .get(8..16)
-                .and_then(|b| <[u8; 8]>::try_from(b).ok())
-                .map_or(0, u64::from_ne_bytes);
+            let stamp = from_bytes::<tes_topics::Observation>(&sample.payload().to_bytes())
+                .map_or(0, |o| o.stamp_ns);
             let _ = hop_tx.send(now.saturating_sub(stamp));
             let command = tes_topics::Command {
                 observed_ns: stamp,
@@ -643,12 +640,8 @@ fn zenoh_floor(cycle_us: u64, args: &LatencyArgs) -> Result<(LatencyReport, Late
         .declare_subscriber(format!("{group}/command"))
         .callback(move |sample| {
             let now = tes_runtime::clock::monotonic_ns();
-            let bytes = sample.payload().to_bytes();
-            // `observed_ns` is the command's fourth u64.
-            let stamp = bytes
-                .get(24..32)
-                .and_then(|b| <[u8; 8]>::try_from(b).ok())
-                .map_or(0, u64::from_ne_bytes);
+            let stamp = from_bytes::<tes_topics::Command>(&sample.payload().to_bytes())
+                .map_or(0, |c| c.observed_ns);
             let _ = back_tx.send(now.saturating_sub(stamp));
         })
         .wait()
