@@ -1,8 +1,8 @@
 //! Experiments as lists of independent jobs: sharding, resuming, merging.
 //!
 //! Every experiment is an ordered list of independent jobs (grid: an algorithm at a feature
-//! count and a run; transfer: a held-out task and a run; robot: a method and a run), each with
-//! a stable index. A run writes into its result folder
+//! count and a run; transfer: a run, holding out each test task in turn; robot: a method and a
+//! run), each with a stable index. A run writes into its result folder
 //!
 //! * `manifest.json` — the experiment, its settings (seeds included), the code version, the
 //!   number of jobs and which share of them this folder holds ([`Shard`]);

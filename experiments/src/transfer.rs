@@ -1,8 +1,11 @@
 //! The paper's §5.1.2–5.1.3 transfer experiment: Table 2 (jumpstart) and Figure 4b.
 //!
 //! Leave-one-out over the 15 grid tasks: for every held-out *test* task and run, a TES agent
-//! lives through the other 14 tasks (100 episodes each, in a seeded random order), growing its
-//! view library; then, on the test task, each method runs from scratch for 50 episodes:
+//! lives through the other 14 tasks (100 episodes each), growing its view library; then, on
+//! the test task, each method runs from scratch for 50 episodes. A run draws one seeded random
+//! order of all 15 tasks ([`run_order`]); held-out task `k` trains on it with `k` left out, so
+//! the held-out tasks after position `p` share the library trained on positions `0..p`, which
+//! is computed once per run (a job is a run). The methods:
 //!
 //! * **TES** — the trained library, scored and switched online;
 //! * **LWT** — the library's best-track-record view per action, frozen;
@@ -25,6 +28,7 @@ use anyhow::{Context, Result, bail};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use tes_learning::agents::{Agent, Tes, TesParams, ViewPolicy};
 use tes_learning::library::store::{self, StoredLibrary};
@@ -62,7 +66,7 @@ pub struct TransferConfig {
     pub library: LibraryParams,
     /// Seed of the grid suite.
     pub world_seed: u64,
-    /// Base agent seed; see [`job_seed`].
+    /// Base agent seed; see [`run_seed`] and [`job_seed`].
     pub seed: u64,
     /// Whether this is the reduced `--quick` configuration.
     pub quick: bool,
@@ -131,12 +135,41 @@ impl TransferConfig {
     }
 }
 
-/// The seed of (test task, run): everything random in that job derives from it.
+/// The seed of (test task, run): everything random in that task's test phase derives from
+/// it (the training's randomness derives from [`run_seed`]).
 pub fn job_seed(config: &TransferConfig, task: usize, run: usize) -> u64 {
-    config
-        .seed
-        .wrapping_add(1_000 * run as u64)
-        .wrapping_add(task as u64)
+    run_seed(config, run).wrapping_add(task as u64)
+}
+
+/// The seed of a run: its order of the tasks and its training agents derive from it.
+pub fn run_seed(config: &TransferConfig, run: usize) -> u64 {
+    config.seed.wrapping_add(1_000 * run as u64)
+}
+
+/// The run's random order of all the suite's tasks. Held-out task `k` trains on this order
+/// with `k` left out, cut to [`TransferConfig::training_tasks`]; so the held-out tasks after
+/// position `p` all start from the library trained on positions `0..p`.
+pub fn run_order(config: &TransferConfig, run: usize) -> Vec<usize> {
+    let mut rng = ChaCha8Rng::seed_from_u64(run_seed(config, run) ^ 0x0D3E_5EED);
+    let mut order: Vec<usize> = (0..GridSuite::TASKS).collect();
+    order.shuffle(&mut rng);
+    order
+}
+
+/// Held-out task `task`'s training tasks in `run`, in the order lived.
+pub fn training_order(config: &TransferConfig, run: usize, task: usize) -> Vec<usize> {
+    let mut order = run_order(config, run);
+    order.retain(|&t| t != task);
+    order.truncate(config.training_tasks);
+    order
+}
+
+/// The seed of the TES agent that trains on task `t` in `run` (its world stream derives from
+/// it too): the same whichever task is held out, so a shared training prefix is computed once.
+fn training_seed(config: &TransferConfig, run: usize, t: usize) -> u64 {
+    run_seed(config, run)
+        .wrapping_mul(31)
+        .wrapping_add(2_000 + t as u64)
 }
 
 /// A method compared on the test task.
@@ -190,7 +223,7 @@ impl Method {
     }
 }
 
-/// One (test task, run) job's results.
+/// One (test task, run)'s results (a job, a run, records one per test task).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 struct JobResult {
     task: usize,
@@ -286,13 +319,10 @@ pub struct TransferReport {
 /// The experiment's name in manifests.
 pub const EXPERIMENT: &str = "transfer";
 
-/// The experiment's independent jobs, in index order: (test task, run), runs innermost.
-fn job_list(config: &TransferConfig) -> Vec<(usize, usize)> {
-    config
-        .test_tasks
-        .iter()
-        .flat_map(|&t| (0..config.runs).map(move |r| (t, r)))
-        .collect()
+/// The experiment's independent jobs, in index order: one per run, holding out every test
+/// task (their trainings share prefixes of the run's task order).
+fn job_list(config: &TransferConfig) -> Vec<usize> {
+    (0..config.runs).collect()
 }
 
 /// The manifest of a run of `config` (or its `shard`).
@@ -309,7 +339,7 @@ fn environments(config: &TransferConfig) -> Result<Vec<GridEnv>> {
 
 /// Runs the transfer experiment, writes its files into `out`, and returns the summary.
 ///
-/// `progress(done, total)` is called as jobs (test task, run) finish (from worker threads).
+/// `progress(done, total)` is called as jobs (runs) finish (from worker threads).
 pub fn run(
     config: &TransferConfig,
     out: &Path,
@@ -336,13 +366,19 @@ pub fn run_with(
     let jobs = job_list(config);
     let manifest = manifest(config, options.shard)?;
     let results = jobs::run_jobs(out, &manifest, options, progress, |index| {
-        let (task, run) = jobs[index];
-        run_job(config, &envs, &methods, task, run, out)
+        run_job(config, &envs, &methods, jobs[index], out)
     })?;
     if !options.shard.is_all() {
         return Ok(None);
     }
-    report_from(config, &envs, results.into_values().collect(), out, started).map(Some)
+    report_from(
+        config,
+        &envs,
+        results.into_values().flatten().collect(),
+        out,
+        started,
+    )
+    .map(Some)
 }
 
 /// Computes the summary, tables and figures of a complete result folder (one run, a resumed
@@ -353,11 +389,11 @@ pub fn summarise_dir(out: &Path) -> Result<TransferReport> {
     let config: TransferConfig = manifest.settings()?;
     config.check()?;
     let envs = environments(&config)?;
-    let results = jobs::read_all(out, &manifest)?;
+    let results: BTreeMap<usize, Vec<JobResult>> = jobs::read_all(out, &manifest)?;
     report_from(
         &config,
         &envs,
-        results.into_values().collect(),
+        results.into_values().flatten().collect(),
         out,
         started,
     )
@@ -436,46 +472,132 @@ fn report_from(
     Ok(report)
 }
 
-/// Trains a library on the other tasks, then runs every method on the test task.
+/// Trains a TES agent with `library` on task `t` of `run` for the training episodes; returns
+/// the library it ends with.
+fn train_on(
+    config: &TransferConfig,
+    envs: &[GridEnv],
+    library: ViewLibrary,
+    run: usize,
+    t: usize,
+) -> Result<ViewLibrary> {
+    let context = |what: &str| format!("run {run}: {what} training task {t}");
+    let env = &envs[t];
+    let agent_seed = training_seed(config, run, t);
+    let mut agent = Tes::new(env.structure(), library, TesParams::default(), agent_seed)
+        .with_context(|| context("starting"))?;
+    let mut world = ChaCha8Rng::seed_from_u64(agent_seed ^ 0x7EA1_D0A1);
+    let s = env.structure();
+    for _ in 0..config.train_episodes {
+        run_episode(&mut agent, env, &s, &mut world).with_context(|| context("on"))?;
+    }
+    Ok(agent.finish_task().with_context(|| context("ending"))?.0)
+}
+
+/// An empty library of the suite's shape.
+fn empty_library(config: &TransferConfig, envs: &[GridEnv]) -> Result<ViewLibrary> {
+    let structure = envs[0].structure();
+    Ok(ViewLibrary::new(
+        structure.n_actions(),
+        structure.n_effects(),
+        structure.n_features(),
+        config.library,
+    )?)
+}
+
+/// Every test task's trained library in `run`, in the order of
+/// [`TransferConfig::test_tasks`], each with its training order. The run's order's prefixes
+/// are trained once: held-out task `k` at position `p` starts from the library after the
+/// first `min(p, training_tasks)` tasks of the order (shared with every later held-out task)
+/// and trains on the rest of its own list. The same libraries, bit for bit, as
+/// [`library_alone`] trains for each task from scratch.
+fn trained_libraries(
+    config: &TransferConfig,
+    envs: &[GridEnv],
+    run: usize,
+) -> Result<Vec<(Vec<usize>, ViewLibrary)>> {
+    let order = run_order(config, run);
+    let position = |k: usize| order.iter().position(|&t| t == k).unwrap_or(0);
+    let shared = |k: usize| position(k).min(config.training_tasks);
+    let longest = config
+        .test_tasks
+        .iter()
+        .map(|&k| shared(k))
+        .max()
+        .unwrap_or(0);
+    // prefixes[i]: the library after training on `order[..i]`.
+    let mut prefixes = vec![empty_library(config, envs)?];
+    for &t in &order[..longest] {
+        let next = prefixes.last().cloned().context("a prefix library")?;
+        prefixes.push(train_on(config, envs, next, run, t)?);
+    }
+    config
+        .test_tasks
+        .par_iter()
+        .map(|&k| {
+            let own = training_order(config, run, k);
+            let from = shared(k);
+            let mut library = prefixes[from].clone();
+            for &t in &own[from..] {
+                library = train_on(config, envs, library, run, t)?;
+            }
+            Ok((own, library))
+        })
+        .collect()
+}
+
+/// Held-out task `task`'s library in `run` trained from scratch on its own list (what
+/// [`trained_libraries`] computes with shared prefixes).
+#[cfg(test)]
+fn library_alone(
+    config: &TransferConfig,
+    envs: &[GridEnv],
+    run: usize,
+    task: usize,
+) -> Result<ViewLibrary> {
+    let mut library = empty_library(config, envs)?;
+    for t in training_order(config, run, task) {
+        library = train_on(config, envs, library, run, t)?;
+    }
+    Ok(library)
+}
+
+/// One run: trains every test task's library, then runs every method on each test task.
 fn run_job(
+    config: &TransferConfig,
+    envs: &[GridEnv],
+    methods: &[Method],
+    run: usize,
+    out: &Path,
+) -> Result<Vec<JobResult>> {
+    let libraries = trained_libraries(config, envs, run)?;
+    config
+        .test_tasks
+        .par_iter()
+        .zip(libraries)
+        .map(|(&task, (order, library))| {
+            test_job(config, envs, methods, task, run, order, library, out)
+        })
+        .collect()
+}
+
+/// Runs every method on test task `task` of `run`, transferring `library` (trained on
+/// `order`).
+#[allow(clippy::too_many_arguments)]
+fn test_job(
     config: &TransferConfig,
     envs: &[GridEnv],
     methods: &[Method],
     task: usize,
     run: usize,
+    order: Vec<usize>,
+    library: ViewLibrary,
     out: &Path,
 ) -> Result<JobResult> {
     let seed = job_seed(config, task, run);
-    let mut order_rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut order: Vec<usize> = (0..envs.len()).filter(|&t| t != task).collect();
-    order.shuffle(&mut order_rng);
-    order.truncate(config.training_tasks);
-
     let test = &envs[task];
     let structure = test.structure();
-    let mut library = ViewLibrary::new(
-        structure.n_actions(),
-        structure.n_effects(),
-        structure.n_features(),
-        config.library,
-    )?;
     let context = |what: &str| format!("test task {task}, run {run}: {what}");
-    for (i, &t) in order.iter().enumerate() {
-        let env = &envs[t];
-        let agent_seed = seed.wrapping_mul(31).wrapping_add(i as u64);
-        let mut agent = Tes::new(env.structure(), library, TesParams::default(), agent_seed)
-            .with_context(|| context(&format!("training on task {t}")))?;
-        let mut world = ChaCha8Rng::seed_from_u64(agent_seed ^ 0x7EA1_D0A1);
-        let s = env.structure();
-        for _ in 0..config.train_episodes {
-            run_episode(&mut agent, env, &s, &mut world)
-                .with_context(|| context(&format!("training on task {t}")))?;
-        }
-        library = agent
-            .finish_task()
-            .with_context(|| context(&format!("ending training task {t}")))?
-            .0;
-    }
 
     if run == 0 {
         // Run 0's trained library, for `tes library show`.
@@ -702,6 +824,41 @@ fn write_jumpstart_chart(out: &Path, tasks: &[TaskSummary]) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn shared_training_prefixes_give_each_held_out_task_the_library_trained_alone() {
+        // Three training tasks each: the held-out tasks at positions 0-2 of the order share a
+        // shorter prefix and train on the rest alone, the later ones share all three.
+        let config = TransferConfig {
+            runs: 2,
+            train_episodes: 2,
+            test_tasks: (0..GridSuite::TASKS).collect(),
+            training_tasks: 3,
+            ..TransferConfig::quick()
+        };
+        let envs = environments(&config).unwrap();
+        let run = 1;
+        let order = run_order(&config, run);
+        assert_ne!(order, run_order(&config, 0));
+        let shared = trained_libraries(&config, &envs, run).unwrap();
+        for (&k, (own, library)) in config.test_tasks.iter().zip(&shared) {
+            let expected: Vec<usize> = order.iter().copied().filter(|&t| t != k).take(3).collect();
+            assert_eq!(own, &expected, "task {k}");
+            assert_eq!(
+                library,
+                &library_alone(&config, &envs, run, k).unwrap(),
+                "task {k}"
+            );
+        }
+        // A subset of the tasks gets the same libraries.
+        let subset = TransferConfig {
+            test_tasks: vec![order[1], order[7]],
+            ..config.clone()
+        };
+        let some = trained_libraries(&subset, &envs, run).unwrap();
+        assert_eq!(some[0], shared[order[1]]);
+        assert_eq!(some[1], shared[order[7]]);
+    }
 
     #[test]
     fn table2_targets_are_judged_only_on_a_full_size_run_over_every_task() {

@@ -9,9 +9,10 @@ use tes_experiments::jobs::{self, JobOptions, MergeError, Shard};
 use tes_experiments::robot::{self, RobotConfig};
 use tes_experiments::transfer::{self, TransferConfig};
 
+/// Four runs: four jobs (a transfer job is a run, holding out every test task).
 fn tiny_transfer() -> TransferConfig {
     TransferConfig {
-        runs: 2,
+        runs: 4,
         train_episodes: 3,
         test_episodes: 3,
         test_tasks: vec![1, 10],
