@@ -90,6 +90,20 @@ pub struct CmdpStructure {
     /// `preds[pred_offsets[s]..pred_offsets[s+1]]` to `s` (each such state once).
     pred_offsets: Vec<usize>,
     preds: Vec<u32>,
+    /// `steps[s * E + e]`: where effect `e` leads from `s` with that state's reward and
+    /// whether it is terminal, side by side for the planner's backups.
+    steps: Vec<Step>,
+}
+
+/// One successor of a state as a backup reads it: `R(next) + (live ? γ V(next) : 0)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Step {
+    /// `R(next)`.
+    pub(crate) reward: f64,
+    /// The successor, below the structure's state count.
+    pub(crate) next: u32,
+    /// Whether `next` is not terminal (its value counts).
+    pub(crate) live: bool,
 }
 
 impl CmdpStructure {
@@ -172,6 +186,14 @@ impl CmdpStructure {
             }
         }
         let (pred_offsets, preds) = predecessors(n_states, n_effects, &next);
+        let steps = next
+            .iter()
+            .map(|&to| Step {
+                reward: reward[to as usize],
+                next: to,
+                live: !terminal[to as usize],
+            })
+            .collect();
         Ok(Self {
             n_states,
             n_actions,
@@ -186,7 +208,27 @@ impl CmdpStructure {
             holders,
             pred_offsets,
             preds,
+            steps,
         })
+    }
+
+    /// Every state's reward for entering it, by state.
+    #[inline]
+    pub(crate) fn rewards(&self) -> &[f64] {
+        &self.reward
+    }
+
+    /// Whether each state is terminal, by state.
+    #[inline]
+    pub(crate) fn terminals(&self) -> &[bool] {
+        &self.terminal
+    }
+
+    /// Every state's successors with their rewards and terminal flags: `steps()[s * E + e]`
+    /// describes `next_state(s, e)`.
+    #[inline]
+    pub(crate) fn steps(&self) -> &[Step] {
+        &self.steps
     }
 
     /// Number of states.
@@ -809,6 +851,16 @@ mod tests {
         assert_eq!(c.effect_between(2, 1), Some(0));
         assert_eq!(c.effect_between(2, 2), Some(2));
         assert_eq!(c.effect_between(2, 4), None);
+        // The planner's successor table says the same.
+        for s in 0..c.n_states() {
+            for e in 0..c.n_effects() {
+                let step = c.steps()[s * c.n_effects() + e];
+                let next = c.next_state(s, e);
+                assert_eq!(step.next as usize, next);
+                assert_eq!(step.reward.to_bits(), c.reward(next).to_bits());
+                assert_eq!(step.live, !c.is_terminal(next));
+            }
+        }
     }
 
     #[test]

@@ -3,7 +3,7 @@
 use std::ops::Range;
 
 use super::{PlanError, PlanStats, PlannerParams};
-use crate::cmdp::{CmdpStructure, EffectTable, LANES, TableParts};
+use crate::cmdp::{CmdpStructure, EffectTable, LANES, Step, TableParts};
 
 /// What a sweep in progress has found: the largest value change so far and the range of
 /// `R(s) + γV(s)` over the states visited.
@@ -37,7 +37,7 @@ pub struct Optimism<'a> {
 /// Value iteration with its values and greedy policy kept between plans (the warm start).
 ///
 /// Two planners are equal when their settings, values, policies and last spans are (not
-/// their bookkeeping of which states changed).
+/// their scratch or their bookkeeping of which states changed).
 #[derive(Debug, Clone)]
 pub struct ValueIteration {
     pub(super) params: PlannerParams,
@@ -59,7 +59,6 @@ impl PartialEq for ValueIteration {
         self.params == other.params
             && self.values == other.values
             && self.policy == other.policy
-            && self.backup == other.backup
             && self.backup_span == other.backup_span
     }
 }
@@ -269,31 +268,48 @@ impl ValueIteration {
             lanes,
             fresh,
         } = table;
+        let steps = structure.steps();
+        // The successor reads below skip their bounds checks on the strength of this (and of
+        // `CmdpStructure::new`, which checks every successor and predecessor is below
+        // `n_states`); the slices of length `n_states` let the compiler drop the checks of
+        // the reads by `s < states.end <= n_states`.
+        assert_eq!(values.len(), n_states, "a planner for another structure");
+        assert!(states.end <= n_states, "states beyond the structure's");
+        let values = &mut values[..n_states];
+        let policy = &mut policy[..n_states];
+        let stale = &mut stale[..n_states];
+        let fresh: &mut [bool] = if TRACK { &mut fresh[..n_states] } else { fresh };
+        let rewards = &structure.rewards()[..n_states];
+        let terminals = &structure.terminals()[..n_states];
         for s in states {
-            let terminal = structure.is_terminal(s);
+            let terminal = terminals[s];
             if !terminal && (!TRACK || stale[s] || fresh[s]) {
                 // Every action's Q-value in `s` reads the same successors (effects, not
                 // actions, decide where the agent lands), so each successor's `R + γV` is
                 // computed once and shared by all actions: `E` lookups per state, not `A × E`.
-                let successors = &structure.successors(s)[..n_effects];
-                for (b, &next) in backup.iter_mut().zip(successors) {
-                    let next = next as usize;
-                    let future = if structure.is_terminal(next) {
-                        0.0
+                let steps = &steps[s * n_effects..][..n_effects];
+                let backup_of = |step: &Step| {
+                    let future = if step.live {
+                        let next = step.next as usize;
+                        debug_assert!(next < values.len());
+                        // SAFETY: `next < n_states` (`CmdpStructure::new` checks every
+                        // successor) and `values.len() == n_states` (asserted above).
+                        gamma * unsafe { *values.get_unchecked(next) }
                     } else {
-                        gamma * values[next]
+                        0.0
                     };
-                    *b = structure.reward(next) + future;
-                }
+                    step.reward + future
+                };
                 // The best action (lowest id on ties) and its value.
                 let mut best = (0, f64::NEG_INFINITY);
                 if by_lanes {
                     // All actions at once: lane `a` sums `P(e | s, a) · backup[e]` over `e`
                     // in order, as the scalar sum does.
-                    let rows = &lanes[s * n_effects * LANES..(s + 1) * n_effects * LANES];
-                    let (rows, _) = rows.as_chunks::<LANES>();
+                    let (rows, _) =
+                        lanes[s * n_effects * LANES..][..n_effects * LANES].as_chunks::<LANES>();
                     let mut q = [zero; LANES];
-                    for (p, &b) in rows[..n_effects].iter().zip(backup.iter()) {
+                    for (p, step) in rows.iter().zip(steps) {
+                        let b = backup_of(step);
                         for l in 0..LANES {
                             q[l] += p[l] * b;
                         }
@@ -304,6 +320,9 @@ impl ValueIteration {
                         }
                     }
                 } else {
+                    for (b, step) in backup.iter_mut().zip(steps) {
+                        *b = backup_of(step);
+                    }
                     for a in 0..n_actions {
                         let q = match optimism {
                             Some(o) if o.unknown[a * n_states + s] => o.value,
@@ -330,7 +349,12 @@ impl ValueIteration {
                         // Every state whose backup reads `V(s)` must be backed up again (if
                         // before `s`, in the next sweep; `s` itself, when it can stay).
                         for &p in structure.predecessors(s) {
-                            stale[p as usize] = true;
+                            let p = p as usize;
+                            debug_assert!(p < stale.len());
+                            // SAFETY: `p < n_states` (a predecessor is a state that some
+                            // effect leads from, checked by `CmdpStructure::new`) and
+                            // `stale.len() == n_states` (sliced above).
+                            unsafe { *stale.get_unchecked_mut(p) = true };
                         }
                     }
                 }
@@ -338,7 +362,7 @@ impl ValueIteration {
                 policy[s] = a as u32;
             }
             // `V(s)` is final for this sweep once its state has been visited.
-            let b = structure.reward(s) + if terminal { 0.0 } else { gamma * values[s] };
+            let b = rewards[s] + if terminal { 0.0 } else { gamma * values[s] };
             tally.lo = tally.lo.min(b);
             tally.hi = tally.hi.max(b);
         }
