@@ -510,7 +510,7 @@ fn empty_library(config: &TransferConfig, envs: &[GridEnv]) -> Result<ViewLibrar
 /// are trained once: held-out task `k` at position `p` starts from the library after the
 /// first `min(p, training_tasks)` tasks of the order (shared with every later held-out task)
 /// and trains on the rest of its own list. The same libraries, bit for bit, as
-/// [`library_alone`] trains for each task from scratch.
+/// `library_alone` (a test) trains for each task from scratch.
 fn trained_libraries(
     config: &TransferConfig,
     envs: &[GridEnv],
