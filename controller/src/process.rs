@@ -764,7 +764,7 @@ mod tests {
             let observations =
                 Outbox::open(&node, &names.observation, &names.observation_event, 0).unwrap();
             let observation_service =
-                channel::pubsub::<Observation>(&node, &names.observation, 0).unwrap();
+                channel::pubsub::<Observation, _>(&node, &names.observation, 0).unwrap();
             Self {
                 prefix,
                 config,

@@ -100,7 +100,7 @@ fn subscriber<T: ZeroCopySend + Copy + std::fmt::Debug + 'static>(
     history: usize,
     buffer: usize,
 ) -> Result<Sub<T>, IpcError> {
-    let service = channel::pubsub::<T>(node, name, history)?;
+    let service = channel::pubsub::<T, _>(node, name, history)?;
     let subscriber = service
         .subscriber_builder()
         .buffer_size(buffer)

@@ -6,6 +6,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use iceoryx2::prelude::*;
+use iceoryx2::service::Service;
 
 use crate::channel::{Idle, Listener, wait_next};
 use crate::ipc::{IpcError, ipc_err, listener, notifier, service_name};
@@ -14,14 +15,14 @@ use crate::wait::WaitStrategy;
 /// The one key of every latest-value board.
 const BOARD_KEY: u64 = 0;
 
-type Board = iceoryx2::service::port_factory::blackboard::PortFactory<ipc::Service, u64>;
+type Board<S = ipc::Service> = iceoryx2::service::port_factory::blackboard::PortFactory<S, u64>;
 
 /// Opens the blackboard service `name` holding one `T` under [`BOARD_KEY`], creating it (with
 /// `T::default()`) if no process has yet; retried while another process is creating it.
-fn board<T: ZeroCopySend + Copy + Default + fmt::Debug + 'static>(
-    node: &Node<ipc::Service>,
+fn board<T: ZeroCopySend + Copy + Default + fmt::Debug + 'static, S: Service>(
+    node: &Node<S>,
     name: &str,
-) -> Result<Board, IpcError> {
+) -> Result<Board<S>, IpcError> {
     let name = service_name(name)?;
     let deadline = Instant::now() + Duration::from_secs(10);
     loop {
@@ -58,14 +59,14 @@ fn board<T: ZeroCopySend + Copy + Default + fmt::Debug + 'static>(
 /// shared memory). The reader sees only the latest value: use it where the sender waits for
 /// the receiver's answer before sending again (the controller's commands), so nothing is
 /// overwritten unread; a value overwritten anyway is detected by its sequence number.
-pub struct LatestOutbox<T: ZeroCopySend + Copy + fmt::Debug + 'static> {
-    entry: iceoryx2::port::writer::EntryHandleMut<ipc::Service, u64, T>,
-    notifier: iceoryx2::port::notifier::Notifier<ipc::Service>,
-    _writer: iceoryx2::port::writer::Writer<ipc::Service, u64>,
-    _board: Board,
+pub struct LatestOutbox<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service = ipc::Service> {
+    entry: iceoryx2::port::writer::EntryHandleMut<S, u64, T>,
+    notifier: iceoryx2::port::notifier::Notifier<S>,
+    _writer: iceoryx2::port::writer::Writer<S, u64>,
+    _board: Board<S>,
 }
 
-impl<T: ZeroCopySend + Copy + Default + fmt::Debug + 'static> LatestOutbox<T> {
+impl<T: ZeroCopySend + Copy + Default + fmt::Debug + 'static, S: Service> LatestOutbox<T, S> {
     /// Opens (or creates) the board `name` and its event service `event`. One writer per
     /// board.
     ///
@@ -73,10 +74,10 @@ impl<T: ZeroCopySend + Copy + Default + fmt::Debug + 'static> LatestOutbox<T> {
     /// (iceoryx2 0.10 cannot release that mark), so a respawned writer waits, up to 30 s, for
     /// the readers to drop the abandoned board ([`LatestInbox::renew_if_abandoned`]) and then
     /// opens a fresh one.
-    pub fn open(node: &Node<ipc::Service>, name: &str, event: &str) -> Result<Self, IpcError> {
+    pub fn open(node: &Node<S>, name: &str, event: &str) -> Result<Self, IpcError> {
         let deadline = Instant::now() + Duration::from_secs(30);
         let (board, writer, entry) = loop {
-            let board = board::<T>(node, name)?;
+            let board = board::<T, S>(node, name)?;
             let writer = board
                 .writer_builder()
                 .create()
@@ -139,7 +140,7 @@ struct BoardReader<T: ZeroCopySend + Copy + fmt::Debug + 'static> {
 
 impl<T: ZeroCopySend + Copy + Default + fmt::Debug + 'static> BoardReader<T> {
     fn open(node: &Node<ipc::Service>, name: &str) -> Result<Self, IpcError> {
-        let board = board::<T>(node, name)?;
+        let board = board::<T, ipc::Service>(node, name)?;
         let reader = board
             .reader_builder()
             .create()

@@ -12,7 +12,10 @@
 //!   0.10 allocates one small object per sample), so the controller sends its commands this
 //!   way.
 //!
-//! Ports of `ipc::Service` are not `Send`: keep each channel on the thread that made it.
+//! Ports of `ipc::Service` (the default) are not `Send`: keep each channel on the thread that
+//! made it. A channel opened on an [`ipc_threadsafe`](iceoryx2::service::ipc_threadsafe) node
+//! ([`shared_node`]) is `Send` and `Sync` (its ports lock a mutex) and reaches the same services:
+//! the link publishes from Zenoh's callbacks that way.
 
 use std::fmt;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -20,32 +23,28 @@ use std::time::{Duration, Instant};
 
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
+use iceoryx2::service::Service;
 
 pub use crate::board::{LatestInbox, LatestOutbox};
 pub use crate::ipc::{
     DOMAIN_VAR, GROUP_MEMBERS, IpcError, LAUNCHER, NODE_NAME_MAX, NodeEntry, NodeLiveness,
     clean_stale_resources, config, group_node, group_node_name, ipc_err, list_nodes, node,
-    node_named, parse_group_node_name, prefix_of, pubsub, services_with_prefix,
+    node_named, parse_group_node_name, prefix_of, pubsub, services_with_prefix, shared_node,
 };
 use crate::ipc::{listener, notifier};
 pub use crate::wait::{BadWaitStrategy, WaitStrategy};
 
 /// The sending end: a publisher and a notifier.
-pub struct Outbox<T: ZeroCopySend + Copy + fmt::Debug + 'static> {
-    publisher: iceoryx2::port::publisher::Publisher<ipc::Service, T, ()>,
-    notifier: iceoryx2::port::notifier::Notifier<ipc::Service>,
+pub struct Outbox<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service = ipc::Service> {
+    publisher: iceoryx2::port::publisher::Publisher<S, T, ()>,
+    notifier: iceoryx2::port::notifier::Notifier<S>,
 }
 
-impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Outbox<T> {
+impl<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service> Outbox<T, S> {
     /// Opens (or creates) the payload service `name` and its event service `event`.
     /// `history` samples are kept for subscribers that join later (0 for none).
-    pub fn open(
-        node: &Node<ipc::Service>,
-        name: &str,
-        event: &str,
-        history: usize,
-    ) -> Result<Self, IpcError> {
-        let service = pubsub::<T>(node, name, history)?;
+    pub fn open(node: &Node<S>, name: &str, event: &str, history: usize) -> Result<Self, IpcError> {
+        let service = pubsub::<T, S>(node, name, history)?;
         let publisher = service
             .publisher_builder()
             .create()
@@ -94,9 +93,9 @@ pub enum Idle {
 }
 
 /// The receiving end: a subscriber, a listener, and the strategy to wait by.
-pub struct Inbox<T: ZeroCopySend + Copy + fmt::Debug + 'static> {
-    subscriber: iceoryx2::port::subscriber::Subscriber<ipc::Service, T, ()>,
-    listener: Listener,
+pub struct Inbox<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service = ipc::Service> {
+    subscriber: iceoryx2::port::subscriber::Subscriber<S, T, ()>,
+    listener: Listener<S>,
     strategy: WaitStrategy,
 }
 
@@ -108,16 +107,16 @@ pub const BUFFER: usize = 16;
 /// How often a blocking wait looks at the stop flag.
 const STOP_POLL: Duration = Duration::from_millis(50);
 
-impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Inbox<T> {
+impl<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service> Inbox<T, S> {
     /// Opens (or creates) the payload service `name` and its event service `event`.
     pub fn open(
-        node: &Node<ipc::Service>,
+        node: &Node<S>,
         name: &str,
         event: &str,
         history: usize,
         strategy: WaitStrategy,
     ) -> Result<Self, IpcError> {
-        let service = pubsub::<T>(node, name, history)?;
+        let service = pubsub::<T, S>(node, name, history)?;
         let subscriber = service
             .subscriber_builder()
             .buffer_size(history.max(BUFFER))
@@ -148,6 +147,18 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Inbox<T> {
             .map(|sample| *sample))
     }
 
+    /// Connects publishers that appeared since the last call.
+    pub fn update_connections(&self) -> Result<(), IpcError> {
+        self.subscriber
+            .update_connections()
+            .map_err(ipc_err("connect a subscriber"))
+    }
+}
+
+impl<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service> Inbox<T, S>
+where
+    iceoryx2::port::listener::Listener<S>: FileDescriptorBased,
+{
     /// Waits, by the inbox's strategy, for the next payload, at most `timeout`, and returns
     /// early when `stop` is raised. Allocation-free in `spin`; `block` sleeps in the kernel.
     pub fn next(&self, timeout: Duration, stop: &AtomicBool) -> Result<Result<T, Idle>, IpcError> {
@@ -174,27 +185,23 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static> Inbox<T> {
             work,
         )
     }
-
-    /// Connects publishers that appeared since the last call.
-    pub fn update_connections(&self) -> Result<(), IpcError> {
-        self.subscriber
-            .update_connections()
-            .map_err(ipc_err("connect a subscriber"))
-    }
 }
 
-pub(crate) type Listener = iceoryx2::port::listener::Listener<ipc::Service>;
+pub(crate) type Listener<S = ipc::Service> = iceoryx2::port::listener::Listener<S>;
 
 /// Polls `try_next` and waits between polls by `strategy` on `listener`, at most `timeout`,
 /// calling `work` between polls while spinning; returns early when `stop` is raised. Allocation-free in `spin`; `block` sleeps in the kernel.
-pub(crate) fn wait_next<T>(
-    listener: &Listener,
+pub(crate) fn wait_next<T, S: Service>(
+    listener: &Listener<S>,
     strategy: WaitStrategy,
     timeout: Duration,
     stop: &AtomicBool,
     mut try_next: impl FnMut() -> Result<Option<T>, IpcError>,
     mut work: impl FnMut() -> bool,
-) -> Result<Result<T, Idle>, IpcError> {
+) -> Result<Result<T, Idle>, IpcError>
+where
+    Listener<S>: FileDescriptorBased,
+{
     let start = Instant::now();
     let spin_for = match strategy {
         WaitStrategy::Block => Duration::ZERO,
@@ -243,8 +250,13 @@ pub(crate) fn wait_next<T>(
 /// timer-precise, unlike iceoryx2 0.10's `Listener::timed_wait` (a socket receive
 /// timeout, which the kernel rounds up to its scheduler tick, milliseconds for any shorter
 /// timeout). A signal ends the wait early (the caller looks at its stop flag).
-pub(crate) fn wait_readable(listener: &Listener, timeout: Duration) -> Result<(), IpcError> {
-    use iceoryx2::prelude::FileDescriptorBased;
+pub(crate) fn wait_readable<S: Service>(
+    listener: &Listener<S>,
+    timeout: Duration,
+) -> Result<(), IpcError>
+where
+    Listener<S>: FileDescriptorBased,
+{
     use nix::poll::{PollFd, PollFlags, ppoll};
     use std::os::fd::BorrowedFd;
     // SAFETY: the descriptor belongs to `listener`, which outlives this call.

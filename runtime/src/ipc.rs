@@ -4,6 +4,7 @@
 use std::fmt;
 
 use iceoryx2::prelude::*;
+use iceoryx2::service::Service;
 
 use tes_topics::{Role, ServiceNames};
 
@@ -69,6 +70,17 @@ pub fn config() -> &'static Config {
 /// warning); `handle_signals` lets iceoryx2 turn SIGINT/SIGTERM into a termination request
 /// (a launcher that handles signals itself passes `false`).
 pub fn node(handle_signals: bool) -> Result<Node<ipc::Service>, IpcError> {
+    node_of::<ipc::Service>(handle_signals)
+}
+
+/// [`node`] of iceoryx2's `ipc_threadsafe` service: its ports are `Send` and `Sync` (each
+/// guarded by a mutex), for channels used from threads we do not own (Zenoh's callbacks).
+/// It reaches the same services as [`node`]'s: the two differ only in the ports' locking.
+pub fn shared_node(handle_signals: bool) -> Result<Node<ipc_threadsafe::Service>, IpcError> {
+    node_of::<ipc_threadsafe::Service>(handle_signals)
+}
+
+fn node_of<S: Service>(handle_signals: bool) -> Result<Node<S>, IpcError> {
     let mode = if handle_signals {
         SignalHandlingMode::HandleTerminationRequests
     } else {
@@ -77,7 +89,7 @@ pub fn node(handle_signals: bool) -> Result<Node<ipc::Service>, IpcError> {
     NodeBuilder::new()
         .config(config())
         .signal_handling_mode(mode)
-        .create::<ipc::Service>()
+        .create::<S>()
         .map_err(ipc_err("create the node"))
 }
 
@@ -235,14 +247,11 @@ pub fn clean_stale_resources() -> Result<usize, IpcError> {
 /// Opens (or creates) a publish–subscribe service with the settings every TES process uses
 /// (subscriber buffer [`BUFFER`], `history` samples for late subscribers). Every opener of a
 /// service must use these, since iceoryx2 refuses to open a service with other settings.
-pub fn pubsub<T: ZeroCopySend + Copy + fmt::Debug + 'static>(
-    node: &Node<ipc::Service>,
+pub fn pubsub<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service>(
+    node: &Node<S>,
     name: &str,
     history: usize,
-) -> Result<
-    iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>,
-    IpcError,
-> {
+) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<S, T, ()>, IpcError> {
     node.service_builder(&service_name(name)?)
         .publish_subscribe::<T>()
         .history_size(history)
@@ -278,7 +287,6 @@ fn max_buffer_of(name: &str, history: usize) -> usize {
 /// The names of the iceoryx2 services that exist now and start with `prefix` (to check that a
 /// stopped group left nothing behind).
 pub fn services_with_prefix(prefix: &str) -> Result<Vec<String>, IpcError> {
-    use iceoryx2::service::Service as _;
     let mut names = Vec::new();
     ipc::Service::list(config(), |service| {
         let name = service.static_details.name().to_string();
@@ -292,10 +300,10 @@ pub fn services_with_prefix(prefix: &str) -> Result<Vec<String>, IpcError> {
 }
 
 /// A notifier on the event service `event` (opened or created).
-pub(crate) fn notifier(
-    node: &Node<ipc::Service>,
+pub(crate) fn notifier<S: Service>(
+    node: &Node<S>,
     event: &str,
-) -> Result<iceoryx2::port::notifier::Notifier<ipc::Service>, IpcError> {
+) -> Result<iceoryx2::port::notifier::Notifier<S>, IpcError> {
     node.service_builder(&service_name(event)?)
         .event()
         .open_or_create()
@@ -306,7 +314,7 @@ pub(crate) fn notifier(
 }
 
 /// A listener on the event service `event` (opened or created).
-pub(crate) fn listener(node: &Node<ipc::Service>, event: &str) -> Result<Listener, IpcError> {
+pub(crate) fn listener<S: Service>(node: &Node<S>, event: &str) -> Result<Listener<S>, IpcError> {
     node.service_builder(&service_name(event)?)
         .event()
         .open_or_create()

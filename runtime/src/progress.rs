@@ -42,7 +42,7 @@ impl ProgressOutbox {
         names: &ServiceNames,
         role: Role,
     ) -> Result<Self, IpcError> {
-        let service = pubsub::<Progress>(node, names.progress_of(role), 1)?;
+        let service = pubsub::<Progress, _>(node, names.progress_of(role), 1)?;
         let publisher = service
             .publisher_builder()
             .create()
@@ -106,7 +106,7 @@ impl ProgressWatch {
     pub fn open(node: &Node<ipc::Service>, names: &ServiceNames) -> Result<Self, IpcError> {
         let mut subscribers = Vec::with_capacity(Role::ALL.len());
         for role in Role::ALL {
-            let service = pubsub::<Progress>(node, names.progress_of(role), 1)?;
+            let service = pubsub::<Progress, _>(node, names.progress_of(role), 1)?;
             let subscriber = service
                 .subscriber_builder()
                 .create()

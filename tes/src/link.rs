@@ -389,37 +389,39 @@ impl Link {
             .wait()
             .map_err(|e| anyhow!("cannot publish on Zenoh: {e}"))?;
 
-        // What comes from peers goes to one thread, which owns the local ports.
-        let (tx, rx) = mpsc::channel::<(usize, Vec<u8>)>();
+        // What comes from peers is checked and republished on Zenoh's own receiving thread,
+        // straight from its callback: no hand-over to another thread and its wake-up.
+        let inbound = Arc::new(Mutex::new(
+            Inbound::open(names, local, settings.restamp)
+                .context("the link cannot open the local services")?,
+        ));
         for (i, topic) in TOPICS.iter().enumerate() {
             if local.contains(&writer(i)) || !read_by(i, local) {
                 continue;
             }
-            let tx = tx.clone();
+            let inbound = inbound.clone();
+            let shared = shared.clone();
             let subscriber = session
                 .declare_subscriber(format!("{group}/{topic}"))
                 .callback(move |sample| {
-                    let _ = tx.send((i, sample.payload().to_bytes().into_owned()));
+                    let bytes = sample.payload().to_bytes();
+                    if let Ok(mut inbound) = inbound.lock() {
+                        inbound.take_counted(i, &bytes, &shared);
+                    }
                 })
                 .wait()
                 .map_err(|e| anyhow!("cannot subscribe to {group}/{topic} on Zenoh: {e}"))?;
             subscribers.push(subscriber);
         }
-        drop(tx);
 
         let mut threads = Vec::new();
         let (ready_tx, ready_rx) = mpsc::channel::<Result<()>>();
         {
-            let names = names.clone();
-            let shared = shared.clone();
             let stop = stop.clone();
-            let local = local.to_vec();
-            let restamp = settings.restamp;
-            let ready = ready_tx.clone();
             threads.push(
                 std::thread::Builder::new()
                     .name("link-in".into())
-                    .spawn(move || inbound(&names, &local, restamp, rx, &shared, &stop, ready))
+                    .spawn(move || tend(&inbound, &stop))
                     .context("cannot start the link's thread")?,
             );
         }
@@ -464,8 +466,8 @@ impl Link {
             _subscribers: subscribers,
             stop_publisher,
         };
-        // Every thread has its ports before anyone is told this launch is there.
-        for _ in 0..link.threads.len() {
+        // Every forwarding thread has its ports before anyone is told this launch is there.
+        for _ in 1..link.threads.len() {
             match ready_rx.recv_timeout(Duration::from_secs(30)) {
                 Ok(Ok(())) => {}
                 Ok(Err(e)) => {
@@ -662,7 +664,7 @@ fn outbound(
             _ => {
                 // Progress has no event: a report is due a few times a second at most.
                 let role = writer(topic);
-                let service = channel::pubsub::<Progress>(&node, names.progress_of(role), 1)?;
+                let service = channel::pubsub::<Progress, _>(&node, names.progress_of(role), 1)?;
                 let subscriber = service
                     .subscriber_builder()
                     .create()
@@ -694,37 +696,42 @@ fn outbound(
     }
 }
 
-/// The local ports the inbound thread writes, each only where its service crosses.
+/// The ports of iceoryx2's thread-safe flavour: written from Zenoh's callbacks.
+type Shm = iceoryx2::service::ipc_threadsafe::Service;
+
+/// The local ports what arrives from peers is republished on, each only where its service
+/// crosses.
 struct LocalPorts {
-    observation: Option<Outbox<Observation>>,
-    world_map: Option<Outbox<WorldMap>>,
-    command: Option<LatestOutbox<Command>>,
-    motor_state: Option<Outbox<MotorState>>,
-    progress: [Option<
-        iceoryx2::port::publisher::Publisher<iceoryx2::prelude::ipc::Service, Progress, ()>,
-    >; 3],
+    observation: Option<Outbox<Observation, Shm>>,
+    world_map: Option<Outbox<WorldMap, Shm>>,
+    command: Option<LatestOutbox<Command, Shm>>,
+    motor_state: Option<Outbox<MotorState, Shm>>,
+    progress: [Option<iceoryx2::port::publisher::Publisher<Shm, Progress, ()>>; 3],
     /// The world map published on this host, when its writer is local.
-    local_map: Option<Inbox<WorldMap>>,
+    local_map: Option<Inbox<WorldMap, Shm>>,
 }
 
-/// Takes what peers sent, checks it and republishes what passes, until `stop`.
-fn inbound(
-    names: &ServiceNames,
-    local: &[Role],
+/// What arrives from peers: the checker that judges it and the ports that republish what
+/// passes. Zenoh's callbacks take it under a lock, one sample at a time.
+struct Inbound {
+    ports: LocalPorts,
+    checker: Checker,
     restamp: bool,
-    rx: mpsc::Receiver<(usize, Vec<u8>)>,
-    shared: &Shared,
-    stop: &AtomicBool,
-    ready: mpsc::Sender<Result<()>>,
-) {
-    let result = (|| -> Result<()> {
-        let node = channel::node(false)?;
+    /// When the ports last looked for processes that started since.
+    connected: Instant,
+    // Declared last: dropped after the ports.
+    _node: iceoryx2::prelude::Node<Shm>,
+}
+
+impl Inbound {
+    fn open(names: &ServiceNames, local: &[Role], restamp: bool) -> Result<Self> {
+        let node = channel::shared_node(false)?;
         let crosses = |topic: usize| !local.contains(&writer(topic)) && read_by(topic, local);
         let mut progress = [None, None, None];
         for (i, slot) in progress.iter_mut().enumerate() {
             let role = Role::ALL[i];
             if crosses(4 + i) {
-                let service = channel::pubsub::<Progress>(&node, names.progress_of(role), 1)?;
+                let service = channel::pubsub::<Progress, _>(&node, names.progress_of(role), 1)?;
                 *slot = Some(
                     service
                         .publisher_builder()
@@ -759,60 +766,79 @@ fn inbound(
                 })
                 .transpose()?,
         };
-        let _ = ready.send(Ok(()));
-        let mut checker = Checker::default();
-        let mut connected = Instant::now();
-        while !stop.load(Ordering::Relaxed) {
-            let received = rx.recv_timeout(IDLE);
-            // The map published here may have come while this thread waited: what arrived
-            // is checked against the latest.
-            if let Some(inbox) = &ports.local_map
-                && let Some(m) = inbox.try_next()?
-            {
-                let _ = checker.world_map(&m);
+        Ok(Self {
+            ports,
+            checker: Checker::default(),
+            restamp,
+            connected: Instant::now(),
+            _node: node,
+        })
+    }
+
+    /// Takes the world map published on this host, if a new one came: what arrives is
+    /// checked against the latest.
+    fn follow_local_map(&mut self) {
+        if let Some(inbox) = &self.ports.local_map {
+            match inbox.try_next() {
+                Ok(Some(m)) => {
+                    let _ = self.checker.world_map(&m);
+                }
+                Ok(None) => {}
+                Err(e) => eprintln!("launch: link: warning: cannot read the world map: {e}"),
             }
-            let (topic, bytes) = match received {
-                Ok(x) => x,
-                Err(mpsc::RecvTimeoutError::Timeout) => {
-                    // Processes that started since get what the link republishes.
-                    if connected.elapsed() > Duration::from_millis(200) {
-                        connected = Instant::now();
-                        if let Some(o) = &ports.observation {
-                            o.update_connections()?;
-                        }
-                        if let Some(o) = &ports.world_map {
-                            o.update_connections()?;
-                        }
-                        if let Some(o) = &ports.motor_state {
-                            o.update_connections()?;
-                        }
-                    }
-                    continue;
-                }
-                Err(mpsc::RecvTimeoutError::Disconnected) => break,
-            };
-            match take(topic, &bytes, &mut checker, &ports, restamp) {
-                Ok(true) => {
-                    shared.received[topic].fetch_add(1, Ordering::Relaxed);
-                }
-                Ok(false) => {}
-                Err(why) => {
-                    let count = shared.refused[topic].fetch_add(1, Ordering::Relaxed) + 1;
-                    if count == 1 || count.is_multiple_of(100) {
-                        shared.push(LinkEvent::Refused {
-                            topic: TOPICS[topic],
-                            why,
-                            count,
-                        });
-                    }
+        }
+    }
+
+    /// Checks one payload of `topic` from a peer, republishes it if it passes and counts it
+    /// either way.
+    fn take_counted(&mut self, topic: usize, bytes: &[u8], shared: &Shared) {
+        self.follow_local_map();
+        match take(topic, bytes, &mut self.checker, &self.ports, self.restamp) {
+            Ok(true) => {
+                shared.received[topic].fetch_add(1, Ordering::Relaxed);
+            }
+            Ok(false) => {}
+            Err(why) => {
+                let count = shared.refused[topic].fetch_add(1, Ordering::Relaxed) + 1;
+                if count == 1 || count.is_multiple_of(100) {
+                    shared.push(LinkEvent::Refused {
+                        topic: TOPICS[topic],
+                        why,
+                        count,
+                    });
                 }
             }
         }
-        Ok(())
-    })();
-    if let Err(e) = result {
-        eprintln!("launch: link: warning: receiving stopped: {e:#}");
-        let _ = ready.send(Err(e));
+    }
+
+    /// Connects the processes that started since the last look (a few times a second).
+    fn reconnect(&mut self) {
+        if self.connected.elapsed() < Duration::from_millis(200) {
+            return;
+        }
+        self.connected = Instant::now();
+        let ports = &self.ports;
+        let connected = [
+            ports.observation.as_ref().map(Outbox::update_connections),
+            ports.world_map.as_ref().map(Outbox::update_connections),
+            ports.motor_state.as_ref().map(Outbox::update_connections),
+        ];
+        for e in connected.into_iter().flatten().filter_map(Result::err) {
+            eprintln!("launch: link: warning: cannot connect a local port: {e}");
+        }
+    }
+}
+
+/// Keeps the inbound ports current between samples until `stop`: the local world map
+/// followed, processes that started since connected.
+fn tend(inbound: &Mutex<Inbound>, stop: &AtomicBool) {
+    while !stop.load(Ordering::Relaxed) {
+        std::thread::sleep(IDLE);
+        let Ok(mut inbound) = inbound.lock() else {
+            return;
+        };
+        inbound.follow_local_map();
+        inbound.reconnect();
     }
 }
 

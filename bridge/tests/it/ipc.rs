@@ -99,7 +99,7 @@ fn bridge_loop_turns_commands_into_motor_states() {
     let commands =
         retry(|| LatestOutbox::<Command>::open(&node, &names.command, &names.command_event));
     let state_service =
-        retry(|| tes_runtime::channel::pubsub::<MotorState>(&node, &names.motor_state, 0));
+        retry(|| tes_runtime::channel::pubsub::<MotorState, _>(&node, &names.motor_state, 0));
     let subscriber = state_service
         .subscriber_builder()
         .create()
