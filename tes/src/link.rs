@@ -466,8 +466,10 @@ impl Link {
             _subscribers: subscribers,
             stop_publisher,
         };
-        // Every forwarding thread has its ports before anyone is told this launch is there.
-        for _ in 1..link.threads.len() {
+        // Every forwarding thread has its ports before anyone is told this launch is there
+        // (the first thread, `tend`, opens none).
+        let forwarding = link.threads.len() - 1;
+        for _ in 0..forwarding {
             match ready_rx.recv_timeout(Duration::from_secs(30)) {
                 Ok(Ok(())) => {}
                 Ok(Err(e)) => {
@@ -697,18 +699,18 @@ fn outbound(
 }
 
 /// The ports of iceoryx2's thread-safe flavour: written from Zenoh's callbacks.
-type Shm = iceoryx2::service::ipc_threadsafe::Service;
+type ThreadSafe = iceoryx2::service::ipc_threadsafe::Service;
 
 /// The local ports what arrives from peers is republished on, each only where its service
 /// crosses.
 struct LocalPorts {
-    observation: Option<Outbox<Observation, Shm>>,
-    world_map: Option<Outbox<WorldMap, Shm>>,
-    command: Option<LatestOutbox<Command, Shm>>,
-    motor_state: Option<Outbox<MotorState, Shm>>,
-    progress: [Option<iceoryx2::port::publisher::Publisher<Shm, Progress, ()>>; 3],
+    observation: Option<Outbox<Observation, ThreadSafe>>,
+    world_map: Option<Outbox<WorldMap, ThreadSafe>>,
+    command: Option<LatestOutbox<Command, ThreadSafe>>,
+    motor_state: Option<Outbox<MotorState, ThreadSafe>>,
+    progress: [Option<iceoryx2::port::publisher::Publisher<ThreadSafe, Progress, ()>>; 3],
     /// The world map published on this host, when its writer is local.
-    local_map: Option<Inbox<WorldMap, Shm>>,
+    local_map: Option<Inbox<WorldMap, ThreadSafe>>,
 }
 
 /// What arrives from peers: the checker that judges it and the ports that republish what
@@ -720,7 +722,7 @@ struct Inbound {
     /// When the ports last looked for processes that started since.
     connected: Instant,
     // Declared last: dropped after the ports.
-    _node: iceoryx2::prelude::Node<Shm>,
+    _node: iceoryx2::prelude::Node<ThreadSafe>,
 }
 
 impl Inbound {
