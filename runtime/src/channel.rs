@@ -13,7 +13,7 @@
 //!   way.
 //!
 //! Ports of `ipc::Service` (the default) are not `Send`: keep each channel on the thread that
-//! made it. A channel opened on an [`ipc_threadsafe`](iceoryx2::service::ipc_threadsafe) node
+//! made it. A channel opened on an [`ipc_threadsafe`] node
 //! ([`shared_node`]) is `Send` and `Sync` (its ports lock a mutex) and reaches the same services:
 //! the link publishes from Zenoh's callbacks that way.
 
