@@ -393,6 +393,9 @@ struct RefreshScratch {
     columns: Vec<f64>,
     /// The intercept's weights (`E`; zero without one).
     intercept: Vec<f64>,
+    /// Every feature column's weights, `n_features × E`, zero where the view uses none
+    /// (state refresh).
+    weights: Vec<f64>,
     /// Per state: the row of `rows` holding its pattern's probabilities (pattern refresh).
     slots: Vec<u32>,
     /// Open-addressing map from a pattern to its row of `rows`; an entry counts only if its
@@ -408,13 +411,14 @@ struct RefreshScratch {
 }
 
 impl RefreshScratch {
-    fn new(n_states: usize, n_effects: usize) -> Self {
+    fn new(n_states: usize, n_effects: usize, n_features: usize) -> Self {
         let slots = (2 * n_states).next_power_of_two().max(2);
         Self {
             rows: vec![0.0; n_states * n_effects],
             patterns: vec![0; n_states],
             columns: vec![0.0; PATTERN_BITS * n_effects],
             intercept: vec![0.0; n_effects],
+            weights: vec![0.0; n_features * n_effects],
             slots: vec![0; n_states],
             keys: vec![0; slots],
             slot: vec![0; slots],
@@ -477,7 +481,7 @@ impl EffectTable {
             probs: vec![1.0 / e as f64; a * s * e],
             lanes,
             fresh: vec![true; s],
-            scratch: RefreshScratch::new(s, e),
+            scratch: RefreshScratch::new(s, e, structure.n_features()),
         }
     }
 
@@ -584,30 +588,70 @@ impl EffectTable {
         Ok(())
     }
 
-    /// By state: every state's scores, adding each used column's weights to the states
-    /// where it is on.
+    /// By state: every state's scores, the sum of the weights of its features that are on.
+    ///
+    /// State by state, over the state's sorted feature list, with the view's weights laid out
+    /// densely (zero for the columns it does not use) and the state's scores in registers:
+    /// the same sums in the same order (features by increasing column, the intercept last;
+    /// adding a zero leaves a score's bits alone, as no score is ever −0), so the same bits as
+    /// scattering each column's weights into the states where it is on, at a fraction of the
+    /// memory traffic — a dense view (bloreRL uses every column) sums ~100 weights per state.
     fn begin_by_state(&mut self, view: &Mdagl, structure: &CmdpStructure) {
-        let e = self.n_effects;
+        match self.n_effects {
+            5 => self.by_state_of::<5>(view, structure),
+            20 => self.by_state_of::<20>(view, structure),
+            _ => self.by_state_of::<0>(view, structure),
+        }
+    }
+
+    /// [`begin_by_state`](Self::begin_by_state) for `E` effects (0: any count).
+    fn by_state_of<const E: usize>(&mut self, view: &Mdagl, structure: &CmdpStructure) {
+        let e = if E == 0 { self.n_effects } else { E };
+        let n_features = structure.n_features();
         let scratch = &mut self.scratch;
         scratch.by_pattern = false;
-        let fresh = &mut scratch.rows;
-        fresh.fill(0.0);
+        let weights = &mut scratch.weights[..n_features * e];
+        weights.fill(0.0);
+        let intercept = &mut scratch.intercept[..e];
+        intercept.fill(0.0);
         view.for_each_weight_column(|col, scale, sums| {
-            let mut add = |s: usize| {
-                for (score, &g) in fresh[s * e..(s + 1) * e].iter_mut().zip(sums) {
-                    *score += scale * g;
-                }
-            };
-            if col < structure.n_features() {
-                structure
-                    .states_with_feature(col)
-                    .iter()
-                    .for_each(|&s| add(s as usize));
+            let column = if col < n_features {
+                &mut weights[col * e..(col + 1) * e]
             } else {
-                // The intercept is on everywhere.
-                (0..structure.n_states()).for_each(add);
+                &mut *intercept
+            };
+            for (w, &g) in column.iter_mut().zip(sums) {
+                *w = scale * g;
             }
         });
+        let (weights, intercept) = (&scratch.weights[..n_features * e], &scratch.intercept[..e]);
+        let rows = scratch.rows[..structure.n_states() * e].chunks_exact_mut(e);
+        for (s, row) in rows.enumerate() {
+            if E == 0 {
+                row.fill(0.0);
+                for &j in structure.features(s) {
+                    let w = &weights[j as usize * e..(j as usize + 1) * e];
+                    for (score, &w) in row.iter_mut().zip(w) {
+                        *score += w;
+                    }
+                }
+                for (score, &w) in row.iter_mut().zip(intercept) {
+                    *score += w;
+                }
+                continue;
+            }
+            let mut scores = [0.0f64; E];
+            for &j in structure.features(s) {
+                let w = &weights[j as usize * E..(j as usize + 1) * E];
+                for k in 0..E {
+                    scores[k] += w[k];
+                }
+            }
+            for k in 0..E {
+                scores[k] += intercept[k];
+            }
+            row.copy_from_slice(&scores);
+        }
     }
 
     /// By pattern (a view using at most [`PATTERN_BITS`] feature columns): states on which
