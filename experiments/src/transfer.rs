@@ -33,10 +33,12 @@ use serde::{Deserialize, Serialize};
 use tes_learning::agents::{Agent, Tes, TesParams, ViewPolicy};
 use tes_learning::library::store::{self, StoredLibrary};
 use tes_learning::library::{LibraryParams, ViewLibrary};
+use tes_learning::plan::PlannerParams;
 use tes_perception_sim::grid::GridSuite;
 
 use crate::episode::{
-    Algorithm, Episode, EpisodicTask, run_episode, write_episodes_csv, write_file, write_summary,
+    AgentSettings, Algorithm, Episode, EpisodicTask, run_episode, write_episodes_csv, write_file,
+    write_summary,
 };
 use crate::grid::GridEnv;
 use crate::jobs::{self, JobOptions, Manifest};
@@ -70,6 +72,13 @@ pub struct TransferConfig {
     pub seed: u64,
     /// Whether this is the reduced `--quick` configuration.
     pub quick: bool,
+    /// Every agent's planner, in training and test, stops a re-plan once no value moves by
+    /// more than the model change that triggered it ([`PlannerParams::stop_at_drift`]), as in
+    /// the grid experiment: the grid agents re-plan before every greedy step, and planning
+    /// further than their views hold still is most of the study's time. Results written
+    /// without this field were planned to the tolerance.
+    #[serde(default)]
+    pub stop_at_drift: bool,
 }
 
 impl TransferConfig {
@@ -87,6 +96,7 @@ impl TransferConfig {
             world_seed: 2017,
             seed: 1,
             quick: false,
+            stop_at_drift: true,
         }
     }
 
@@ -484,7 +494,11 @@ fn train_on(
     let context = |what: &str| format!("run {run}: {what} training task {t}");
     let env = &envs[t];
     let agent_seed = training_seed(config, run, t);
-    let mut agent = Tes::new(env.structure(), library, TesParams::default(), agent_seed)
+    let params = TesParams {
+        planner: planner_of(config),
+        ..TesParams::default()
+    };
+    let mut agent = Tes::new(env.structure(), library, params, agent_seed)
         .with_context(|| context("starting"))?;
     let mut world = ChaCha8Rng::seed_from_u64(agent_seed ^ 0x7EA1_D0A1);
     let s = env.structure();
@@ -492,6 +506,14 @@ fn train_on(
         run_episode(&mut agent, env, &s, &mut world).with_context(|| context("on"))?;
     }
     Ok(agent.finish_task().with_context(|| context("ending"))?.0)
+}
+
+/// Every agent's planner settings under `config` (the paper's γ, tolerance and sweep cap).
+fn planner_of(config: &TransferConfig) -> PlannerParams {
+    PlannerParams {
+        stop_at_drift: config.stop_at_drift,
+        ..PlannerParams::default()
+    }
 }
 
 /// An empty library of the suite's shape.
@@ -617,6 +639,10 @@ fn test_job(
         };
         store::save(&path, &stored)?;
     }
+    let settings = AgentSettings {
+        planner: planner_of(config),
+        ..AgentSettings::default()
+    };
     let mut episodes = BTreeMap::new();
     for &m in methods {
         let agent_seed = seed
@@ -625,6 +651,7 @@ fn test_job(
         let transfer = |policy| {
             let params = TesParams {
                 policy,
+                planner: planner_of(config),
                 ..TesParams::default()
             };
             Tes::new(structure.clone(), library.clone(), params, agent_seed)
@@ -634,8 +661,8 @@ fn test_job(
             Method::Tes => transfer(ViewPolicy::Tes),
             Method::Lwt => transfer(ViewPolicy::Lwt),
             Method::Rands(_) => transfer(ViewPolicy::RandomFixed),
-            Method::LoreRl => Algorithm::LoreRl.build(test, agent_seed),
-            Method::FEpsG => Algorithm::FEpsG.build(test, agent_seed),
+            Method::LoreRl => Algorithm::LoreRl.build_with(test, agent_seed, settings),
+            Method::FEpsG => Algorithm::FEpsG.build_with(test, agent_seed, settings),
         }
         .with_context(|| context(&m.name()))?;
         // The same world stream for every method of the run.
