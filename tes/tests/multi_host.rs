@@ -28,6 +28,8 @@ fn free_port() -> u16 {
 struct Host {
     dir: tempfile::TempDir,
     domain: String,
+    /// Environment variables of its launch besides its domain.
+    env: Vec<(&'static str, &'static str)>,
     group: Option<Group>,
 }
 
@@ -41,6 +43,7 @@ impl Host {
         Self {
             dir,
             domain,
+            env: Vec::new(),
             group: None,
         }
     }
@@ -64,13 +67,9 @@ impl Host {
              {link}\n{tables}\n",
             launch_file(self.dir.path(), "")
         );
-        let group = Group::start_in(
-            self.dir.path(),
-            &text,
-            episodes,
-            args,
-            &[("TES_IPC_DOMAIN", &self.domain)],
-        );
+        let mut env = vec![("TES_IPC_DOMAIN", self.domain.as_str())];
+        env.extend(self.env.iter().copied());
+        let group = Group::start_in(self.dir.path(), &text, episodes, args, &env);
         self.group.insert(group)
     }
 
@@ -180,13 +179,15 @@ fn split_across_two_hosts_the_group_learns_and_saves_on_the_controllers_side() {
         "[controller]\nepsilon = 0.05\nlibrary = \"{}\"\n",
         library.display()
     );
-    // The controller's host first: it waits for the others.
+    let recording = workstation.dir.path().join("run.mcap");
+    let record = recording.to_str().expect("a UTF-8 temp path");
+    // The controller's host first: it waits for the others. It records the run.
     workstation.start_with(
         "seed = 1",
         &workstation_link,
         &controller,
         80,
-        &["--roles", "controller"],
+        &["--roles", "controller", "--record", record],
     );
     robot.start(
         "seed = 1\nroles = [\"perception-sim\", \"bridge\"]",
@@ -200,6 +201,29 @@ fn split_across_two_hosts_the_group_learns_and_saves_on_the_controllers_side() {
     assert!(ok_w, "workstation: stdout {out_w:?}\nstderr {err_w:?}");
     let episodes = out_w.iter().filter(|l| l.starts_with("episode ")).count();
     assert_eq!(episodes, 80, "{out_w:?}");
+    // The recording on the controller's side holds the map and observations that came over
+    // the link and every command, and replays to the same decisions.
+    let recorded = tes_recorder::reader::Recording::open(&recording).expect("the recording reads");
+    assert_eq!(recorded.truncated, None);
+    assert!(recorded.world_map.is_some());
+    assert_eq!(recorded.commands.len() as u64, reported_actions(&out_w));
+    assert!(recorded.observations.len() > recorded.commands.len());
+    let replay = Command::new(env!("CARGO_BIN_EXE_tes"))
+        .arg("replay")
+        .arg(&recording)
+        .output()
+        .expect("tes replay runs");
+    let said = String::from_utf8_lossy(&replay.stdout);
+    assert!(
+        replay.status.success(),
+        "{said} {}",
+        String::from_utf8_lossy(&replay.stderr)
+    );
+    let n = recorded.commands.len();
+    assert_eq!(
+        said.trim(),
+        format!("replay: {n} of {n} commands identical")
+    );
     let learner_last = mean_reward(&out_w, 40, 80);
 
     // The random policy, on one host (the transport does not change what it does).
@@ -278,38 +302,89 @@ fn ctrl_c_on_either_host_stops_the_other_cleanly() {
     }
 }
 
-/// Killing the controller's host (its launcher and, with it, its children) ends the robot's
-/// launch non-zero, naming the lost peer, with no child left and no stale shared memory.
+/// Killing the controller's host mid-move (its launcher and, with it, its children): the
+/// keep-alives that came over the link held the robot's watchdog off through the move until
+/// then; the bridge brakes within its deadline of the last one, and the robot's launch ends
+/// non-zero naming the lost peer, with no child left and no stale shared memory.
 #[test]
-fn losing_the_controllers_host_stops_the_robot_non_zero() {
+fn losing_the_controllers_host_mid_move_brakes_and_stops_the_robot_non_zero() {
     let port = free_port();
     let (robot_link, workstation_link) = split(&group_name("loss"), port);
     let mut robot = Host::new("r");
     let mut workstation = Host::new("w");
-    robot.start(
-        "roles = [\"perception-sim\", \"bridge\"]\nreal_time_factor = 0.01",
+    // Physical time (the watchdog's deadline is then 1 s of wall time) and every action a
+    // long move, 20 000° a wheel (about 30 s); the bridge says when a command reaches the
+    // brick.
+    let actions: String = (0..3)
+        .map(|id| {
+            format!(
+                "[[bridge.actions]]\nid = {id}\nname = \"long-{id}\"\nleft_deg = 20000\nright_deg = 20000\n"
+            )
+        })
+        .collect();
+    robot.env.push(("RUST_LOG", "warn,tes_bridge=debug"));
+    robot.start_with(
+        "roles = [\"perception-sim\", \"bridge\"]\nreal_time_factor = 1.0",
         &robot_link,
+        &format!("[bridge]\nuse_command_degrees = false\n{actions}"),
         10_000,
         &[],
     );
     workstation.start("", &workstation_link, 10_000, &["--roles", "controller"]);
-    workstation
+    let mut seen = robot
         .group()
-        .wait_for_episodes(1, Duration::from_secs(120));
-    let started = Instant::now();
+        .wait_for_stderr("command sent to the brick", Duration::from_secs(120));
+    // Two and a half deadlines into the move, the watchdog has not tripped.
+    std::thread::sleep(Duration::from_millis(2500));
+    seen.extend(robot.group().stderr.try_iter());
+    assert!(
+        !seen.iter().any(|l| l.contains("watchdog:")),
+        "braked while the controller lives: {seen:?}"
+    );
+    let killed = Instant::now();
     workstation
         .group()
         .launcher
         .kill()
         .expect("kill the workstation");
+    let brake = "watchdog: no command within the deadline";
+    let lines = robot
+        .group()
+        .wait_for_stderr(brake, Duration::from_secs(10));
+    // Seen on the launcher's stderr (through the bridge's log file) within the deadline and
+    // some slack for a loaded machine; braked `silence_ms` after the last keep-alive.
+    let took = killed.elapsed();
+    assert!(
+        took <= Duration::from_millis(2500),
+        "braked {took:?} after the kill"
+    );
+    let line = lines
+        .iter()
+        .find(|l| l.contains(brake))
+        .expect("the watchdog's line");
+    let silence_ms: u64 = line
+        .split("silence_ms=")
+        .nth(1)
+        .and_then(|r| r.split(|c: char| !c.is_ascii_digit()).next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no silence_ms in {line:?}"));
+    assert!(
+        (1000..=1200).contains(&silence_ms),
+        "braked after {silence_ms} ms of silence: {line}"
+    );
+
     let (ok, out, err) = finish(robot.group(), Duration::from_secs(60));
     assert!(!ok, "the robot's launch must fail: {out:?}\n{err:?}");
-    let err = err.join("\n");
+    let err = lines.into_iter().chain(err).collect::<Vec<_>>().join("\n");
     assert!(
         err.contains("the controller's launch left the group"),
         "{err}"
     );
-    assert!(started.elapsed() < Duration::from_secs(60));
+    assert!(
+        killed.elapsed() < Duration::from_secs(60),
+        "the robot's launch took {:?} to give up",
+        killed.elapsed()
+    );
     assert!(!robot.group().children_alive());
     assert!(robot.leftovers().is_empty(), "{:?}", robot.leftovers());
 }

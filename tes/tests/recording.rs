@@ -36,17 +36,6 @@ fn record(dir: &Path, extra: &str, episodes: u32) -> (PathBuf, Vec<String>) {
     (file, out)
 }
 
-/// The actions the controller's summary line reports (`controller: 3 episodes, 89 actions, …`).
-fn reported_actions(out: &[String]) -> u64 {
-    out.iter()
-        .find_map(|l| {
-            let rest = l.strip_prefix("controller: ")?;
-            let actions = rest.split(", ").nth(1)?.strip_suffix(" actions")?;
-            actions.parse().ok()
-        })
-        .unwrap_or_else(|| panic!("no controller summary in {out:?}"))
-}
-
 fn replay(file: &Path, args: &[&str]) -> (bool, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_tes"))
         .arg("replay")

@@ -240,3 +240,14 @@ pub fn launch_file(dir: &Path, extra: &str) -> String {
         dir.join("run").display()
     )
 }
+
+/// The actions the controller's summary line reports (`controller: 3 episodes, 89 actions, …`).
+pub fn reported_actions(out: &[String]) -> u64 {
+    out.iter()
+        .find_map(|l| {
+            let rest = l.strip_prefix("controller: ")?;
+            let actions = rest.split(", ").nth(1)?.strip_suffix(" actions")?;
+            actions.parse().ok()
+        })
+        .unwrap_or_else(|| panic!("no controller summary in {out:?}"))
+}
