@@ -206,6 +206,10 @@ struct TransferArgs {
     threads: Option<usize>,
     #[command(flatten)]
     jobs: JobArgs,
+    /// Plan every re-plan to the tolerance, instead of stopping it once no value moves by
+    /// more than the model change that triggered it (see `tes_learning::plan`).
+    #[arg(long)]
+    converge_plans: bool,
 }
 
 #[derive(Debug, Args)]
@@ -319,6 +323,7 @@ impl TransferArgs {
             || self.test_episodes.is_some()
             || self.seed.is_some()
             || self.world_seed.is_some()
+            || self.converge_plans
     }
 
     fn config(&self, runs: Option<usize>) -> TransferConfig {
@@ -345,6 +350,7 @@ impl TransferArgs {
         if let Some(seed) = self.world_seed {
             config.world_seed = seed;
         }
+        config.stop_at_drift = !self.converge_plans;
         config
     }
 }
