@@ -251,3 +251,22 @@ pub fn reported_actions(out: &[String]) -> u64 {
         })
         .unwrap_or_else(|| panic!("no controller summary in {out:?}"))
 }
+
+/// Asserts that `lines` hold the bridge's watchdog line and that it braked 1000–1200 ms (the
+/// 1 s deadline, some slack for a loaded machine) after the last command or keep-alive.
+pub fn assert_braked_at_the_deadline(lines: &[String]) {
+    let line = lines
+        .iter()
+        .find(|l| l.contains("watchdog: no command within the deadline"))
+        .expect("the watchdog's line");
+    let silence_ms: u64 = line
+        .split("silence_ms=")
+        .nth(1)
+        .and_then(|r| r.split(|c: char| !c.is_ascii_digit()).next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no silence_ms in {line:?}"));
+    assert!(
+        (1000..=1200).contains(&silence_ms),
+        "braked after {silence_ms} ms of silence: {line}"
+    );
+}
