@@ -346,14 +346,16 @@ fn latency(args: &LatencyArgs) -> Result<()> {
     let cycle_us = (elapsed.as_micros() / u128::from(total)) as u64;
     let floor_kind = match args.via {
         Via::Shm => "a raw iceoryx2 two-hop relay",
-        Via::Zenoh => "the same two hops over a Zenoh link on loopback TCP, with no work",
+        Via::Zenoh => {
+            "the same two hops through the split launch's own Zenoh link on loopback TCP, with no work"
+        }
     };
     eprintln!(
         "bench: the floor — {floor_kind}, {total} round trips, wait {wait}, one every {cycle_us} us"
     );
     let (floor, floor_decision) = match args.via {
         Via::Shm => run_floor(dir, &prefix, wait, cycle_us, args, placement.acting)?,
-        Via::Zenoh => zenoh_floor(cycle_us, args)?,
+        Via::Zenoh => zenoh_floor(cycle_us, wait, placement.acting, args)?,
     };
     let recorder = if args.record {
         Some(compare_recorder(&file, &stored, &files, dir, args)?)
@@ -580,122 +582,201 @@ fn run_split_group(
     Ok((report, summary))
 }
 
-/// The floor of `--via zenoh`: the loop's two hops over a Zenoh link on loopback TCP with no
-/// work — an observation's bytes out, a command's bytes back at once — one round trip every
-/// `cycle_us`; the round trip, and its first hop alone.
-fn zenoh_floor(cycle_us: u64, args: &LatencyArgs) -> Result<(LatencyReport, LatencyReport)> {
-    use std::sync::mpsc;
-    use tes_topics::wire::{as_bytes, from_bytes};
-    use zenoh::Wait;
+/// The floor of `--via zenoh`: the loop's two hops through the very link a split launch
+/// uses ([`crate::link::Link`], two of them in this process on loopback TCP, each with its
+/// own service names so shared memory cannot join them) with no work at either end: an
+/// observation published on the robot's side, forwarded, checked and republished on the
+/// controller's, answered at once with a command that goes back the same way. One round trip
+/// every `cycle_us`; the round trip, and its first hop alone.
+fn zenoh_floor(
+    cycle_us: u64,
+    wait: WaitStrategy,
+    hop_cpu: Option<usize>,
+    args: &LatencyArgs,
+) -> Result<(LatencyReport, LatencyReport)> {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use tes_runtime::channel::{self, Inbox, LatestInbox, LatestOutbox, Outbox};
+    use tes_runtime::clock::monotonic_ns;
+    use tes_runtime::latency::LatencyRecorder;
+    use tes_topics::{Command, Observation, Role, ServiceNames, StateAttributes, WorldMap};
+
+    /// Marks the probes sent until the link carries a first round trip: not measured.
+    const PROBE: u32 = u32::MAX;
 
     let port = std::net::TcpListener::bind("127.0.0.1:0")
         .and_then(|l| l.local_addr())
         .map(|a| a.port())
         .context("no free TCP port on loopback")?;
-    let group = format!("tes-bench-floor/{}", std::process::id());
-    let config = |listen: Vec<String>, connect: Vec<String>| {
-        crate::link::LinkSection {
-            group: group.clone(),
-            listen,
-            connect,
-            multicast_scouting: Some(false),
-            ..crate::link::LinkSection::default()
-        }
-        .zenoh_config()
+    let pid = std::process::id();
+    let settings = |listen: Vec<String>, connect: Vec<String>| crate::link::LinkSection {
+        group: format!("tes-bench-floor/{pid}"),
+        listen,
+        connect,
+        multicast_scouting: Some(false),
+        // One machine, one clock, as in the measured run.
+        restamp: false,
+        ..crate::link::LinkSection::default()
     };
-    let here = zenoh::open(config(vec![format!("tcp/127.0.0.1:{port}")], Vec::new())?)
-        .wait()
-        .map_err(|e| anyhow::anyhow!("cannot open the floor's Zenoh session: {e}"))?;
-    let there = zenoh::open(config(Vec::new(), vec![format!("tcp/127.0.0.1:{port}")])?)
-        .wait()
-        .map_err(|e| anyhow::anyhow!("cannot open the floor's Zenoh session: {e}"))?;
-    let publisher = |s: &zenoh::Session, key: String| {
-        s.declare_publisher(key)
-            .congestion_control(zenoh::qos::CongestionControl::Block)
-            .express(true)
-            .wait()
-            .map_err(|e| anyhow::anyhow!("cannot publish on the floor's link: {e}"))
-    };
-    let observations = publisher(&here, format!("{group}/observation"))?;
-    let commands = publisher(&there, format!("{group}/command"))?;
-    let (hop_tx, hop_rx) = mpsc::channel::<u64>();
-    let _hop = there
-        .declare_subscriber(format!("{group}/observation"))
-        .callback(move |sample| {
-            let now = tes_runtime::clock::monotonic_ns();
-            let stamp = from_bytes::<tes_topics::Observation>(&sample.payload().to_bytes())
-                .map_or(0, |o| o.stamp_ns);
-            let _ = hop_tx.send(now.saturating_sub(stamp));
-            let command = tes_topics::Command {
-                observed_ns: stamp,
-                stamp_ns: now,
-                ..tes_topics::Command::default()
-            };
-            let _ = commands.put(as_bytes(&command)).wait();
-        })
-        .wait()
-        .map_err(|e| anyhow::anyhow!("cannot subscribe on the floor's link: {e}"))?;
-    let (back_tx, back_rx) = mpsc::channel::<u64>();
-    let _back = here
-        .declare_subscriber(format!("{group}/command"))
-        .callback(move |sample| {
-            let now = tes_runtime::clock::monotonic_ns();
-            let stamp = from_bytes::<tes_topics::Command>(&sample.payload().to_bytes())
-                .map_or(0, |c| c.observed_ns);
-            let _ = back_tx.send(now.saturating_sub(stamp));
-        })
-        .wait()
-        .map_err(|e| anyhow::anyhow!("cannot subscribe on the floor's link: {e}"))?;
-    let mut round = tes_runtime::latency::LatencyRecorder::new(args.budget_us, args.warmup);
-    let mut hop = tes_runtime::latency::LatencyRecorder::new(args.budget_us, args.warmup);
-    let total = args.actions + args.warmup;
-    let gap = Duration::from_micros(cycle_us);
-    let mut sent = 0u64;
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let robot_names = ServiceNames::with_prefix(&format!("tes-bench-{pid}/floor-robot/"));
+    let desk_names = ServiceNames::with_prefix(&format!("tes-bench-{pid}/floor-desk/"));
+    let robot = crate::link::Link::open(
+        &settings(vec![endpoint.clone()], Vec::new()),
+        &[Role::Perception, Role::Bridge],
+        &robot_names,
+    )
+    .context("the floor's robot side")?;
+    let desk = crate::link::Link::open(
+        &settings(Vec::new(), vec![endpoint]),
+        &[Role::Controller],
+        &desk_names,
+    )
+    .context("the floor's controller side")?;
     let started = Instant::now();
-    // The link's first samples may precede the subscriptions being known: wait for a first
-    // round trip before measuring.
-    while back_rx.try_recv().is_err() {
+    while !robot.missing().is_empty() || !desk.missing().is_empty() {
         if started.elapsed() > Duration::from_secs(20) {
-            bail!("the floor's Zenoh link never carried a sample");
+            bail!("the floor's two link ends did not find each other on loopback");
         }
-        let o = tes_topics::Observation {
-            stamp_ns: tes_runtime::clock::monotonic_ns(),
-            ..tes_topics::Observation::default()
-        };
-        let _ = observations.put(as_bytes(&o)).wait();
         std::thread::sleep(Duration::from_millis(20));
     }
-    while hop_rx.try_recv().is_ok() {}
-    while back_rx.try_recv().is_ok() {}
-    while sent < total {
-        let next = Instant::now() + gap;
-        let o = tes_topics::Observation {
-            seq: sent + 1,
-            stamp_ns: tes_runtime::clock::monotonic_ns(),
-            ..tes_topics::Observation::default()
+
+    let map: Box<WorldMap> = tes_perception_sim::process::world_map(
+        &tes_perception_sim::arena::Arena::new(tes_perception_sim::arena::ArenaId::Env3),
+    )?;
+    let wheels = map.action_wheels[0];
+    let stop = Arc::new(AtomicBool::new(false));
+
+    // The controller's side: answers each observation at once.
+    let hop = {
+        let stop = stop.clone();
+        let (budget_us, warmup) = (args.budget_us, args.warmup);
+        std::thread::Builder::new()
+            .name("floor-hop".into())
+            .spawn(move || -> Result<LatencyReport> {
+                if let Some(cpu) = hop_cpu {
+                    tes_runtime::affinity::pin_this_thread(cpu)?;
+                }
+                let node = channel::node(false)?;
+                let observations: Inbox<Observation> = Inbox::open(
+                    &node,
+                    &desk_names.observation,
+                    &desk_names.observation_event,
+                    0,
+                    wait,
+                )?;
+                let commands: LatestOutbox<Command> =
+                    LatestOutbox::open(&node, &desk_names.command, &desk_names.command_event)?;
+                let mut first_hop = LatencyRecorder::new(budget_us, warmup);
+                let mut seq = 0;
+                while !stop.load(Ordering::Relaxed) {
+                    let Ok(o) = observations.next(Duration::from_millis(50), &stop)? else {
+                        continue;
+                    };
+                    let now = monotonic_ns();
+                    if o.step != PROBE {
+                        first_hop.record_ns(now.saturating_sub(o.stamp_ns));
+                    }
+                    seq += 1;
+                    commands.send(Command {
+                        seq,
+                        answers: o.seq,
+                        stamp_ns: now,
+                        observed_ns: o.stamp_ns,
+                        action: 0,
+                        left_deg: wheels[0],
+                        right_deg: wheels[1],
+                        ..Command::default()
+                    })?;
+                }
+                Ok(first_hop.report())
+            })
+            .context("cannot start the floor's hop")?
+    };
+
+    // The robot's side: the world map once, then one observation every `cycle_us`.
+    let measured = (|| -> Result<LatencyReport> {
+        let node = channel::node(false)?;
+        let maps: Outbox<WorldMap> = Outbox::open(
+            &node,
+            &robot_names.world_map,
+            &robot_names.world_map_event,
+            1,
+        )?;
+        maps.send(*map)?;
+        let observations: Outbox<Observation> = Outbox::open(
+            &node,
+            &robot_names.observation,
+            &robot_names.observation_event,
+            0,
+        )?;
+        let commands: LatestInbox<Command> = LatestInbox::open(
+            &node,
+            &robot_names.command,
+            &robot_names.command_event,
+            wait,
+        )?;
+        let mut seq = 0;
+        let mut observation = |step: u32| {
+            seq += 1;
+            Observation {
+                seq,
+                stamp_ns: monotonic_ns(),
+                step,
+                state: StateAttributes::at(0, 0, 0),
+                n_features: map.n_features,
+                ..Observation::default()
+            }
         };
-        observations
-            .put(as_bytes(&o))
-            .wait()
-            .map_err(|e| anyhow::anyhow!("the floor's link: {e}"))?;
-        sent += 1;
-        let back = back_rx
-            .recv_timeout(Duration::from_secs(5))
-            .context("the floor's link lost a round trip")?;
-        round.record_ns(back);
-        if let Ok(h) = hop_rx.recv_timeout(Duration::from_secs(1)) {
-            hop.record_ns(h);
+        // The world map crosses within a second, and until it has the controller's side
+        // refuses observations: probe until a first round trip.
+        let probing = Instant::now();
+        loop {
+            if probing.elapsed() > Duration::from_secs(20) {
+                bail!("the floor's link never carried a round trip");
+            }
+            observations.update_connections()?;
+            let probe = observation(PROBE);
+            observations.send(probe)?;
+            if let Ok(c) = commands.next(Duration::from_millis(50), &stop)?
+                && c.answers == probe.seq
+            {
+                break;
+            }
         }
-        let left = next.saturating_duration_since(Instant::now());
-        if !left.is_zero() {
-            std::thread::sleep(left);
+        let mut round = LatencyRecorder::new(args.budget_us, args.warmup);
+        let gap = Duration::from_micros(cycle_us);
+        for step in 0..args.actions + args.warmup {
+            let next = Instant::now() + gap;
+            let o = observation(u32::try_from(step).unwrap_or(PROBE - 1));
+            observations.send(o)?;
+            let deadline = Instant::now() + Duration::from_secs(5);
+            loop {
+                let left = deadline.saturating_duration_since(Instant::now());
+                if left.is_zero() {
+                    bail!("the floor's link lost a round trip (observation {})", o.seq);
+                }
+                if let Ok(c) = commands.next(left, &stop)?
+                    && c.answers == o.seq
+                {
+                    round.record_ns(monotonic_ns().saturating_sub(c.observed_ns));
+                    break;
+                }
+            }
+            let left = next.saturating_duration_since(Instant::now());
+            if !left.is_zero() {
+                std::thread::sleep(left);
+            }
         }
-    }
-    drop(_hop);
-    drop(_back);
-    let _ = here.close().wait();
-    let _ = there.close().wait();
-    Ok((round.report(), hop.report()))
+        Ok(round.report())
+    })();
+    stop.store(true, Ordering::Relaxed);
+    let first_hop = hop
+        .join()
+        .map_err(|_| anyhow::anyhow!("the floor's hop panicked"))?;
+    drop(desk);
+    drop(robot);
+    Ok((measured?, first_hop?))
 }
 
 /// `--record`: blocks without and with the recorder, alternating, each of
