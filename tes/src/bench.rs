@@ -49,6 +49,42 @@ enum BenchCommand {
     Latency(LatencyArgs),
     /// Decision time in process against feature count (52-5000) and library size (1-20).
     Scaling(ScalingArgs),
+    /// The controller's side of `latency --via zenoh`'s floor, in a process of its own, as
+    /// the controller's launch is in the measured run (started by `latency`, not by hand).
+    #[command(hide = true)]
+    ZenohFloorHop(FloorHopArgs),
+}
+
+/// Arguments of the floor's controller side (`tes bench zenoh-floor-hop`).
+#[derive(Debug, Args)]
+pub struct FloorHopArgs {
+    /// The robot side's endpoint.
+    #[arg(long)]
+    connect: String,
+    /// The link's group.
+    #[arg(long)]
+    group: String,
+    /// This side's service-name prefix.
+    #[arg(long)]
+    prefix: String,
+    /// How the hop waits for an observation.
+    #[arg(long)]
+    wait: String,
+    /// The CPU the hop runs on.
+    #[arg(long)]
+    hop_cpu: Option<usize>,
+    /// Observations answered (warm-up included) before the hop stops.
+    #[arg(long)]
+    answer: u64,
+    /// Of those, the first left out of the report.
+    #[arg(long)]
+    warmup: u64,
+    /// The per-action budget, µs.
+    #[arg(long)]
+    budget_us: u64,
+    /// Where the first hop's report goes.
+    #[arg(long)]
+    report: PathBuf,
 }
 
 /// Arguments of `tes bench latency`.
@@ -156,6 +192,7 @@ pub fn run(args: &BenchArgs) -> Result<()> {
     match &args.what {
         BenchCommand::Latency(a) => latency(a),
         BenchCommand::Scaling(a) => scaling_sweep(a),
+        BenchCommand::ZenohFloorHop(a) => zenoh_floor_hop(a),
     }
 }
 
@@ -355,7 +392,7 @@ fn latency(args: &LatencyArgs) -> Result<()> {
     );
     let (floor, floor_decision) = match args.via {
         Via::Shm => run_floor(dir, &prefix, wait, cycle_us, args, placement.acting)?,
-        Via::Zenoh => zenoh_floor(cycle_us, wait, placement.acting, args)?,
+        Via::Zenoh => zenoh_floor(cycle_us, wait, placement.acting, args, dir)?,
     };
     let recorder = if args.record {
         Some(compare_recorder(&file, &stored, &files, dir, args)?)
@@ -582,140 +619,129 @@ fn run_split_group(
     Ok((report, summary))
 }
 
-/// The floor of `--via zenoh`: the loop's two hops through the very link a split launch
-/// uses ([`crate::link::Link`], two of them in this process on loopback TCP, each with its
-/// own service names so shared memory cannot join them) with no work at either end: an
-/// observation published on the robot's side, forwarded, checked and republished on the
-/// controller's, answered at once with a command that goes back the same way. One round trip
-/// every `cycle_us`; the round trip, and its first hop alone.
-fn zenoh_floor(
-    cycle_us: u64,
-    wait: WaitStrategy,
-    hop_cpu: Option<usize>,
-    args: &LatencyArgs,
-) -> Result<(LatencyReport, LatencyReport)> {
-    use std::sync::Arc;
-    use std::sync::atomic::{AtomicBool, Ordering};
-    use tes_runtime::channel::{self, Inbox, LatestInbox, LatestOutbox, Outbox};
-    use tes_runtime::clock::monotonic_ns;
-    use tes_runtime::latency::LatencyRecorder;
-    use tes_topics::{Command, Observation, Role, ServiceNames, StateAttributes, WorldMap};
+/// Marks the probes the floor sends until its link carries a first round trip: not measured.
+const FLOOR_PROBE: u32 = u32::MAX;
 
-    /// Marks the probes sent until the link carries a first round trip: not measured.
-    const PROBE: u32 = u32::MAX;
+/// The arena the floor's samples are checked against (the measured run's).
+fn floor_map() -> Result<Box<tes_topics::WorldMap>> {
+    use tes_perception_sim::arena::{Arena, ArenaId};
+    Ok(tes_perception_sim::process::world_map(&Arena::new(
+        ArenaId::Env3,
+    ))?)
+}
 
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .context("no free TCP port on loopback")?;
-    let pid = std::process::id();
-    let settings = |listen: Vec<String>, connect: Vec<String>| crate::link::LinkSection {
-        group: format!("tes-bench-floor/{pid}"),
+/// One end of the floor's link.
+fn floor_link_settings(
+    group: &str,
+    listen: Vec<String>,
+    connect: Vec<String>,
+) -> crate::link::LinkSection {
+    crate::link::LinkSection {
+        group: group.to_owned(),
         listen,
         connect,
         multicast_scouting: Some(false),
         // One machine, one clock, as in the measured run.
         restamp: false,
         ..crate::link::LinkSection::default()
-    };
-    let endpoint = format!("tcp/127.0.0.1:{port}");
-    let robot_names = ServiceNames::with_prefix(&format!("tes-bench-{pid}/floor-robot/"));
-    let desk_names = ServiceNames::with_prefix(&format!("tes-bench-{pid}/floor-desk/"));
-    let robot = crate::link::Link::open(
-        &settings(vec![endpoint.clone()], Vec::new()),
-        &[Role::Perception, Role::Bridge],
-        &robot_names,
-    )
-    .context("the floor's robot side")?;
-    let desk = crate::link::Link::open(
-        &settings(Vec::new(), vec![endpoint]),
-        &[Role::Controller],
-        &desk_names,
-    )
-    .context("the floor's controller side")?;
+    }
+}
+
+/// Waits until `link` sees a peer for every role it does not play.
+fn floor_wait_for_peer(link: &crate::link::Link, side: &str) -> Result<()> {
     let started = Instant::now();
-    while !robot.missing().is_empty() || !desk.missing().is_empty() {
+    while !link.missing().is_empty() {
         if started.elapsed() > Duration::from_secs(20) {
-            bail!("the floor's two link ends did not find each other on loopback");
+            bail!(
+                "the floor's {side} side waited 20 s for {:?} on loopback",
+                link.missing()
+            );
         }
         std::thread::sleep(Duration::from_millis(20));
     }
+    Ok(())
+}
 
-    let map: Box<WorldMap> = tes_perception_sim::process::world_map(
-        &tes_perception_sim::arena::Arena::new(tes_perception_sim::arena::ArenaId::Env3),
-    )?;
-    let wheels = map.action_wheels[0];
-    let stop = Arc::new(AtomicBool::new(false));
+/// The floor of `--via zenoh`: the loop's two hops through the very link a split launch uses
+/// ([`crate::link::Link`] on loopback TCP) with no work at either end. The robot's side runs
+/// here, the controller's in a child process (`tes bench zenoh-floor-hop`) with an iceoryx2
+/// domain of its own, as the controller's launch in the measured run: an observation
+/// published here is forwarded, checked and republished there, answered at once with a
+/// command that comes back the same way. One round trip every `cycle_us`; the round trip, and
+/// its first hop alone.
+fn zenoh_floor(
+    cycle_us: u64,
+    wait: WaitStrategy,
+    hop_cpu: Option<usize>,
+    args: &LatencyArgs,
+    dir: &Path,
+) -> Result<(LatencyReport, LatencyReport)> {
+    use std::sync::atomic::AtomicBool;
+    use tes_runtime::channel::{self, LatestInbox, Outbox};
+    use tes_runtime::clock::monotonic_ns;
+    use tes_runtime::latency::LatencyRecorder;
+    use tes_topics::{Command, Observation, Role, ServiceNames, StateAttributes, WorldMap};
 
-    // The controller's side: answers each observation at once.
-    let hop = {
-        let stop = stop.clone();
-        let (budget_us, warmup) = (args.budget_us, args.warmup);
-        std::thread::Builder::new()
-            .name("floor-hop".into())
-            .spawn(move || -> Result<LatencyReport> {
-                if let Some(cpu) = hop_cpu {
-                    tes_runtime::affinity::pin_this_thread(cpu)?;
-                }
-                let node = channel::node(false)?;
-                let observations: Inbox<Observation> = Inbox::open(
-                    &node,
-                    &desk_names.observation,
-                    &desk_names.observation_event,
-                    0,
-                    wait,
-                )?;
-                let commands: LatestOutbox<Command> =
-                    LatestOutbox::open(&node, &desk_names.command, &desk_names.command_event)?;
-                let mut first_hop = LatencyRecorder::new(budget_us, warmup);
-                let mut seq = 0;
-                while !stop.load(Ordering::Relaxed) {
-                    let Ok(o) = observations.next(Duration::from_millis(50), &stop)? else {
-                        continue;
-                    };
-                    let now = monotonic_ns();
-                    if o.step != PROBE {
-                        first_hop.record_ns(now.saturating_sub(o.stamp_ns));
-                    }
-                    seq += 1;
-                    commands.send(Command {
-                        seq,
-                        answers: o.seq,
-                        stamp_ns: now,
-                        observed_ns: o.stamp_ns,
-                        action: 0,
-                        left_deg: wheels[0],
-                        right_deg: wheels[1],
-                        ..Command::default()
-                    })?;
-                }
-                Ok(first_hop.report())
-            })
-            .context("cannot start the floor's hop")?
-    };
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .context("no free TCP port on loopback")?;
+    let pid = std::process::id();
+    let group = format!("tes-bench-floor/{pid}");
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let names = ServiceNames::with_prefix(&format!("tes-bench-{pid}/floor-robot/"));
+    let robot = crate::link::Link::open(
+        &floor_link_settings(&group, vec![endpoint.clone()], Vec::new()),
+        &[Role::Perception, Role::Bridge],
+        &names,
+    )
+    .context("the floor's robot side")?;
 
-    // The robot's side: the world map once, then one observation every `cycle_us`.
+    let total = args.actions + args.warmup;
+    let hop_report = dir.join("floor-first-hop.json");
+    let log_path = dir.join("floor-hop.log");
+    let log = std::fs::File::create(&log_path)
+        .with_context(|| format!("cannot create {}", log_path.display()))?;
+    let exe = std::env::current_exe().context("cannot find the tes executable")?;
+    let mut hop = std::process::Command::new(exe);
+    hop.args([
+        "bench",
+        "zenoh-floor-hop",
+        "--connect",
+        &endpoint,
+        "--group",
+        &group,
+    ])
+    .args(["--prefix", &format!("tes-bench-{pid}/floor-desk/")])
+    .args(["--wait", &wait.to_string()])
+    .args(["--answer", &total.to_string()])
+    .args(["--warmup", &args.warmup.to_string()])
+    .args(["--budget-us", &args.budget_us.to_string()])
+    .arg("--report")
+    .arg(&hop_report);
+    if let Some(cpu) = hop_cpu {
+        hop.args(["--hop-cpu", &cpu.to_string()]);
+    }
+    let mut hop = hop
+        .env(tes_runtime::channel::DOMAIN_VAR, format!("benchfloor{pid}"))
+        .stdin(std::process::Stdio::null())
+        .stdout(log.try_clone().context("cannot share the log")?)
+        .stderr(log)
+        .spawn()
+        .context("cannot start the floor's controller side")?;
+
+    let stop = AtomicBool::new(false);
     let measured = (|| -> Result<LatencyReport> {
+        floor_wait_for_peer(&robot, "robot's")?;
+        let map: Box<WorldMap> = floor_map()?;
         let node = channel::node(false)?;
-        let maps: Outbox<WorldMap> = Outbox::open(
-            &node,
-            &robot_names.world_map,
-            &robot_names.world_map_event,
-            1,
-        )?;
+        let maps: Outbox<WorldMap> =
+            Outbox::open(&node, &names.world_map, &names.world_map_event, 1)?;
         maps.send(*map)?;
-        let observations: Outbox<Observation> = Outbox::open(
-            &node,
-            &robot_names.observation,
-            &robot_names.observation_event,
-            0,
-        )?;
-        let commands: LatestInbox<Command> = LatestInbox::open(
-            &node,
-            &robot_names.command,
-            &robot_names.command_event,
-            wait,
-        )?;
+        let observations: Outbox<Observation> =
+            Outbox::open(&node, &names.observation, &names.observation_event, 0)?;
+        let commands: LatestInbox<Command> =
+            LatestInbox::open(&node, &names.command, &names.command_event, wait)?;
         let mut seq = 0;
         let mut observation = |step: u32| {
             seq += 1;
@@ -728,7 +754,7 @@ fn zenoh_floor(
                 ..Observation::default()
             }
         };
-        // The world map crosses within a second, and until it has the controller's side
+        // The world map crosses within a second, and until it has, the controller's side
         // refuses observations: probe until a first round trip.
         let probing = Instant::now();
         loop {
@@ -736,7 +762,7 @@ fn zenoh_floor(
                 bail!("the floor's link never carried a round trip");
             }
             observations.update_connections()?;
-            let probe = observation(PROBE);
+            let probe = observation(FLOOR_PROBE);
             observations.send(probe)?;
             if let Ok(c) = commands.next(Duration::from_millis(50), &stop)?
                 && c.answers == probe.seq
@@ -746,9 +772,9 @@ fn zenoh_floor(
         }
         let mut round = LatencyRecorder::new(args.budget_us, args.warmup);
         let gap = Duration::from_micros(cycle_us);
-        for step in 0..args.actions + args.warmup {
+        for step in 0..total {
             let next = Instant::now() + gap;
-            let o = observation(u32::try_from(step).unwrap_or(PROBE - 1));
+            let o = observation(u32::try_from(step).unwrap_or(FLOOR_PROBE - 1));
             observations.send(o)?;
             let deadline = Instant::now() + Duration::from_secs(5);
             loop {
@@ -770,13 +796,107 @@ fn zenoh_floor(
         }
         Ok(round.report())
     })();
-    stop.store(true, Ordering::Relaxed);
-    let first_hop = hop
-        .join()
-        .map_err(|_| anyhow::anyhow!("the floor's hop panicked"))?;
-    drop(desk);
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let status = loop {
+        if let Some(s) = hop
+            .try_wait()
+            .context("cannot poll the floor's controller side")?
+        {
+            break Some(s);
+        }
+        if measured.is_err() || Instant::now() > deadline {
+            let _ = hop.kill();
+            let _ = hop.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
     drop(robot);
-    Ok((measured?, first_hop?))
+    let round = measured.with_context(|| format!("see also {}", log_path.display()))?;
+    match status {
+        Some(s) if s.success() => {}
+        Some(s) => bail!(
+            "the floor's controller side {} (see {})",
+            launch::describe(s),
+            log_path.display()
+        ),
+        None => bail!(
+            "the floor's controller side did not stop (see {})",
+            log_path.display()
+        ),
+    }
+    let first_hop = LatencyReport::load(&hop_report)
+        .with_context(|| format!("no floor report at {}", hop_report.display()))?;
+    Ok((round, first_hop))
+}
+
+/// `tes bench zenoh-floor-hop`: the floor's controller side. Answers each observation that
+/// crosses at once, the first `answer` of them, then saves the first hop's latencies.
+fn zenoh_floor_hop(args: &FloorHopArgs) -> Result<()> {
+    use std::sync::atomic::AtomicBool;
+    use tes_runtime::channel::{self, Inbox, LatestOutbox};
+    use tes_runtime::clock::monotonic_ns;
+    use tes_runtime::latency::LatencyRecorder;
+    use tes_topics::{Command, Observation, Role, ServiceNames};
+
+    let wait: WaitStrategy = args
+        .wait
+        .parse()
+        .map_err(|e| anyhow::anyhow!("--wait: {e}"))?;
+    if let Some(cpu) = args.hop_cpu {
+        tes_runtime::affinity::pin_this_thread(cpu)?;
+    }
+    let names = ServiceNames::with_prefix(&args.prefix);
+    let wheels = floor_map()?.action_wheels[0];
+    let link = crate::link::Link::open(
+        &floor_link_settings(&args.group, Vec::new(), vec![args.connect.clone()]),
+        &[Role::Controller],
+        &names,
+    )
+    .context("the floor's controller side")?;
+    floor_wait_for_peer(&link, "controller's")?;
+    let node = channel::node(false)?;
+    let observations: Inbox<Observation> =
+        Inbox::open(&node, &names.observation, &names.observation_event, 0, wait)?;
+    let commands: LatestOutbox<Command> =
+        LatestOutbox::open(&node, &names.command, &names.command_event)?;
+    let mut first_hop = LatencyRecorder::new(args.budget_us, args.warmup);
+    let stop = AtomicBool::new(false);
+    let (mut seq, mut answered) = (0, 0);
+    let mut idle_since = Instant::now();
+    while answered < args.answer {
+        let Ok(o) = observations.next(Duration::from_millis(50), &stop)? else {
+            if idle_since.elapsed() > Duration::from_secs(30) {
+                bail!("no observation crossed the floor's link for 30 s");
+            }
+            continue;
+        };
+        idle_since = Instant::now();
+        let now = monotonic_ns();
+        if o.step != FLOOR_PROBE {
+            first_hop.record_ns(now.saturating_sub(o.stamp_ns));
+            answered += 1;
+        }
+        seq += 1;
+        commands.send(Command {
+            seq,
+            answers: o.seq,
+            stamp_ns: now,
+            observed_ns: o.stamp_ns,
+            action: 0,
+            left_deg: wheels[0],
+            right_deg: wheels[1],
+            ..Command::default()
+        })?;
+    }
+    // The last command must cross before this side leaves.
+    std::thread::sleep(Duration::from_millis(200));
+    first_hop
+        .report()
+        .save(&args.report)
+        .with_context(|| format!("cannot write {}", args.report.display()))?;
+    drop(link);
+    Ok(())
 }
 
 /// `--record`: blocks without and with the recorder, alternating, each of
