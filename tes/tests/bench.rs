@@ -147,6 +147,60 @@ fn latency_runs_both_paths_and_reports_every_key() {
 }
 
 #[test]
+fn latency_via_zenoh_runs_the_split_group_and_its_floor_in_one_invocation() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let (ok, stdout, stderr) = run(
+        &[
+            "bench",
+            "latency",
+            "--via",
+            "zenoh",
+            "--actions",
+            "100",
+            "--warmup",
+            "20",
+            "--views",
+            "3",
+            "--json",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &dir.path().join("data"),
+        Duration::from_secs(300),
+    );
+    assert!(ok, "bench failed:\n{stderr}");
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
+    assert_eq!(v["via"], "zenoh", "{v}");
+    assert_eq!(v["actions"], 100, "{v}");
+    // The split run and its floor both measured every action, the floor's first hop (timed
+    // in the floor's controller process) inside its round trip.
+    for part in ["decision", "floor_decision"] {
+        assert_eq!(v[part]["count"], 100, "{part}: {v}");
+    }
+    let floor_p50 = v["floor_p50_us"].as_u64().expect("floor p50");
+    assert!(floor_p50 > 0, "{v}");
+    assert!(
+        v["floor_decision"]["p50_us"].as_u64().unwrap() <= floor_p50,
+        "{v}"
+    );
+    let ratio = v["ratio_p50"].as_f64().unwrap();
+    let p50 = v["p50_us"].as_f64().unwrap();
+    assert!((ratio - p50 / floor_p50 as f64).abs() < 1e-9, "{v}");
+    // Across the link the acting path still allocates nothing.
+    assert_eq!(v["allocations"], 0, "{v}");
+    for file in [
+        "floor-first-hop.json",
+        "floor-hop.log",
+        "controller.json",
+        "bridge.json",
+        "controller-launch.log",
+    ] {
+        assert!(out.join(file).exists(), "{file} kept with --out");
+    }
+}
+
+#[test]
 fn bad_bench_arguments_are_refused_before_anything_starts() {
     let dir = tempfile::tempdir().unwrap();
     let (ok, _, stderr) = run(
