@@ -443,11 +443,67 @@ fn shard_note(options: JobOptions) -> String {
     note
 }
 
-/// A progress bar on stderr (hidden when stderr is not a terminal): runs done, elapsed, and
-/// the time left estimated from the runs finished in this invocation.
+/// Progress on stderr: a bar (runs done, elapsed, the time left) on a terminal; elsewhere (a
+/// batch job's log, `nohup`) a plain line at most every [`PLAIN_PROGRESS_EVERY`] and at the
+/// end. The estimate is made from the runs finished in this invocation, not those found on
+/// resume.
 struct Progress {
     bar: ProgressBar,
     first: Once,
+    plain: Option<std::sync::Mutex<PlainProgress>>,
+}
+
+/// How often a log without a terminal gets a progress line.
+const PLAIN_PROGRESS_EVERY: std::time::Duration = std::time::Duration::from_secs(30);
+
+/// The state of the plain progress lines.
+struct PlainProgress {
+    what: String,
+    started: std::time::Instant,
+    /// The runs already written when this invocation began (on resume), and when the last
+    /// line was printed.
+    found: Option<u64>,
+    last_line: std::time::Instant,
+}
+
+impl PlainProgress {
+    fn update(&mut self, done: u64, total: u64) {
+        if let Some(line) = self.line(done, total, std::time::Instant::now()) {
+            eprintln!("{line}");
+        }
+    }
+
+    /// The line to print when `done` of `total` runs are written at `now`, if one is due.
+    fn line(&mut self, done: u64, total: u64, now: std::time::Instant) -> Option<String> {
+        let found = *self.found.get_or_insert(done);
+        if done == found {
+            return (found > 0)
+                .then(|| format!("{}: {found}/{total} runs already written", self.what));
+        }
+        if done < total && now.duration_since(self.last_line) < PLAIN_PROGRESS_EVERY {
+            return None;
+        }
+        self.last_line = now;
+        let elapsed = now.duration_since(self.started);
+        let per_run = elapsed.as_secs_f64() / (done - found) as f64;
+        let left = per_run * total.saturating_sub(done) as f64;
+        Some(format!(
+            "{}: {done}/{total} runs ({} elapsed, ~{} left)",
+            self.what,
+            clock(elapsed.as_secs_f64()),
+            clock(left)
+        ))
+    }
+}
+
+/// `1h02m03s`, `4m05s`, `7s`.
+fn clock(seconds: f64) -> String {
+    let s = seconds.round() as u64;
+    match (s / 3600, s / 60 % 60, s % 60) {
+        (0, 0, s) => format!("{s}s"),
+        (0, m, s) => format!("{m}m{s:02}s"),
+        (h, m, s) => format!("{h}h{m:02}m{s:02}s"),
+    }
 }
 
 impl Progress {
@@ -458,6 +514,11 @@ impl Progress {
             self.bar.set_position(done);
             // The first call reports the runs found on resume: the estimate starts after it.
             self.first.call_once(|| self.bar.reset_eta());
+            if let Some(plain) = &self.plain
+                && let Ok(mut plain) = plain.lock()
+            {
+                plain.update(done, total);
+            }
         }
     }
 
@@ -474,7 +535,7 @@ impl Progress {
 }
 
 fn progress_bar(what: &str) -> Progress {
-    let bar = if std::io::stderr().is_terminal() {
+    if std::io::stderr().is_terminal() {
         let bar = ProgressBar::with_draw_target(Some(1), ProgressDrawTarget::stderr());
         if let Ok(style) = ProgressStyle::with_template(
             "{msg} [{bar:40}] {pos}/{len} runs ({elapsed} elapsed, ~{eta} left)",
@@ -482,13 +543,23 @@ fn progress_bar(what: &str) -> Progress {
             bar.set_style(style.progress_chars("=> "));
         }
         bar.set_message(what.to_owned());
-        bar
+        Progress {
+            bar,
+            first: Once::new(),
+            plain: None,
+        }
     } else {
-        ProgressBar::hidden()
-    };
-    Progress {
-        bar,
-        first: Once::new(),
+        let now = std::time::Instant::now();
+        Progress {
+            bar: ProgressBar::hidden(),
+            first: Once::new(),
+            plain: Some(std::sync::Mutex::new(PlainProgress {
+                what: format!("{what} experiment"),
+                started: now,
+                found: None,
+                last_line: now,
+            })),
+        }
     }
 }
 
@@ -831,6 +902,41 @@ mod tests {
             TargetCheck::new("a <= 2.5", "3.10", quick, false),
             TargetCheck::new("b >= 10", "16.0", quick, true),
         ]
+    }
+
+    #[test]
+    fn without_a_terminal_progress_is_a_line_every_so_often_with_an_estimate_from_this_invocation()
+    {
+        let t0 = std::time::Instant::now();
+        let at = |s: u64| t0 + std::time::Duration::from_secs(s);
+        let mut p = PlainProgress {
+            what: "transfer experiment".into(),
+            started: t0,
+            found: None,
+            last_line: t0,
+        };
+        // Resumed with 40 of 100 runs written: said once, not estimated from.
+        assert_eq!(
+            p.line(40, 100, t0).as_deref(),
+            Some("transfer experiment: 40/100 runs already written")
+        );
+        // A run 10 s later: too soon for a line.
+        assert_eq!(p.line(41, 100, at(10)), None);
+        // 60 s in, 2 runs done here: 30 s a run, 58 to go.
+        assert_eq!(
+            p.line(42, 100, at(60)).as_deref(),
+            Some("transfer experiment: 42/100 runs (1m00s elapsed, ~29m00s left)")
+        );
+        assert_eq!(p.line(43, 100, at(70)), None);
+        // The last run always gets its line.
+        assert_eq!(
+            p.line(100, 100, at(1830)).as_deref(),
+            Some("transfer experiment: 100/100 runs (30m30s elapsed, ~0s left)")
+        );
+        assert_eq!(clock(3723.0), "1h02m03s");
+        // A fresh run says nothing before its first run is done.
+        let mut fresh = PlainProgress { found: None, ..p };
+        assert_eq!(fresh.line(0, 5, at(0)), None);
     }
 
     #[test]
