@@ -346,3 +346,73 @@ fn a_corrupt_library_is_refused_naming_the_file() {
         "{stderr}"
     );
 }
+
+/// `summary.json` of `dir` without what depends on the clock: wall and agent seconds, and
+/// Table 1's time ratios and the targets' figures and verdicts on them.
+fn summary_without_timings(dir: &Path) -> serde_json::Value {
+    fn strip(v: &mut serde_json::Value) {
+        match v {
+            serde_json::Value::Object(map) => {
+                let timed = map
+                    .get("target")
+                    .and_then(|t| t.as_str())
+                    .is_some_and(|t| t.starts_with("Table 1:"));
+                if timed {
+                    map.remove("measured");
+                    map.remove("verdict");
+                }
+                map.retain(|key, _| {
+                    !matches!(key.as_str(), "wall_seconds" | "seconds_per_episode")
+                        && !key.ends_with("_time")
+                });
+                map.values_mut().for_each(strip);
+            }
+            serde_json::Value::Array(items) => items.iter_mut().for_each(strip),
+            _ => {}
+        }
+    }
+    let path = dir.join("summary.json");
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut v: serde_json::Value = serde_json::from_str(&text).expect("summary.json is JSON");
+    strip(&mut v);
+    v
+}
+
+#[test]
+fn experiment_all_gives_the_separate_commands_results_to_the_last_digit() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let study = dir.path().join("study");
+    let out = tes(&[
+        "experiment",
+        "all",
+        "--quick",
+        "--out",
+        study.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(study.join("report.md").exists());
+    for experiment in ["grid", "transfer", "robot"] {
+        let alone = dir.path().join(experiment);
+        let out = tes(&[
+            "experiment",
+            experiment,
+            "--quick",
+            "--out",
+            alone.to_str().unwrap(),
+        ]);
+        assert!(
+            out.status.success(),
+            "{experiment}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert_eq!(
+            summary_without_timings(&study.join(experiment)),
+            summary_without_timings(&alone),
+            "{experiment}: `tes experiment all` and the separate command differ"
+        );
+    }
+}
