@@ -15,6 +15,11 @@ pub const QUICK_RUN_NOTE: &str =
 pub const PARTIAL_RUN_NOTE: &str =
     "partial run: the target counts every test task; run them all to judge it";
 
+/// What a target counted over intervals says when the intervals leave the count on both
+/// sides of it.
+pub const UNDECIDED_NOTE: &str =
+    "undecided: the 95 % intervals leave the count on both sides of the target";
+
 /// Whether a run meets one of the paper's targets. Serialised as its [`text`](Self::text).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub enum Verdict {
@@ -30,6 +35,10 @@ pub enum Verdict {
     /// A full-size run over only some of the cases the target counts.
     #[serde(rename = "partial run: the target counts every test task; run them all to judge it")]
     PartialRun,
+    /// A count of cases each decided by its interval, where the undecided cases could put the
+    /// count on either side of the target: more runs would decide it.
+    #[serde(rename = "undecided: the 95 % intervals leave the count on both sides of the target")]
+    Undecided,
 }
 
 impl Verdict {
@@ -49,6 +58,7 @@ impl Verdict {
             Verdict::DoesNotHold => "does not hold",
             Verdict::QuickRun => QUICK_RUN_NOTE,
             Verdict::PartialRun => PARTIAL_RUN_NOTE,
+            Verdict::Undecided => UNDECIDED_NOTE,
         }
     }
 
@@ -109,6 +119,7 @@ mod tests {
             Verdict::DoesNotHold,
             Verdict::QuickRun,
             Verdict::PartialRun,
+            Verdict::Undecided,
         ] {
             let json = serde_json::to_string(&v).unwrap();
             assert_eq!(json, format!("\"{}\"", v.text()));
