@@ -63,9 +63,18 @@ pub struct TransferConfig {
     pub irrelevant: usize,
     /// How many random view combinations ("Rands") to compare (paper: 5).
     pub random_combinations: usize,
-    /// The view library's settings (paper: M = 20, c = ln 300, μ = 0, λ = 0.05, α = 1.5).
+    /// The view library's settings (paper: M = 20, c = ln 300, μ = 0, λ = 0.05, α = 1.5);
+    /// its `max_views` is replaced by [`max_views`](Self::max_views), the one that is
+    /// recorded.
     #[serde(skip)]
     pub library: LibraryParams,
+    /// The most views the library keeps, `M` (paper: 20): an ablation of the pruning. Recorded
+    /// only when it differs from the paper's, so folders written before it existed read as 20.
+    #[serde(
+        default = "paper_max_views",
+        skip_serializing_if = "is_paper_max_views"
+    )]
+    pub max_views: usize,
     /// Seed of the grid suite.
     pub world_seed: u64,
     /// Base agent seed; see [`run_seed`] and [`job_seed`].
@@ -93,6 +102,7 @@ impl TransferConfig {
             irrelevant: 200,
             random_combinations: 5,
             library: LibraryParams::default(),
+            max_views: paper_max_views(),
             world_seed: 2017,
             seed: 1,
             quick: false,
@@ -127,6 +137,9 @@ impl TransferConfig {
                 "test task {t} does not exist (the suite has tasks 0..{})",
                 GridSuite::TASKS
             );
+        }
+        if self.max_views == 0 {
+            bail!("the library must keep at least 1 view (--max-views)");
         }
         if self.training_tasks == 0 || self.training_tasks >= GridSuite::TASKS {
             bail!(
@@ -384,6 +397,14 @@ pub struct TransferReport {
     pub targets: Vec<TargetCheck>,
 }
 
+fn paper_max_views() -> usize {
+    LibraryParams::default().max_views
+}
+
+fn is_paper_max_views(m: &usize) -> bool {
+    *m == paper_max_views()
+}
+
 /// The experiment's name in manifests.
 pub const EXPERIMENT: &str = "transfer";
 
@@ -594,7 +615,10 @@ fn empty_library(config: &TransferConfig, envs: &[GridEnv]) -> Result<ViewLibrar
         structure.n_actions(),
         structure.n_effects(),
         structure.n_features(),
-        config.library,
+        LibraryParams {
+            max_views: config.max_views,
+            ..config.library
+        },
     )?)
 }
 
@@ -1029,6 +1053,27 @@ mod tests {
             [Verdict::PartialRun; 4]
         );
         assert!(targets(true, 3, [1, 2], [&some, &some])[0].measured == "1 / 3");
+    }
+
+    #[test]
+    fn the_library_cap_is_recorded_only_when_it_is_not_the_papers() {
+        let paper = serde_json::to_value(TransferConfig::paper()).unwrap();
+        assert!(paper.get("max_views").is_none(), "{paper}");
+        let read: TransferConfig = serde_json::from_value(paper).unwrap();
+        assert_eq!(read.max_views, 20);
+        let wide = TransferConfig {
+            max_views: 60,
+            ..TransferConfig::paper()
+        };
+        let json = serde_json::to_value(&wide).unwrap();
+        assert_eq!(json["max_views"], 60);
+        let read: TransferConfig = serde_json::from_value(json).unwrap();
+        assert_eq!(read.max_views, 60);
+        let none = TransferConfig {
+            max_views: 0,
+            ..TransferConfig::paper()
+        };
+        assert!(none.check().is_err());
     }
 
     #[test]

@@ -210,6 +210,10 @@ struct TransferArgs {
     /// more than the model change that triggered it (see `tes_learning::plan`).
     #[arg(long)]
     converge_plans: bool,
+    /// The most views the library keeps (M) [default: 20, the paper's]; a larger M prunes
+    /// less, an ablation of the library's pruning.
+    #[arg(long)]
+    max_views: Option<usize>,
 }
 
 #[derive(Debug, Args)]
@@ -324,6 +328,7 @@ impl TransferArgs {
             || self.seed.is_some()
             || self.world_seed.is_some()
             || self.converge_plans
+            || self.max_views.is_some()
     }
 
     fn config(&self, runs: Option<usize>) -> TransferConfig {
@@ -351,6 +356,9 @@ impl TransferArgs {
             config.world_seed = seed;
         }
         config.stop_at_drift = !self.converge_plans;
+        if let Some(m) = self.max_views {
+            config.max_views = m;
+        }
         config
     }
 }
