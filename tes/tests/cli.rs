@@ -416,3 +416,90 @@ fn experiment_all_gives_the_separate_commands_results_to_the_last_digit() {
         );
     }
 }
+
+/// Job records (`jobs/NNNNN.json`, finished ones only) in a result folder.
+fn job_records(dir: &Path) -> usize {
+    std::fs::read_dir(dir.join("jobs")).map_or(0, |entries| {
+        entries
+            .filter_map(Result::ok)
+            .filter(|e| e.path().extension().is_some_and(|x| x == "json"))
+            .count()
+    })
+}
+
+#[test]
+fn an_experiment_stopped_with_ctrl_c_resumes_from_its_records_to_the_same_summary() {
+    use nix::sys::signal::{Signal, kill};
+    use nix::unistd::Pid;
+    use std::time::{Duration, Instant};
+
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (cut, whole) = (dir.path().join("cut"), dir.path().join("whole"));
+    let args = |out: &Path| -> Vec<String> {
+        [
+            "experiment",
+            "transfer",
+            "--quick",
+            "--runs",
+            "3",
+            "--threads",
+            "1",
+            "--out",
+        ]
+        .iter()
+        .map(ToString::to_string)
+        .chain([out.to_string_lossy().into_owned()])
+        .collect()
+    };
+    let mut child = Command::new(env!("CARGO_BIN_EXE_tes"))
+        .args(args(&cut))
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("the tes binary runs");
+    // Ctrl-C once the first of the three jobs is recorded, while the second runs.
+    let deadline = Instant::now() + Duration::from_secs(600);
+    while job_records(&cut) == 0 {
+        if let Some(status) = child.try_wait().expect("wait") {
+            panic!("the run ended ({status}) before it could be interrupted");
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            panic!("no job recorded in 10 minutes");
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let pid = Pid::from_raw(i32::try_from(child.id()).expect("pid fits"));
+    kill(pid, Signal::SIGINT).expect("SIGINT");
+    let status = child.wait().expect("wait");
+    assert!(
+        !status.success(),
+        "an interrupted run does not report success"
+    );
+    let kept = job_records(&cut);
+    assert!(
+        (1..3).contains(&kept),
+        "{kept} of 3 jobs recorded at the interruption"
+    );
+    assert!(!cut.join("summary.json").exists());
+
+    let resumed = tes(&["experiment", "transfer", "--resume", cut.to_str().unwrap()]);
+    assert!(
+        resumed.status.success(),
+        "{}",
+        String::from_utf8_lossy(&resumed.stderr)
+    );
+    let args = args(&whole);
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let alone = tes(&args);
+    assert!(
+        alone.status.success(),
+        "{}",
+        String::from_utf8_lossy(&alone.stderr)
+    );
+    assert_eq!(
+        summary_without_timings(&cut),
+        summary_without_timings(&whole),
+        "the resumed run's summary differs from the uninterrupted run's"
+    );
+}
