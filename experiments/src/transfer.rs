@@ -1028,8 +1028,9 @@ mod tests {
                 .map(|t| t.verdict)
                 .collect()
         };
-        // 12 decided ahead holds; 9 ahead and 5 undecided could reach 10 either way; 8 ahead
-        // and 1 undecided cannot reach 10.
+        // 12 decided ahead of 12 needed holds; 9 ahead with 5 undecided could reach 10 or
+        // not (undecided), as could 10 ahead with 4 undecided of 12; 8 ahead with 1
+        // undecided cannot reach 10.
         assert_eq!(
             verdicts(false, 15, [12, 9], [&decided(12, 0, 3), &decided(9, 1, 5)]),
             [
