@@ -165,117 +165,164 @@ impl PlannedModel {
         pieces: &mut Pieces,
         budget: usize,
     ) -> Result<bool, ChangeError> {
-        let n = self.structure.n_states();
         let mut left = budget.max(1);
         while left > 0 {
-            let step = |next: usize, end: usize| next.saturating_add(left).min(end);
             pieces.stage = match pieces.stage {
                 Stage::Done => return Ok(true),
-                Stage::CopyTable { next } => {
-                    let end = step(next, self.table.n_rows());
-                    self.table.copy_rows_from(&changes.table, next..end)?;
-                    left -= end - next;
-                    if end == self.table.n_rows() {
-                        self.forced = true;
-                        Stage::Refresh { a: 0 }
-                    } else {
-                        Stage::CopyTable { next: end }
-                    }
-                }
-                Stage::Refresh { a } => {
-                    let changed = changes
-                        .views
-                        .iter()
-                        .enumerate()
-                        .skip(a)
-                        .find_map(|(b, view)| {
-                            Some((b, view.as_ref().filter(|_| changes.changed[b])?))
-                        });
-                    match changed {
-                        None => Stage::Plan,
-                        Some((a, view)) => {
-                            self.table.begin_refresh(view, &self.structure)?;
-                            left = 0;
-                            Stage::Rows { a, next: 0 }
-                        }
-                    }
-                }
-                Stage::Rows { a, next } => {
-                    let end = step(next, n);
-                    self.table.refresh_rows(next..end)?;
-                    left -= end - next;
-                    if end == n {
-                        Stage::Write {
-                            a,
-                            next: 0,
-                            moved: 0.0,
-                        }
-                    } else {
-                        Stage::Rows { a, next: end }
-                    }
-                }
-                Stage::Write { a, next, moved } => {
-                    let end = step(next, n);
-                    let moved = moved.max(self.table.refresh_write(a, next..end));
-                    left -= end - next;
-                    if end == n {
-                        self.note_change(moved);
-                        Stage::Refresh { a: a + 1 }
-                    } else {
-                        Stage::Write {
-                            a,
-                            next: end,
-                            moved,
-                        }
-                    }
-                }
-                Stage::Plan => {
-                    if self.needs_plan() {
-                        Stage::Sweep {
-                            next: 0,
-                            tally: SweepTally::new(),
-                            stats: PlanStats::NONE,
-                            good_enough: self.good_enough(),
-                        }
-                    } else {
-                        Stage::Done
-                    }
-                }
+                Stage::CopyTable { next } => self.copy_table_piece(changes, next, &mut left)?,
+                Stage::Refresh { a } => self.begin_next_refresh(changes, a, &mut left)?,
+                Stage::Rows { a, next } => self.rows_piece(a, next, &mut left)?,
+                Stage::Write { a, next, moved } => self.write_piece(a, next, moved, &mut left),
+                Stage::Plan => self.plan_stage(),
                 Stage::Sweep {
                     next,
-                    mut tally,
-                    mut stats,
+                    tally,
+                    stats,
                     good_enough,
-                } => {
-                    let end = step(next, n);
-                    self.planner.sweep_tracked(
-                        &self.structure,
-                        &mut self.table,
-                        next..end,
-                        &mut tally,
-                    );
-                    left -= end - next;
-                    if end < n {
-                        Stage::Sweep {
-                            next: end,
-                            tally,
-                            stats,
-                            good_enough,
-                        }
-                    } else if self.planner.end_sweep(&mut stats, tally, good_enough) {
-                        self.planned(stats, self.planner.backup_span);
-                        Stage::Done
-                    } else {
-                        Stage::Sweep {
-                            next: 0,
-                            tally: SweepTally::new(),
-                            stats,
-                            good_enough,
-                        }
-                    }
-                }
+                } => self.sweep_piece(next, tally, stats, good_enough, &mut left),
             };
         }
         Ok(pieces.stage == Stage::Done)
     }
+
+    /// Copies the table sent whole from row `next`, as far as `left` goes; after its last
+    /// row, the refresh of changed views starts (and a plan is forced: the table moved).
+    fn copy_table_piece(
+        &mut self,
+        changes: &ModelChanges,
+        next: usize,
+        left: &mut usize,
+    ) -> Result<Stage, ChangeError> {
+        let end = piece_end(next, *left, self.table.n_rows());
+        self.table.copy_rows_from(&changes.table, next..end)?;
+        *left -= end - next;
+        Ok(if end == self.table.n_rows() {
+            self.forced = true;
+            Stage::Refresh { a: 0 }
+        } else {
+            Stage::CopyTable { next: end }
+        })
+    }
+
+    /// Finds the next action, from `a`, whose view changed and starts its refresh (which
+    /// ends the call: a pass over the view's used columns); with none left, the plan.
+    fn begin_next_refresh(
+        &mut self,
+        changes: &ModelChanges,
+        a: usize,
+        left: &mut usize,
+    ) -> Result<Stage, ChangeError> {
+        let changed = changes
+            .views
+            .iter()
+            .enumerate()
+            .skip(a)
+            .find_map(|(b, view)| Some((b, view.as_ref().filter(|_| changes.changed[b])?)));
+        Ok(match changed {
+            None => Stage::Plan,
+            Some((a, view)) => {
+                self.table.begin_refresh(view, &self.structure)?;
+                *left = 0;
+                Stage::Rows { a, next: 0 }
+            }
+        })
+    }
+
+    /// Builds action `a`'s new rows from state `next`, as far as `left` goes; after the
+    /// last state, their writing starts.
+    fn rows_piece(
+        &mut self,
+        a: usize,
+        next: usize,
+        left: &mut usize,
+    ) -> Result<Stage, ChangeError> {
+        let n = self.structure.n_states();
+        let end = piece_end(next, *left, n);
+        self.table.refresh_rows(next..end)?;
+        *left -= end - next;
+        Ok(if end == n {
+            Stage::Write {
+                a,
+                next: 0,
+                moved: 0.0,
+            }
+        } else {
+            Stage::Rows { a, next: end }
+        })
+    }
+
+    /// Writes action `a`'s new rows from state `next`, as far as `left` goes, keeping the
+    /// largest move; after the last state, the move is noted and the next action's refresh
+    /// is looked for.
+    fn write_piece(&mut self, a: usize, next: usize, moved: f64, left: &mut usize) -> Stage {
+        let n = self.structure.n_states();
+        let end = piece_end(next, *left, n);
+        let moved = moved.max(self.table.refresh_write(a, next..end));
+        *left -= end - next;
+        if end == n {
+            self.note_change(moved);
+            Stage::Refresh { a: a + 1 }
+        } else {
+            Stage::Write {
+                a,
+                next: end,
+                moved,
+            }
+        }
+    }
+
+    /// Whether the changes need a plan: its first sweep, or nothing more to do.
+    fn plan_stage(&self) -> Stage {
+        if self.needs_plan() {
+            Stage::Sweep {
+                next: 0,
+                tally: SweepTally::new(),
+                stats: PlanStats::NONE,
+                good_enough: self.good_enough(),
+            }
+        } else {
+            Stage::Done
+        }
+    }
+
+    /// Backs up states from `next` in the current sweep, as far as `left` goes; a finished
+    /// sweep either ends the plan (which is then recorded) or starts the next sweep.
+    fn sweep_piece(
+        &mut self,
+        next: usize,
+        mut tally: SweepTally,
+        mut stats: PlanStats,
+        good_enough: f64,
+        left: &mut usize,
+    ) -> Stage {
+        let n = self.structure.n_states();
+        let end = piece_end(next, *left, n);
+        self.planner
+            .sweep_tracked(&self.structure, &mut self.table, next..end, &mut tally);
+        *left -= end - next;
+        if end < n {
+            Stage::Sweep {
+                next: end,
+                tally,
+                stats,
+                good_enough,
+            }
+        } else if self.planner.end_sweep(&mut stats, tally, good_enough) {
+            self.planned(stats, self.planner.backup_span);
+            Stage::Done
+        } else {
+            Stage::Sweep {
+                next: 0,
+                tally: SweepTally::new(),
+                stats,
+                good_enough,
+            }
+        }
+    }
+}
+
+/// Where a piece that starts at `next` with `left` of the budget stops, at most at `end`.
+#[inline]
+fn piece_end(next: usize, left: usize, end: usize) -> usize {
+    next.saturating_add(left).min(end)
 }
