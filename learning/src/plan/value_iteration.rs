@@ -301,61 +301,28 @@ impl ValueIteration {
                     step.reward + future
                 };
                 // The best action (lowest id on ties) and its value.
-                let mut best = (0, f64::NEG_INFINITY);
-                if by_lanes {
-                    // All actions at once: lane `a` sums `P(e | s, a) · backup[e]` over `e`
-                    // in order, as the scalar sum does.
+                let (a, v) = if by_lanes {
                     let (rows, _) =
                         lanes[s * n_effects * LANES..][..n_effects * LANES].as_chunks::<LANES>();
-                    let mut q = [zero; LANES];
-                    for (p, step) in rows.iter().zip(steps) {
-                        let b = backup_of(step);
-                        for l in 0..LANES {
-                            q[l] += p[l] * b;
-                        }
-                    }
-                    for (a, &q) in q[..n_actions].iter().enumerate() {
-                        if q > best.1 {
-                            best = (a, q);
-                        }
-                    }
+                    best_by_lanes(rows, steps, backup_of, n_actions, zero)
                 } else {
                     for (b, step) in backup.iter_mut().zip(steps) {
                         *b = backup_of(step);
                     }
-                    for a in 0..n_actions {
-                        let q = match optimism {
-                            Some(o) if o.unknown[a * n_states + s] => o.value,
-                            _ => {
-                                let row = (a * n_states + s) * n_effects;
-                                probs[row..row + n_effects]
-                                    .iter()
-                                    .zip(backup.iter())
-                                    .map(|(&p, &b)| p * b)
-                                    .sum()
-                            }
-                        };
-                        if q > best.1 {
-                            best = (a, q);
-                        }
-                    }
-                }
-                let (a, v) = best;
+                    let rows = ActionRows {
+                        probs,
+                        optimism,
+                        n_states,
+                        n_effects,
+                    };
+                    rows.best(backup, s, n_actions)
+                };
                 tally.residual = tally.residual.max((v - values[s]).abs());
                 if TRACK {
                     stale[s] = false;
                     fresh[s] = false;
                     if v.to_bits() != values[s].to_bits() {
-                        // Every state whose backup reads `V(s)` must be backed up again (if
-                        // before `s`, in the next sweep; `s` itself, when it can stay).
-                        for &p in structure.predecessors(s) {
-                            let p = p as usize;
-                            debug_assert!(p < stale.len());
-                            // SAFETY: `p < n_states` (a predecessor is a state that some
-                            // effect leads from, checked by `CmdpStructure::new`) and
-                            // `stale.len() == n_states` (sliced above).
-                            unsafe { *stale.get_unchecked_mut(p) = true };
-                        }
+                        mark_predecessors_stale(structure, s, stale);
                     }
                 }
                 values[s] = v;
@@ -501,5 +468,93 @@ impl ValueIteration {
             });
         }
         Ok(())
+    }
+}
+
+/// The best action of a state (lowest id on ties) and its value, all actions at once: lane
+/// `a` sums `P(e | s, a) · backup[e]` over `e` in order, as the scalar sum does. `rows` are
+/// the state's per-effect lanes, `steps` its successors. Inlined into the sweep, so that the
+/// AVX2 sweep's copy is compiled with AVX2.
+#[inline(always)]
+fn best_by_lanes(
+    rows: &[[f64; LANES]],
+    steps: &[Step],
+    backup_of: impl Fn(&Step) -> f64,
+    n_actions: usize,
+    zero: f64,
+) -> (usize, f64) {
+    let mut best = (0, f64::NEG_INFINITY);
+    let mut q = [zero; LANES];
+    for (p, step) in rows.iter().zip(steps) {
+        let b = backup_of(step);
+        for l in 0..LANES {
+            q[l] += p[l] * b;
+        }
+    }
+    for (a, &q) in q[..n_actions].iter().enumerate() {
+        if q > best.1 {
+            best = (a, q);
+        }
+    }
+    best
+}
+
+/// The effect table's rows, one action at a time, with R-max's optimism when planning with
+/// it: the other way [`ValueIteration::sweep`] finds a state's best action.
+#[derive(Clone, Copy)]
+struct ActionRows<'a> {
+    /// `probs[(a * S + s) * E + e]`.
+    probs: &'a [f64],
+    optimism: Option<Optimism<'a>>,
+    n_states: usize,
+    n_effects: usize,
+}
+
+impl ActionRows<'_> {
+    /// The best action of state `s` (lowest id on ties) and its value, from `backup`, its
+    /// successors' `R + γV` per effect: each action's Q-value is the scalar sum of
+    /// `P(e | s, a) · backup[e]` over `e` in order (or the optimistic value of an unknown
+    /// pair). Inlined into the sweep, as [`best_by_lanes`] is.
+    #[inline(always)]
+    fn best(self, backup: &[f64], s: usize, n_actions: usize) -> (usize, f64) {
+        let Self {
+            probs,
+            optimism,
+            n_states,
+            n_effects,
+        } = self;
+        let mut best = (0, f64::NEG_INFINITY);
+        for a in 0..n_actions {
+            let q = match optimism {
+                Some(o) if o.unknown[a * n_states + s] => o.value,
+                _ => {
+                    let row = (a * n_states + s) * n_effects;
+                    probs[row..row + n_effects]
+                        .iter()
+                        .zip(backup.iter())
+                        .map(|(&p, &b)| p * b)
+                        .sum()
+                }
+            };
+            if q > best.1 {
+                best = (a, q);
+            }
+        }
+        best
+    }
+}
+
+/// `V(s)` changed: every state whose backup reads it must be backed up again (if before
+/// `s`, in the next sweep; `s` itself, when it can stay). `stale` has one flag per state.
+#[inline(always)]
+fn mark_predecessors_stale(structure: &CmdpStructure, s: usize, stale: &mut [bool]) {
+    // The sweep slices `stale` so already: inlined there, this check folds away.
+    let stale = &mut stale[..structure.n_states()];
+    for &p in structure.predecessors(s) {
+        let p = p as usize;
+        debug_assert!(p < stale.len());
+        // SAFETY: `p < n_states` (a predecessor is a state that some effect leads from,
+        // checked by `CmdpStructure::new`) and `stale.len() == n_states` (sliced above).
+        unsafe { *stale.get_unchecked_mut(p) = true };
     }
 }
