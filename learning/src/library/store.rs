@@ -582,7 +582,55 @@ pub fn decode(bytes: &[u8]) -> Result<StoredLibrary, StoreProblem> {
 }
 
 fn decode_body(r: &mut Reader<'_>) -> Result<StoredLibrary, StoreProblem> {
-    let bad = |m: String| StoreProblem::Inconsistent(m);
+    let shape = decode_shape(r)?;
+    let mut library = ViewLibrary::new(
+        shape.n_actions,
+        shape.n_effects,
+        shape.n_features,
+        shape.params,
+    )
+    .map_err(|e| inconsistent(e.to_string()))?;
+    library.tasks_seen = r.u32()?;
+    library.next_id = r.u64()?;
+    let world = r.str()?;
+    let [action_names, feature_names] = decode_names(r)?;
+    decode_views(r, &shape, &mut library)?;
+    if !r.0.is_empty() {
+        return Err(inconsistent(format!(
+            "{} bytes left after the last view",
+            r.0.len()
+        )));
+    }
+    let stored = StoredLibrary {
+        library,
+        world,
+        action_names,
+        feature_names,
+    };
+    check_names(&stored)?;
+    Ok(stored)
+}
+
+/// A file's inconsistency, said in `message`.
+fn inconsistent(message: String) -> StoreProblem {
+    StoreProblem::Inconsistent(message)
+}
+
+/// What the body says of its library's shape, before any view.
+struct Shape {
+    n_actions: usize,
+    n_effects: usize,
+    n_features: usize,
+    params: LibraryParams,
+    /// A view's model's columns: the features, and the intercept if any.
+    columns: u64,
+    /// A view's model's weights: `columns` per effect.
+    weights: u64,
+}
+
+/// Reads the library's shape and parameters, and refuses a shape whose views are too large
+/// to build: building the library builds a fresh model of this shape.
+fn decode_shape(r: &mut Reader<'_>) -> Result<Shape, StoreProblem> {
     let n_actions = r.u32()? as usize;
     let n_effects = r.u32()? as usize;
     let n_features = r.u32()? as usize;
@@ -596,11 +644,10 @@ fn decode_body(r: &mut Reader<'_>) -> Result<StoredLibrary, StoreProblem> {
             intercept: match r.u8()? {
                 0 => false,
                 1 => true,
-                b => return Err(bad(format!("intercept flag {b}"))),
+                b => return Err(inconsistent(format!("intercept flag {b}"))),
             },
         },
     };
-    // Building the library builds a fresh model of this shape: bound it first.
     let columns = n_features as u64 + u64::from(params.mdagl.intercept);
     let weights = columns.saturating_mul(n_effects as u64);
     if weights > MAX_VIEW_WEIGHTS {
@@ -610,11 +657,18 @@ fn decode_body(r: &mut Reader<'_>) -> Result<StoredLibrary, StoreProblem> {
             weights,
         });
     }
-    let mut library = ViewLibrary::new(n_actions, n_effects, n_features, params)
-        .map_err(|e| bad(e.to_string()))?;
-    library.tasks_seen = r.u32()?;
-    library.next_id = r.u64()?;
-    let world = r.str()?;
+    Ok(Shape {
+        n_actions,
+        n_effects,
+        n_features,
+        params,
+        columns,
+        weights,
+    })
+}
+
+/// Reads the action names, then the feature names.
+fn decode_names(r: &mut Reader<'_>) -> Result<[Vec<String>; 2], StoreProblem> {
     let mut names = [Vec::new(), Vec::new()];
     for list in &mut names {
         let n = r.count(4)?;
@@ -622,30 +676,80 @@ fn decode_body(r: &mut Reader<'_>) -> Result<StoredLibrary, StoreProblem> {
             list.push(r.str()?);
         }
     }
-    let [action_names, feature_names] = names;
+    Ok(names)
+}
+
+/// Reads the views into `library`, each checked against the library and the views before it.
+fn decode_views(
+    r: &mut Reader<'_>,
+    shape: &Shape,
+    library: &mut ViewLibrary,
+) -> Result<(), StoreProblem> {
     let n_views = r.count(8 + 4 + 8 + 4 + 4 + 4)?;
     if n_views > library.params.max_views {
-        return Err(bad(format!(
+        return Err(inconsistent(format!(
             "{n_views} views, more than the library's limit of {}",
             library.params.max_views
         )));
     }
     for _ in 0..n_views {
+        let fields = ViewFields::decode(r, shape)?;
+        fields.check(shape, library)?;
+        let ViewFields {
+            id,
+            action,
+            updates,
+            sums,
+            wins,
+            history,
+        } = fields;
+        let model = Mdagl::from_state(
+            shape.n_effects,
+            shape.n_features,
+            shape.params.mdagl,
+            updates,
+            sums,
+        )
+        .map_err(|source| StoreProblem::BadView { id, source })?;
+        library.views.push(View {
+            id,
+            action,
+            model,
+            wins,
+            history,
+        });
+    }
+    Ok(())
+}
+
+/// One view as the file stores it, before its model is restored.
+struct ViewFields {
+    id: u64,
+    action: usize,
+    updates: u64,
+    sums: Vec<f64>,
+    wins: Vec<u32>,
+    history: Vec<TaskScore>,
+}
+
+impl ViewFields {
+    /// Reads one view. Restoring a model builds one of the full shape first: so its sums are
+    /// read only if they fit that shape, and each view's model is paid for by bytes of the
+    /// file.
+    fn decode(r: &mut Reader<'_>, shape: &Shape) -> Result<Self, StoreProblem> {
         let id = r.u64()?;
         let action = r.u32()? as usize;
         let updates = r.u64()?;
         let n_sums = r.count(8)?;
-        // Restoring a model builds one of the full shape first: only for sums that fit it,
-        // so each view's model is paid for by bytes of the file.
-        let expected = usize::try_from(weights).unwrap_or(usize::MAX);
+        let expected = usize::try_from(shape.weights).unwrap_or(usize::MAX);
         if n_sums != expected {
             return Err(StoreProblem::BadView {
                 id,
                 source: MdaglStateError::WrongLength {
                     got: n_sums,
                     expected,
-                    classes: n_effects,
-                    columns: usize::try_from(columns).unwrap_or(usize::MAX),
+                    classes: shape.n_effects,
+                    columns: usize::try_from(shape.columns).unwrap_or(usize::MAX),
                 },
             });
         }
@@ -668,55 +772,51 @@ fn decode_body(r: &mut Reader<'_>) -> Result<StoredLibrary, StoreProblem> {
                 won: match r.u8()? {
                     0 => false,
                     1 => true,
-                    b => return Err(bad(format!("view {id}: won flag {b}"))),
+                    b => return Err(inconsistent(format!("view {id}: won flag {b}"))),
                 },
             });
         }
+        Ok(Self {
+            id,
+            action,
+            updates,
+            sums,
+            wins,
+            history,
+        })
+    }
+
+    /// Checks the view against the library: an action it has, an id it has handed out and
+    /// no other view has, tasks it has seen.
+    fn check(&self, shape: &Shape, library: &ViewLibrary) -> Result<(), StoreProblem> {
+        let (id, action, n_actions) = (self.id, self.action, shape.n_actions);
         if action >= n_actions {
-            return Err(bad(format!(
+            return Err(inconsistent(format!(
                 "view {id} is for action {action} of {n_actions}"
             )));
         }
         if id >= library.next_id {
-            return Err(bad(format!(
+            return Err(inconsistent(format!(
                 "view id {id} is not below the next id {}",
                 library.next_id
             )));
         }
         if library.views.iter().any(|v| v.id == id) {
-            return Err(bad(format!("two views with id {id}")));
+            return Err(inconsistent(format!("two views with id {id}")));
         }
-        if let Some(t) = wins
+        if let Some(t) = self
+            .wins
             .iter()
-            .chain(history.iter().map(|h| &h.task))
+            .chain(self.history.iter().map(|h| &h.task))
             .find(|&&t| t >= library.tasks_seen)
         {
-            return Err(bad(format!(
+            return Err(inconsistent(format!(
                 "view {id} records task {t}, but only {} tasks were seen",
                 library.tasks_seen
             )));
         }
-        let model = Mdagl::from_state(n_effects, n_features, params.mdagl, updates, sums)
-            .map_err(|source| StoreProblem::BadView { id, source })?;
-        library.views.push(View {
-            id,
-            action,
-            model,
-            wins,
-            history,
-        });
+        Ok(())
     }
-    if !r.0.is_empty() {
-        return Err(bad(format!("{} bytes left after the last view", r.0.len())));
-    }
-    let stored = StoredLibrary {
-        library,
-        world,
-        action_names,
-        feature_names,
-    };
-    check_names(&stored)?;
-    Ok(stored)
 }
 
 struct Writer(Vec<u8>);
