@@ -399,111 +399,15 @@ impl GridTask {
     /// The layout does not depend on `n_irrelevant`, so tasks that differ only in it share
     /// their map and dynamics.
     pub fn generate(params: GridParams, seed: u64) -> Result<Self, GridError> {
-        let GridParams {
-            width: w,
-            height: h,
-            ..
-        } = params;
-        if !(2..=200).contains(&w) || !(2..=200).contains(&h) {
-            return Err(GridError::BadSize {
-                width: w,
-                height: h,
-            });
-        }
-        if params.dynamics_set >= DYNAMICS_SETS.len() {
-            return Err(GridError::BadDynamicsSet(params.dynamics_set));
-        }
-        if !(0.0..=0.5).contains(&params.wall_density) {
-            return Err(GridError::BadWallDensity(params.wall_density));
-        }
-        if !(0.0..=0.3).contains(&params.fire_fraction) {
-            return Err(GridError::BadFireFraction(params.fire_fraction));
-        }
-        let n = w * h;
-        if params.exits == 0 || params.exits > n / 4 {
-            return Err(GridError::BadExits {
-                exits: params.exits,
-                cells: n,
-            });
-        }
-        if params.patches == 0 {
-            return Err(GridError::NoPatches);
-        }
-        let sw = params.surface_weights;
-        let sw_total: f64 = sw.iter().sum();
-        if sw.iter().any(|&v| !v.is_finite() || v < 0.0) || sw_total <= 0.0 || !sw_total.is_finite()
-        {
-            return Err(GridError::BadSurfaceWeights(sw));
-        }
+        let sw_total = check_params(&params)?;
+        let (w, h) = (params.width, params.height);
+        // One generator for the layout, drawn from in this order: patches, fires, exits,
+        // walls (the same seed must give the same world, bit for bit).
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-
-        // Surfaces: each cell takes the surface of its nearest patch centre.
-        let centres: Vec<(usize, usize, Surface)> = (0..params.patches)
-            .map(|_| {
-                let mut u = rng.random::<f64>() * sw_total;
-                let mut k = sw.iter().rposition(|&v| v > 0.0).unwrap_or(0);
-                for (i, &v) in sw.iter().enumerate() {
-                    if v > 0.0 && u < v {
-                        k = i;
-                        break;
-                    }
-                    u -= v;
-                }
-                let s = Surface::ALL[k];
-                (rng.random_range(0..w), rng.random_range(0..h), s)
-            })
-            .collect();
-        let mut surfaces: Vec<Surface> = (0..n)
-            .map(|s| {
-                let (x, y) = (s % w, s / w);
-                centres
-                    .iter()
-                    .min_by_key(|(cx, cy, _)| x.abs_diff(*cx).pow(2) + y.abs_diff(*cy).pow(2))
-                    .map_or(Surface::Sand, |c| c.2)
-            })
-            .collect();
-        let fires = ((n as f64) * params.fire_fraction).round() as usize;
-        for _ in 0..fires {
-            let s = rng.random_range(0..n);
-            surfaces[s] = Surface::Fire;
-        }
-        let mut exit = vec![false; n];
-        let mut placed = 0;
-        while placed < params.exits {
-            let s = rng.random_range(0..n);
-            if surfaces[s] != Surface::Fire && !exit[s] {
-                exit[s] = true;
-                placed += 1;
-            }
-        }
-
-        // Walls: borders, then random interior edges.
-        let mut walls = vec![0u8; n];
-        for s in 0..n {
-            let (x, y) = (s % w, s / w);
-            if y == 0 {
-                walls[s] |= Dir::North.bit();
-            }
-            if y == h - 1 {
-                walls[s] |= Dir::South.bit();
-            }
-            if x == 0 {
-                walls[s] |= Dir::West.bit();
-            }
-            if x == w - 1 {
-                walls[s] |= Dir::East.bit();
-            }
-        }
-        for s in 0..n {
-            for d in [Dir::East, Dir::South] {
-                if let Some(t) = neighbour(w, h, s, d)
-                    && rng.random::<f64>() < params.wall_density
-                {
-                    walls[s] |= d.bit();
-                    walls[t] |= d.opposite().bit();
-                }
-            }
-        }
+        let mut surfaces = draw_surfaces(&params, sw_total, &mut rng);
+        let exit = draw_exits(params.exits, &surfaces, &mut rng);
+        let mut walls = border_walls(w, h);
+        draw_interior_walls(w, h, params.wall_density, &mut walls, &mut rng);
         repair_reachability(w, h, &mut surfaces, &mut walls, &exit);
 
         let mut features_rng = ChaCha8Rng::seed_from_u64(seed ^ 0x1EE1_E7A7_F00D_5EED);
@@ -937,6 +841,131 @@ impl fmt::Display for GridTask {
             }
         }
         Ok(())
+    }
+}
+
+/// Checks `params` ([`GridTask::generate`]'s rules); returns the surface weights' sum.
+fn check_params(params: &GridParams) -> Result<f64, GridError> {
+    let (w, h) = (params.width, params.height);
+    if !(2..=200).contains(&w) || !(2..=200).contains(&h) {
+        return Err(GridError::BadSize {
+            width: w,
+            height: h,
+        });
+    }
+    if params.dynamics_set >= DYNAMICS_SETS.len() {
+        return Err(GridError::BadDynamicsSet(params.dynamics_set));
+    }
+    if !(0.0..=0.5).contains(&params.wall_density) {
+        return Err(GridError::BadWallDensity(params.wall_density));
+    }
+    if !(0.0..=0.3).contains(&params.fire_fraction) {
+        return Err(GridError::BadFireFraction(params.fire_fraction));
+    }
+    let n = w * h;
+    if params.exits == 0 || params.exits > n / 4 {
+        return Err(GridError::BadExits {
+            exits: params.exits,
+            cells: n,
+        });
+    }
+    if params.patches == 0 {
+        return Err(GridError::NoPatches);
+    }
+    let sw = params.surface_weights;
+    let sw_total: f64 = sw.iter().sum();
+    if sw.iter().any(|&v| !v.is_finite() || v < 0.0) || sw_total <= 0.0 || !sw_total.is_finite() {
+        return Err(GridError::BadSurfaceWeights(sw));
+    }
+    Ok(sw_total)
+}
+
+/// Each cell's surface: that of its nearest patch centre (patches drawn by the surface
+/// weights, whose sum is `sw_total`), then the fires.
+fn draw_surfaces(params: &GridParams, sw_total: f64, rng: &mut ChaCha8Rng) -> Vec<Surface> {
+    let (w, h) = (params.width, params.height);
+    let n = w * h;
+    let sw = params.surface_weights;
+    let centres: Vec<(usize, usize, Surface)> = (0..params.patches)
+        .map(|_| {
+            let mut u = rng.random::<f64>() * sw_total;
+            let mut k = sw.iter().rposition(|&v| v > 0.0).unwrap_or(0);
+            for (i, &v) in sw.iter().enumerate() {
+                if v > 0.0 && u < v {
+                    k = i;
+                    break;
+                }
+                u -= v;
+            }
+            let s = Surface::ALL[k];
+            (rng.random_range(0..w), rng.random_range(0..h), s)
+        })
+        .collect();
+    let mut surfaces: Vec<Surface> = (0..n)
+        .map(|s| {
+            let (x, y) = (s % w, s / w);
+            centres
+                .iter()
+                .min_by_key(|(cx, cy, _)| x.abs_diff(*cx).pow(2) + y.abs_diff(*cy).pow(2))
+                .map_or(Surface::Sand, |c| c.2)
+        })
+        .collect();
+    let fires = ((n as f64) * params.fire_fraction).round() as usize;
+    for _ in 0..fires {
+        let s = rng.random_range(0..n);
+        surfaces[s] = Surface::Fire;
+    }
+    surfaces
+}
+
+/// `exits` exit cells, drawn among the cells not on fire.
+fn draw_exits(exits: usize, surfaces: &[Surface], rng: &mut ChaCha8Rng) -> Vec<bool> {
+    let n = surfaces.len();
+    let mut exit = vec![false; n];
+    let mut placed = 0;
+    while placed < exits {
+        let s = rng.random_range(0..n);
+        if surfaces[s] != Surface::Fire && !exit[s] {
+            exit[s] = true;
+            placed += 1;
+        }
+    }
+    exit
+}
+
+/// The walls of a `w`×`h` grid's border, per cell ([`Dir::bit`]).
+fn border_walls(w: usize, h: usize) -> Vec<u8> {
+    let mut walls = vec![0u8; w * h];
+    for (s, cell) in walls.iter_mut().enumerate() {
+        let (x, y) = (s % w, s / w);
+        if y == 0 {
+            *cell |= Dir::North.bit();
+        }
+        if y == h - 1 {
+            *cell |= Dir::South.bit();
+        }
+        if x == 0 {
+            *cell |= Dir::West.bit();
+        }
+        if x == w - 1 {
+            *cell |= Dir::East.bit();
+        }
+    }
+    walls
+}
+
+/// Random interior walls: each edge between two cells (drawn cell by cell, east then south)
+/// is a wall with probability `density`.
+fn draw_interior_walls(w: usize, h: usize, density: f64, walls: &mut [u8], rng: &mut ChaCha8Rng) {
+    for s in 0..w * h {
+        for d in [Dir::East, Dir::South] {
+            if let Some(t) = neighbour(w, h, s, d)
+                && rng.random::<f64>() < density
+            {
+                walls[s] |= d.bit();
+                walls[t] |= d.opposite().bit();
+            }
+        }
     }
 }
 
