@@ -36,6 +36,26 @@ fn surface_fill(surface: Surface) -> &'static str {
     }
 }
 
+/// The drawing's scale: arena cm to px, north up.
+#[derive(Debug, Clone, Copy)]
+struct Canvas {
+    /// The arena's side, cm.
+    side: f64,
+    /// px per cm.
+    scale: f64,
+}
+
+impl Canvas {
+    /// Where the arena point `p` (cm from the south-west corner) is drawn: y grows downwards
+    /// in SVG.
+    fn px(self, p: DVec2) -> (f64, f64) {
+        (
+            MARGIN + p.x * self.scale,
+            MARGIN + (self.side - p.y) * self.scale,
+        )
+    }
+}
+
 impl Arena {
     /// The arena to scale with `paths` over it (oldest first; the last is drawn on top), as a
     /// standalone SVG document titled `title`.
@@ -48,23 +68,24 @@ impl Arena {
     /// ```
     pub fn to_svg(&self, title: &str, paths: &[Path]) -> String {
         let side = self.side_cm();
-        let scale = SIDE_PX / side;
-        // North up: y grows downwards in SVG.
-        let px = |p: DVec2| (MARGIN + p.x * scale, MARGIN + (side - p.y) * scale);
-        let width = MARGIN * 2.0 + SIDE_PX + LEGEND_PX;
-        let height = MARGIN * 2.0 + SIDE_PX;
+        let canvas = Canvas {
+            side,
+            scale: SIDE_PX / side,
+        };
         let mut svg = String::new();
-        let _ = writeln!(
-            svg,
-            r#"<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" viewBox="0 0 {width} {height}" font-family="sans-serif" font-size="12">"#
-        );
-        let _ = writeln!(
-            svg,
-            r#"<rect width="100%" height="100%" fill="white"/><text x="{MARGIN}" y="24" font-size="15">{}</text>"#,
-            escape(title)
-        );
+        write_header(&mut svg, title);
+        self.draw_cells(&mut svg, canvas);
+        self.draw_marks_and_ball(&mut svg, canvas);
+        draw_paths(&mut svg, paths, canvas);
+        self.draw_legend(&mut svg, paths.len());
+        svg.push_str("</svg>\n");
+        svg
+    }
+
+    /// Each cell's surface, and the death spots' crosses.
+    fn draw_cells(&self, svg: &mut String, canvas: Canvas) {
         let n = self.cells();
-        let cell = self.cell_cm() * scale;
+        let cell = self.cell_cm() * canvas.scale;
         let _ = writeln!(
             svg,
             r##"<g class="cells" stroke="#BBBBBB" stroke-width="0.5">"##
@@ -95,13 +116,17 @@ impl Arena {
             }
         }
         svg.push_str("</g>\n");
+    }
+
+    /// The green and blue marks, then the ball.
+    fn draw_marks_and_ball(&self, svg: &mut String, canvas: Canvas) {
         for (colour, fill) in [
             (MarkColour::Green, "#2CA02C"),
             (MarkColour::Blue, "#1F5FBF"),
         ] {
             let _ = writeln!(svg, r#"<g class="marks" data-colour="{}">"#, colour.name());
             for &m in self.marks(colour) {
-                let (cx, cy) = px(m);
+                let (cx, cy) = canvas.px(m);
                 let _ = writeln!(
                     svg,
                     r#"<rect x="{:.1}" y="{:.1}" width="8" height="8" fill="{fill}"/>"#,
@@ -111,53 +136,41 @@ impl Arena {
             }
             svg.push_str("</g>\n");
         }
-        let (bx, by) = px(self.ball());
+        let cell = self.cell_cm() * canvas.scale;
+        let (bx, by) = canvas.px(self.ball());
         let _ = writeln!(
             svg,
             r##"<circle class="ball" cx="{bx:.1}" cy="{by:.1}" r="{:.1}" fill="#2060FF" stroke="#002080" stroke-width="1.5"/>"##,
             (cell * 0.3).max(5.0)
         );
-        for (i, path) in paths.iter().enumerate() {
-            let colour = PATH_COLOURS
-                [(i + PATH_COLOURS.len() - paths.len() % PATH_COLOURS.len()) % PATH_COLOURS.len()];
-            let points: Vec<String> = path
-                .points
-                .iter()
-                .filter(|p| p.is_finite())
-                .map(|&p| {
-                    let (x, y) = px(p);
-                    format!("{x:.1},{y:.1}")
-                })
-                .collect();
+    }
+
+    /// The legend below the paths' entries (`paths` of them): the marks, the ball, the
+    /// death spots, the surfaces, the arena's size and how a path starts and ends.
+    fn draw_legend(&self, svg: &mut String, paths: usize) {
+        let lx = MARGIN * 1.5 + SIDE_PX;
+        let first = MARGIN + 40.0 + paths as f64 * 18.0;
+        let _ = writeln!(svg, r#"<g class="legend">"#);
+        for (i, (swatch, text)) in self.legend_rows(lx).iter().enumerate() {
+            let y = first + i as f64 * 18.0;
+            let swatch = swatch
+                .replace("{y0}", &format!("{:.1}", y - 5.0))
+                .replace("{y1}", &format!("{:.1}", y + 4.0))
+                .replace("{y2}", &format!("{:.1}", y - 7.0));
             let _ = writeln!(
                 svg,
-                r#"<g class="path" data-name="{}"><polyline points="{}" fill="none" stroke="{colour}" stroke-width="2" stroke-opacity="0.85"/>"#,
-                escape(&path.label),
-                points.join(" ")
-            );
-            if let (Some(first), Some(last)) = (path.points.first(), path.points.last()) {
-                let ((sx, sy), (ex, ey)) = (px(*first), px(*last));
-                let _ = writeln!(
-                    svg,
-                    r#"<circle cx="{sx:.1}" cy="{sy:.1}" r="4" fill="{colour}"/><rect x="{:.1}" y="{:.1}" width="8" height="8" fill="white" stroke="{colour}" stroke-width="2"/>"#,
-                    ex - 4.0,
-                    ey - 4.0
-                );
-            }
-            let ly = MARGIN + 20.0 + i as f64 * 18.0;
-            let lx = MARGIN * 1.5 + SIDE_PX;
-            let _ = writeln!(
-                svg,
-                r#"<line x1="{lx}" y1="{ly}" x2="{}" y2="{ly}" stroke="{colour}" stroke-width="3"/><text x="{}" y="{}">{}</text></g>"#,
-                lx + 24.0,
+                "{swatch}<text x=\"{}\" y=\"{:.1}\">{}</text>",
                 lx + 30.0,
-                ly + 4.0,
-                escape(&path.label)
+                y + 4.0,
+                escape(text)
             );
         }
-        let lx = MARGIN * 1.5 + SIDE_PX;
-        let first = MARGIN + 40.0 + paths.len() as f64 * 18.0;
-        // (swatch drawn at the row's y, text)
+        svg.push_str("</g>\n");
+    }
+
+    /// The legend's rows, each (a swatch drawn at the row's y, placeholders `{y0}`, `{y1}`,
+    /// `{y2}` for its offsets, at `lx`; the text).
+    fn legend_rows(&self, lx: f64) -> Vec<(String, String)> {
         let mut rows: Vec<(String, String)> = Vec::new();
         for (text, fill) in [
             ("green mark", "#2CA02C"),
@@ -191,28 +204,71 @@ impl Arena {
                 s.name().to_owned(),
             ));
         }
+        let (n, side) = (self.cells(), self.side_cm());
         rows.push((
             String::new(),
             format!("{n} x {n} cells, {side:.0} cm a side"),
         ));
         rows.push((String::new(), "dot: start, square: end".to_owned()));
-        let _ = writeln!(svg, r#"<g class="legend">"#);
-        for (i, (swatch, text)) in rows.iter().enumerate() {
-            let y = first + i as f64 * 18.0;
-            let swatch = swatch
-                .replace("{y0}", &format!("{:.1}", y - 5.0))
-                .replace("{y1}", &format!("{:.1}", y + 4.0))
-                .replace("{y2}", &format!("{:.1}", y - 7.0));
+        rows
+    }
+}
+
+/// The document's opening, its white background and its title.
+fn write_header(svg: &mut String, title: &str) {
+    let width = MARGIN * 2.0 + SIDE_PX + LEGEND_PX;
+    let height = MARGIN * 2.0 + SIDE_PX;
+    let _ = writeln!(
+        svg,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" viewBox="0 0 {width} {height}" font-family="sans-serif" font-size="12">"#
+    );
+    let _ = writeln!(
+        svg,
+        r#"<rect width="100%" height="100%" fill="white"/><text x="{MARGIN}" y="24" font-size="15">{}</text>"#,
+        escape(title)
+    );
+}
+
+/// The robot's paths, oldest first, each coloured, with its start and end and an entry in
+/// the legend.
+fn draw_paths(svg: &mut String, paths: &[Path], canvas: Canvas) {
+    for (i, path) in paths.iter().enumerate() {
+        let colour = PATH_COLOURS
+            [(i + PATH_COLOURS.len() - paths.len() % PATH_COLOURS.len()) % PATH_COLOURS.len()];
+        let points: Vec<String> = path
+            .points
+            .iter()
+            .filter(|p| p.is_finite())
+            .map(|&p| {
+                let (x, y) = canvas.px(p);
+                format!("{x:.1},{y:.1}")
+            })
+            .collect();
+        let _ = writeln!(
+            svg,
+            r#"<g class="path" data-name="{}"><polyline points="{}" fill="none" stroke="{colour}" stroke-width="2" stroke-opacity="0.85"/>"#,
+            escape(&path.label),
+            points.join(" ")
+        );
+        if let (Some(first), Some(last)) = (path.points.first(), path.points.last()) {
+            let ((sx, sy), (ex, ey)) = (canvas.px(*first), canvas.px(*last));
             let _ = writeln!(
                 svg,
-                "{swatch}<text x=\"{}\" y=\"{:.1}\">{}</text>",
-                lx + 30.0,
-                y + 4.0,
-                escape(text)
+                r#"<circle cx="{sx:.1}" cy="{sy:.1}" r="4" fill="{colour}"/><rect x="{:.1}" y="{:.1}" width="8" height="8" fill="white" stroke="{colour}" stroke-width="2"/>"#,
+                ex - 4.0,
+                ey - 4.0
             );
         }
-        svg.push_str("</g>\n</svg>\n");
-        svg
+        let ly = MARGIN + 20.0 + i as f64 * 18.0;
+        let lx = MARGIN * 1.5 + SIDE_PX;
+        let _ = writeln!(
+            svg,
+            r#"<line x1="{lx}" y1="{ly}" x2="{}" y2="{ly}" stroke="{colour}" stroke-width="3"/><text x="{}" y="{}">{}</text></g>"#,
+            lx + 24.0,
+            lx + 30.0,
+            ly + 4.0,
+            escape(&path.label)
+        );
     }
 }
 
