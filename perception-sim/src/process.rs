@@ -37,7 +37,7 @@ use tes_topics::{
 };
 use thiserror::Error;
 
-use crate::arena::{Arena, ArenaError, ArenaId, Episode, EpisodeStatus};
+use crate::arena::{Arena, ArenaError, ArenaId, Episode, EpisodeStatus, Pose};
 
 pub mod config;
 pub mod trajectory;
@@ -149,183 +149,341 @@ pub fn run(
     maps.send(*map)?;
     tracing::info!(arena = %arena.id().map_or("custom".into(), |a| a.to_string()), states = arena.n_states(), "world map published");
 
-    let settle = Duration::from_millis(config.settle_ms).mul_f64(config.real_time_factor);
-    let motor_timeout = Duration::from_millis(config.motor_timeout_ms);
-    let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
-    let mut summary = PerceptionSummary::default();
     // Tacho counts at the last settled motion (or heartbeat at rest), the baseline of the next.
-    let Some(mut counts) =
-        wait_for_the_group(&maps, &motors, &mut watch, &mut progress, config, stop)?
+    let Some(counts) = wait_for_the_group(&maps, &motors, &mut watch, &mut progress, config, stop)?
     else {
-        return Ok(summary);
+        return Ok(PerceptionSummary::default());
     };
-    // Sequence numbers start from the monotonic clock, so a respawned perception's
-    // observations are newer than anything its predecessor published: the controller, which
-    // refuses stale or duplicate numbers, takes them without being told of the restart.
-    let mut seq = monotonic_ns();
-    // The last command whose motion we used.
-    let mut last_command = 0u64;
-    let ports = [config.left_port, config.right_port];
-    let mut actions = 0u64;
-    let mut trajectory = match &config.trajectory {
-        Some(path) => {
-            Some(
-                TrajectoryLog::create(path).map_err(|error| PerceptionError::Trajectory {
-                    path: path.clone(),
-                    error,
-                })?,
-            )
-        }
-        None => None,
+    let mut camera = Camera {
+        arena: &arena,
+        config,
+        maps: &maps,
+        observations: &observations,
+        motors: &motors,
+        progress,
+        settle: Duration::from_millis(config.settle_ms).mul_f64(config.real_time_factor),
+        motor_timeout: Duration::from_millis(config.motor_timeout_ms),
+        rng: ChaCha8Rng::seed_from_u64(config.seed),
+        summary: PerceptionSummary::default(),
+        counts,
+        // Sequence numbers start from the monotonic clock, so a respawned perception's
+        // observations are newer than anything its predecessor published: the controller,
+        // which refuses stale or duplicate numbers, takes them without being told of the
+        // restart.
+        seq: monotonic_ns(),
+        last_command: 0,
+        actions: 0,
+        trajectory: open_trajectory(config)?,
+        maps_updated: std::time::Instant::now(),
     };
-    let mut maps_updated = std::time::Instant::now();
     for episode in 0..config.episodes {
-        let mut pose = arena.random_start(&mut rng);
-        let mut state = arena.discretise(pose);
-        let mut tracker = Episode::new(&arena, state)?;
-        let mut flags = observation_flags::EPISODE_START;
-        let mut reward = 0.0f64;
-        let mut after_command = 0;
-        let mut step = 0u32;
-        // The last action's trajectory row, written after the observation it led to.
-        let mut pending: Option<TrajectoryRow> = None;
-        loop {
-            seq += 1;
-            observations.send(Observation {
-                seq,
-                stamp_ns: monotonic_ns(),
-                after_command,
-                episode,
-                step,
-                state: attributes(&arena, state),
-                n_features: arena.n_features() as u32,
-                features: bits(arena.features(state)),
-                reward: reward as f32,
-                flags,
-            })?;
-            summary.observations += 1;
-            // Written once the observation is out: the controller decides meanwhile.
-            if let (Some(log), Some(row)) = (trajectory.as_mut(), pending.take()) {
-                log.push(&arena, &row)
-                    .map_err(|error| PerceptionError::Trajectory {
-                        path: log.path().to_owned(),
-                        error,
-                    })?;
-            }
-            progress.report_mut().out_seq = seq;
-            progress.report_mut().steps = summary.observations;
-            if flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0 {
-                break;
-            }
-            // Wait for the motion a new command caused to finish.
-            let waiting = std::time::Instant::now();
-            let motion = loop {
-                let left = motor_timeout.saturating_sub(waiting.elapsed());
-                if left.is_zero() {
-                    break None;
-                }
-                // Off the acting path (the command is out or the controller is gone): keep the
-                // map reachable for a controller that starts now, and report.
-                if maps_updated.elapsed() >= Duration::from_millis(100) {
-                    maps_updated = std::time::Instant::now();
-                    maps.update_connections()?;
-                    progress.publish_due(monotonic_ns())?;
-                }
-                match motors.next(left.min(Duration::from_millis(100)), stop)? {
-                    Err(Idle::Stopped) => return Ok(summary),
-                    Err(Idle::Timeout) => continue,
-                    Ok(m) if m.flags & motor_flags::LINK_DOWN != 0 => {
-                        // The bridge cannot reach the brick: nothing is known of the robot.
-                    }
-                    Ok(m) => {
-                        let now = [m.tacho_count[ports[0]], m.tacho_count[ports[1]]];
-                        let settled = m.flags & motor_flags::SETTLED != 0;
-                        if m.after_command > last_command && settled {
-                            let before = counts;
-                            counts = now;
-                            last_command = m.after_command;
-                            // Said at once: a bridge that starts now must know this motion
-                            // was used (see the bridge's take-over of a command in flight).
-                            progress.report_mut().in_seq = last_command;
-                            progress.publish(monotonic_ns())?;
-                            break Some((
-                                m.after_command,
-                                m.action,
-                                now[0] - before[0],
-                                now[1] - before[1],
-                            ));
-                        }
-                        if m.after_command <= last_command && settled {
-                            // A heartbeat at rest: the baseline for the next motion.
-                            counts = now;
-                        }
-                    }
-                }
-            };
-            let Some((command, action, left, right)) = motion else {
-                summary.resyncs += 1;
-                tracing::warn!(
-                    seq,
-                    "no motion report within {motor_timeout:?}; re-publishing the observation"
-                );
-                flags = observation_flags::RESYNC;
-                reward = 0.0;
-                continue;
-            };
-            let (pose_before, from) = (pose, state);
-            pose = arena.move_robot(pose, f64::from(left), f64::from(right), &mut rng);
-            if !settle.is_zero() {
-                std::thread::sleep(settle);
-            }
-            state = arena.discretise(pose);
-            let outcome = tracker.observe(&arena, state)?;
-            reward = outcome.reward;
-            summary.reward += reward;
-            step += 1;
-            actions += 1;
-            after_command = command;
-            let out_of_actions = config.actions > 0 && actions >= config.actions;
-            flags = match outcome.status {
-                EpisodeStatus::Terminal => observation_flags::TERMINAL,
-                EpisodeStatus::Stuck => observation_flags::TRUNCATED,
-                EpisodeStatus::Continuing if step >= config.step_cap || out_of_actions => {
-                    observation_flags::TRUNCATED
-                }
-                EpisodeStatus::Continuing => 0,
-            };
-            pending = trajectory.as_ref().map(|_| TrajectoryRow {
-                episode,
-                step: step - 1,
-                from,
-                action: (action != NO_ACTION).then_some(action),
-                to: state,
-                reward,
-                pose_before,
-                pose_after: pose,
-                end: EndReason::of(
-                    &arena,
-                    state,
-                    outcome.status,
-                    step >= config.step_cap,
-                    out_of_actions,
-                ),
-            });
+        if camera.run_episode(episode, stop)? == Flow::Stopped {
+            return Ok(camera.summary);
         }
-        summary.episodes += 1;
-        progress.report_mut().episodes = u64::from(summary.episodes);
-        tracing::info!(
-            episode,
-            reward = tracker.total_reward(),
-            actions = step,
-            "episode over"
-        );
-        if config.actions > 0 && actions >= config.actions {
-            tracing::info!(actions, "action limit reached");
+        if camera.out_of_actions() {
+            tracing::info!(actions = camera.actions, "action limit reached");
             break;
         }
     }
-    progress.publish(monotonic_ns())?;
-    Ok(summary)
+    camera.finish()
+}
+
+/// The trajectory file, if one is asked for.
+fn open_trajectory(config: &PerceptionConfig) -> Result<Option<TrajectoryLog>, PerceptionError> {
+    config
+        .trajectory
+        .as_ref()
+        .map(|path| {
+            TrajectoryLog::create(path).map_err(|error| PerceptionError::Trajectory {
+                path: path.clone(),
+                error,
+            })
+        })
+        .transpose()
+}
+
+/// Whether a run goes on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Flow {
+    /// On to the next episode.
+    Continue,
+    /// `stop` was raised.
+    Stopped,
+}
+
+/// What a wait for a motion report ended with.
+#[derive(Debug, Clone, Copy)]
+enum MotionWait {
+    /// The motion a new command caused has finished.
+    Moved(Motion),
+    /// No report of one within the motor timeout.
+    TimedOut,
+    /// `stop` was raised.
+    Stopped,
+}
+
+/// A finished motion the bridge reported, for a command newer than the last one used.
+#[derive(Debug, Clone, Copy)]
+struct Motion {
+    /// The command that caused it.
+    command: u64,
+    /// The action the bridge carried out ([`NO_ACTION`] if it did not say).
+    action: u16,
+    /// The wheels' tacho counts since the last motion, left and right.
+    left: i32,
+    /// See `left`.
+    right: i32,
+}
+
+/// The overhead camera over the simulated arena: the episodes' loop, one method per phase of
+/// a step (publish the observation, wait for the motion, move the robot). (Fields drop in the
+/// order declared: the trajectory is closed first, the progress service after it.)
+struct Camera<'a> {
+    trajectory: Option<TrajectoryLog>,
+    arena: &'a Arena,
+    config: &'a PerceptionConfig,
+    maps: &'a Outbox<WorldMap>,
+    observations: &'a Outbox<Observation>,
+    motors: &'a Inbox<MotorState>,
+    progress: ProgressOutbox,
+    /// How long the robot settles after a motion (scaled by the real-time factor).
+    settle: Duration,
+    /// How long to wait for a motion report before re-publishing an observation.
+    motor_timeout: Duration,
+    rng: ChaCha8Rng,
+    summary: PerceptionSummary,
+    /// Tacho counts at the last settled motion (or heartbeat at rest), the baseline of the
+    /// next.
+    counts: [i32; 2],
+    /// The last observation's sequence number.
+    seq: u64,
+    /// The last command whose motion we used.
+    last_command: u64,
+    /// Actions taken over all episodes.
+    actions: u64,
+    /// When the world map's connections were last updated (and progress reported).
+    maps_updated: std::time::Instant,
+}
+
+/// The episode in progress: where the robot is and what its next observation says.
+struct EpisodeRun {
+    episode: u32,
+    pose: Pose,
+    state: usize,
+    tracker: Episode,
+    flags: u32,
+    reward: f64,
+    after_command: u64,
+    step: u32,
+    /// The last action's trajectory row, written after the observation it led to.
+    pending: Option<TrajectoryRow>,
+}
+
+impl Camera<'_> {
+    /// Ends the run: the last report of progress, then the trajectory file is closed.
+    fn finish(self) -> Result<PerceptionSummary, PerceptionError> {
+        let Self {
+            mut progress,
+            trajectory,
+            summary,
+            ..
+        } = self;
+        progress.publish(monotonic_ns())?;
+        drop(trajectory);
+        Ok(summary)
+    }
+
+    /// Whether the configured number of actions (if any) has been taken.
+    fn out_of_actions(&self) -> bool {
+        self.config.actions > 0 && self.actions >= self.config.actions
+    }
+
+    /// Runs episode `episode` from a random start to its end.
+    fn run_episode(&mut self, episode: u32, stop: &AtomicBool) -> Result<Flow, PerceptionError> {
+        let pose = self.arena.random_start(&mut self.rng);
+        let state = self.arena.discretise(pose);
+        let mut run = EpisodeRun {
+            episode,
+            pose,
+            state,
+            tracker: Episode::new(self.arena, state)?,
+            flags: observation_flags::EPISODE_START,
+            reward: 0.0,
+            after_command: 0,
+            step: 0,
+            pending: None,
+        };
+        loop {
+            self.publish(&mut run)?;
+            if run.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0 {
+                break;
+            }
+            let motion = match self.wait_for_motion(stop)? {
+                MotionWait::Moved(motion) => motion,
+                MotionWait::Stopped => return Ok(Flow::Stopped),
+                MotionWait::TimedOut => {
+                    self.summary.resyncs += 1;
+                    tracing::warn!(
+                        seq = self.seq,
+                        "no motion report within {:?}; re-publishing the observation",
+                        self.motor_timeout
+                    );
+                    run.flags = observation_flags::RESYNC;
+                    run.reward = 0.0;
+                    continue;
+                }
+            };
+            self.take_motion(&mut run, motion)?;
+        }
+        self.summary.episodes += 1;
+        self.progress.report_mut().episodes = u64::from(self.summary.episodes);
+        tracing::info!(
+            episode,
+            reward = run.tracker.total_reward(),
+            actions = run.step,
+            "episode over"
+        );
+        Ok(Flow::Continue)
+    }
+
+    /// Publishes the observation of where the robot is now; then (the controller decides
+    /// meanwhile) writes the last action's trajectory row and notes the progress.
+    fn publish(&mut self, run: &mut EpisodeRun) -> Result<(), PerceptionError> {
+        self.seq += 1;
+        self.observations.send(Observation {
+            seq: self.seq,
+            stamp_ns: monotonic_ns(),
+            after_command: run.after_command,
+            episode: run.episode,
+            step: run.step,
+            state: attributes(self.arena, run.state),
+            n_features: self.arena.n_features() as u32,
+            features: bits(self.arena.features(run.state)),
+            reward: run.reward as f32,
+            flags: run.flags,
+        })?;
+        self.summary.observations += 1;
+        if let (Some(log), Some(row)) = (self.trajectory.as_mut(), run.pending.take()) {
+            log.push(self.arena, &row)
+                .map_err(|error| PerceptionError::Trajectory {
+                    path: log.path().to_owned(),
+                    error,
+                })?;
+        }
+        self.progress.report_mut().out_seq = self.seq;
+        self.progress.report_mut().steps = self.summary.observations;
+        Ok(())
+    }
+
+    /// Waits for the motion a new command caused to finish.
+    fn wait_for_motion(&mut self, stop: &AtomicBool) -> Result<MotionWait, PerceptionError> {
+        let waiting = std::time::Instant::now();
+        loop {
+            let left = self.motor_timeout.saturating_sub(waiting.elapsed());
+            if left.is_zero() {
+                return Ok(MotionWait::TimedOut);
+            }
+            // Off the acting path (the command is out or the controller is gone): keep the
+            // map reachable for a controller that starts now, and report.
+            if self.maps_updated.elapsed() >= Duration::from_millis(100) {
+                self.maps_updated = std::time::Instant::now();
+                self.maps.update_connections()?;
+                self.progress.publish_due(monotonic_ns())?;
+            }
+            match self
+                .motors
+                .next(left.min(Duration::from_millis(100)), stop)?
+            {
+                Err(Idle::Stopped) => return Ok(MotionWait::Stopped),
+                Err(Idle::Timeout) => {}
+                Ok(m) if m.flags & motor_flags::LINK_DOWN != 0 => {
+                    // The bridge cannot reach the brick: nothing is known of the robot.
+                }
+                Ok(m) => {
+                    if let Some(motion) = self.motion_of(&m)? {
+                        return Ok(MotionWait::Moved(motion));
+                    }
+                }
+            }
+        }
+    }
+
+    /// The motion a report `m` over a working link tells of, if it is a settled one after a
+    /// command newer than the last one used; a heartbeat at rest sets the baseline of the
+    /// next motion.
+    fn motion_of(&mut self, m: &MotorState) -> Result<Option<Motion>, PerceptionError> {
+        let ports = [self.config.left_port, self.config.right_port];
+        let now = [m.tacho_count[ports[0]], m.tacho_count[ports[1]]];
+        let settled = m.flags & motor_flags::SETTLED != 0;
+        if m.after_command > self.last_command && settled {
+            let before = self.counts;
+            self.counts = now;
+            self.last_command = m.after_command;
+            // Said at once: a bridge that starts now must know this motion was used (see the
+            // bridge's take-over of a command in flight).
+            self.progress.report_mut().in_seq = self.last_command;
+            self.progress.publish(monotonic_ns())?;
+            return Ok(Some(Motion {
+                command: m.after_command,
+                action: m.action,
+                left: now[0] - before[0],
+                right: now[1] - before[1],
+            }));
+        }
+        if m.after_command <= self.last_command && settled {
+            // A heartbeat at rest: the baseline for the next motion.
+            self.counts = now;
+        }
+        Ok(None)
+    }
+
+    /// Moves the robot by `motion` (with the arena's slip), lets it settle, and sets what the
+    /// next observation says: the state, its reward, whether the episode ends.
+    fn take_motion(&mut self, run: &mut EpisodeRun, motion: Motion) -> Result<(), PerceptionError> {
+        let (pose_before, from) = (run.pose, run.state);
+        run.pose = self.arena.move_robot(
+            run.pose,
+            f64::from(motion.left),
+            f64::from(motion.right),
+            &mut self.rng,
+        );
+        if !self.settle.is_zero() {
+            std::thread::sleep(self.settle);
+        }
+        run.state = self.arena.discretise(run.pose);
+        let outcome = run.tracker.observe(self.arena, run.state)?;
+        run.reward = outcome.reward;
+        self.summary.reward += run.reward;
+        run.step += 1;
+        self.actions += 1;
+        run.after_command = motion.command;
+        let out_of_actions = self.out_of_actions();
+        let step_cap = run.step >= self.config.step_cap;
+        run.flags = match outcome.status {
+            EpisodeStatus::Terminal => observation_flags::TERMINAL,
+            EpisodeStatus::Stuck => observation_flags::TRUNCATED,
+            EpisodeStatus::Continuing if step_cap || out_of_actions => observation_flags::TRUNCATED,
+            EpisodeStatus::Continuing => 0,
+        };
+        run.pending = self.trajectory.as_ref().map(|_| TrajectoryRow {
+            episode: run.episode,
+            step: run.step - 1,
+            from,
+            action: (motion.action != NO_ACTION).then_some(motion.action),
+            to: run.state,
+            reward: run.reward,
+            pose_before,
+            pose_after: run.pose,
+            end: EndReason::of(
+                self.arena,
+                run.state,
+                outcome.status,
+                step_cap,
+                out_of_actions,
+            ),
+        });
+        Ok(())
+    }
 }
 
 /// Waits until the controller has reported (it has the map, its library and a first plan)
