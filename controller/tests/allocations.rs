@@ -10,8 +10,11 @@ use std::cell::Cell;
 use tes_learning::mdagl::synthetic::{SparseMultinomialStream, SyntheticSpec};
 use tes_learning::mdagl::{Features, Mdagl, MdaglParams};
 
-mod common;
-use common::ArenaDriver;
+// The shared driver of the integration tests (`it/`), included here: this binary installs
+// its own global allocator, so it cannot be one of their modules.
+#[path = "it/driver.rs"]
+mod driver;
+use driver::ArenaDriver;
 
 struct CountingAllocator;
 
@@ -307,7 +310,7 @@ fn the_real_time_acting_loop_allocates_nothing() {
     );
     let empty = ViewLibrary::new(actions, effects, features, LibraryParams::default()).unwrap();
     let mut first = ActingLoop::new(driver.map.clone(), empty, settings, sliced).unwrap();
-    driver.run(&mut first, 3_000);
+    drive(&mut driver, &mut first, 3_000);
     let (library, _) = first.finish().1.finish_task().unwrap();
     assert!(!library.is_empty(), "the first task left no view");
 
@@ -328,9 +331,9 @@ fn the_real_time_acting_loop_allocates_nothing() {
         let settings = ActingSettings { order, ..settings };
         let mut acting =
             ActingLoop::new(driver.map.clone(), library.clone(), settings, planner).unwrap();
-        driver.run(&mut acting, 500); // warm-up
+        drive(&mut driver, &mut acting, 500); // warm-up
         let guard = Tracked::start();
-        let commands = driver.run(&mut acting, 10_000);
+        let commands = drive(&mut driver, &mut acting, 10_000);
         let allocations = guard.allocations();
         drop(guard);
         assert_eq!(allocations, 0, "the acting loop allocated, {who}");
@@ -345,8 +348,32 @@ fn the_real_time_acting_loop_allocates_nothing() {
         let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
         while acting.plans() <= 1 && std::time::Instant::now() < deadline {
             std::thread::sleep(std::time::Duration::from_millis(5));
-            driver.run(&mut acting, 1);
+            drive(&mut driver, &mut acting, 1);
         }
         assert!(acting.plans() > 1, "{who}: no plan was adopted");
     }
+}
+
+/// `steps` observations through `acting`, with `t % 40` polls of planning between them and an
+/// idle wait (a keep-alive) every 50; returns the commands published.
+fn drive(
+    driver: &mut ArenaDriver,
+    acting: &mut tes_controller::acting::ActingLoop,
+    steps: usize,
+) -> u64 {
+    let mut commands = 0;
+    for t in 0..steps {
+        if let Some(command) = driver.step(acting) {
+            std::hint::black_box(command);
+            commands += 1;
+        }
+        for _ in 0..t % 40 {
+            acting.plan_between_polls();
+        }
+        if t % 50 == 49 {
+            driver.clock.advance(300_000_000);
+            std::hint::black_box(acting.on_idle(&driver.clock));
+        }
+    }
+    commands
 }

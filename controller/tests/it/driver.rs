@@ -1,6 +1,5 @@
 //! What the controller's integration tests share: the arena as the acting loop sees it.
-
-#![allow(dead_code)] // each test binary uses its own part
+//! (`allocations.rs`, a binary of its own, includes this file too.)
 
 /// The paper's arena Env 3 as the controller sees it — its world map — with outcomes drawn
 /// by a seeded generator: the other end of the acting loop, stepping the test's fake clock.
@@ -107,25 +106,5 @@ impl ArenaDriver {
             }
             Step::Refused(why) => panic!("refused {obs:?}: {why:?}"),
         }
-    }
-
-    /// `steps` observations through `acting`, with `t % 40` polls of planning between them
-    /// and an idle wait (a keep-alive) every 50; returns the commands published.
-    pub fn run(&mut self, acting: &mut tes_controller::acting::ActingLoop, steps: usize) -> u64 {
-        let mut commands = 0;
-        for t in 0..steps {
-            if let Some(command) = self.step(acting) {
-                std::hint::black_box(command);
-                commands += 1;
-            }
-            for _ in 0..t % 40 {
-                acting.plan_between_polls();
-            }
-            if t % 50 == 49 {
-                self.clock.advance(300_000_000);
-                std::hint::black_box(acting.on_idle(&self.clock));
-            }
-        }
-        commands
     }
 }

@@ -8,11 +8,9 @@
 //! settled between observations) so that the two runs adopt each plan at the same step, as
 //! a fast enough planner does live.
 
-mod common;
-
 use std::time::Duration;
 
-use common::ArenaDriver;
+use crate::driver::ArenaDriver;
 use tes_controller::acting::{ActingLoop, ActingSettings, Order};
 use tes_controller::realtime::{Planner, PlannerThread, SlicedPlanner};
 use tes_learning::library::store::{StoredLibrary, encode};
