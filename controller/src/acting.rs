@@ -21,7 +21,7 @@
 //! reports an episode that ended before this command. An observation that ends an episode gets
 //! no command, so it is learned from at once. [`Order::LearnFirst`] keeps the older order
 //! (learn, then decide), which makes the same decisions bit for bit
-//! (`controller/tests/decide_first.rs`) and serves as the baseline of the latency benchmark.
+//! (`controller/tests/it/decide_first.rs`) and serves as the baseline of the latency benchmark.
 //! Everything from the observation to the end of the learning allocates nothing after warm-up
 //! (`controller/tests/allocations.rs` drives this struct to show it).
 //!
@@ -401,45 +401,20 @@ impl ActingLoop {
         clock: &impl Clock,
     ) -> Result<Step, ActingError> {
         let received_ns = clock.now_ns();
-        let Some(state) = self
-            .map
-            .state_index(obs.state)
-            .filter(|&s| s < self.n_states)
-        else {
-            self.counts.refused += 1;
-            return Ok(Step::Refused(Refusal::UnknownState));
+        let state = match self.admit(obs) {
+            Ok(state) => state,
+            Err(why) => {
+                self.counts.refused += 1;
+                return Ok(Step::Refused(why));
+            }
         };
-        if obs.seq <= self.last_seq {
-            self.counts.refused += 1;
-            return Ok(Step::Refused(Refusal::Stale {
-                last_seq: self.last_seq,
-            }));
-        }
-        if !obs.reward.is_finite() {
-            self.counts.refused += 1;
-            return Ok(Step::Refused(Refusal::NonFiniteReward));
-        }
         self.last_seq = obs.seq;
         if let Some(learned_ns) = self.learned_ns.take()
             && learned_ns > obs.stamp_ns
         {
             self.learning_overran += 1;
         }
-        let mut lost_outcome = false;
-        let mut lesson = None;
-        if obs.flags & observation_flags::EPISODE_START != 0 {
-            self.pending = None;
-            self.episode = EpisodeTally::default();
-        } else if obs.flags & observation_flags::RESYNC != 0 {
-            lost_outcome = self.pending.take().is_some();
-        } else if let Some((from, action)) = self.pending.take() {
-            lesson = Some(Lesson {
-                from,
-                action,
-                to: state,
-                reward: obs.reward,
-            });
-        }
+        let (mut lesson, lost_outcome) = self.lesson_of(obs, state);
         let ends = obs.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0;
         if self.settings.order == Order::LearnFirst || ends {
             // Nothing answers an episode's last observation: nothing to put first.
@@ -449,21 +424,91 @@ impl ActingLoop {
         }
         self.planner.collect(self.agent.model_mut())?;
         if ends {
-            self.planner.offer(self.agent.model_mut())?;
-            self.counts.episodes += 1;
-            // Two episode ends in a row (no command between): report the first now.
-            let report = self.ended.take().map(|line| self.report(line));
-            self.ended = Some(EpisodeLine {
-                episode: obs.episode,
-                reward: self.episode.reward,
-                steps: self.episode.steps,
-                p50_us: 0,
-                p99_us: 0,
-                max_us: 0,
-                misses: self.episode.misses,
-            });
-            return Ok(Step::EpisodeEnded { report });
+            return self.end_episode(obs);
         }
+        let command = self.decide(obs, state, received_ns, lesson, clock)?;
+        Ok(Step::Act {
+            command,
+            lost_outcome,
+        })
+    }
+
+    /// The state `obs` is in, if the loop can use it: a state on the map, a sequence number
+    /// newer than the last accepted one, a finite reward (checked in that order).
+    #[inline]
+    fn admit(&self, obs: &Observation) -> Result<usize, Refusal> {
+        let Some(state) = self
+            .map
+            .state_index(obs.state)
+            .filter(|&s| s < self.n_states)
+        else {
+            return Err(Refusal::UnknownState);
+        };
+        if obs.seq <= self.last_seq {
+            return Err(Refusal::Stale {
+                last_seq: self.last_seq,
+            });
+        }
+        if !obs.reward.is_finite() {
+            return Err(Refusal::NonFiniteReward);
+        }
+        Ok(state)
+    }
+
+    /// What the accepted `obs`, in `state`, teaches of the command in flight, and whether
+    /// its outcome was lost (`RESYNC`); an episode's first observation teaches nothing and
+    /// starts the episode's tally.
+    #[inline]
+    fn lesson_of(&mut self, obs: &Observation, state: usize) -> (Option<Lesson>, bool) {
+        if obs.flags & observation_flags::EPISODE_START != 0 {
+            self.pending = None;
+            self.episode = EpisodeTally::default();
+            (None, false)
+        } else if obs.flags & observation_flags::RESYNC != 0 {
+            (None, self.pending.take().is_some())
+        } else {
+            let lesson = self.pending.take().map(|(from, action)| Lesson {
+                from,
+                action,
+                to: state,
+                reward: obs.reward,
+            });
+            (lesson, false)
+        }
+    }
+
+    /// The episode ended with `obs`: hands the planner the model, counts the episode and
+    /// keeps its line to report once the next command is out.
+    #[inline]
+    fn end_episode(&mut self, obs: &Observation) -> Result<Step, ActingError> {
+        self.planner.offer(self.agent.model_mut())?;
+        self.counts.episodes += 1;
+        // Two episode ends in a row (no command between): report the first now.
+        let report = self.ended.take().map(|line| self.report(line));
+        self.ended = Some(EpisodeLine {
+            episode: obs.episode,
+            reward: self.episode.reward,
+            steps: self.episode.steps,
+            p50_us: 0,
+            p99_us: 0,
+            max_us: 0,
+            misses: self.episode.misses,
+        });
+        Ok(Step::EpisodeEnded { report })
+    }
+
+    /// Picks the action for `state` and makes the command answering `obs`, keeping the
+    /// decision in flight (with `lesson`, when it is learned once the command is out) until
+    /// [`command_sent`](Self::command_sent).
+    #[inline]
+    fn decide(
+        &mut self,
+        obs: &Observation,
+        state: usize,
+        received_ns: u64,
+        lesson: Option<Lesson>,
+        clock: &impl Clock,
+    ) -> Result<Command, ActingError> {
         let action = self.agent.act(state)?;
         if self.settings.order == Order::LearnFirst && self.settings.offer_before_command {
             self.planner.offer(self.agent.model_mut())?;
@@ -493,10 +538,7 @@ impl ActingLoop {
             plans: self.planner.plans(),
         };
         self.last_command = command;
-        Ok(Step::Act {
-            command,
-            lost_outcome,
-        })
+        Ok(command)
     }
 
     /// The command [`on_observation`](Self::on_observation) returned is out: learns from the
