@@ -10,9 +10,12 @@
 //! Diagnostics go to `tracing`, outside the acting path.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
+use tes_learning::agents::Tes;
+use tes_learning::cmdp::CmdpStructure;
 use tes_learning::library::store::{self, StoreError};
 use tes_learning::library::{LibraryError, LibraryParams, ViewLibrary};
 use tes_learning::mdagl::MdaglParams;
@@ -25,7 +28,7 @@ use tes_runtime::ring::RingOutbox;
 use tes_topics::{Command, Observation, Role, ServiceNames, WorldMap};
 use thiserror::Error;
 
-use crate::acting::{ActingError, ActingLoop, ActingSettings, Refusal, Step};
+use crate::acting::{ActingError, ActingLoop, ActingSettings, Refusal, Sent, Step};
 use crate::config::{CheckedController, ConfigError, ControllerConfig, Planning};
 use crate::realtime::{
     Planner, PlannerThread, PlannerThreadError, PlannerThreadOptions, SlicedPlanner,
@@ -172,6 +175,70 @@ pub fn run(
     mut on_episode: impl FnMut(&EpisodeLine),
 ) -> Result<ControllerSummary, ControllerError> {
     let checked = config.check()?;
+    log_placement(&checked);
+    let names = ServiceNames::with_prefix(&config.service_prefix);
+    let node = channel::group_node(&names, Role::Controller, false)?;
+    let ports = Ports {
+        maps: Inbox::open(
+            &node,
+            &names.world_map,
+            &names.world_map_event,
+            1,
+            WaitStrategy::Block,
+        )?,
+        observations: Inbox::open(
+            &node,
+            &names.observation,
+            &names.observation_event,
+            0,
+            checked.wait(),
+        )?,
+        // A blackboard, not a publisher: sending a command allocates nothing (see LatestOutbox).
+        commands: LatestOutbox::open(&node, &names.command, &names.command_event)?,
+        // Every command again, by its number, for a recorder (written once the command is
+        // out; nobody is notified). Without it the group runs on, unrecordable.
+        command_log: RingOutbox::open(&node, &names.command_log)
+            .inspect_err(|e| {
+                tracing::warn!(error = %e, "no command log: a recording of this run misses its commands");
+            })
+            .ok(),
+    };
+    let Some(map) = wait_for_map(&ports.maps, &names, checked.map_timeout(), stop)? else {
+        return Ok(ControllerSummary::default());
+    };
+    let library_path = config.library_path();
+    // One controller per library: a predecessor still saving on its way out (its launcher was
+    // killed) is waited for; a running one is refused, naming its pid.
+    let _library_lock = lock_library(&library_path)?;
+    let start = load_library(config, &library_path, &map)?;
+    let settings = acting_settings(config, &checked);
+    let (acting, library) = start_acting(config, &checked, settings, map, start, library_path)?;
+    let saver = Saver::spawn(library.path.clone(), library.names.clone())?;
+    // Ready (map, library, first plan): the first report tells perception it may start.
+    let progress = ProgressOutbox::open(&node, &names, Role::Controller)?;
+    if let Some(cpu) = checked.placement().acting {
+        tes_runtime::affinity::pin_this_thread(cpu)?;
+    }
+    let mut shell = Shell {
+        progress,
+        saver,
+        acting,
+        library,
+        ports: &ports,
+        clock: MonotonicClock,
+        idle_timeout: settings.keepalive.map_or(Duration::from_millis(100), |k| {
+            k.min(Duration::from_millis(100))
+        }),
+        ipc_allocations: 0,
+        warmup_allocations: None,
+    };
+    shell.serve(stop, &mut on_episode)?;
+    Ok(shell.finish(config, &checked, &mut on_episode))
+}
+
+/// Says where the threads run, and warns of a spinning acting loop that would starve a
+/// planner thread on two CPUs.
+fn log_placement(checked: &CheckedController) {
     let (strategy, planning, placement) = (checked.wait(), checked.planning(), checked.placement());
     tracing::info!(
         acting = %crate::summary::on_cpu(placement.acting),
@@ -189,64 +256,103 @@ pub fn run(
              time; the policy will lag far behind learning (use planning = \"between-polls\")"
         );
     }
-    let names = ServiceNames::with_prefix(&config.service_prefix);
-    let node = channel::group_node(&names, Role::Controller, false)?;
-    let maps: Inbox<WorldMap> = Inbox::open(
-        &node,
-        &names.world_map,
-        &names.world_map_event,
-        1,
-        WaitStrategy::Block,
-    )?;
-    let observations: Inbox<Observation> = Inbox::open(
-        &node,
-        &names.observation,
-        &names.observation_event,
-        0,
-        strategy,
-    )?;
-    // A blackboard, not a publisher: sending a command allocates nothing (see LatestOutbox).
-    let commands: LatestOutbox<Command> =
-        LatestOutbox::open(&node, &names.command, &names.command_event)?;
-    // Every command again, by its number, for a recorder (written once the command is out;
-    // nobody is notified). Without it the group runs on, unrecordable.
-    let command_log = match RingOutbox::<Command>::open(&node, &names.command_log) {
-        Ok(log) => Some(log),
-        Err(e) => {
-            tracing::warn!(error = %e, "no command log: a recording of this run misses its commands");
-            None
-        }
-    };
+}
 
+/// The controller's iceoryx2 ports. (Fields drop in the order declared: the last opened
+/// first.)
+struct Ports {
+    /// Every command, for a recorder (`None`: the log could not be opened).
+    command_log: Option<RingOutbox<Command>>,
+    /// The latest command, for the bridge.
+    commands: LatestOutbox<Command>,
+    /// The observations to answer.
+    observations: Inbox<Observation>,
+    /// The world map, once, from perception.
+    maps: Inbox<WorldMap>,
+}
+
+impl Ports {
+    /// Publishes `command` to the bridge.
+    #[inline]
+    fn send(&self, command: Command) -> Result<(), IpcError> {
+        self.commands.send(command)
+    }
+
+    /// Writes `command` to the command log, if there is one.
+    #[inline]
+    fn log(&self, command: Command) {
+        if let Some(log) = &self.command_log {
+            log.put(command);
+        }
+    }
+}
+
+/// Waits up to `timeout` for perception's world map; `None` if `stop` was raised first.
+fn wait_for_map(
+    maps: &Inbox<WorldMap>,
+    names: &ServiceNames,
+    timeout: Duration,
+    stop: &AtomicBool,
+) -> Result<Option<Box<WorldMap>>, ControllerError> {
     tracing::info!(service = %names.world_map, "waiting for the world map");
-    let map_timeout = checked.map_timeout();
     // A boxed map: it is ~90 kB, too big to pass around on the stack comfortably.
-    let map: Box<WorldMap> = match maps.next(map_timeout, stop)? {
-        Ok(m) => Box::new(m),
-        Err(Idle::Timeout) => return Err(ControllerError::NoMap(map_timeout)),
-        Err(Idle::Stopped) => return Ok(ControllerSummary::default()),
-    };
-    let library_path = config.library_path();
-    // One controller per library: a predecessor still saving on its way out (its launcher was
-    // killed) is waited for; a running one is refused, naming its pid.
-    let _library_lock = lock_library(&library_path)?;
+    match maps.next(timeout, stop)? {
+        Ok(m) => Ok(Some(Box::new(m))),
+        Err(Idle::Timeout) => Err(ControllerError::NoMap(timeout)),
+        Err(Idle::Stopped) => Ok(None),
+    }
+}
+
+/// The acting loop on `map` from the library `start` (loaded from `path`), with its first
+/// plan made; and what the run's end needs to know of that library.
+fn start_acting(
+    config: &ControllerConfig,
+    checked: &CheckedController,
+    settings: ActingSettings,
+    map: Box<WorldMap>,
+    start: StartingLibrary,
+    path: PathBuf,
+) -> Result<(ActingLoop, LibraryRun), ControllerError> {
     let StartingLibrary {
         library,
         started_empty,
-    } = load_library(config, &library_path, &map)?;
+    } = start;
     let library_before = LibraryCounts::of(&library);
     tracing::info!(
-        library = %library_path.display(),
+        library = %path.display(),
         views = library.len(),
         started_empty,
         states = map.n_states,
         "controller ready"
     );
+    let planner = planner_for(config, checked);
+    // What the saved library calls the world, its actions and its features.
+    let names = WorldNames::of_map(&map);
+    // Command numbers from the monotonic clock, so a respawned controller's commands are newer
+    // than its predecessor's (perception and the bridge ignore stale command numbers).
+    let now = MonotonicClock.now_ns();
+    let acting = ActingLoop::starting_at(map, library, settings, planner, now, now)?;
+    let library = LibraryRun {
+        path,
+        names,
+        started_empty,
+        before: library_before,
+    };
+    Ok((acting, library))
+}
+
+/// What makes the configured planner for a CMDP structure: a thread of its own, or slices
+/// between polls or inline.
+fn planner_for<'c>(
+    config: &'c ControllerConfig,
+    checked: &CheckedController,
+) -> impl FnOnce(Arc<CmdpStructure>) -> Result<Planner, PlannerThreadError> + 'c {
+    let (planning, placement) = (checked.planning(), checked.placement());
     let planner_params = PlannerParams {
         max_sweeps: config.plan_sweeps,
         ..PlannerParams::default()
     };
-    let planner = |structure| -> Result<Planner, PlannerThreadError> {
+    move |structure| {
         Ok(match planning {
             Planning::Thread => Planner::Thread(PlannerThread::spawn_with(
                 structure,
@@ -267,53 +373,106 @@ pub fn run(
                 config.plan_slice,
             )?)),
         })
-    };
-    let settings = acting_settings(config, &checked);
-    let keepalive = settings.keepalive;
-    let clock = MonotonicClock;
-    // What the saved library calls the world, its actions and its features.
-    let world_names = WorldNames::of_map(&map);
-    // Command numbers from the monotonic clock, so a respawned controller's commands are newer
-    // than its predecessor's (perception and the bridge ignore stale command numbers).
-    let now = clock.now_ns();
-    let mut acting = ActingLoop::starting_at(map, library, settings, planner, now, now)?;
-    let saver = Saver::spawn(library_path.clone(), world_names.clone())?;
-    // Ready (map, library, first plan): the first report tells perception it may start.
-    let mut progress = ProgressOutbox::open(&node, &names, Role::Controller)?;
-    let idle_timeout = keepalive.map_or(Duration::from_millis(100), |k| {
-        k.min(Duration::from_millis(100))
-    });
-    if let Some(cpu) = placement.acting {
-        tes_runtime::affinity::pin_this_thread(cpu)?;
     }
-    let mut ipc_allocations = 0u64;
-    // Allocations on the acting path before the warm-up ended, to subtract.
-    let mut warmup_allocations = None;
-    loop {
-        // Spinning, the wait does the planner's slices and adopts its plan (a planner thread
-        // needs none).
-        let obs =
-            match observations.next_or_work(idle_timeout, stop, || acting.plan_between_polls())? {
-                Ok(o) => o,
-                Err(Idle::Stopped) => break,
-                Err(Idle::Timeout) => {
-                    // A move is under way: tell the bridge's watchdog we are still here.
-                    if let Some(keepalive) = acting.on_idle(&clock) {
-                        commands.send(keepalive)?;
-                        if let Some(log) = &command_log {
-                            log.put(keepalive);
-                        }
-                    }
-                    progress.publish_due(clock.now_ns())?;
-                    continue;
+}
+
+/// What the acting path did with an observation.
+enum Answer {
+    /// The command went out; what follows it.
+    Sent {
+        /// The command.
+        command: Command,
+        /// What follows it.
+        sent: Sent,
+    },
+    /// The episode ended with the observation; an earlier ended one to report, if any.
+    EpisodeEnded(Option<EpisodeLine>),
+    /// The observation was refused.
+    Refused(Refusal),
+}
+
+/// The controller's loop: the acting loop between the ports, one method per phase of an
+/// observation's handling (wait, act, what follows the command), and the run's end. (Fields
+/// drop in the order declared: the last made first.)
+struct Shell<'p> {
+    progress: ProgressOutbox,
+    saver: Saver,
+    acting: ActingLoop,
+    /// The library the run started from and saves to at its end.
+    library: LibraryRun,
+    ports: &'p Ports,
+    clock: MonotonicClock,
+    /// How long a wait for an observation lasts before the idle work (keep-alive, progress).
+    idle_timeout: Duration,
+    /// Allocations of the commands' publication after the warm-up.
+    ipc_allocations: u64,
+    /// Allocations on the acting path before the warm-up ended, to subtract.
+    warmup_allocations: Option<u64>,
+}
+
+impl Shell<'_> {
+    /// Answers observations until `stop` is raised.
+    fn serve(
+        &mut self,
+        stop: &AtomicBool,
+        on_episode: &mut impl FnMut(&EpisodeLine),
+    ) -> Result<(), ControllerError> {
+        while let Some(obs) = self.next_observation(stop)? {
+            match self.act(&obs)? {
+                Answer::Sent { command, sent } => {
+                    self.after_command(&obs, command, sent, on_episode)?;
                 }
-            };
-        // The acting path, from here to the command's publication.
-        let counting = alloc_count::count_here();
-        if warmup_allocations.is_none() && acting.warmed_up() {
-            warmup_allocations = Some(alloc_count::counted());
+                Answer::EpisodeEnded(report) => {
+                    if let Some(line) = report {
+                        on_episode(&line);
+                    }
+                }
+                Answer::Refused(why) => log_refusal(&obs, why),
+            }
         }
-        let command = match acting.on_observation(&obs, &clock)? {
+        Ok(())
+    }
+
+    /// The next observation, or `None` once `stop` is raised. Spinning, the wait does the
+    /// planner's slices and adopts its plan (a planner thread needs none); while none comes,
+    /// a move under way gets keep-alives and progress is reported when due.
+    fn next_observation(
+        &mut self,
+        stop: &AtomicBool,
+    ) -> Result<Option<Observation>, ControllerError> {
+        loop {
+            let acting = &mut self.acting;
+            match self
+                .ports
+                .observations
+                .next_or_work(self.idle_timeout, stop, || acting.plan_between_polls())?
+            {
+                Ok(o) => return Ok(Some(o)),
+                Err(Idle::Stopped) => return Ok(None),
+                Err(Idle::Timeout) => self.on_idle()?,
+            }
+        }
+    }
+
+    /// No observation for a while: a move is under way, so tell the bridge's watchdog we are
+    /// still here; and report progress when due.
+    fn on_idle(&mut self) -> Result<(), ControllerError> {
+        if let Some(keepalive) = self.acting.on_idle(&self.clock) {
+            self.ports.send(keepalive)?;
+            self.ports.log(keepalive);
+        }
+        self.progress.publish_due(self.clock.now_ns())?;
+        Ok(())
+    }
+
+    /// The acting path, from the observation to the command's publication (and the learning
+    /// that follows it): the allocations `alloc_count` counts.
+    fn act(&mut self, obs: &Observation) -> Result<Answer, ControllerError> {
+        let _counting = alloc_count::count_here();
+        if self.warmup_allocations.is_none() && self.acting.warmed_up() {
+            self.warmup_allocations = Some(alloc_count::counted());
+        }
+        let command = match self.acting.on_observation(obs, &self.clock)? {
             Step::Act {
                 command,
                 lost_outcome,
@@ -326,102 +485,132 @@ pub fn run(
                 }
                 command
             }
-            Step::EpisodeEnded { report } => {
-                drop(counting);
-                if let Some(line) = report {
-                    on_episode(&line);
-                }
-                continue;
-            }
-            Step::Refused(why) => {
-                drop(counting);
-                log_refusal(&obs, why);
-                continue;
-            }
+            Step::EpisodeEnded { report } => return Ok(Answer::EpisodeEnded(report)),
+            Step::Refused(why) => return Ok(Answer::Refused(why)),
         };
         let before_send = alloc_count::counted();
-        commands.send(command)?;
-        if warmup_allocations.is_some() {
-            ipc_allocations += alloc_count::counted() - before_send;
+        self.ports.send(command)?;
+        if self.warmup_allocations.is_some() {
+            self.ipc_allocations += alloc_count::counted() - before_send;
         }
-        let sent = acting.command_sent(&clock)?;
-        drop(counting);
-        // Off the acting path: the command is out.
-        if let Some(log) = &command_log {
-            log.put(command);
-        }
-        let report = progress.report_mut();
+        let sent = self.acting.command_sent(&self.clock)?;
+        Ok(Answer::Sent { command, sent })
+    }
+
+    /// Off the acting path, the command is out: logs it, reports progress, an ended episode
+    /// and hands the saver the library when a save is due.
+    fn after_command(
+        &mut self,
+        obs: &Observation,
+        command: Command,
+        sent: Sent,
+        on_episode: &mut impl FnMut(&EpisodeLine),
+    ) -> Result<(), ControllerError> {
+        self.ports.log(command);
+        let report = self.progress.report_mut();
         (report.in_seq, report.out_seq) = (obs.seq, command.seq);
-        (report.steps, report.episodes) = (acting.counts().actions, acting.counts().episodes);
-        progress.publish_due(acting.last_sent_ns())?;
+        (report.steps, report.episodes) =
+            (self.acting.counts().actions, self.acting.counts().episodes);
+        self.progress.publish_due(self.acting.last_sent_ns())?;
         if let Some(line) = sent.report {
             on_episode(&line);
         }
         if sent.save_due {
-            saver.offer(acting.agent());
+            self.saver.offer(self.acting.agent());
         }
+        Ok(())
     }
-    let counts = acting.counts();
-    let latencies = acting.latencies();
-    let plans = acting.plans();
-    let (last, agent) = acting.finish();
-    if let Some(line) = last {
-        on_episode(&line);
-    }
-    let mut summary = ControllerSummary {
-        episodes: counts.episodes,
-        actions: counts.actions,
-        misses: latencies.decision.misses,
-        latency: latencies.decision,
-        wake: latencies.wake,
-        compute: latencies.compute,
-        order: config.order.to_string(),
-        learn: latencies.learn,
-        learning_overran: latencies.learning_overran,
-        allocations: alloc_count::installed()
-            .then(|| alloc_count::counted() - warmup_allocations.unwrap_or(alloc_count::counted())),
-        ipc_allocations: alloc_count::installed().then_some(ipc_allocations),
-        refused: counts.refused,
-        failed_saves: saver.finish(),
-        plans,
-        planning: planning.to_string(),
-        keepalives: counts.keepalives,
-        placement,
-        library: None,
-    };
-    let mut facts = LibraryFacts {
-        path: library_path.display().to_string(),
-        started_empty,
-        before: library_before,
-        after: library_before,
-        end: LibraryEnd::LeftAsItWas,
-    };
-    if counts.learned == 0 {
-        // Nothing was learned from a real motion (say, the link to the brick never came up):
-        // the library on disk stays exactly as it was.
-        tracing::info!(
-            library = %library_path.display(),
-            "nothing learned in this run; the library is left as it was"
-        );
-    } else {
-        match save_library(agent, &library_path, &world_names) {
-            Ok(after) => (facts.after, facts.end) = (after, LibraryEnd::Saved),
-            Err(e) => {
-                summary.failed_saves += 1;
-                facts.end = LibraryEnd::NotSaved;
-                tracing::error!(error = %e, "the library was not saved at shutdown; the previous file is intact");
-            }
+
+    /// Ends the run: reports the last episode, stops the saver, saves the library if
+    /// anything was learned, and sums the run up.
+    fn finish(
+        self,
+        config: &ControllerConfig,
+        checked: &CheckedController,
+        on_episode: &mut impl FnMut(&EpisodeLine),
+    ) -> ControllerSummary {
+        let counts = self.acting.counts();
+        let latencies = self.acting.latencies();
+        let plans = self.acting.plans();
+        let (last, agent) = self.acting.finish();
+        if let Some(line) = last {
+            on_episode(&line);
         }
+        let warmup_allocations = self.warmup_allocations;
+        let mut summary = ControllerSummary {
+            episodes: counts.episodes,
+            actions: counts.actions,
+            misses: latencies.decision.misses,
+            latency: latencies.decision,
+            wake: latencies.wake,
+            compute: latencies.compute,
+            order: config.order.to_string(),
+            learn: latencies.learn,
+            learning_overran: latencies.learning_overran,
+            allocations: alloc_count::installed().then(|| {
+                alloc_count::counted() - warmup_allocations.unwrap_or(alloc_count::counted())
+            }),
+            ipc_allocations: alloc_count::installed().then_some(self.ipc_allocations),
+            refused: counts.refused,
+            failed_saves: self.saver.finish(),
+            plans,
+            planning: checked.planning().to_string(),
+            keepalives: counts.keepalives,
+            placement: checked.placement(),
+            library: None,
+        };
+        let facts = self
+            .library
+            .save_at_shutdown(agent, counts.learned, &mut summary.failed_saves);
+        summary.library = Some(facts);
+        summary
     }
-    summary.library = Some(facts);
-    Ok(summary)
 }
 
-/// When to wake the planner with the new model: before the command when the bridge sleeps on
-/// events, after it when the bridge busy-polls. A bridge woken while this CPU is busy goes to
-/// the other, idle CPU, and in a VM whose idle vCPUs halt it runs there only once that vCPU is
-/// back; waking the planner first gets that CPU out of halt while the command is sent, and the
-/// `SCHED_IDLE` planner gives way to the bridge at once. A spinning bridge needs no wake-up.
+/// The library a run starts from and saves to at its end, as the summary tells of it.
+struct LibraryRun {
+    /// The library file.
+    path: PathBuf,
+    /// What the saved library calls the world, its actions and its features.
+    names: WorldNames,
+    /// True when there was no library file.
+    started_empty: bool,
+    /// What the library held at the start.
+    before: LibraryCounts,
+}
+
+impl LibraryRun {
+    /// Saves `agent`'s library, if it `learned` anything from a real motion, and says what
+    /// became of it; a failed save is counted in `failed_saves` (the file is left intact).
+    fn save_at_shutdown(&self, agent: Tes, learned: u64, failed_saves: &mut u64) -> LibraryFacts {
+        let mut facts = LibraryFacts {
+            path: self.path.display().to_string(),
+            started_empty: self.started_empty,
+            before: self.before,
+            after: self.before,
+            end: LibraryEnd::LeftAsItWas,
+        };
+        if learned == 0 {
+            // Nothing was learned from a real motion (say, the link to the brick never came
+            // up): the library on disk stays exactly as it was.
+            tracing::info!(
+                library = %self.path.display(),
+                "nothing learned in this run; the library is left as it was"
+            );
+        } else {
+            match save_library(agent, &self.path, &self.names) {
+                Ok(after) => (facts.after, facts.end) = (after, LibraryEnd::Saved),
+                Err(e) => {
+                    *failed_saves += 1;
+                    facts.end = LibraryEnd::NotSaved;
+                    tracing::error!(error = %e, "the library was not saved at shutdown; the previous file is intact");
+                }
+            }
+        }
+        facts
+    }
+}
+
 /// The parameters of the empty library a controller starts from when there is no library
 /// file (a replay of such a run starts from the same).
 pub fn empty_library_params(config: &ControllerConfig) -> LibraryParams {
@@ -454,6 +643,11 @@ pub fn acting_settings(config: &ControllerConfig, checked: &CheckedController) -
     }
 }
 
+/// When to wake the planner with the new model: before the command when the bridge sleeps on
+/// events, after it when the bridge busy-polls. A bridge woken while this CPU is busy goes to
+/// the other, idle CPU, and in a VM whose idle vCPUs halt it runs there only once that vCPU is
+/// back; waking the planner first gets that CPU out of halt while the command is sent, and the
+/// `SCHED_IDLE` planner gives way to the bridge at once. A spinning bridge needs no wake-up.
 fn offers_before_command(strategy: WaitStrategy) -> bool {
     strategy != WaitStrategy::Spin
 }
