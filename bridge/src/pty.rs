@@ -179,18 +179,7 @@ impl PtyServer {
         let mut buf = [0u8; 256];
         while !stop.load(Ordering::SeqCst) {
             st.stats.skipped_bytes = st.decoder.skipped_bytes();
-            let ready = {
-                let mut fds = [
-                    PollFd::new(self.master.as_fd(), PollFlags::POLLIN),
-                    PollFd::new(
-                        watch.map_or(self.master.as_fd(), |w| w.inotify.as_fd()),
-                        PollFlags::POLLIN,
-                    ),
-                ];
-                let n = if watch.is_some() { 2 } else { 1 };
-                poll(&mut fds[..n], poll_timeout(STOP_CHECK))
-            };
-            match ready {
+            match self.poll_input(watch) {
                 Ok(0) | Err(Errno::EINTR) => {
                     if let Some(e) = st.decoder.expire(Instant::now()) {
                         st.frame_error(e);
@@ -228,28 +217,8 @@ impl PtyServer {
                         {
                             break;
                         }
-                        match self.write_frame(reply.to_frame().as_bytes(), stop)? {
-                            Written::All => {
-                                st.stats.replies += 1;
-                                if st.dropping {
-                                    st.dropping = false;
-                                    tracing::info!(
-                                        replies_dropped = st.stats.replies_dropped,
-                                        "the client reads its replies again"
-                                    );
-                                }
-                            }
-                            Written::Dropped | Written::CutShort => {
-                                st.stats.replies_dropped += 1;
-                                if !st.dropping {
-                                    st.dropping = true;
-                                    tracing::warn!(
-                                        replies_dropped = st.stats.replies_dropped,
-                                        "the client does not read its replies; dropping them"
-                                    );
-                                }
-                            }
-                        }
+                        let written = self.write_frame(reply.to_frame().as_bytes(), stop)?;
+                        st.reply_written(written);
                     }
                 }
             }
@@ -263,6 +232,20 @@ impl PtyServer {
         }
         st.stats.skipped_bytes = st.decoder.skipped_bytes();
         Ok(st.stats)
+    }
+
+    /// Waits up to [`STOP_CHECK`] for bytes from a client, or for client opens and closes
+    /// (with a watch): how many of the two are ready.
+    fn poll_input(&self, watch: Option<&ClientWatch>) -> nix::Result<i32> {
+        let mut fds = [
+            PollFd::new(self.master.as_fd(), PollFlags::POLLIN),
+            PollFd::new(
+                watch.map_or(self.master.as_fd(), |w| w.inotify.as_fd()),
+                PollFlags::POLLIN,
+            ),
+        ];
+        let n = if watch.is_some() { 2 } else { 1 };
+        poll(&mut fds[..n], poll_timeout(STOP_CHECK))
     }
 
     /// Applies client opens and closes: each drops a partial frame; when the last client has
@@ -362,6 +345,33 @@ impl ServeState {
             );
             self.last_warning = Some(now);
             self.unwarned = 0;
+        }
+    }
+
+    /// Counts what became of a reply; says once when the client stops reading its replies,
+    /// and once when it reads them again.
+    fn reply_written(&mut self, written: Written) {
+        match written {
+            Written::All => {
+                self.stats.replies += 1;
+                if self.dropping {
+                    self.dropping = false;
+                    tracing::info!(
+                        replies_dropped = self.stats.replies_dropped,
+                        "the client reads its replies again"
+                    );
+                }
+            }
+            Written::Dropped | Written::CutShort => {
+                self.stats.replies_dropped += 1;
+                if !self.dropping {
+                    self.dropping = true;
+                    tracing::warn!(
+                        replies_dropped = self.stats.replies_dropped,
+                        "the client does not read its replies; dropping them"
+                    );
+                }
+            }
         }
     }
 
