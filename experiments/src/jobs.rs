@@ -36,6 +36,7 @@ use anyhow::{Context, Result};
 use rayon::prelude::*;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
+use serde_json::Value;
 
 /// The version of the manifest and record format.
 pub const FORMAT: u32 = 1;
@@ -511,6 +512,67 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Manifest> {
     };
     merged.write(out)?;
     Ok(merged)
+}
+
+/// The start of the targets whose measurements are times (the grid's Table 1 ratios), so
+/// their figures and verdicts depend on the machine.
+const TIMED_TARGETS: &str = "Table 1:";
+
+/// `summary` (the `summary.json` of any experiment) without what depends on the clock: wall
+/// and agent seconds (`wall_seconds`, `seconds_per_episode`), time ratios (keys ending in
+/// `_time`), and the measured figure and verdict of the targets on times (Table 1's). What
+/// is left is the same for every run of the same settings and code: one run, a resumed one,
+/// merged shards, `tes experiment all` or the separate commands.
+///
+/// ```
+/// use serde_json::json;
+/// use tes_experiments::jobs::summary_without_timings;
+///
+/// let summary = json!({
+///     "wall_seconds": 12.5,
+///     "lore_over_fepsg_time": 2.1,
+///     "table1": {"loreRL": {"features": 210, "seconds_per_episode": {"mean": 0.1}}},
+///     "targets": [
+///         {"target": "Table 1: loreRL / fEpsG ...", "measured": "2.10", "verdict": "holds"},
+///         {"target": "Fig. 8: ...", "measured": "TES 3.0", "verdict": "holds"},
+///     ],
+/// });
+/// assert_eq!(
+///     summary_without_timings(&summary),
+///     json!({
+///         "table1": {"loreRL": {"features": 210}},
+///         "targets": [
+///             {"target": "Table 1: loreRL / fEpsG ..."},
+///             {"target": "Fig. 8: ...", "measured": "TES 3.0", "verdict": "holds"},
+///         ],
+///     })
+/// );
+/// ```
+pub fn summary_without_timings(summary: &Value) -> Value {
+    fn strip(v: &mut Value) {
+        match v {
+            Value::Object(map) => {
+                let timed = map
+                    .get("target")
+                    .and_then(Value::as_str)
+                    .is_some_and(|t| t.starts_with(TIMED_TARGETS));
+                if timed {
+                    map.remove("measured");
+                    map.remove("verdict");
+                }
+                map.retain(|key, _| {
+                    !matches!(key.as_str(), "wall_seconds" | "seconds_per_episode")
+                        && !key.ends_with("_time")
+                });
+                map.values_mut().for_each(strip);
+            }
+            Value::Array(items) => items.iter_mut().for_each(strip),
+            _ => {}
+        }
+    }
+    let mut v = summary.clone();
+    strip(&mut v);
+    v
 }
 
 #[cfg(test)]

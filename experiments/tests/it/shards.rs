@@ -23,24 +23,11 @@ fn tiny_transfer() -> TransferConfig {
     }
 }
 
-/// `summary.json` without what depends on the clock.
+/// `summary.json` of `dir` without what depends on the clock.
 fn summary_without_timings(dir: &Path) -> Value {
-    fn strip(v: &mut Value) {
-        match v {
-            Value::Object(map) => {
-                for key in ["wall_seconds", "seconds_per_episode"] {
-                    map.remove(key);
-                }
-                map.values_mut().for_each(strip);
-            }
-            Value::Array(items) => items.iter_mut().for_each(strip),
-            _ => {}
-        }
-    }
-    let text = std::fs::read_to_string(dir.join("summary.json")).unwrap();
-    let mut v: Value = serde_json::from_str(&text).unwrap();
-    strip(&mut v);
-    v
+    let path = dir.join("summary.json");
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    jobs::summary_without_timings(&serde_json::from_str(&text).expect("summary.json is JSON"))
 }
 
 fn shard(k: usize, n: usize) -> JobOptions {

@@ -1,0 +1,8 @@
+//! Integration tests of the experiments, each on a tiny configuration: every figure of every
+//! experiment, the robot and transfer experiments end to end, and sharding, merging and
+//! resuming.
+
+mod figures;
+mod robot;
+mod shards;
+mod transfer;
