@@ -2,8 +2,8 @@
 //!
 //! A task ([`EpisodicTask`]) is a CMDP the agent knows the structure of, plus the true
 //! dynamics it does not know and samples effects from. An experiment builds agents
-//! ([`Algorithm::build`]), runs episodes ([`run_episode`]) and records, per episode, the
-//! reward collected, the number of actions and the time the agent spent.
+//! ([`build_agent`]), runs episodes ([`run_episode`]) and records, per episode, the reward
+//! collected, the number of actions and the time the agent spent.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -17,6 +17,8 @@ use tes_learning::agents::{
 };
 use tes_learning::cmdp::CmdpStructure;
 use tes_learning::plan::PlannerParams;
+
+use crate::method::Method;
 
 /// An episodic task: known structure, unknown (sampled) dynamics.
 pub trait EpisodicTask: Sync {
@@ -32,111 +34,79 @@ pub trait EpisodicTask: Sync {
     fn step_cap(&self) -> usize;
 }
 
-/// The algorithms the experiments compare.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize)]
-pub enum Algorithm {
-    /// loreRL (λ = 0.05, α = 1.5, ε = 0.05).
-    #[serde(rename = "loreRL")]
-    LoreRl,
-    /// loreRL without the regulariser (λ = 0).
-    #[serde(rename = "bloreRL")]
-    BloreRl,
-    /// Tabular R-max, m = 5.
-    #[serde(rename = "Rmax")]
-    Rmax,
-    /// Factored R-max with the true DBN structure, m = 10.
-    #[serde(rename = "fRmax")]
-    FRmax,
-    /// Factored ε-greedy with the true DBN structure, ε = 0.1.
-    #[serde(rename = "fEpsG")]
-    FEpsG,
-    /// RL-DT: decision-tree effect models, ε-greedy.
-    #[serde(rename = "RL-DT")]
-    RlDt,
-    /// LSE-Rmax: R-max with learned parent sets (m = 10, σ = 0.99).
-    #[serde(rename = "LSE-Rmax")]
-    LseRmax,
+/// Why [`build_agent`] gave no agent.
+#[derive(Debug, thiserror::Error)]
+pub enum BuildError {
+    /// The agent refused its settings or the task.
+    #[error(transparent)]
+    Agent(#[from] AgentError),
+    /// The method transfers a view library or needs a robot arena's features: its
+    /// experiment builds its agents itself.
+    #[error("{0} is not built from a task alone")]
+    NotFromTask(Method),
 }
 
-impl Algorithm {
-    /// The name used in reports and files.
-    pub fn name(self) -> &'static str {
-        match self {
-            Algorithm::LoreRl => "loreRL",
-            Algorithm::BloreRl => "bloreRL",
-            Algorithm::Rmax => "Rmax",
-            Algorithm::FRmax => "fRmax",
-            Algorithm::FEpsG => "fEpsG",
-            Algorithm::RlDt => "RL-DT",
-            Algorithm::LseRmax => "LSE-Rmax",
-        }
-    }
-
-    /// A fresh agent for `task` with the paper's §5.1 settings, exploring with `seed`.
-    pub fn build(
-        self,
-        task: &dyn EpisodicTask,
-        seed: u64,
-    ) -> Result<Box<dyn Agent + Send>, AgentError> {
-        self.build_with(task, seed, AgentSettings::default())
-    }
-
-    /// [`build`](Self::build) with the given settings.
-    pub fn build_with(
-        self,
-        task: &dyn EpisodicTask,
-        seed: u64,
-        settings: AgentSettings,
-    ) -> Result<Box<dyn Agent + Send>, AgentError> {
-        let AgentSettings {
+/// A fresh agent of `method` for `task` with the paper's §5.1 settings but those `settings`
+/// vary, exploring with `seed`. The methods that learn from the task alone (loreRL, bloreRL,
+/// Rmax, fRmax, fEpsG, RL-DT, LSE-Rmax) are built here.
+pub fn build_agent(
+    method: Method,
+    task: &dyn EpisodicTask,
+    seed: u64,
+    settings: AgentSettings,
+) -> Result<Box<dyn Agent + Send>, BuildError> {
+    let AgentSettings {
+        planner,
+        rl_dt_examples,
+    } = settings;
+    let structure = task.structure();
+    let lore = |params: LoreRlParams| LoreRlParams { planner, ..params };
+    Ok(match method {
+        // λ = 0.05, α = 1.5, ε = 0.05.
+        Method::LoreRl => Box::new(LoreRl::new(structure, lore(LoreRlParams::default()), seed)?),
+        // λ = 0.
+        Method::BloreRl => Box::new(LoreRl::new(
+            structure,
+            lore(LoreRlParams::blore_rl()),
+            seed,
+        )?),
+        Method::Rmax => Box::new(CountingAgent::rmax(structure, 5, planner, seed)?),
+        Method::FRmax => Box::new(CountingAgent::factored_rmax(
+            structure,
+            task.oracle_contexts(),
+            10,
             planner,
-            rl_dt_examples,
-        } = settings;
-        let structure = task.structure();
-        let lore = |params: LoreRlParams| LoreRlParams { planner, ..params };
-        Ok(match self {
-            Algorithm::LoreRl => {
-                Box::new(LoreRl::new(structure, lore(LoreRlParams::default()), seed)?)
-            }
-            Algorithm::BloreRl => Box::new(LoreRl::new(
-                structure,
-                lore(LoreRlParams::blore_rl()),
-                seed,
-            )?),
-            Algorithm::Rmax => Box::new(CountingAgent::rmax(structure, 5, planner, seed)?),
-            Algorithm::FRmax => Box::new(CountingAgent::factored_rmax(
-                structure,
-                task.oracle_contexts(),
-                10,
+            seed,
+        )?),
+        Method::FEpsG => Box::new(CountingAgent::factored_epsilon_greedy(
+            structure,
+            task.oracle_contexts(),
+            0.1,
+            planner,
+            seed,
+        )?),
+        Method::RlDt => Box::new(RlDt::new(
+            structure,
+            RlDtParams {
                 planner,
-                seed,
-            )?),
-            Algorithm::FEpsG => Box::new(CountingAgent::factored_epsilon_greedy(
-                structure,
-                task.oracle_contexts(),
-                0.1,
+                examples: rl_dt_examples,
+                ..RlDtParams::default()
+            },
+            seed,
+        )?),
+        // m = 10, σ = 0.99.
+        Method::LseRmax => Box::new(LseRmax::new(
+            structure,
+            LseRmaxParams {
                 planner,
-                seed,
-            )?),
-            Algorithm::RlDt => Box::new(RlDt::new(
-                structure,
-                RlDtParams {
-                    planner,
-                    examples: rl_dt_examples,
-                    ..RlDtParams::default()
-                },
-                seed,
-            )?),
-            Algorithm::LseRmax => Box::new(LseRmax::new(
-                structure,
-                LseRmaxParams {
-                    planner,
-                    ..LseRmaxParams::default()
-                },
-                seed,
-            )?),
-        })
-    }
+                ..LseRmaxParams::default()
+            },
+            seed,
+        )?),
+        Method::Tes | Method::TesWoRi | Method::Lwt | Method::ManLoreRl | Method::Rands(_) => {
+            return Err(BuildError::NotFromTask(method));
+        }
+    })
 }
 
 /// What happened in one episode.
@@ -188,7 +158,8 @@ pub fn run_episode(
     Ok(episode)
 }
 
-/// Settings an experiment may vary across every [`Algorithm`]; the rest are the paper's.
+/// Settings an experiment may vary across every agent [`build_agent`] builds; the rest are the
+/// paper's.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct AgentSettings {
     /// Every agent's planner.
@@ -198,21 +169,21 @@ pub struct AgentSettings {
     pub rl_dt_examples: ExampleStore,
 }
 
-/// Runs `episodes` episodes of a fresh `algorithm` agent on `task`, built with `settings`.
+/// Runs `episodes` episodes of a fresh `method` agent on `task`, built with `settings`.
 ///
 /// The agent explores with `seed`; the world (starts and dynamics) uses a stream derived from
-/// it, so two algorithms given the same seed face the same start states as long as the
+/// it, so two methods given the same seed face the same start states as long as the
 /// dynamics draw the same number of random numbers. `on_episode` is called after each.
 pub fn run_agent(
-    algorithm: Algorithm,
+    method: Method,
     task: &dyn EpisodicTask,
     episodes: usize,
     seed: u64,
     settings: AgentSettings,
     mut on_episode: impl FnMut(&Episode),
-) -> Result<Vec<Episode>, AgentError> {
+) -> Result<Vec<Episode>, BuildError> {
     let structure = task.structure();
-    let mut agent = algorithm.build_with(task, seed, settings)?;
+    let mut agent = build_agent(method, task, seed, settings)?;
     let mut world = ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_0F70_121D);
     let mut out = Vec::with_capacity(episodes);
     for _ in 0..episodes {
@@ -223,7 +194,6 @@ pub fn run_agent(
     Ok(out)
 }
 
-/// Writes `text` to `path`, naming the file on failure.
 /// Writes `episodes.csv`-style rows: the key columns named by `key_header` (comma-separated),
 /// then `episode,reward,steps,finished,agent_seconds`, one row per episode of each
 /// `(key, episodes)` group, the key already formatted as its comma-separated values.
@@ -260,6 +230,7 @@ pub(crate) fn write_episodes_csv<'a>(
     write().with_context(|| format!("cannot write {}", path.display()))
 }
 
+/// Writes `text` to `path`, naming the file on failure.
 pub(crate) fn write_file(path: &std::path::Path, text: &str) -> anyhow::Result<()> {
     use anyhow::Context;
     std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))

@@ -26,10 +26,10 @@ use tes_learning::cmdp::CmdpStructure;
 use tes_perception_sim::grid::{GridSuite, GridTask};
 
 use crate::episode::{
-    AgentSettings, Algorithm, Episode, EpisodicTask, run_agent, write_episodes_csv, write_file,
-    write_summary,
+    AgentSettings, Episode, EpisodicTask, run_agent, write_episodes_csv, write_file, write_summary,
 };
 use crate::jobs::{self, JobOptions, Manifest};
+use crate::method::Method;
 pub use crate::stats::Summary;
 use crate::stats::summarise;
 use crate::svg::{BandPoint, LineChart, Series};
@@ -156,10 +156,11 @@ impl GridConfig {
     }
 }
 
-/// One job: an algorithm at a feature count.
+/// One job: an algorithm at a feature count. Cells sort by method first, in [`Method`]'s
+/// order: the job indices of result folders depend on it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 struct Cell {
-    algorithm: Algorithm,
+    method: Method,
     irrelevant: usize,
 }
 
@@ -174,11 +175,8 @@ struct RunResult {
 /// The jobs of the whole experiment.
 fn cells(config: &GridConfig) -> Vec<Cell> {
     let mut cells = Vec::new();
-    let mut add = |algorithm, irrelevant| {
-        let c = Cell {
-            algorithm,
-            irrelevant,
-        };
+    let mut add = |method, irrelevant| {
+        let c = Cell { method, irrelevant };
         if !cells.contains(&c) {
             cells.push(c);
         }
@@ -198,26 +196,26 @@ fn cells(config: &GridConfig) -> Vec<Cell> {
     cells
 }
 
-const FIG_3A: [Algorithm; 6] = [
-    Algorithm::LoreRl,
-    Algorithm::FRmax,
-    Algorithm::FEpsG,
-    Algorithm::Rmax,
-    Algorithm::RlDt,
-    Algorithm::LseRmax,
+const FIG_3A: [Method; 6] = [
+    Method::LoreRl,
+    Method::FRmax,
+    Method::FEpsG,
+    Method::Rmax,
+    Method::RlDt,
+    Method::LseRmax,
 ];
-const FIG_3B: [Algorithm; 5] = [
-    Algorithm::LoreRl,
-    Algorithm::BloreRl,
-    Algorithm::FRmax,
-    Algorithm::FEpsG,
-    Algorithm::Rmax,
+const FIG_3B: [Method; 5] = [
+    Method::LoreRl,
+    Method::BloreRl,
+    Method::FRmax,
+    Method::FEpsG,
+    Method::Rmax,
 ];
-const FIG_3C: [Algorithm; 4] = [
-    Algorithm::LoreRl,
-    Algorithm::BloreRl,
-    Algorithm::FEpsG,
-    Algorithm::FRmax,
+const FIG_3C: [Method; 4] = [
+    Method::LoreRl,
+    Method::BloreRl,
+    Method::FEpsG,
+    Method::FRmax,
 ];
 
 /// The summary written to `summary.json`.
@@ -327,12 +325,11 @@ pub fn run_with(
             },
             rl_dt_examples: config.rl_dt_examples,
         };
-        let episodes = run_agent(cell.algorithm, env, config.episodes, seed, settings, |_| {})
+        let episodes = run_agent(cell.method, env, config.episodes, seed, settings, |_| {})
             .with_context(|| {
                 format!(
                     "{} with {} irrelevant features, run {run}",
-                    cell.algorithm.name(),
-                    cell.irrelevant
+                    cell.method, cell.irrelevant
                 )
             })?;
         Ok(RunResult {
@@ -383,7 +380,7 @@ fn report_from(
             runs.iter().map(move |r| {
                 let key = format!(
                     "{},{},{},{}",
-                    cell.algorithm.name(),
+                    cell.method.name(),
                     cell.irrelevant,
                     r.run,
                     r.seed
@@ -408,18 +405,18 @@ fn report_from(
             .collect();
         summarise(&finals)
     };
-    let figure = |algs: &[Algorithm], level: usize, file: &str, title: &str| -> Result<_> {
+    let figure = |algs: &[Method], level: usize, file: &str, title: &str| -> Result<_> {
         let mut finals = BTreeMap::new();
         let mut series = Vec::new();
         for &a in algs {
             let Some(runs) = by_cell.get(&Cell {
-                algorithm: a,
+                method: a,
                 irrelevant: level,
             }) else {
                 continue;
             };
-            finals.insert(a.name().to_owned(), final_of(runs));
-            series.push(Series::method(a.name(), accumulated_curve(runs)));
+            finals.insert(a.name().into_owned(), final_of(runs));
+            series.push(Series::method(a, accumulated_curve(runs)));
         }
         let chart = LineChart {
             title: title.to_owned(),
@@ -448,11 +445,11 @@ fn report_from(
     for a in FIG_3C {
         for &level in &config.irrelevant_levels {
             if let Some(runs) = by_cell.get(&Cell {
-                algorithm: a,
+                method: a,
                 irrelevant: level,
             }) {
                 fig3c
-                    .entry(a.name().to_owned())
+                    .entry(a.name().into_owned())
                     .or_default()
                     .insert(level, final_of(runs));
             }
@@ -466,7 +463,7 @@ fn report_from(
         // Table 1 is at 210 features (200 irrelevant); algorithms not run there use their
         // largest available feature count.
         let better = table1
-            .get(cell.algorithm.name())
+            .get(&*cell.method.name())
             .is_none_or(|t: &TimeSummary| t.features < cell.irrelevant + 10);
         if better {
             let per_episode: Vec<f64> = runs
@@ -477,7 +474,7 @@ fn report_from(
                 })
                 .collect();
             table1.insert(
-                cell.algorithm.name().to_owned(),
+                cell.method.name().into_owned(),
                 TimeSummary {
                     features: cell.irrelevant + 10,
                     seconds_per_episode: summarise(&per_episode),
@@ -485,12 +482,12 @@ fn report_from(
             );
         }
     }
-    let time = |name: &str| table1.get(name).map(|t| t.seconds_per_episode.mean);
-    let lore_over_fepsg_time = match (time("loreRL"), time("fEpsG")) {
+    let time = |m: Method| table1.get(&*m.name()).map(|t| t.seconds_per_episode.mean);
+    let lore_over_fepsg_time = match (time(Method::LoreRl), time(Method::FEpsG)) {
         (Some(l), Some(f)) if f > 0.0 => l / f,
         _ => f64::NAN,
     };
-    let rldt_over_lore_time = match (time("RL-DT"), time("loreRL")) {
+    let rldt_over_lore_time = match (time(Method::RlDt), time(Method::LoreRl)) {
         (Some(r), Some(l)) if l > 0.0 => r / l,
         _ => f64::NAN,
     };
@@ -540,9 +537,9 @@ pub fn fig3c_chart(
     let series = FIG_3C
         .iter()
         .filter_map(|a| {
-            let by_level = fig3c.get(a.name())?;
+            let by_level = fig3c.get(&*a.name())?;
             Some(Series::method(
-                a.name(),
+                *a,
                 by_level
                     .iter()
                     .map(|(&level, s)| s.at(level as f64))
@@ -567,12 +564,12 @@ fn targets(
     lore_over_fepsg_time: f64,
     rldt_over_lore_time: f64,
 ) -> Vec<TargetCheck> {
-    let mean = |name: &str| fig3b_final.get(name).map_or(f64::NAN, |s| s.mean);
+    let mean = |m: Method| fig3b_final.get(&*m.name()).map_or(f64::NAN, |s| s.mean);
     let (lore, fepsg, blore, frmax) = (
-        mean("loreRL"),
-        mean("fEpsG"),
-        mean("bloreRL"),
-        mean("fRmax"),
+        mean(Method::LoreRl),
+        mean(Method::FEpsG),
+        mean(Method::BloreRl),
+        mean(Method::FRmax),
     );
     vec![
         TargetCheck::new(

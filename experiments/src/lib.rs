@@ -4,7 +4,9 @@
 //! * [`transfer`] — §5.1: leave-one-out transfer with TES (Table 2, Fig. 4);
 //! * [`robot`] — §5.2: the robot arenas, TES against loreRL, LWT and the baselines
 //!   (Figs. 8–9, Tables 5–6);
-//! * [`episode`] — what they share: a task, the algorithms, running an episode;
+//! * [`episode`] — what they share: a task, building the agents, running an episode;
+//! * [`method`] — every method compared: its name in every output, its colour in every figure,
+//!   its order;
 //! * [`stats`], [`svg`] — confidence intervals and dependency-free SVG charts for the reports,
 //!   every method in one colour across all of them;
 //! * [`verdict`] — the paper's targets and whether a run meets them (a `--quick` run is too
@@ -21,6 +23,7 @@
 pub mod episode;
 pub mod grid;
 pub mod jobs;
+pub mod method;
 pub mod replot;
 pub mod report;
 pub mod robot;

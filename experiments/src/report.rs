@@ -11,6 +11,7 @@ use anyhow::Result;
 
 use crate::episode::write_file;
 use crate::grid::GridReport;
+use crate::method::Method;
 use crate::robot::RobotReport;
 use crate::stats::Summary;
 use crate::transfer::TransferReport;
@@ -138,19 +139,19 @@ pub fn markdown(grid: &GridReport, transfer: &TransferReport, robot: &RobotRepor
     md.push_str("### Table 2 — reward of the first test episode (jumpstart)\n\n![Table 2](transfer/table2.svg)\n\n");
     md.push_str("| task (size) | TES | LWT | loreRL | fEpsG | loreRL − TES over all test episodes | LWT − TES |\n|---|---|---|---|---|---|---|\n");
     for t in &transfer.tasks {
-        let j = |m: &str| t.jumpstart.get(m).map_or("-".into(), ci3);
-        let d = |m: &str| t.difference_to_tes.get(m).map_or("-".into(), ci);
+        let j = |m: Method| t.jumpstart.get(&*m.name()).map_or("-".into(), ci3);
+        let d = |m: Method| t.difference_to_tes.get(&*m.name()).map_or("-".into(), ci);
         let _ = writeln!(
             md,
             "| {} ({}) | {} | {} | {} | {} | {} | {} |",
             t.task,
             t.size,
-            j("TES"),
-            j("LWT"),
-            j("loreRL"),
-            j("fEpsG"),
-            d("loreRL"),
-            d("LWT")
+            j(Method::Tes),
+            j(Method::Lwt),
+            j(Method::LoreRl),
+            j(Method::FEpsG),
+            d(Method::LoreRl),
+            d(Method::Lwt)
         );
     }
     md.push_str("\n### Fig. 4b — accumulated reward minus TES's, per test task\n\n");
@@ -200,14 +201,14 @@ pub fn markdown(grid: &GridReport, transfer: &TransferReport, robot: &RobotRepor
             .join(" | "),
         "---|".repeat(shown)
     );
-    for name in ["loreRL", "LWT", "TES-woRi", "TES"] {
-        if let Some(firsts) = robot.first_episode.get(name) {
+    for m in [Method::LoreRl, Method::Lwt, Method::TesWoRi, Method::Tes] {
+        if let Some(firsts) = robot.first_episode.get(&*m.name()) {
             let cells: Vec<String> = firsts
                 .iter()
                 .take(shown)
                 .map(|r| format!("{r:.2}"))
                 .collect();
-            let _ = writeln!(md, "| {name} | {} |", cells.join(" | "));
+            let _ = writeln!(md, "| {m} | {} |", cells.join(" | "));
         }
     }
     md

@@ -38,6 +38,7 @@ use tes_perception_sim::arena::{Arena, ArenaId, Episode as ArenaEpisode, Episode
 
 use crate::episode::{Episode, write_episodes_csv, write_file, write_summary};
 use crate::jobs::{self, JobOptions, Manifest};
+use crate::method::Method;
 use crate::stats::{Summary, summarise};
 use crate::svg::{BandPoint, LineChart, Series};
 use crate::verdict::TargetCheck;
@@ -84,57 +85,24 @@ impl RobotConfig {
     }
 }
 
-/// The compared methods.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum RobotMethod {
-    /// TES after Env 1 and Env 2.
-    Tes,
-    /// TES after Env 2 only.
-    TesWoRi,
-    /// LWT after Env 2.
-    Lwt,
-    /// loreRL, no experience.
-    LoreRl,
-    /// loreRL on the 12 hand-picked features.
-    ManLoreRl,
-    /// Factored R-max, true contexts, m = 10.
-    FRmax,
-    /// Factored ε-greedy, true contexts.
-    FEpsG,
-}
+/// The compared methods, in report order (the order of the jobs, too).
+pub const METHODS: [Method; 7] = [
+    Method::Tes,
+    Method::TesWoRi,
+    Method::Lwt,
+    Method::LoreRl,
+    Method::ManLoreRl,
+    Method::FRmax,
+    Method::FEpsG,
+];
 
-impl RobotMethod {
-    /// Every method, in report order.
-    pub const ALL: [RobotMethod; 7] = [
-        RobotMethod::Tes,
-        RobotMethod::TesWoRi,
-        RobotMethod::Lwt,
-        RobotMethod::LoreRl,
-        RobotMethod::ManLoreRl,
-        RobotMethod::FRmax,
-        RobotMethod::FEpsG,
-    ];
-
-    /// The name used in reports.
-    pub fn name(self) -> &'static str {
-        match self {
-            RobotMethod::Tes => "TES",
-            RobotMethod::TesWoRi => "TES-woRi",
-            RobotMethod::Lwt => "LWT",
-            RobotMethod::LoreRl => "loreRL",
-            RobotMethod::ManLoreRl => "man-loreRL",
-            RobotMethod::FRmax => "fRmax",
-            RobotMethod::FEpsG => "fEpsG",
-        }
-    }
-
-    /// The arenas experienced before Env 3.
-    fn experience(self) -> &'static [ArenaId] {
-        match self {
-            RobotMethod::Tes => &[ArenaId::Env1, ArenaId::Env2],
-            RobotMethod::TesWoRi | RobotMethod::Lwt => &[ArenaId::Env2],
-            _ => &[],
-        }
+/// The arenas `method` experiences before Env 3: TES after Env 1 and Env 2, TES-woRi and LWT
+/// after Env 2 only, the others none.
+fn experience(method: Method) -> &'static [ArenaId] {
+    match method {
+        Method::Tes => &[ArenaId::Env1, ArenaId::Env2],
+        Method::TesWoRi | Method::Lwt => &[ArenaId::Env2],
+        _ => &[],
     }
 }
 
@@ -252,7 +220,7 @@ fn mdagl_params() -> MdaglParams {
 fn run_job(
     config: &RobotConfig,
     worlds: &BTreeMap<u32, World>,
-    method: RobotMethod,
+    method: Method,
     run: usize,
 ) -> Result<Vec<Episode>> {
     let seed = config.seed + run as u64;
@@ -264,7 +232,7 @@ fn run_job(
         s.n_features(),
         library_params(),
     )?;
-    for (i, id) in method.experience().iter().enumerate() {
+    for (i, id) in experience(method).iter().enumerate() {
         let world = &worlds[&id.number()];
         let agent_seed = seed.wrapping_mul(97).wrapping_add(i as u64);
         let mut agent = Tes::new(
@@ -294,24 +262,25 @@ fn run_job(
             .map(|a| Box::new(a) as Box<dyn Agent>)
     };
     let mut agent: Box<dyn Agent> = match method {
-        RobotMethod::Tes | RobotMethod::TesWoRi => transfer(ViewPolicy::Tes)?,
-        RobotMethod::Lwt => transfer(ViewPolicy::Lwt)?,
-        RobotMethod::LoreRl => Box::new(LoreRl::new(s.clone(), lore, agent_seed)?),
-        RobotMethod::ManLoreRl => Box::new(LoreRl::new(test.manual.clone(), lore, agent_seed)?),
-        RobotMethod::FRmax => Box::new(CountingAgent::factored_rmax(
+        Method::Tes | Method::TesWoRi => transfer(ViewPolicy::Tes)?,
+        Method::Lwt => transfer(ViewPolicy::Lwt)?,
+        Method::LoreRl => Box::new(LoreRl::new(s.clone(), lore, agent_seed)?),
+        Method::ManLoreRl => Box::new(LoreRl::new(test.manual.clone(), lore, agent_seed)?),
+        Method::FRmax => Box::new(CountingAgent::factored_rmax(
             s.clone(),
             test.contexts.clone(),
             10,
             planner,
             agent_seed,
         )?),
-        RobotMethod::FEpsG => Box::new(CountingAgent::factored_epsilon_greedy(
+        Method::FEpsG => Box::new(CountingAgent::factored_epsilon_greedy(
             s.clone(),
             test.contexts.clone(),
             0.05,
             planner,
             agent_seed,
         )?),
+        other => bail!("{other} is not one of the robot study's methods"),
     };
     // Every method of a run faces the same start and slip stream.
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x007E_57E3);
@@ -351,8 +320,8 @@ pub struct RobotReport {
 pub const EXPERIMENT: &str = "robot";
 
 /// The experiment's independent jobs, in index order: (method, run), runs innermost.
-fn job_list(config: &RobotConfig) -> Vec<(RobotMethod, usize)> {
-    RobotMethod::ALL
+fn job_list(config: &RobotConfig) -> Vec<(Method, usize)> {
+    METHODS
         .into_iter()
         .flat_map(|m| (0..config.runs).map(move |r| (m, r)))
         .collect()
@@ -402,7 +371,7 @@ pub fn run_with(
     let manifest = manifest(config, options.shard)?;
     let results = jobs::run_jobs(out, &manifest, options, progress, |index| {
         let (m, r) = jobs[index];
-        run_job(config, &worlds, m, r).with_context(|| format!("{} run {r}", m.name()))
+        run_job(config, &worlds, m, r).with_context(|| format!("{m} run {r}"))
     })?;
     if !options.shard.is_all() {
         return Ok(None);
@@ -428,9 +397,9 @@ fn report_from(
     started: Instant,
 ) -> Result<RobotReport> {
     let jobs = job_list(config);
-    let by: BTreeMap<(RobotMethod, usize), Vec<Episode>> =
+    let by: BTreeMap<(Method, usize), Vec<Episode>> =
         results.into_iter().map(|(i, e)| (jobs[i], e)).collect();
-    let runs_of = |m: RobotMethod| -> Vec<&Vec<Episode>> {
+    let runs_of = |m: Method| -> Vec<&Vec<Episode>> {
         (0..config.runs).filter_map(|r| by.get(&(m, r))).collect()
     };
     let total_reward = |eps: &[Episode]| eps.iter().map(|e| e.reward).sum::<f64>();
@@ -439,20 +408,20 @@ fn report_from(
     let mut difference_to_tes = BTreeMap::new();
     let mut first_episode = BTreeMap::new();
     let mut seconds_per_episode = BTreeMap::new();
-    for m in RobotMethod::ALL {
+    for m in METHODS {
         let runs = runs_of(m);
         accumulated.insert(
-            m.name().to_owned(),
+            m.name().into_owned(),
             summarise(&runs.iter().map(|e| total_reward(e)).collect::<Vec<_>>()),
         );
         first_episode.insert(
-            m.name().to_owned(),
+            m.name().into_owned(),
             runs.iter()
                 .map(|e| e.first().map_or(f64::NAN, |x| x.reward))
                 .collect(),
         );
         seconds_per_episode.insert(
-            m.name().to_owned(),
+            m.name().into_owned(),
             summarise(
                 &runs
                     .iter()
@@ -460,37 +429,36 @@ fn report_from(
                     .collect::<Vec<_>>(),
             ),
         );
-        if m != RobotMethod::Tes {
+        if m != Method::Tes {
             let diffs: Vec<f64> = (0..config.runs)
                 .filter_map(|r| {
-                    Some(
-                        total_reward(by.get(&(m, r))?)
-                            - total_reward(by.get(&(RobotMethod::Tes, r))?),
-                    )
+                    Some(total_reward(by.get(&(m, r))?) - total_reward(by.get(&(Method::Tes, r))?))
                 })
                 .collect();
-            difference_to_tes.insert(m.name().to_owned(), summarise(&diffs));
+            difference_to_tes.insert(m.name().into_owned(), summarise(&diffs));
         }
     }
-    let mean = |name: &str| accumulated.get(name).map_or(f64::NAN, |s: &Summary| s.mean);
-    let ordering_holds = mean("TES") >= mean("TES-woRi")
-        && mean("TES-woRi") >= mean("loreRL")
-        && mean("loreRL") > mean("LWT");
+    let mean = |m: Method| {
+        accumulated
+            .get(&*m.name())
+            .map_or(f64::NAN, |s: &Summary| s.mean)
+    };
+    let (tes, wo_ri, lore, lwt) = (
+        mean(Method::Tes),
+        mean(Method::TesWoRi),
+        mean(Method::LoreRl),
+        mean(Method::Lwt),
+    );
+    let ordering_holds = tes >= wo_ri && wo_ri >= lore && lore > lwt;
     let targets = vec![TargetCheck::new(
         "Fig. 8: accumulated reward TES >= TES-woRi >= loreRL > LWT",
-        format!(
-            "TES {:.1}, TES-woRi {:.1}, loreRL {:.1}, LWT {:.1}",
-            mean("TES"),
-            mean("TES-woRi"),
-            mean("loreRL"),
-            mean("LWT")
-        ),
+        format!("TES {tes:.1}, TES-woRi {wo_ri:.1}, loreRL {lore:.1}, LWT {lwt:.1}"),
         config.quick,
         ordering_holds,
     )];
 
     // Fig. 8: accumulated reward of the single-environment learners.
-    let curve = |m: RobotMethod, minus: Option<RobotMethod>| -> Vec<BandPoint> {
+    let curve = |m: Method, minus: Option<Method>| -> Vec<BandPoint> {
         let mut acc = vec![0.0; config.runs];
         (0..config.episodes)
             .map(|e| {
@@ -511,13 +479,13 @@ fn report_from(
         x_label: "episode".into(),
         y_label: "accumulated reward".into(),
         series: [
-            RobotMethod::LoreRl,
-            RobotMethod::ManLoreRl,
-            RobotMethod::FRmax,
-            RobotMethod::FEpsG,
+            Method::LoreRl,
+            Method::ManLoreRl,
+            Method::FRmax,
+            Method::FEpsG,
         ]
         .into_iter()
-        .map(|m| Series::method(m.name(), curve(m, None)))
+        .map(|m| Series::method(m, curve(m, None)))
         .collect(),
         markers: false,
     };
@@ -526,9 +494,9 @@ fn report_from(
         title: "Fig. 9 — accumulated reward minus TES's on Env 3".into(),
         x_label: "episode".into(),
         y_label: "difference to TES".into(),
-        series: [RobotMethod::Lwt, RobotMethod::TesWoRi, RobotMethod::LoreRl]
+        series: [Method::Lwt, Method::TesWoRi, Method::LoreRl]
             .into_iter()
-            .map(|m| Series::method(m.name(), curve(m, Some(RobotMethod::Tes))))
+            .map(|m| Series::method(m, curve(m, Some(Method::Tes))))
             .collect(),
         markers: false,
     };
@@ -537,7 +505,7 @@ fn report_from(
         &out.join("episodes.csv"),
         "method,run,seed",
         by.iter().map(|((m, r), eps)| {
-            let key = format!("{},{},{}", m.name(), r, config.seed + *r as u64);
+            let key = format!("{m},{r},{}", config.seed + *r as u64);
             (key, eps.as_slice())
         }),
     )?;

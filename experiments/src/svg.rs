@@ -5,11 +5,14 @@
 //! libraries and render the same everywhere (text is left to the SVG viewer).
 //!
 //! Every method keeps one colour in every figure of every experiment: a series' colour comes
-//! from its name through [`method_colour`], never from its position in a chart. Each series is
+//! from its name through [`colour_by_name`] (the [`Method`]'s colour), never from its position
+//! in a chart. Each series is
 //! drawn inside `<g class="series" data-name="…" data-colour="…">` groups (and its legend entry
 //! inside `<g class="legend" …>`), so tests and scripts can find what was drawn for whom.
 
 use std::fmt::Write;
+
+use crate::method::{Method, colour_by_name};
 
 /// One point of a series: `x`, mean `y`, and the band `[lo, hi]` around it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -32,16 +35,16 @@ pub struct Series {
     /// Points in increasing `x`.
     pub points: Vec<BandPoint>,
     /// `None` — every experiment's figures — draws the series in its method's colour
-    /// ([`method_colour`] of `name`). For charts of series that are not methods (a
+    /// ([`colour_by_name`] of `name`). For charts of series that are not methods (a
     /// benchmark's percentiles), a slot in a general colour-blind-safe palette.
     pub colour: Option<usize>,
 }
 
 impl Series {
-    /// A method's series, drawn in the method's colour in every figure.
-    pub fn method(name: impl Into<String>, points: Vec<BandPoint>) -> Self {
+    /// A method's series, named as the method and drawn in its colour in every figure.
+    pub fn method(method: Method, points: Vec<BandPoint>) -> Self {
         Self {
-            name: name.into(),
+            name: method.name().into_owned(),
             points,
             colour: None,
         }
@@ -51,7 +54,7 @@ impl Series {
     fn colour(&self) -> &'static str {
         match self.colour {
             Some(slot) => SLOT_COLOURS[slot % SLOT_COLOURS.len()],
-            None => method_colour(&self.name),
+            None => colour_by_name(&self.name),
         }
     }
 }
@@ -107,48 +110,6 @@ pub struct CategoryChart {
     pub categories: Vec<String>,
     /// The methods, each with one entry per category.
     pub series: Vec<CategorySeries>,
-}
-
-/// Every method's colour, keyed by the name the reports use: the one place that decides how
-/// a method looks, so the same method has the same colour in every figure of every
-/// experiment. Okabe–Ito's colour-blind-safe colours go to the methods drawn most often,
-/// Paul Tol's to the rest; the random view combinations ("Rands") share a family of browns.
-pub const METHOD_COLOURS: [(&str, &str); 18] = [
-    ("TES", "#0072B2"),
-    ("TES-woRi", "#56B4E9"),
-    ("LWT", "#D55E00"),
-    ("loreRL", "#009E73"),
-    ("bloreRL", "#999933"),
-    ("man-loreRL", "#117733"),
-    ("fEpsG", "#CC79A7"),
-    ("fRmax", "#E69F00"),
-    ("Rmax", "#882255"),
-    ("RL-DT", "#000000"),
-    ("LSE-Rmax", "#332288"),
-    ("random policy", "#777777"),
-    ("Rands 1", "#8C510A"),
-    ("Rands 2", "#BF812D"),
-    ("Rands 3", "#DDCC77"),
-    ("Rands 4", "#6E4B2A"),
-    ("Rands 5", "#C49A6C"),
-    ("Rands", "#A6761D"),
-];
-
-/// Colours for names [`METHOD_COLOURS`] does not list, picked by a hash of the name so they
-/// too stay the same from figure to figure.
-const OTHER_COLOURS: [&str; 5] = ["#44AA99", "#AA4499", "#88CCEE", "#661100", "#6699CC"];
-
-/// The colour `name` is drawn in, in every chart: its [`METHOD_COLOURS`] entry, or for an
-/// unlisted name one of a few spare colours chosen by the name alone.
-pub fn method_colour(name: &str) -> &'static str {
-    if let Some((_, colour)) = METHOD_COLOURS.iter().find(|(n, _)| *n == name) {
-        return colour;
-    }
-    // FNV-1a: stable across runs and platforms, unlike the standard library's hasher.
-    let hash = name.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
-        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
-    });
-    OTHER_COLOURS[(hash % OTHER_COLOURS.len() as u64) as usize]
 }
 
 /// Colour-blind-safe palette (Okabe–Ito) for series that are not methods ([`Series::colour`]).
@@ -510,7 +471,7 @@ impl CategoryChart {
                     continue;
                 };
                 drawn += 1;
-                let colour = method_colour(&s.name);
+                let colour = colour_by_name(&s.name);
                 let x = centre + (j as f64 - mid) * step;
                 let (lo, hi) = (
                     if v.lo.is_finite() { v.lo } else { v.mean },
@@ -542,7 +503,7 @@ impl CategoryChart {
             svg.push_str("</g>\n");
         }
         for (i, s) in self.series.iter().enumerate() {
-            frame.legend(&mut svg, i, &s.name, method_colour(&s.name), true);
+            frame.legend(&mut svg, i, &s.name, colour_by_name(&s.name), true);
         }
         svg.push_str("</svg>\n");
         svg
@@ -566,12 +527,12 @@ pub struct DrawnSeries {
 }
 
 /// What in a figure's drawn series (see [`drawn_series`]) breaks the one-colour-per-method
-/// rule: a method not in its [`method_colour`], drawn in more than one colour, or sharing its
+/// rule: a method not in its [`colour_by_name`], drawn in more than one colour, or sharing its
 /// colour with another method of the figure. Empty when the figure keeps the rule.
 pub fn colour_problems(drawn: &[DrawnSeries]) -> Vec<String> {
     let mut problems = Vec::new();
     for (i, d) in drawn.iter().enumerate() {
-        if d.colour != method_colour(&d.name) {
+        if d.colour != colour_by_name(&d.name) {
             problems.push(format!("{} is not in its colour", d.name));
         }
         if d.used != [d.colour.clone()] {
@@ -588,7 +549,7 @@ pub fn colour_problems(drawn: &[DrawnSeries]) -> Vec<String> {
 
 /// Reads back, from an SVG rendered by [`LineChart::to_svg`] or [`CategoryChart::to_svg`],
 /// each series in order of first appearance: its declared colour and the colours actually
-/// used to draw it. Checks that a figure keeps to [`method_colour`] start here.
+/// used to draw it. Checks that a figure keeps to [`colour_by_name`] start here.
 pub fn drawn_series(svg: &str) -> Vec<DrawnSeries> {
     let mut out: Vec<DrawnSeries> = Vec::new();
     let mut rest = svg;
@@ -673,7 +634,11 @@ mod tests {
             y_label: "reward".into(),
             series: names
                 .iter()
-                .map(|n| Series::method(*n, (0..5).map(band).collect()))
+                .map(|n| Series {
+                    name: (*n).into(),
+                    points: (0..5).map(band).collect(),
+                    colour: None,
+                })
                 .collect(),
             markers: true,
         }
@@ -737,26 +702,6 @@ mod tests {
         assert!(svg.contains("<polygon") && svg.contains("<polyline"));
         assert!(svg.contains(">loreRL</text>"));
         assert_eq!(svg.matches("<circle").count(), 5);
-    }
-
-    #[test]
-    fn every_listed_method_has_a_colour_of_its_own() {
-        for (i, (name, colour)) in METHOD_COLOURS.iter().enumerate() {
-            assert_eq!(method_colour(name), *colour);
-            for (other, other_colour) in &METHOD_COLOURS[i + 1..] {
-                assert_ne!(name, other);
-                assert_ne!(colour, other_colour, "{name} and {other}");
-            }
-        }
-        // An unlisted name gets a spare colour, the same every time.
-        let spare = method_colour("some new method");
-        assert_eq!(spare, method_colour("some new method"));
-        assert!(OTHER_COLOURS.contains(&spare));
-        assert!(
-            METHOD_COLOURS
-                .iter()
-                .all(|(_, c)| !OTHER_COLOURS.contains(c))
-        );
     }
 
     #[test]

@@ -37,11 +37,12 @@ use tes_learning::plan::PlannerParams;
 use tes_perception_sim::grid::GridSuite;
 
 use crate::episode::{
-    AgentSettings, Algorithm, Episode, EpisodicTask, run_episode, write_episodes_csv, write_file,
-    write_summary,
+    AgentSettings, BuildError, Episode, EpisodicTask, build_agent, run_episode, write_episodes_csv,
+    write_file, write_summary,
 };
 use crate::grid::GridEnv;
 use crate::jobs::{self, JobOptions, Manifest};
+use crate::method::Method;
 use crate::stats::{Summary, summarise};
 use crate::svg::{CategoryChart, CategorySeries, Interval, LineChart, Series};
 use crate::verdict::{TargetCheck, Verdict};
@@ -195,54 +196,17 @@ fn training_seed(config: &TransferConfig, run: usize, t: usize) -> u64 {
         .wrapping_add(2_000 + t as u64)
 }
 
-/// A method compared on the test task.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
-pub enum Method {
-    /// TES with the trained library.
-    Tes,
-    /// LWT: best-track-record library view per action, frozen.
-    Lwt,
-    /// loreRL, no transfer.
-    LoreRl,
-    /// fEpsG, no transfer, oracle structure.
-    FEpsG,
-    /// The i-th random view combination.
-    Rands(usize),
-}
-
-impl Method {
-    /// The name used in reports and files.
-    pub fn name(self) -> String {
-        match self {
-            Method::Tes => "TES".into(),
-            Method::Lwt => "LWT".into(),
-            Method::LoreRl => "loreRL".into(),
-            Method::FEpsG => "fEpsG".into(),
-            Method::Rands(i) => format!("Rands {i}"),
-        }
-    }
-
-    /// The method called `name` (the inverse of [`name`](Self::name)).
-    pub fn from_name(name: &str) -> Option<Self> {
-        Some(match name {
-            "TES" => Method::Tes,
-            "LWT" => Method::Lwt,
-            "loreRL" => Method::LoreRl,
-            "fEpsG" => Method::FEpsG,
-            _ => Method::Rands(name.strip_prefix("Rands ")?.parse().ok()?),
-        })
-    }
-
-    /// Offsets the method's agent seed within a job, so the methods of a run explore
-    /// independently (and the seeds stay those earlier runs recorded).
-    fn seed_offset(self) -> usize {
-        match self {
-            Method::Tes => 0,
-            Method::Lwt => 1,
-            Method::LoreRl => 2,
-            Method::FEpsG => 3,
-            Method::Rands(i) => 3 + i,
-        }
+/// Offsets `method`'s agent seed within a job, so the methods of a run explore independently
+/// (and the seeds stay those earlier runs recorded).
+fn seed_offset(method: Method) -> usize {
+    match method {
+        Method::Tes => 0,
+        Method::Lwt => 1,
+        Method::LoreRl => 2,
+        Method::FEpsG => 3,
+        Method::Rands(i) => 3 + i,
+        // Methods this experiment does not run: it builds no agent of theirs.
+        _ => 0,
     }
 }
 
@@ -254,36 +218,8 @@ struct JobResult {
     seed: u64,
     training_order: Vec<usize>,
     library_views: usize,
-    /// Per method, by [`Method::name`].
-    #[serde(with = "by_name")]
+    /// Per method, keyed by [`Method::name`] in the record.
     episodes: BTreeMap<Method, Vec<Episode>>,
-}
-
-/// A job's episodes keyed by method name in its record.
-mod by_name {
-    use super::*;
-    use serde::{Deserializer, Serializer};
-
-    pub fn serialize<S: Serializer>(
-        m: &BTreeMap<Method, Vec<Episode>>,
-        s: S,
-    ) -> Result<S::Ok, S::Error> {
-        s.collect_map(m.iter().map(|(k, v)| (k.name(), v)))
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(
-        d: D,
-    ) -> Result<BTreeMap<Method, Vec<Episode>>, D::Error> {
-        let named: BTreeMap<String, Vec<Episode>> = BTreeMap::deserialize(d)?;
-        named
-            .into_iter()
-            .map(|(k, v)| {
-                Method::from_name(&k)
-                    .map(|m| (m, v))
-                    .ok_or_else(|| serde::de::Error::custom(format!("unknown method {k:?}")))
-            })
-            .collect()
-    }
 }
 
 /// Per test task, what `summary.json` records.
@@ -324,10 +260,10 @@ pub struct DecidedTasks {
 
 impl DecidedTasks {
     /// Sorts each task of `tasks` by its paired jumpstart interval against `other`.
-    pub fn against(tasks: &[TaskSummary], other: &str) -> Self {
+    pub fn against(tasks: &[TaskSummary], other: Method) -> Self {
         let mut decided = Self::default();
         for t in tasks {
-            match t.jumpstart_difference_to_tes.get(other) {
+            match t.jumpstart_difference_to_tes.get(&*other.name()) {
                 Some(d) if d.hi < 0.0 => decided.ahead.push(t.task),
                 Some(d) if d.lo > 0.0 => decided.behind.push(t.task),
                 _ => decided.undecided.push(t.task),
@@ -503,7 +439,7 @@ fn report_from(
         "test_task,run,seed,method",
         results.iter().flat_map(|r| {
             r.episodes.iter().map(move |(m, eps)| {
-                let key = format!("{},{},{},{}", r.task, r.run, r.seed, m.name());
+                let key = format!("{},{},{},{m}", r.task, r.run, r.seed);
                 (key, eps.as_slice())
             })
         }),
@@ -517,7 +453,7 @@ fn report_from(
     }
     write_jumpstart_chart(out, &tasks)?;
 
-    let mean = |t: &TaskSummary, m: Method| t.jumpstart.get(&m.name()).map(|s| s.mean);
+    let mean = |t: &TaskSummary, m: Method| t.jumpstart.get(&*m.name()).map(|s| s.mean);
     let beats = |other: Method| {
         tasks
             .iter()
@@ -533,7 +469,7 @@ fn report_from(
         .filter(|t| {
             t.difference_to_tes
                 .iter()
-                .filter(|(name, _)| name.starts_with("Rands"))
+                .filter(|(name, _)| matches!(Method::from_name(name), Some(Method::Rands(_))))
                 .all(|(_, d)| d.mean < 0.0)
         })
         .count();
@@ -544,19 +480,19 @@ fn report_from(
             .filter_map(|r| r.episodes.get(&m))
             .map(|eps| eps.iter().map(|e| e.agent_seconds).sum::<f64>() / eps.len().max(1) as f64)
             .collect();
-        seconds_per_episode.insert(m.name(), summarise(&per_run));
+        seconds_per_episode.insert(m.name().into_owned(), summarise(&per_run));
     }
     let jumpstart_decided: BTreeMap<String, DecidedTasks> = [Method::LoreRl, Method::Lwt]
         .iter()
-        .map(|m| (m.name(), DecidedTasks::against(&tasks, &m.name())))
+        .map(|&m| (m.name().into_owned(), DecidedTasks::against(&tasks, m)))
         .collect();
     let targets = targets(
         config.quick,
         tasks.len(),
         [tes_beats_lore_rl, tes_beats_lwt],
         [
-            &jumpstart_decided[&Method::LoreRl.name()],
-            &jumpstart_decided[&Method::Lwt.name()],
+            &jumpstart_decided[&*Method::LoreRl.name()],
+            &jumpstart_decided[&*Method::Lwt.name()],
         ],
     );
     let report = TransferReport {
@@ -742,7 +678,7 @@ fn test_job(
     for &m in methods {
         let agent_seed = seed
             .wrapping_mul(31)
-            .wrapping_add(1_000 + m.seed_offset() as u64);
+            .wrapping_add(1_000 + seed_offset(m) as u64);
         let transfer = |policy| {
             let params = TesParams {
                 policy,
@@ -751,13 +687,14 @@ fn test_job(
             };
             Tes::new(structure.clone(), library.clone(), params, agent_seed)
                 .map(|a| Box::new(a) as Box<dyn Agent + Send>)
+                .map_err(BuildError::from)
         };
         let mut agent: Box<dyn Agent + Send> = match m {
             Method::Tes => transfer(ViewPolicy::Tes),
             Method::Lwt => transfer(ViewPolicy::Lwt),
             Method::Rands(_) => transfer(ViewPolicy::RandomFixed),
-            Method::LoreRl => Algorithm::LoreRl.build_with(test, agent_seed, settings),
-            Method::FEpsG => Algorithm::FEpsG.build_with(test, agent_seed, settings),
+            // loreRL and fEpsG.
+            other => build_agent(other, test, agent_seed, settings),
         }
         .with_context(|| context(&m.name()))?;
         // The same world stream for every method of the run.
@@ -799,15 +736,15 @@ fn summarise_task(
                 .filter_map(|r| r.episodes.get(&m).map(|eps| f(r, eps)))
                 .collect()
         };
-        jumpstart.insert(m.name(), summarise(&of(&|_, eps| first(eps))));
-        accumulated.insert(m.name(), summarise(&of(&|_, eps| total(eps))));
+        jumpstart.insert(m.name().into_owned(), summarise(&of(&|_, eps| first(eps))));
+        accumulated.insert(m.name().into_owned(), summarise(&of(&|_, eps| total(eps))));
         if m != Method::Tes {
             difference_to_tes.insert(
-                m.name(),
+                m.name().into_owned(),
                 summarise(&of(&|r, eps| total(eps) - total(&r.episodes[&Method::Tes]))),
             );
             jumpstart_difference_to_tes.insert(
-                m.name(),
+                m.name().into_owned(),
                 summarise(&of(&|r, eps| first(eps) - first(&r.episodes[&Method::Tes]))),
             );
         }
@@ -856,7 +793,7 @@ fn write_fig4b(
             let s = summarise(&acc);
             points.push(s.at((e + 1) as f64));
         }
-        series.push(Series::method(m.name(), points));
+        series.push(Series::method(m, points));
     }
     let chart = LineChart {
         title: format!(
@@ -941,11 +878,11 @@ pub fn jumpstart_chart(jumpstart: &BTreeMap<usize, BTreeMap<String, Summary>>) -
     let series = TABLE2_METHODS
         .iter()
         .map(|m| CategorySeries {
-            name: m.name(),
+            name: m.name().into_owned(),
             values: tasks
                 .iter()
                 .map(|t| {
-                    let s = jumpstart.get(t)?.get(&m.name())?;
+                    let s = jumpstart.get(t)?.get(&*m.name())?;
                     Some(Interval {
                         mean: s.mean,
                         lo: s.lo,
@@ -1105,7 +1042,7 @@ mod tests {
             task(4, -0.75, -0.34),
             task(6, -0.05, 0.36),
         ];
-        let decided = DecidedTasks::against(&tasks, "loreRL");
+        let decided = DecidedTasks::against(&tasks, Method::LoreRl);
         assert_eq!(decided.ahead, [4]);
         assert_eq!(decided.behind, [0]);
         assert_eq!(decided.undecided, [3, 6]);
@@ -1114,6 +1051,9 @@ mod tests {
             "1 ahead, 1 behind (task 0), 2 undecided (tasks 3, 6)"
         );
         // A method the tasks do not have is undecided everywhere.
-        assert_eq!(DecidedTasks::against(&tasks, "LWT").undecided.len(), 4);
+        assert_eq!(
+            DecidedTasks::against(&tasks, Method::Lwt).undecided.len(),
+            4
+        );
     }
 }
