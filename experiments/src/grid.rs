@@ -362,33 +362,8 @@ fn report_from(
     out: &Path,
     started: Instant,
 ) -> Result<GridReport> {
-    let jobs = job_list(config);
-    let results: Vec<(Cell, RunResult)> =
-        results.into_iter().map(|(i, r)| (jobs[i].0, r)).collect();
-    let mut by_cell: BTreeMap<Cell, Vec<RunResult>> = BTreeMap::new();
-    for (cell, r) in results {
-        by_cell.entry(cell).or_default().push(r);
-    }
-    for runs in by_cell.values_mut() {
-        runs.sort_by_key(|r| r.run);
-    }
-
-    write_episodes_csv(
-        &out.join("episodes.csv"),
-        "algorithm,irrelevant_features,run,seed",
-        by_cell.iter().flat_map(|(cell, runs)| {
-            runs.iter().map(move |r| {
-                let key = format!(
-                    "{},{},{},{}",
-                    cell.method.name(),
-                    cell.irrelevant,
-                    r.run,
-                    r.seed
-                );
-                (key, r.episodes.as_slice())
-            })
-        }),
-    )?;
+    let by_cell = by_cell(config, results);
+    write_episodes(out, &by_cell)?;
     let task = &envs[&0].task;
     let task_name = format!(
         "task {} ({}x{}, {} states)",
@@ -397,50 +372,127 @@ fn report_from(
         task.height(),
         task.n_states()
     );
-
-    let final_of = |runs: &[RunResult]| -> Summary {
-        let finals: Vec<f64> = runs
-            .iter()
-            .map(|r| r.episodes.iter().map(|e| e.reward).sum())
-            .collect();
-        summarise(&finals)
-    };
-    let figure = |algs: &[Method], level: usize, file: &str, title: &str| -> Result<_> {
-        let mut finals = BTreeMap::new();
-        let mut series = Vec::new();
-        for &a in algs {
-            let Some(runs) = by_cell.get(&Cell {
-                method: a,
-                irrelevant: level,
-            }) else {
-                continue;
-            };
-            finals.insert(a.name().into_owned(), final_of(runs));
-            series.push(Series::method(a, accumulated_curve(runs)));
-        }
-        let chart = LineChart {
-            title: title.to_owned(),
-            x_label: "episode".into(),
-            y_label: "accumulated reward".into(),
-            series,
-            markers: false,
-        };
-        write_file(&out.join(file), &chart.to_svg())?;
-        Ok(finals)
-    };
     let fig3a_final = figure(
+        out,
+        &by_cell,
         &FIG_3A,
         0,
         "fig3a.svg",
         &format!("Fig. 3a — {task_name}, 10 features (no irrelevant)"),
     )?;
     let fig3b_final = figure(
+        out,
+        &by_cell,
         &FIG_3B,
         200,
         "fig3b.svg",
         &format!("Fig. 3b — {task_name}, 200 irrelevant features"),
     )?;
+    let fig3c = fig3c_finals(config, &by_cell);
+    let chart = fig3c_chart(&fig3c, config.episodes);
+    write_file(&out.join("fig3c.svg"), &chart.to_svg())?;
+    let table1 = table1(&by_cell);
+    let lore_over_fepsg_time = time_ratio(&table1, Method::LoreRl, Method::FEpsG);
+    let rldt_over_lore_time = time_ratio(&table1, Method::RlDt, Method::LoreRl);
+    let targets = targets(
+        config.quick,
+        &fig3b_final,
+        lore_over_fepsg_time,
+        rldt_over_lore_time,
+    );
+    let report = GridReport {
+        config: config.clone(),
+        task: task_name,
+        wall_seconds: started.elapsed().as_secs_f64(),
+        fig3a_final,
+        fig3b_final,
+        fig3c,
+        table1,
+        lore_over_fepsg_time,
+        rldt_over_lore_time,
+        targets,
+    };
+    write_summary(out, &report)?;
+    Ok(report)
+}
 
+/// The job records (by job index) grouped by cell, each cell's runs in order.
+fn by_cell(
+    config: &GridConfig,
+    results: BTreeMap<usize, RunResult>,
+) -> BTreeMap<Cell, Vec<RunResult>> {
+    let jobs = job_list(config);
+    let mut by_cell: BTreeMap<Cell, Vec<RunResult>> = BTreeMap::new();
+    for (i, r) in results {
+        by_cell.entry(jobs[i].0).or_default().push(r);
+    }
+    for runs in by_cell.values_mut() {
+        runs.sort_by_key(|r| r.run);
+    }
+    by_cell
+}
+
+/// `episodes.csv`: every episode of every run of every cell.
+fn write_episodes(out: &Path, by_cell: &BTreeMap<Cell, Vec<RunResult>>) -> Result<()> {
+    write_episodes_csv(
+        &out.join("episodes.csv"),
+        "algorithm,irrelevant_features,run,seed",
+        by_cell.iter().flat_map(|(cell, runs)| {
+            runs.iter().map(move |r| {
+                let key = format!("{},{},{},{}", cell.method, cell.irrelevant, r.run, r.seed);
+                (key, r.episodes.as_slice())
+            })
+        }),
+    )
+}
+
+/// The accumulated reward after the last episode, over runs.
+fn final_of(runs: &[RunResult]) -> Summary {
+    let finals: Vec<f64> = runs
+        .iter()
+        .map(|r| r.episodes.iter().map(|e| e.reward).sum())
+        .collect();
+    summarise(&finals)
+}
+
+/// Draws Fig. 3a or 3b — the accumulated reward curves of `methods` at `level` irrelevant
+/// features — into `file`, and returns each method's final accumulated reward.
+fn figure(
+    out: &Path,
+    by_cell: &BTreeMap<Cell, Vec<RunResult>>,
+    methods: &[Method],
+    level: usize,
+    file: &str,
+    title: &str,
+) -> Result<BTreeMap<String, Summary>> {
+    let mut finals = BTreeMap::new();
+    let mut series = Vec::new();
+    for &a in methods {
+        let Some(runs) = by_cell.get(&Cell {
+            method: a,
+            irrelevant: level,
+        }) else {
+            continue;
+        };
+        finals.insert(a.name().into_owned(), final_of(runs));
+        series.push(Series::method(a, accumulated_curve(runs)));
+    }
+    let chart = LineChart {
+        title: title.to_owned(),
+        x_label: "episode".into(),
+        y_label: "accumulated reward".into(),
+        series,
+        markers: false,
+    };
+    write_file(&out.join(file), &chart.to_svg())?;
+    Ok(finals)
+}
+
+/// Fig. 3c's data: method → (irrelevant features → final accumulated reward).
+fn fig3c_finals(
+    config: &GridConfig,
+    by_cell: &BTreeMap<Cell, Vec<RunResult>>,
+) -> BTreeMap<String, BTreeMap<usize, Summary>> {
     let mut fig3c: BTreeMap<String, BTreeMap<usize, Summary>> = BTreeMap::new();
     for a in FIG_3C {
         for &level in &config.irrelevant_levels {
@@ -455,11 +507,13 @@ fn report_from(
             }
         }
     }
-    let chart = fig3c_chart(&fig3c, config.episodes);
-    write_file(&out.join("fig3c.svg"), &chart.to_svg())?;
+    fig3c
+}
 
+/// Table 1: each method's agent seconds per episode.
+fn table1(by_cell: &BTreeMap<Cell, Vec<RunResult>>) -> BTreeMap<String, TimeSummary> {
     let mut table1 = BTreeMap::new();
-    for (cell, runs) in &by_cell {
+    for (cell, runs) in by_cell {
         // Table 1 is at 210 features (200 irrelevant); algorithms not run there use their
         // largest available feature count.
         let better = table1
@@ -482,35 +536,16 @@ fn report_from(
             );
         }
     }
+    table1
+}
+
+/// `a`'s seconds per episode over `b`'s in Table 1 (NaN unless both ran and `b` took time).
+fn time_ratio(table1: &BTreeMap<String, TimeSummary>, a: Method, b: Method) -> f64 {
     let time = |m: Method| table1.get(&*m.name()).map(|t| t.seconds_per_episode.mean);
-    let lore_over_fepsg_time = match (time(Method::LoreRl), time(Method::FEpsG)) {
-        (Some(l), Some(f)) if f > 0.0 => l / f,
+    match (time(a), time(b)) {
+        (Some(a), Some(b)) if b > 0.0 => a / b,
         _ => f64::NAN,
-    };
-    let rldt_over_lore_time = match (time(Method::RlDt), time(Method::LoreRl)) {
-        (Some(r), Some(l)) if l > 0.0 => r / l,
-        _ => f64::NAN,
-    };
-    let targets = targets(
-        config.quick,
-        &fig3b_final,
-        lore_over_fepsg_time,
-        rldt_over_lore_time,
-    );
-    let report = GridReport {
-        config: config.clone(),
-        task: task_name,
-        wall_seconds: started.elapsed().as_secs_f64(),
-        fig3a_final,
-        fig3b_final,
-        fig3c,
-        table1,
-        lore_over_fepsg_time,
-        rldt_over_lore_time,
-        targets,
-    };
-    write_summary(out, &report)?;
-    Ok(report)
+    }
 }
 
 /// Mean accumulated reward per episode across runs, with its 95 % band.

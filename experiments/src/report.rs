@@ -50,13 +50,20 @@ pub fn markdown(grid: &GridReport, transfer: &TransferReport, robot: &RobotRepor
          robot {:.0} s.\n",
         grid.wall_seconds, transfer.wall_seconds, robot.wall_seconds
     );
+    grid_section(&mut md, grid);
+    transfer_section(&mut md, transfer);
+    robot_section(&mut md, robot);
+    md
+}
 
+/// §5.1: the grid's targets, Figs. 3a–c and Table 1.
+fn grid_section(md: &mut String, grid: &GridReport) {
     let _ = writeln!(
         md,
         "## Grid (§5.1): Fig. 3 and Table 1\n\n{}, {} runs × {} episodes, seeds {}…, world seed {}.\n",
         grid.task, grid.config.runs, grid.config.episodes, grid.config.seed, grid.config.world_seed
     );
-    targets(&mut md, &grid.targets);
+    targets(md, &grid.targets);
     for (title, file, finals) in [
         ("Fig. 3a — 10 features", "fig3a.svg", &grid.fig3a_final),
         ("Fig. 3b — 210 features", "fig3b.svg", &grid.fig3b_final),
@@ -72,6 +79,12 @@ pub fn markdown(grid: &GridReport, transfer: &TransferReport, robot: &RobotRepor
         }
         md.push('\n');
     }
+    grid_fig3c(md, grid);
+    grid_table1(md, grid);
+}
+
+/// Fig. 3c's final rewards by irrelevant features.
+fn grid_fig3c(md: &mut String, grid: &GridReport) {
     md.push_str(
         "### Fig. 3c — accumulated reward by irrelevant features\n\n![Fig. 3c](grid/fig3c.svg)\n\n",
     );
@@ -97,6 +110,10 @@ pub fn markdown(grid: &GridReport, transfer: &TransferReport, robot: &RobotRepor
             .collect();
         let _ = writeln!(md, "| {name} | {} |", cells.join(" | "));
     }
+}
+
+/// Table 1, fastest first, and the time ratios the paper gives.
+fn grid_table1(md: &mut String, grid: &GridReport) {
     md.push_str("\n### Table 1 — agent seconds per episode\n\n| algorithm | features | s / episode |\n|---|---|---|\n");
     let mut rows: Vec<_> = grid.table1.iter().collect();
     rows.sort_by(|a, b| {
@@ -116,7 +133,10 @@ pub fn markdown(grid: &GridReport, transfer: &TransferReport, robot: &RobotRepor
         "\nloreRL / fEpsG = {:.2}; RL-DT / loreRL = {:.1}.\n",
         grid.lore_over_fepsg_time, grid.rldt_over_lore_time
     );
+}
 
+/// §5.1.2–5.1.3: transfer's targets, Table 2 and Fig. 4b.
+fn transfer_section(md: &mut String, transfer: &TransferReport) {
     let c = &transfer.config;
     let _ = writeln!(
         md,
@@ -129,7 +149,7 @@ pub fn markdown(grid: &GridReport, transfer: &TransferReport, robot: &RobotRepor
         c.seed,
         c.world_seed
     );
-    targets(&mut md, &transfer.targets);
+    targets(md, &transfer.targets);
     let _ = writeln!(
         md,
         "TES's accumulated reward beats every random view combination on {} / {} tasks.\n",
@@ -166,14 +186,17 @@ pub fn markdown(grid: &GridReport, transfer: &TransferReport, robot: &RobotRepor
     for (m, s) in &transfer.seconds_per_episode {
         let _ = writeln!(md, "| {m} | {:.4} |", s.mean);
     }
+}
 
+/// §5.2: the robot study's targets, Figs. 8–9 and Tables 5–6.
+fn robot_section(md: &mut String, robot: &RobotReport) {
     let c = &robot.config;
     let _ = writeln!(
         md,
         "\n## Robot arenas (§5.2): Figs. 8–9, Tables 5–6\n\n{} runs, {} episodes on Env 3 after {} per earlier arena, seeds {}….\n",
         c.runs, c.episodes, c.train_episodes, c.seed
     );
-    targets(&mut md, &robot.targets);
+    targets(md, &robot.targets);
     md.push_str("![Fig. 8](robot/fig8.svg)\n\n![Fig. 9](robot/fig9.svg)\n\n");
     md.push_str("| method | accumulated reward | difference to TES | agent s / episode (Table 6) |\n|---|---|---|---|\n");
     for (name, s) in &robot.accumulated {
@@ -211,7 +234,6 @@ pub fn markdown(grid: &GridReport, transfer: &TransferReport, robot: &RobotRepor
             let _ = writeln!(md, "| {m} | {} |", cells.join(" | "));
         }
     }
-    md
 }
 
 /// Writes [`markdown`] to `path`.

@@ -390,6 +390,9 @@ pub fn summarise_dir(out: &Path) -> Result<RobotReport> {
     report_from(&config, results, out, started)
 }
 
+/// Every job's Env 3 episodes, by (method, run).
+type ByJob = BTreeMap<(Method, usize), Vec<Episode>>;
+
 fn report_from(
     config: &RobotConfig,
     results: BTreeMap<usize, Vec<Episode>>,
@@ -397,110 +400,39 @@ fn report_from(
     started: Instant,
 ) -> Result<RobotReport> {
     let jobs = job_list(config);
-    let by: BTreeMap<(Method, usize), Vec<Episode>> =
-        results.into_iter().map(|(i, e)| (jobs[i], e)).collect();
+    let by: ByJob = results.into_iter().map(|(i, e)| (jobs[i], e)).collect();
     let runs_of = |m: Method| -> Vec<&Vec<Episode>> {
         (0..config.runs).filter_map(|r| by.get(&(m, r))).collect()
     };
-    let total_reward = |eps: &[Episode]| eps.iter().map(|e| e.reward).sum::<f64>();
-
-    let mut accumulated = BTreeMap::new();
-    let mut difference_to_tes = BTreeMap::new();
-    let mut first_episode = BTreeMap::new();
-    let mut seconds_per_episode = BTreeMap::new();
-    for m in METHODS {
-        let runs = runs_of(m);
-        accumulated.insert(
-            m.name().into_owned(),
-            summarise(&runs.iter().map(|e| total_reward(e)).collect::<Vec<_>>()),
-        );
-        first_episode.insert(
-            m.name().into_owned(),
-            runs.iter()
-                .map(|e| e.first().map_or(f64::NAN, |x| x.reward))
-                .collect(),
-        );
-        seconds_per_episode.insert(
-            m.name().into_owned(),
-            summarise(
-                &runs
-                    .iter()
-                    .map(|e| e.iter().map(|x| x.agent_seconds).sum::<f64>() / e.len() as f64)
-                    .collect::<Vec<_>>(),
-            ),
-        );
-        if m != Method::Tes {
-            let diffs: Vec<f64> = (0..config.runs)
-                .filter_map(|r| {
-                    Some(total_reward(by.get(&(m, r))?) - total_reward(by.get(&(Method::Tes, r))?))
-                })
-                .collect();
-            difference_to_tes.insert(m.name().into_owned(), summarise(&diffs));
-        }
-    }
-    let mean = |m: Method| {
-        accumulated
-            .get(&*m.name())
-            .map_or(f64::NAN, |s: &Summary| s.mean)
-    };
-    let (tes, wo_ri, lore, lwt) = (
-        mean(Method::Tes),
-        mean(Method::TesWoRi),
-        mean(Method::LoreRl),
-        mean(Method::Lwt),
-    );
-    let ordering_holds = tes >= wo_ri && wo_ri >= lore && lore > lwt;
-    let targets = vec![TargetCheck::new(
-        "Fig. 8: accumulated reward TES >= TES-woRi >= loreRL > LWT",
-        format!("TES {tes:.1}, TES-woRi {wo_ri:.1}, loreRL {lore:.1}, LWT {lwt:.1}"),
-        config.quick,
-        ordering_holds,
-    )];
-
-    // Fig. 8: accumulated reward of the single-environment learners.
-    let curve = |m: Method, minus: Option<Method>| -> Vec<BandPoint> {
-        let mut acc = vec![0.0; config.runs];
-        (0..config.episodes)
-            .map(|e| {
-                for (r, a) in acc.iter_mut().enumerate() {
-                    let mine = by.get(&(m, r)).map_or(0.0, |x| x[e].reward);
-                    let base = minus
-                        .and_then(|b| by.get(&(b, r)))
-                        .map_or(0.0, |x| x[e].reward);
-                    *a += mine - base;
-                }
-                let s = summarise(&acc);
-                s.at((e + 1) as f64)
-            })
+    let by_method = |f: &dyn Fn(&[&Vec<Episode>]) -> Summary| -> BTreeMap<String, Summary> {
+        METHODS
+            .iter()
+            .map(|&m| (m.name().into_owned(), f(&runs_of(m))))
             .collect()
     };
-    let fig8 = LineChart {
-        title: "Fig. 8 — accumulated reward on Env 3 (simulated arena)".into(),
-        x_label: "episode".into(),
-        y_label: "accumulated reward".into(),
-        series: [
-            Method::LoreRl,
-            Method::ManLoreRl,
-            Method::FRmax,
-            Method::FEpsG,
-        ]
-        .into_iter()
-        .map(|m| Series::method(m, curve(m, None)))
-        .collect(),
-        markers: false,
-    };
-    write_file(&out.join("fig8.svg"), &fig8.to_svg())?;
-    let fig9 = LineChart {
-        title: "Fig. 9 — accumulated reward minus TES's on Env 3".into(),
-        x_label: "episode".into(),
-        y_label: "difference to TES".into(),
-        series: [Method::Lwt, Method::TesWoRi, Method::LoreRl]
-            .into_iter()
-            .map(|m| Series::method(m, curve(m, Some(Method::Tes))))
-            .collect(),
-        markers: false,
-    };
-    write_file(&out.join("fig9.svg"), &fig9.to_svg())?;
+    let accumulated =
+        by_method(&|runs| summarise(&runs.iter().map(|e| total_reward(e)).collect::<Vec<_>>()));
+    let seconds_per_episode = by_method(&|runs| {
+        summarise(
+            &runs
+                .iter()
+                .map(|e| e.iter().map(|x| x.agent_seconds).sum::<f64>() / e.len() as f64)
+                .collect::<Vec<_>>(),
+        )
+    });
+    let first_episode = METHODS
+        .iter()
+        .map(|&m| {
+            let firsts = runs_of(m)
+                .iter()
+                .map(|e| e.first().map_or(f64::NAN, |x| x.reward))
+                .collect();
+            (m.name().into_owned(), firsts)
+        })
+        .collect();
+    let difference_to_tes = differences_to_tes(config, &by);
+    let targets = targets(config, &accumulated);
+    write_figures(config, &by, out)?;
     write_episodes_csv(
         &out.join("episodes.csv"),
         "method,run,seed",
@@ -520,4 +452,98 @@ fn report_from(
     };
     write_summary(out, &report)?;
     Ok(report)
+}
+
+/// The reward of all of a run's episodes.
+fn total_reward(episodes: &[Episode]) -> f64 {
+    episodes.iter().map(|e| e.reward).sum()
+}
+
+/// Per method but TES, its accumulated reward minus TES's, paired by run.
+fn differences_to_tes(config: &RobotConfig, by: &ByJob) -> BTreeMap<String, Summary> {
+    METHODS
+        .iter()
+        .filter(|&&m| m != Method::Tes)
+        .map(|&m| {
+            let diffs: Vec<f64> = (0..config.runs)
+                .filter_map(|r| {
+                    Some(total_reward(by.get(&(m, r))?) - total_reward(by.get(&(Method::Tes, r))?))
+                })
+                .collect();
+            (m.name().into_owned(), summarise(&diffs))
+        })
+        .collect()
+}
+
+/// The paper's Fig. 8 target on the mean accumulated rewards.
+fn targets(config: &RobotConfig, accumulated: &BTreeMap<String, Summary>) -> Vec<TargetCheck> {
+    let mean = |m: Method| {
+        accumulated
+            .get(&*m.name())
+            .map_or(f64::NAN, |s: &Summary| s.mean)
+    };
+    let (tes, wo_ri, lore, lwt) = (
+        mean(Method::Tes),
+        mean(Method::TesWoRi),
+        mean(Method::LoreRl),
+        mean(Method::Lwt),
+    );
+    let ordering_holds = tes >= wo_ri && wo_ri >= lore && lore > lwt;
+    vec![TargetCheck::new(
+        "Fig. 8: accumulated reward TES >= TES-woRi >= loreRL > LWT",
+        format!("TES {tes:.1}, TES-woRi {wo_ri:.1}, loreRL {lore:.1}, LWT {lwt:.1}"),
+        config.quick,
+        ordering_holds,
+    )]
+}
+
+/// Fig. 8 (the single-environment learners' accumulated reward) and Fig. 9 (the transfer
+/// methods' and loreRL's accumulated reward minus TES's).
+fn write_figures(config: &RobotConfig, by: &ByJob, out: &Path) -> Result<()> {
+    let fig8 = LineChart {
+        title: "Fig. 8 — accumulated reward on Env 3 (simulated arena)".into(),
+        x_label: "episode".into(),
+        y_label: "accumulated reward".into(),
+        series: [
+            Method::LoreRl,
+            Method::ManLoreRl,
+            Method::FRmax,
+            Method::FEpsG,
+        ]
+        .into_iter()
+        .map(|m| Series::method(m, curve(config, by, m, None)))
+        .collect(),
+        markers: false,
+    };
+    write_file(&out.join("fig8.svg"), &fig8.to_svg())?;
+    let fig9 = LineChart {
+        title: "Fig. 9 — accumulated reward minus TES's on Env 3".into(),
+        x_label: "episode".into(),
+        y_label: "difference to TES".into(),
+        series: [Method::Lwt, Method::TesWoRi, Method::LoreRl]
+            .into_iter()
+            .map(|m| Series::method(m, curve(config, by, m, Some(Method::Tes))))
+            .collect(),
+        markers: false,
+    };
+    write_file(&out.join("fig9.svg"), &fig9.to_svg())
+}
+
+/// `m`'s accumulated reward episode by episode (minus `minus`'s, paired by run), mean and
+/// 95 % band over runs.
+fn curve(config: &RobotConfig, by: &ByJob, m: Method, minus: Option<Method>) -> Vec<BandPoint> {
+    let mut acc = vec![0.0; config.runs];
+    (0..config.episodes)
+        .map(|e| {
+            for (r, a) in acc.iter_mut().enumerate() {
+                let mine = by.get(&(m, r)).map_or(0.0, |x| x[e].reward);
+                let base = minus
+                    .and_then(|b| by.get(&(b, r)))
+                    .map_or(0.0, |x| x[e].reward);
+                *a += mine - base;
+            }
+            let s = summarise(&acc);
+            s.at((e + 1) as f64)
+        })
+        .collect()
 }

@@ -404,6 +404,31 @@ impl CategoryChart {
     /// whisker — or a "not run" mark when no series has a value. No polyline, path or polygon
     /// is drawn, so no line can join two categories.
     pub fn to_svg(&self) -> String {
+        let (y0, y1) = self.y_range();
+        let n = self.categories.len().max(1);
+        let frame = Frame {
+            width: LEFT + RIGHT + (CATEGORY_WIDTH * n as f64).max(WIDTH - LEFT - RIGHT),
+            y0,
+            y1,
+        };
+        let slot = frame.plot_width() / n as f64;
+        let mut svg = String::new();
+        frame.open(&mut svg, &self.title);
+        frame.y_grid(&mut svg);
+        self.guides(&mut svg, &frame, slot);
+        frame.frame_and_labels(&mut svg, &self.x_label, &self.y_label);
+        for (c, label) in self.categories.iter().enumerate() {
+            self.category(&mut svg, &frame, slot, c, label);
+        }
+        for (i, s) in self.series.iter().enumerate() {
+            frame.legend(&mut svg, i, &s.name, colour_by_name(&s.name), true);
+        }
+        svg.push_str("</svg>\n");
+        svg
+    }
+
+    /// The vertical range every drawn value and whisker fits in, padded.
+    fn y_range(&self) -> (f64, f64) {
         let (mut y0, mut y1) = (f64::INFINITY, f64::NEG_INFINITY);
         for s in &self.series {
             for c in 0..self.categories.len() {
@@ -415,99 +440,99 @@ impl CategoryChart {
                 }
             }
         }
-        let (y0, y1) = padded(y0, y1);
-        let n = self.categories.len().max(1);
-        let frame = Frame {
-            width: LEFT + RIGHT + (CATEGORY_WIDTH * n as f64).max(WIDTH - LEFT - RIGHT),
-            y0,
-            y1,
-        };
-        let pw = frame.plot_width();
-        let ph = frame.plot_height();
-        let slot = pw / n as f64;
-        // Dots of one category sit side by side, centred in its slot.
-        let step = (0.8 * slot / self.series.len().max(1) as f64).min(10.0);
-        let mid = (self.series.len().max(1) - 1) as f64 / 2.0;
+        padded(y0, y1)
+    }
 
-        let mut svg = String::new();
-        frame.open(&mut svg, &self.title);
-        frame.y_grid(&mut svg);
-        if y0 < 0.0 && 0.0 < y1 {
+    /// The zero line (when 0 is in range) and light separators between the categories, each
+    /// `slot` wide: vertical, never across one.
+    fn guides(&self, svg: &mut String, frame: &Frame, slot: f64) {
+        if frame.y0 < 0.0 && 0.0 < frame.y1 {
             let _ = writeln!(
                 svg,
                 r##"<line x1="{LEFT}" y1="{y:.1}" x2="{:.1}" y2="{y:.1}" stroke="#999"/>"##,
-                LEFT + pw,
+                LEFT + frame.plot_width(),
                 y = frame.sy(0.0)
             );
         }
-        // Light separators between categories: vertical, never across one.
         for c in 1..self.categories.len() {
             let x = LEFT + slot * c as f64;
             let _ = writeln!(
                 svg,
                 r##"<line x1="{x:.1}" y1="{TOP}" x2="{x:.1}" y2="{:.1}" stroke="#f0f0f0"/>"##,
-                TOP + ph
+                TOP + frame.plot_height()
             );
         }
-        frame.frame_and_labels(&mut svg, &self.x_label, &self.y_label);
-        for (c, label) in self.categories.iter().enumerate() {
-            let centre = LEFT + slot * (c as f64 + 0.5);
-            let _ = writeln!(
-                svg,
-                r#"<g class="category" data-category="{}" data-left="{:.1}" data-right="{:.1}">"#,
-                escape(label),
-                LEFT + slot * c as f64,
-                LEFT + slot * (c as f64 + 1.0)
-            );
-            let _ = writeln!(
-                svg,
-                r#"<text x="{centre:.1}" y="{:.1}" text-anchor="middle">{}</text>"#,
-                TOP + ph + 18.0,
-                escape(label)
-            );
-            let mut drawn = 0;
-            for (j, s) in self.series.iter().enumerate() {
-                let Some(v) = Self::value(s, c) else {
-                    continue;
-                };
-                drawn += 1;
-                let colour = colour_by_name(&s.name);
-                let x = centre + (j as f64 - mid) * step;
-                let (lo, hi) = (
-                    if v.lo.is_finite() { v.lo } else { v.mean },
-                    if v.hi.is_finite() { v.hi } else { v.mean },
-                );
-                open_series(&mut svg, "series", &s.name, colour);
-                let _ = writeln!(
-                    svg,
-                    r#"<line x1="{x:.1}" y1="{:.1}" x2="{x:.1}" y2="{:.1}" stroke="{colour}" stroke-width="1.5"/><circle cx="{x:.1}" cy="{:.1}" r="3.5" fill="{colour}"><title>{}, {}: {} [{}, {}]</title></circle>"#,
-                    frame.sy(lo),
-                    frame.sy(hi),
-                    frame.sy(v.mean),
-                    escape(&s.name),
-                    escape(label),
-                    fmt_value(v.mean),
-                    fmt_value(lo),
-                    fmt_value(hi)
-                );
-                svg.push_str("</g>\n");
-            }
-            if drawn == 0 {
-                let _ = writeln!(
-                    svg,
-                    r##"<text class="not-run" transform="translate({:.1},{:.1}) rotate(-90)" text-anchor="middle" fill="#999">not run</text>"##,
-                    centre + 4.0,
-                    TOP + ph / 2.0
-                );
-            }
-            svg.push_str("</g>\n");
-        }
-        for (i, s) in self.series.iter().enumerate() {
-            frame.legend(&mut svg, i, &s.name, colour_by_name(&s.name), true);
-        }
-        svg.push_str("</svg>\n");
-        svg
     }
+
+    /// Category `c`'s group: its label and every series' dot with its whisker there, side by
+    /// side and centred in its `slot`, or a "not run" mark.
+    fn category(&self, svg: &mut String, frame: &Frame, slot: f64, c: usize, label: &str) {
+        let ph = frame.plot_height();
+        let step = (0.8 * slot / self.series.len().max(1) as f64).min(10.0);
+        let mid = (self.series.len().max(1) - 1) as f64 / 2.0;
+        let centre = LEFT + slot * (c as f64 + 0.5);
+        let _ = writeln!(
+            svg,
+            r#"<g class="category" data-category="{}" data-left="{:.1}" data-right="{:.1}">"#,
+            escape(label),
+            LEFT + slot * c as f64,
+            LEFT + slot * (c as f64 + 1.0)
+        );
+        let _ = writeln!(
+            svg,
+            r#"<text x="{centre:.1}" y="{:.1}" text-anchor="middle">{}</text>"#,
+            TOP + ph + 18.0,
+            escape(label)
+        );
+        let mut drawn = 0;
+        for (j, s) in self.series.iter().enumerate() {
+            let Some(v) = Self::value(s, c) else {
+                continue;
+            };
+            drawn += 1;
+            dot(
+                svg,
+                frame,
+                &s.name,
+                label,
+                centre + (j as f64 - mid) * step,
+                v,
+            );
+        }
+        if drawn == 0 {
+            let _ = writeln!(
+                svg,
+                r##"<text class="not-run" transform="translate({:.1},{:.1}) rotate(-90)" text-anchor="middle" fill="#999">not run</text>"##,
+                centre + 4.0,
+                TOP + ph / 2.0
+            );
+        }
+        svg.push_str("</g>\n");
+    }
+}
+
+/// Series `name`'s dot at `x` with its vertical whisker (a non-finite end drawn at the mean)
+/// and a tooltip naming the category `label`.
+fn dot(svg: &mut String, frame: &Frame, name: &str, label: &str, x: f64, v: Interval) {
+    let colour = colour_by_name(name);
+    let (lo, hi) = (
+        if v.lo.is_finite() { v.lo } else { v.mean },
+        if v.hi.is_finite() { v.hi } else { v.mean },
+    );
+    open_series(svg, "series", name, colour);
+    let _ = writeln!(
+        svg,
+        r#"<line x1="{x:.1}" y1="{:.1}" x2="{x:.1}" y2="{:.1}" stroke="{colour}" stroke-width="1.5"/><circle cx="{x:.1}" cy="{:.1}" r="3.5" fill="{colour}"><title>{}, {}: {} [{}, {}]</title></circle>"#,
+        frame.sy(lo),
+        frame.sy(hi),
+        frame.sy(v.mean),
+        escape(name),
+        escape(label),
+        fmt_value(v.mean),
+        fmt_value(lo),
+        fmt_value(hi)
+    );
+    svg.push_str("</g>\n");
 }
 
 /// A value for a tooltip: three decimals.
