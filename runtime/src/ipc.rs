@@ -126,7 +126,7 @@ pub fn group_node(
     handle_signals: bool,
 ) -> Result<Node<ipc::Service>, IpcError> {
     node_named(
-        &group_node_name(prefix_of(names), role.name()),
+        &group_node_name(prefix_of(names), Member::Process(role)),
         handle_signals,
     )
 }
@@ -134,29 +134,67 @@ pub fn group_node(
 /// The longest node name iceoryx2 takes, in bytes (ASCII only).
 pub const NODE_NAME_MAX: usize = iceoryx2::constants::MAX_NODE_NAME_LENGTH;
 
-/// The member name of a group's launcher (the processes are named by [`Role::name`]).
-pub const LAUNCHER: &str = "launcher";
+/// A member of a group, as its node's name says it: one of the three processes, or the
+/// launcher.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Member {
+    /// A process of the group, by its role.
+    Process(Role),
+    /// The group's launcher.
+    Launcher,
+}
 
-/// Every member of a group a node name can say: the three processes' [`Role::name`]s and
-/// [`LAUNCHER`].
-pub const GROUP_MEMBERS: [&str; 4] = ["perception-sim", "controller", "bridge", LAUNCHER];
+impl Member {
+    /// Every member, in the order the data flows, the launcher last.
+    pub const ALL: [Member; 4] = [
+        Member::Process(Role::Perception),
+        Member::Process(Role::Controller),
+        Member::Process(Role::Bridge),
+        Member::Launcher,
+    ];
+
+    /// Its name in a node name: a process's [`Role::name`], or `launcher`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Member::Process(role) => role.name(),
+            Member::Launcher => "launcher",
+        }
+    }
+
+    /// The role of a process member; `None` for the launcher.
+    pub fn role(self) -> Option<Role> {
+        match self {
+            Member::Process(role) => Some(role),
+            Member::Launcher => None,
+        }
+    }
+}
+
+impl std::fmt::Display for Member {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // `pad`, so that a width (`{:<14}`) lines members up in tables.
+        f.pad(self.name())
+    }
+}
 
 /// What stands between a group's service prefix and the member in a node name: a group's
 /// node names look like its service names (`tes-41-0badcafe/tes/controller` beside the
 /// service `tes-41-0badcafe/tes/progress/controller`).
 const MEMBER_MARK: &str = "tes/";
 
-/// The node name of `member` (a [`Role::name`] or [`LAUNCHER`]) of the group with service
-/// prefix `prefix`; [`parse_group_node_name`] reads it back.
-pub fn group_node_name(prefix: &str, member: &str) -> String {
-    format!("{prefix}{MEMBER_MARK}{member}")
+/// The node name of `member` of the group with service prefix `prefix`;
+/// [`parse_group_node_name`] reads it back.
+pub fn group_node_name(prefix: &str, member: Member) -> String {
+    format!("{prefix}{MEMBER_MARK}{}", member.name())
 }
 
 /// The (service prefix, member) a node name made by [`group_node_name`] says; `None` for a
 /// name that is not a TES group member's (an unnamed node, another program's node).
-pub fn parse_group_node_name(name: &str) -> Option<(&str, &'static str)> {
-    GROUP_MEMBERS.into_iter().find_map(|member| {
-        let prefix = name.strip_suffix(member)?.strip_suffix(MEMBER_MARK)?;
+pub fn parse_group_node_name(name: &str) -> Option<(&str, Member)> {
+    Member::ALL.into_iter().find_map(|member| {
+        let prefix = name
+            .strip_suffix(member.name())?
+            .strip_suffix(MEMBER_MARK)?;
         Some((prefix, member))
     })
 }
@@ -343,7 +381,7 @@ mod tests {
             "tes-test/7/x/",
             "a/tes/controller/",
         ] {
-            for member in GROUP_MEMBERS {
+            for member in Member::ALL {
                 let name = group_node_name(prefix, member);
                 assert_eq!(
                     parse_group_node_name(&name),
@@ -353,7 +391,7 @@ mod tests {
             }
         }
         assert_eq!(
-            group_node_name("tes-41-0badcafe/", "controller"),
+            group_node_name("tes-41-0badcafe/", Member::Process(Role::Controller)),
             "tes-41-0badcafe/tes/controller"
         );
     }
@@ -378,8 +416,9 @@ mod tests {
 
     #[test]
     fn the_process_members_are_the_roles() {
-        let roles = Role::ALL.map(Role::name);
-        assert_eq!(GROUP_MEMBERS[..3], roles);
+        let roles = Role::ALL.map(Member::Process);
+        assert_eq!(Member::ALL[..3], roles);
+        assert_eq!(Member::ALL.map(Member::role)[..3], Role::ALL.map(Some));
     }
 
     #[test]
@@ -407,7 +446,10 @@ mod tests {
     /// A named node is listed alive with its name and this process's id.
     #[test]
     fn a_named_node_is_listed_alive_with_its_name_and_pid() {
-        let name = group_node_name(&format!("tes-unit/{}/", std::process::id()), "controller");
+        let name = group_node_name(
+            &format!("tes-unit/{}/", std::process::id()),
+            Member::Process(Role::Controller),
+        );
         let node = node_named(&name, false).expect("node");
         let listed = list_nodes().expect("list");
         let ours: Vec<&NodeEntry> = listed

@@ -32,8 +32,10 @@ use tes_learning::library::store::{self, StoredLibrary};
 use tes_runtime::affinity::Placement;
 use tes_runtime::channel::WaitStrategy;
 use tes_runtime::latency::LatencyReport;
+use tes_topics::Role;
 
-use crate::launch::{self, ChildSpec, LaunchFile, LaunchSection, Running};
+use tes_launch::children::{self, ChildCommand, Process};
+use tes_launch::{LaunchFile, LaunchSection};
 
 /// Arguments of `tes bench`.
 #[derive(Debug, Args)]
@@ -53,6 +55,15 @@ enum BenchCommand {
     /// the controller's launch is in the measured run (started by `latency`, not by hand).
     #[command(hide = true)]
     ZenohFloorHop(FloorHopArgs),
+    /// One process of the floor's relay (started by `latency`, not by hand).
+    #[command(hide = true)]
+    Relay {
+        /// relay-source, relay-hop or relay-sink.
+        role: String,
+        /// Its settings (TOML).
+        #[arg(long)]
+        config: PathBuf,
+    },
 }
 
 /// Arguments of the floor's controller side (`tes bench zenoh-floor-hop`).
@@ -193,7 +204,20 @@ pub fn run(args: &BenchArgs) -> Result<()> {
         BenchCommand::Latency(a) => latency(a),
         BenchCommand::Scaling(a) => scaling_sweep(a),
         BenchCommand::ZenohFloorHop(a) => zenoh_floor_hop(a),
+        BenchCommand::Relay { role, config } => run_relay(role, config),
     }
+}
+
+/// One process of the floor's relay.
+fn run_relay(role: &str, config: &Path) -> Result<()> {
+    tes_runtime::logging::init("warn");
+    let text = std::fs::read_to_string(config)
+        .with_context(|| format!("cannot read {}", config.display()))?;
+    let origin = tes_runtime::settings::Origin::File(config.to_owned());
+    let cfg = RelayConfig::from_toml_in(&text, origin)?;
+    let stop = tes_runtime::signals::stop_on_signals()?;
+    relay::run(role, &cfg, &stop)?;
+    Ok(())
 }
 
 /// What `tes bench latency --json` prints.
@@ -521,7 +545,7 @@ fn run_group(
 ) -> Result<(LatencyReport, ControllerSummary)> {
     // Every run starts from the same library (the previous one saved what it learned).
     store::save(&files.library, stored)?;
-    launch::run_file(file, false).context("the process group failed")?;
+    crate::launch::run_file(file, false).context("the process group failed")?;
     let report = LatencyReport::load(&files.bridge_report)
         .with_context(|| format!("no bridge report at {}", files.bridge_report.display()))?;
     let path = &files.controller_report;
@@ -549,7 +573,7 @@ fn run_split_group(
         .context("no free TCP port on loopback")?;
     let group = format!("tes-bench/{}", std::process::id());
     let mut robot = file.clone();
-    robot.launch.roles = vec!["perception-sim".into(), "bridge".into()];
+    robot.launch.roles = vec![Role::Perception, Role::Bridge];
     let link = &mut robot.launch.link;
     link.group.clone_from(&group);
     link.listen = vec![format!("tcp/127.0.0.1:{port}")];
@@ -558,12 +582,12 @@ fn run_split_group(
     // One machine, one clock: the latency is measured across the link.
     link.restamp = false;
     let mut workstation = robot.clone();
-    workstation.launch.roles = vec!["controller".into()];
+    workstation.launch.roles = vec![Role::Controller];
     workstation.launch.run_dir = Some(dir.join("run-controller"));
     let link = &mut workstation.launch.link;
     link.listen = Vec::new();
     link.connect = vec![format!("tcp/127.0.0.1:{port}")];
-    let text = crate::launch::render_launch_file(&workstation)?;
+    let text = tes_launch::reference::render_resolved(&workstation)?;
     let path = dir.join("controller-launch.toml");
     std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
     let exe = std::env::current_exe().context("cannot find the tes executable")?;
@@ -582,7 +606,7 @@ fn run_split_group(
         .stderr(log)
         .spawn()
         .context("cannot start the controller's launch")?;
-    let ran = launch::run_file(&robot, false).context("the robot's launch failed");
+    let ran = crate::launch::run_file(&robot, false).context("the robot's launch failed");
     let deadline = Instant::now() + Duration::from_secs(60);
     let status = loop {
         if let Some(s) = other
@@ -603,7 +627,7 @@ fn run_split_group(
         Some(s) if s.success() => {}
         Some(s) => bail!(
             "the controller's launch {} (see {})",
-            launch::describe(s),
+            children::describe(s),
             dir.join("controller-launch.log").display()
         ),
         None => bail!("the controller's launch did not stop"),
@@ -635,20 +659,20 @@ fn floor_link_settings(
     group: &str,
     listen: Vec<String>,
     connect: Vec<String>,
-) -> crate::link::LinkSection {
-    crate::link::LinkSection {
+) -> tes_link::LinkSection {
+    tes_link::LinkSection {
         group: group.to_owned(),
         listen,
         connect,
         multicast_scouting: Some(false),
         // One machine, one clock, as in the measured run.
         restamp: false,
-        ..crate::link::LinkSection::default()
+        ..tes_link::LinkSection::default()
     }
 }
 
 /// Waits until `link` sees a peer for every role it does not play.
-fn floor_wait_for_peer(link: &crate::link::Link, side: &str) -> Result<()> {
+fn floor_wait_for_peer(link: &tes_link::Link, side: &str) -> Result<()> {
     let started = Instant::now();
     while !link.missing().is_empty() {
         if started.elapsed() > Duration::from_secs(20) {
@@ -663,7 +687,7 @@ fn floor_wait_for_peer(link: &crate::link::Link, side: &str) -> Result<()> {
 }
 
 /// The floor of `--via zenoh`: the loop's two hops through the very link a split launch uses
-/// ([`crate::link::Link`] on loopback TCP) with no work at either end. The robot's side runs
+/// ([`tes_link::Link`] on loopback TCP) with no work at either end. The robot's side runs
 /// here, the controller's in a child process (`tes bench zenoh-floor-hop`) with an iceoryx2
 /// domain of its own, as the controller's launch in the measured run: an observation
 /// published here is forwarded, checked and republished there, answered at once with a
@@ -690,7 +714,7 @@ fn zenoh_floor(
     let group = format!("tes-bench-floor/{pid}");
     let endpoint = format!("tcp/127.0.0.1:{port}");
     let names = ServiceNames::with_prefix(&format!("tes-bench-{pid}/floor-robot/"));
-    let robot = crate::link::Link::open(
+    let robot = tes_link::Link::open(
         &floor_link_settings(&group, vec![endpoint.clone()], Vec::new()),
         &[Role::Perception, Role::Bridge],
         &names,
@@ -817,7 +841,7 @@ fn zenoh_floor(
         Some(s) if s.success() => {}
         Some(s) => bail!(
             "the floor's controller side {} (see {})",
-            launch::describe(s),
+            children::describe(s),
             log_path.display()
         ),
         None => bail!(
@@ -848,7 +872,7 @@ fn zenoh_floor_hop(args: &FloorHopArgs) -> Result<()> {
     }
     let names = ServiceNames::with_prefix(&args.prefix);
     let wheels = floor_map()?.action_wheels[0];
-    let link = crate::link::Link::open(
+    let link = tes_link::Link::open(
         &floor_link_settings(&args.group, Vec::new(), vec![args.connect.clone()]),
         &[Role::Controller],
         &names,
@@ -1142,20 +1166,15 @@ fn run_floor(
     let config = dir.join("relay.toml");
     std::fs::write(&config, toml::to_string(&cfg)?)
         .with_context(|| format!("cannot write {}", config.display()))?;
-    let mut children: Vec<Running> = Vec::new();
+    let mut children: Vec<Process> = Vec::new();
+    let relay_command =
+        ChildCommand::new(std::env::current_exe().context("cannot find the tes executable")?)
+            .arg("bench")
+            .arg("relay");
     // The receivers first, so the source's first observations find them sooner.
     for role in [relay::ROLES[2], relay::ROLES[1], relay::ROLES[0]] {
-        let spec = ChildSpec {
-            role,
-            config: config.clone(),
-        };
-        let child = launch::spawn(&spec)?;
-        children.push(Running {
-            spec,
-            child,
-            restarts: 0,
-            status: None,
-        });
+        let child = children::spawn_as(&relay_command, role, &config)?;
+        children.push(Process::new(role, child));
     }
     let limit = Duration::from_millis(cfg.idle_timeout_ms)
         + Duration::from_micros(cfg.gap_us + 500)
@@ -1167,12 +1186,13 @@ fn run_floor(
         }
         std::thread::sleep(Duration::from_millis(10));
     }
-    launch::shutdown(&mut children, Duration::from_secs(1));
+    let mut processes: Vec<&mut Process> = children.iter_mut().collect();
+    children::shutdown(&mut processes, Duration::from_secs(1));
     for c in &children {
         match c.status {
             Some(s) if s.success() => {}
-            Some(s) => bail!("the floor's {} {}", c.spec.role, launch::describe(s)),
-            None => bail!("the floor's {} did not finish", c.spec.role),
+            Some(s) => bail!("the floor's {} {}", c.name, children::describe(s)),
+            None => bail!("the floor's {} did not finish", c.name),
         }
     }
     let load = |path: &Path| {

@@ -10,7 +10,6 @@ mod experiment;
 mod fit;
 mod launch;
 mod library;
-mod link;
 mod record;
 mod status;
 
@@ -43,8 +42,9 @@ enum Command {
     /// Run one process of the group (used by `tes launch`).
     #[command(hide = true)]
     Child {
-        /// bridge, controller or perception-sim.
-        role: String,
+        /// perception-sim, controller or bridge.
+        #[arg(value_parser = launch::parse_role)]
+        role: tes_topics::Role,
         /// The role's settings (TOML).
         #[arg(long)]
         config: std::path::PathBuf,
@@ -89,7 +89,15 @@ fn main() -> ExitCode {
         Command::Bench(args) => bench::run(&args),
         Command::Child { role, config } => {
             init_child_logging();
-            launch::run_child(&role, &config)
+            return match tes_launch::run_role(role, &config) {
+                Ok(()) => ExitCode::SUCCESS,
+                Err(e) => {
+                    // The bridge's link-down status tells the supervisor not to respawn it.
+                    let status = u8::try_from(e.exit_status()).unwrap_or(1);
+                    eprintln!("error: {:#}", anyhow::Error::from(e));
+                    ExitCode::from(status)
+                }
+            };
         }
     };
     match result {

@@ -1,85 +1,10 @@
-//! `tes launch --record` (the launcher's side of a recording) and `tes replay`.
+//! `tes replay`: a recorded run replayed through the acting loop, summarised or exported.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use tes_recorder::live::Recorder;
 use tes_recorder::reader::Recording;
-use tes_recorder::writer::RunInfo;
-
-use crate::launch::{ChildSpec, LaunchFile};
-
-/// Starts the recorder of a launch if its file asks for one: subscribed to the group's
-/// services before any child starts; the run's settings, seed and starting library go into
-/// the file's metadata.
-pub(crate) fn start(
-    file: &LaunchFile,
-    specs: &[ChildSpec],
-    prefix: &str,
-    library: &Path,
-) -> Result<Option<Recorder>> {
-    let Some(path) = &file.launch.record else {
-        return Ok(None);
-    };
-    let controller_toml = match specs.iter().find(|s| s.role == "controller") {
-        Some(spec) => std::fs::read_to_string(&spec.config).with_context(|| {
-            format!(
-                "cannot read the controller's settings {}",
-                spec.config.display()
-            )
-        })?,
-        None => String::new(),
-    };
-    let library_bytes = match std::fs::read(library) {
-        Ok(bytes) => Some(bytes),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
-        Err(e) => bail!(
-            "cannot read the view library {} to record it: {e}; nothing was started",
-            library.display()
-        ),
-    };
-    let launch_toml = toml::to_string(&file.launch).unwrap_or_default();
-    let wall_ns = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos() as i128);
-    let info = RunInfo {
-        tes_version: env!("CARGO_PKG_VERSION").to_owned(),
-        seed: file.launch.seed,
-        service_prefix: prefix.to_owned(),
-        controller_toml,
-        launch_toml,
-        library_path: library.display().to_string(),
-        library: library_bytes,
-        wall_offset_ns: wall_ns - i128::from(tes_runtime::clock::monotonic_ns()),
-    };
-    let recorder = Recorder::start(path, prefix, info)
-        .with_context(|| format!("cannot record to {}; nothing was started", path.display()))?;
-    Ok(Some(recorder))
-}
-
-/// Finishes a launch's recording (the group has stopped); the line that says what it holds.
-pub(crate) fn finish(recorder: Recorder) -> Result<String> {
-    let path = recorder.path().to_owned();
-    let counts = recorder
-        .stop()
-        .with_context(|| format!("the recording {} is incomplete", path.display()))?;
-    let [maps, observations, commands, keepalives, motor] = counts.written;
-    let _ = maps;
-    let missed = counts.missed_observations + counts.missed_commands + counts.missed_motor_states;
-    let mut line = format!(
-        "launch: recorded {observations} observations, {commands} commands, {keepalives} \
-         keep-alives and {motor} motor states to {}",
-        path.display()
-    );
-    if missed > 0 {
-        line.push_str(&format!(
-            " (missed {} observations, {} commands, {} motor states)",
-            counts.missed_observations, counts.missed_commands, counts.missed_motor_states
-        ));
-    }
-    Ok(line)
-}
 
 /// Arguments of `tes replay`.
 #[derive(Debug, Args)]

@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use clap::Args;
 use serde::Serialize;
-use tes_runtime::channel::{self, LAUNCHER, NodeEntry, NodeLiveness};
+use tes_runtime::channel::{self, Member as GroupMember, NodeEntry, NodeLiveness};
 use tes_runtime::progress::ProgressWatch;
 use tes_topics::{Role, ServiceNames};
 
@@ -73,8 +73,9 @@ pub(crate) enum GroupState {
 /// A process (or the launcher) of a group.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub(crate) struct Member {
-    /// `perception-sim`, `controller`, `bridge` or `launcher`.
-    pub(crate) role: &'static str,
+    /// A process of the group (`perception-sim`, `controller`, `bridge`) or `launcher`.
+    #[serde(serialize_with = "by_name")]
+    pub(crate) role: GroupMember,
     /// Its process id.
     pub(crate) pid: i32,
     /// Alive, or dead with stale resources.
@@ -86,6 +87,11 @@ pub(crate) struct Member {
     /// Steps done, from its latest progress report (observations published, commands sent or
     /// executed).
     pub(crate) steps: Option<u64>,
+}
+
+/// A member as its name.
+fn by_name<S: serde::Serializer>(member: &GroupMember, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(member.name())
 }
 
 /// Whether a group member's process runs.
@@ -155,7 +161,7 @@ pub(crate) fn group_nodes(nodes: &[NodeEntry]) -> Vec<GroupStatus> {
             steps: None,
         };
         let (launchers, processes) = by_prefix.entry(prefix).or_default();
-        if role == LAUNCHER {
+        if role == GroupMember::Launcher {
             launchers.push(member);
         } else {
             processes.push(member);
@@ -166,7 +172,7 @@ pub(crate) fn group_nodes(nodes: &[NodeEntry]) -> Vec<GroupStatus> {
         .map(|(prefix, (mut launchers, mut processes))| {
             let order = |m: &Member| {
                 (
-                    channel::GROUP_MEMBERS.iter().position(|r| *r == m.role),
+                    GroupMember::ALL.iter().position(|r| *r == m.role),
                     m.state != MemberState::Alive,
                     m.pid,
                 )
@@ -174,10 +180,11 @@ pub(crate) fn group_nodes(nodes: &[NodeEntry]) -> Vec<GroupStatus> {
             processes.sort_by_key(order);
             launchers.sort_by_key(order);
             let alive = |m: &Member| m.state == MemberState::Alive;
-            let state = if Role::ALL
-                .iter()
-                .all(|r| processes.iter().any(|m| m.role == r.name() && alive(m)))
-            {
+            let state = if Role::ALL.iter().all(|r| {
+                processes
+                    .iter()
+                    .any(|m| m.role == GroupMember::Process(*r) && alive(m))
+            }) {
                 GroupState::Running
             } else if processes.iter().chain(&launchers).any(alive) {
                 GroupState::Incomplete
@@ -201,7 +208,7 @@ fn read_progress(groups: &mut [GroupStatus], wait: Duration) -> Result<()> {
     let wanted = |g: &GroupStatus| {
         g.processes
             .iter()
-            .any(|m| m.state == MemberState::Alive && m.role != LAUNCHER)
+            .any(|m| m.state == MemberState::Alive && m.role != GroupMember::Launcher)
     };
     if !groups.iter().any(wanted) {
         return Ok(());
@@ -240,9 +247,9 @@ fn read_progress(groups: &mut [GroupStatus], wait: Duration) -> Result<()> {
                 if member.state != MemberState::Alive {
                     continue;
                 }
-                let report = Role::ALL
-                    .into_iter()
-                    .find(|r| r.name() == member.role)
+                let report = member
+                    .role
+                    .role()
                     .and_then(|r| watch.latest(r))
                     .filter(|p| i64::from(p.pid) == i64::from(member.pid));
                 match report {
@@ -353,7 +360,7 @@ pub(crate) fn render(status: &Status) -> String {
                 (Some(e), Some(s)) => {
                     let _ = write!(line, "  episodes {e}  steps {s}");
                 }
-                _ if p.state == MemberState::Alive && p.role != LAUNCHER => {
+                _ if p.state == MemberState::Alive && p.role != GroupMember::Launcher => {
                     line.push_str("  no progress report yet");
                 }
                 _ => {}
@@ -399,7 +406,12 @@ mod tests {
         }
     }
 
-    fn named(prefix: &str, member: &str, pid: i32, liveness: NodeLiveness) -> NodeEntry {
+    const PERCEPTION: GroupMember = GroupMember::Process(Role::Perception);
+    const CONTROLLER: GroupMember = GroupMember::Process(Role::Controller);
+    const BRIDGE: GroupMember = GroupMember::Process(Role::Bridge);
+    const LAUNCHER: GroupMember = GroupMember::Launcher;
+
+    fn named(prefix: &str, member: GroupMember, pid: i32, liveness: NodeLiveness) -> NodeEntry {
         entry(&channel::group_node_name(prefix, member), pid, liveness)
     }
 
@@ -411,16 +423,16 @@ mod tests {
     fn nodes_are_grouped_by_prefix_in_role_order() {
         let a = "tes-41-0badcafe/";
         let nodes = [
-            named(a, "bridge", 44, Alive),
+            named(a, BRIDGE, 44, Alive),
             entry("", 7, Alive),
             entry("someone/else", 8, Alive),
-            named(a, "controller", 43, Alive),
-            named("b/", "controller", 50, Dead),
-            named(a, "controller", 40, Dead),
-            named(a, "perception-sim", 42, Alive),
+            named(a, CONTROLLER, 43, Alive),
+            named("b/", CONTROLLER, 50, Dead),
+            named(a, CONTROLLER, 40, Dead),
+            named(a, PERCEPTION, 42, Alive),
             named(a, LAUNCHER, 41, Alive),
-            named("c/", "bridge", 60, Inaccessible),
-            named("c/", "bridge", 61, Undefined),
+            named("c/", BRIDGE, 60, Inaccessible),
+            named("c/", BRIDGE, 61, Undefined),
             NodeEntry {
                 name: None,
                 pid: None,
@@ -428,8 +440,8 @@ mod tests {
             },
         ];
         let groups = group_nodes(&nodes);
-        type Row<'a> = (&'a str, i32, MemberState);
-        let summary: Vec<(&str, GroupState, Option<i32>, Vec<Row<'_>>)> = groups
+        type Row = (GroupMember, i32, MemberState);
+        let summary: Vec<(&str, GroupState, Option<i32>, Vec<Row>)> = groups
             .iter()
             .map(|g| {
                 (
@@ -450,17 +462,17 @@ mod tests {
                     "b/",
                     GroupState::Stale,
                     None,
-                    vec![("controller", 50, MemberState::DeadStale)]
+                    vec![(CONTROLLER, 50, MemberState::DeadStale)]
                 ),
                 (
                     a,
                     GroupState::Running,
                     Some(41),
                     vec![
-                        ("perception-sim", 42, MemberState::Alive),
-                        ("controller", 43, MemberState::Alive),
-                        ("controller", 40, MemberState::DeadStale),
-                        ("bridge", 44, MemberState::Alive),
+                        (PERCEPTION, 42, MemberState::Alive),
+                        (CONTROLLER, 43, MemberState::Alive),
+                        (CONTROLLER, 40, MemberState::DeadStale),
+                        (BRIDGE, 44, MemberState::Alive),
                     ]
                 ),
             ]
@@ -475,9 +487,9 @@ mod tests {
         let state = |nodes: &[NodeEntry]| group_nodes(nodes)[0].state;
         let all = |l: NodeLiveness| {
             vec![
-                named(p, "perception-sim", 1, l),
-                named(p, "controller", 2, l),
-                named(p, "bridge", 3, l),
+                named(p, PERCEPTION, 1, l),
+                named(p, CONTROLLER, 2, l),
+                named(p, BRIDGE, 3, l),
             ]
         };
         assert_eq!(state(&all(Alive)), GroupState::Running);
@@ -518,10 +530,10 @@ mod tests {
     fn the_table_shows_each_process_and_the_stale_hint() {
         let mut groups = group_nodes(&[
             named("tes-41-0badcafe/", LAUNCHER, 41, Alive),
-            named("tes-41-0badcafe/", "perception-sim", 42, Alive),
-            named("tes-41-0badcafe/", "controller", 43, Alive),
-            named("tes-41-0badcafe/", "bridge", 44, Alive),
-            named("tes-9-deadbeef/", "controller", 12, Dead),
+            named("tes-41-0badcafe/", PERCEPTION, 42, Alive),
+            named("tes-41-0badcafe/", CONTROLLER, 43, Alive),
+            named("tes-41-0badcafe/", BRIDGE, 44, Alive),
+            named("tes-9-deadbeef/", CONTROLLER, 12, Dead),
         ]);
         let running = &mut groups[0];
         running.launcher.as_mut().expect("launcher").uptime_s = Some(65.0);
@@ -557,7 +569,7 @@ mod tests {
     #[test]
     fn the_json_names_states_in_kebab_case() {
         let status = Status {
-            groups: group_nodes(&[named("g/", "bridge", 5, Dead)]),
+            groups: group_nodes(&[named("g/", BRIDGE, 5, Dead)]),
             cleaned: Some(0),
         };
         let json: serde_json::Value =
@@ -625,7 +637,7 @@ mod tests {
             pid in 1i32..i32::MAX,
             alive in any::<bool>(),
         ) {
-            let member = channel::GROUP_MEMBERS[member];
+            let member = GroupMember::ALL[member];
             let name = channel::group_node_name(&prefix, member);
             prop_assert!(name.len() <= channel::NODE_NAME_MAX);
             prop_assert_eq!(channel::parse_group_node_name(&name), Some((prefix.as_str(), member)));

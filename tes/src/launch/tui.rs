@@ -26,7 +26,8 @@ use ratatui::widgets::{
 };
 use tes_perception_sim::arena::{Arena, MarkColour};
 
-use super::run_record::RunRecord;
+use tes_launch::run_record::{EpisodeRow, RobotAt};
+use tes_perception_sim::arena::ArenaId;
 
 /// The window of the reward curve's moving mean, episodes.
 const MOVING_MEAN: usize = 10;
@@ -57,8 +58,12 @@ pub(crate) struct Frame<'a> {
     pub(crate) budget_us: u64,
     /// The processes.
     pub(crate) processes: &'a [ProcessRow],
-    /// The run's records.
-    pub(crate) record: &'a RunRecord,
+    /// The episodes recorded so far, in order.
+    pub(crate) episodes: &'a [EpisodeRow],
+    /// Where the robot is, if it has moved.
+    pub(crate) robot: Option<RobotAt>,
+    /// The arena, if it is one of the paper's.
+    pub(crate) arena: Option<ArenaId>,
     /// The last log lines, oldest first.
     pub(crate) log: &'a [String],
     /// Shown at the bottom ("stopping…" once asked).
@@ -116,7 +121,7 @@ impl LiveView {
         }
         self.drawn = Some(Instant::now());
         if self.arena.is_none() {
-            self.arena = frame.record.arena().map(Arena::new);
+            self.arena = frame.arena.map(Arena::new);
         }
         let cpu: Vec<Option<f64>> = frame
             .processes
@@ -270,7 +275,7 @@ fn processes(f: &mut ratatui::Frame<'_>, area: Rect, frame: &Frame<'_>, cpu: &[O
 }
 
 fn episodes(f: &mut ratatui::Frame<'_>, area: Rect, frame: &Frame<'_>) {
-    let done = frame.record.episodes();
+    let done = frame.episodes;
     let mut lines = vec![Line::from(format!(
         "episodes {} of {}   total reward {:.2}",
         done.len(),
@@ -304,8 +309,7 @@ fn episodes(f: &mut ratatui::Frame<'_>, area: Rect, frame: &Frame<'_>) {
 
 fn rewards(f: &mut ratatui::Frame<'_>, area: Rect, frame: &Frame<'_>) {
     let points: Vec<(f64, f64)> = frame
-        .record
-        .episodes()
+        .episodes
         .iter()
         .map(|e| (f64::from(e.line.episode), e.line.reward))
         .collect();
@@ -363,7 +367,7 @@ fn map(f: &mut ratatui::Frame<'_>, area: Rect, frame: &Frame<'_>, arena: Option<
         f.render_widget(Paragraph::new("no map").block(block("Arena")), area);
         return;
     };
-    let robot = frame.record.robot();
+    let robot = frame.robot;
     let n = arena.cells();
     let mut lines = Vec::with_capacity(n + 2);
     for row in (0..n).rev() {
@@ -396,10 +400,7 @@ fn map(f: &mut ratatui::Frame<'_>, area: Rect, frame: &Frame<'_>, arena: Option<
         Some(r) => format!("episode {}, step {}", r.episode, r.steps),
         None => "robot not moved yet".to_owned(),
     }));
-    let title = frame
-        .record
-        .arena()
-        .map_or("Arena".to_owned(), |id| id.to_string());
+    let title = frame.arena.map_or("Arena".to_owned(), |id| id.to_string());
     f.render_widget(Paragraph::new(lines).block(block(&title)), area);
 }
 

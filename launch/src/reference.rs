@@ -11,55 +11,64 @@
 
 use std::fmt::Write as _;
 
-use anyhow::{Context, Result};
+use crate::file::{INHERITED, LaunchFile};
 
-use super::{INHERITED, LaunchFile};
-
-/// What `tes launch --print-config` prints.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub(crate) enum Format {
-    /// A launch file with every key at its default, commented.
-    Toml,
-    /// The reference page (`docs/config.md`).
-    Markdown,
+/// The reference cannot be rendered: a table's values do not serialise (a bug in a config
+/// struct), or the text cannot be written.
+#[derive(Debug, thiserror::Error)]
+pub enum ReferenceError {
+    /// A table's values cannot be serialised to TOML.
+    #[error("cannot serialise the [{table}] settings")]
+    Serialise {
+        /// The table.
+        table: String,
+        /// Why.
+        #[source]
+        source: toml::ser::Error,
+    },
+    /// Writing into the text failed.
+    #[error("cannot write the reference")]
+    Format(#[from] std::fmt::Error),
 }
+
+type Result<T, E = ReferenceError> = std::result::Result<T, E>;
 
 /// Where the reference comes from and how to regenerate `docs/config.md`, as the printed
 /// reference and its tests say.
-pub(crate) const REGENERATE: &str = "tes launch --print-config=markdown > docs/config.md";
+pub const REGENERATE: &str = "tes launch --print-config=markdown > docs/config.md";
 
 /// A table of the launch file, in the order the reference lists them.
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Table {
+pub struct Table {
     /// Its dotted name (`bridge.watchdog`).
-    pub(crate) name: &'static str,
+    pub name: &'static str,
     /// Whether it is an array of tables (`[[bridge.actions]]`).
-    pub(crate) array: bool,
+    pub array: bool,
     /// What it is for.
-    pub(crate) about: &'static str,
+    pub about: &'static str,
 }
 
 /// One key of the launch file, as the reference describes it.
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Key {
+pub struct Key {
     /// The table it is in ([`Table::name`]).
-    pub(crate) table: &'static str,
+    pub table: &'static str,
     /// Its name in the table.
-    pub(crate) key: &'static str,
+    pub key: &'static str,
     /// Its unit, or the values it takes.
-    pub(crate) allowed: &'static str,
+    pub allowed: &'static str,
     /// What it does.
-    pub(crate) meaning: &'static str,
+    pub meaning: &'static str,
     /// For a key that is unset by default (no TOML value can say "unset"): a value to show,
     /// commented out.
-    pub(crate) example: Option<&'static str>,
+    pub example: Option<&'static str>,
     /// For a key the launcher fills in for a child ([`INHERITED`]): the value it sets.
-    pub(crate) inherited: Option<&'static str>,
+    pub inherited: Option<&'static str>,
 }
 
 impl Key {
     /// Its dotted name from the top of the file (`bridge.watchdog.deadline_ms`).
-    pub(crate) fn path(&self) -> String {
+    pub fn path(&self) -> String {
         format!("{}.{}", self.table, self.key)
     }
 
@@ -105,7 +114,7 @@ const PREFIX: &str = "text, at most 64 bytes";
 const BOOL: &str = "`true` | `false`";
 
 /// The tables of a launch file, in order (a table comes before the tables nested in it).
-pub(crate) const TABLES: &[Table] = &[
+pub const TABLES: &[Table] = &[
     Table {
         name: "launch",
         array: false,
@@ -187,7 +196,7 @@ pub(crate) const TABLES: &[Table] = &[
 ];
 
 /// Every key of every table, in the order the reference lists them.
-pub(crate) const KEYS: &[Key] = &[
+pub const KEYS: &[Key] = &[
     // [launch]
     key(
         "launch",
@@ -941,7 +950,7 @@ pub(crate) const KEYS: &[Key] = &[
 /// The defaults of a launch file, one TOML table per process (`launch`, `perception`,
 /// `controller`, `bridge`): the config structs' `Default`s, serialised. Keys that are unset
 /// by default are absent (TOML has no "unset").
-pub(crate) fn defaults() -> Result<toml::Table> {
+pub fn defaults() -> Result<toml::Table> {
     values_of(&LaunchFile::default())
 }
 
@@ -949,7 +958,10 @@ pub(crate) fn defaults() -> Result<toml::Table> {
 fn values_of(file: &LaunchFile) -> Result<toml::Table> {
     let mut tables = toml::Table::new();
     let mut put = |name: &str, value: Result<toml::Value, toml::ser::Error>| -> Result<()> {
-        let value = value.with_context(|| format!("cannot serialise the [{name}] defaults"))?;
+        let value = value.map_err(|source| ReferenceError::Serialise {
+            table: name.to_owned(),
+            source,
+        })?;
         tables.insert(name.to_owned(), value);
         Ok(())
     };
@@ -961,7 +973,7 @@ fn values_of(file: &LaunchFile) -> Result<toml::Table> {
 }
 
 /// The value at the dotted `path` of `root`, if any.
-pub(crate) fn lookup<'a>(root: &'a toml::Table, path: &str) -> Option<&'a toml::Value> {
+pub fn lookup<'a>(root: &'a toml::Table, path: &str) -> Option<&'a toml::Value> {
     let mut parts = path.split('.');
     let mut value = root.get(parts.next()?)?;
     for part in parts {
@@ -972,7 +984,7 @@ pub(crate) fn lookup<'a>(root: &'a toml::Table, path: &str) -> Option<&'a toml::
 
 /// Whether `value` is a table of its own in a TOML file: a table, or a non-empty array of
 /// tables — not a key of the table holding it.
-pub(crate) fn is_table(value: &toml::Value) -> bool {
+pub fn is_table(value: &toml::Value) -> bool {
     match value {
         toml::Value::Table(_) => true,
         toml::Value::Array(items) => !items.is_empty() && items.iter().all(|v| v.is_table()),
@@ -1021,7 +1033,7 @@ fn keys_of(table: &Table, values: Option<&toml::Table>) -> Vec<(String, Key)> {
 /// (written in a child's table, even at its default, a key no longer follows `[launch]`), as
 /// are keys unset by default (shown with an example value) — unless `set_all`, which writes
 /// every one (for the tests: every key then reaches the parser).
-pub(crate) fn render_toml(set_all: bool) -> Result<String> {
+pub fn render_toml(set_all: bool) -> Result<String> {
     let header = [
         "TES launch file: every key of every table, at its default.",
         "Printed by `tes launch --print-config`; read by `tes launch --config FILE`.",
@@ -1038,7 +1050,7 @@ pub(crate) fn render_toml(set_all: bool) -> Result<String> {
 /// for the rest), described as [`render_toml`] describes them, which `tes launch --config`
 /// reads back as the same launch. The keys a child inherits from `[launch]` stay commented
 /// out unless the file gave that child its own value.
-pub(crate) fn render_resolved(file: &LaunchFile) -> Result<String> {
+pub fn render_resolved(file: &LaunchFile) -> Result<String> {
     let header = [
         "TES launch file of this run: every key, as the launch ran it (the file's values, the",
         "defaults for the rest). `tes launch --config THIS_FILE` runs it again (with a run",
@@ -1177,7 +1189,7 @@ fn wrap(text: &str, width: usize) -> Vec<String> {
 
 /// The reference page, `docs/config.md`: how the launch file is read, the inherited keys, and
 /// per table a row per key (key, default, unit or allowed values, meaning).
-pub(crate) fn render_markdown() -> Result<String> {
+pub fn render_markdown() -> Result<String> {
     let defaults = defaults()?;
     let mut out = String::new();
     out.push_str("# Launch file reference\n\n");
@@ -1290,26 +1302,6 @@ The printed launch file therefore has these keys commented out: uncommenting one
 process off the launch-wide value.
 ";
 
-/// Prints the reference to stdout in `format`. A reader that closes the pipe early (`| head`)
-/// is not an error.
-pub(crate) fn print(format: Format) -> Result<()> {
-    use std::io::Write as _;
-    let text = match format {
-        Format::Toml => render_toml(false)?,
-        Format::Markdown => render_markdown()?,
-    };
-    let mut stdout = std::io::stdout().lock();
-    match stdout
-        .write_all(text.as_bytes())
-        .and_then(|()| stdout.flush())
-    {
-        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
-            Err(e).context("cannot write the reference to stdout")
-        }
-        _ => Ok(()),
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use std::collections::BTreeSet;
@@ -1323,7 +1315,10 @@ mod tests {
     use tes_runtime::settings::Origin;
 
     use super::*;
-    use crate::launch::{BridgeSettings, ControllerConfig, LaunchSection, PerceptionConfig};
+    use crate::file::LaunchSection;
+    use tes_bridge::config::BridgeSettings;
+    use tes_controller::config::ControllerConfig;
+    use tes_perception_sim::process::PerceptionConfig;
 
     /// Stops a [`FieldNames`] probe once it has seen the struct's fields.
     #[derive(Debug)]
@@ -1389,7 +1384,7 @@ mod tests {
     fn struct_fields() -> Vec<(&'static str, &'static [&'static str])> {
         vec![
             ("launch", fields_of::<LaunchSection>()),
-            ("launch.link", fields_of::<crate::link::LinkSection>()),
+            ("launch.link", fields_of::<tes_link::LinkSection>()),
             ("perception", fields_of::<PerceptionConfig>()),
             ("controller", fields_of::<ControllerConfig>()),
             ("bridge", fields_of::<BridgeSettings>()),

@@ -12,33 +12,33 @@ use std::fs::File;
 use std::io::{BufRead, BufReader, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result};
 use tes_controller::summary::EpisodeLine;
 use tes_experiments::svg::{BandPoint, LineChart, Series};
 use tes_perception_sim::arena::{Arena, ArenaId, DVec2, Path as ArenaPath};
 
-use super::file::TRAJECTORY;
+use crate::IoError;
+use crate::file::TRAJECTORY;
 
 /// The episode table of a run folder.
-pub(crate) const EPISODES: &str = "episodes.csv";
+pub const EPISODES: &str = "episodes.csv";
 
 /// Its header row.
-pub(crate) const EPISODES_HEADER: &str =
+pub const EPISODES_HEADER: &str =
     "episode,reward,steps,end,decision_p50_us,decision_p99_us,decision_max_us,misses";
 
 /// How many of the last episodes' paths `arena.svg` (and the live view) draw.
-pub(crate) const PATHS_DRAWN: usize = 5;
+pub const PATHS_DRAWN: usize = 5;
 
 /// The window of the moving mean in `rewards.svg`.
 const MOVING_MEAN: usize = 5;
 
 /// One row of `episodes.csv`.
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) struct EpisodeRow {
+pub struct EpisodeRow {
     /// The controller's line.
-    pub(crate) line: EpisodeLine,
+    pub line: EpisodeLine,
     /// Why it ended, from the trajectory (`None` if perception did not say).
-    pub(crate) end: Option<String>,
+    pub end: Option<String>,
 }
 
 impl EpisodeRow {
@@ -60,15 +60,15 @@ impl EpisodeRow {
 
 /// Where the robot is, from the trajectory's last row.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct RobotAt {
+pub struct RobotAt {
     /// Episode.
-    pub(crate) episode: u32,
+    pub episode: u32,
     /// Actions taken in it.
-    pub(crate) steps: u32,
+    pub steps: u32,
     /// Cell column and row, `None` out of the arena.
-    pub(crate) cell: Option<(u16, u16)>,
+    pub cell: Option<(u16, u16)>,
     /// Orientation, 0..8 (45° steps counter-clockwise from east).
-    pub(crate) orientation: u16,
+    pub orientation: u16,
 }
 
 /// Follows a growing file line by line (whole lines only).
@@ -119,7 +119,7 @@ impl Tail {
 
 /// The run folder's records: episodes joined from the controller's lines and perception's
 /// trajectory, the last episodes' paths and where the robot is.
-pub(crate) struct RunRecord {
+pub struct RunRecord {
     dir: PathBuf,
     budget_us: u64,
     arena: Option<ArenaId>,
@@ -138,12 +138,12 @@ pub(crate) struct RunRecord {
 impl RunRecord {
     /// The records of the run folder `dir`, for a controller with a `budget_us` decision
     /// budget on arena `arena` (1–3). Creates `episodes.csv`.
-    pub(crate) fn create(dir: &Path, budget_us: u64, arena: u32) -> Result<Self> {
+    pub fn create(dir: &Path, budget_us: u64, arena: u32) -> Result<Self, IoError> {
         let path = dir.join(EPISODES);
-        let mut csv =
-            File::create(&path).with_context(|| format!("cannot create {}", path.display()))?;
+        let mut csv = File::create(&path)
+            .map_err(IoError::with(format!("cannot create {}", path.display())))?;
         writeln!(csv, "{EPISODES_HEADER}")
-            .with_context(|| format!("cannot write {}", path.display()))?;
+            .map_err(IoError::with(format!("cannot write {}", path.display())))?;
         Ok(Self {
             dir: dir.to_owned(),
             budget_us,
@@ -160,14 +160,14 @@ impl RunRecord {
     }
 
     /// Takes a line of the controller's standard output (episode lines; others are ignored).
-    pub(crate) fn controller_line(&mut self, text: &str) {
+    pub fn controller_line(&mut self, text: &str) {
         if let Some(line) = EpisodeLine::parse(text) {
             self.lines.insert(line.episode, line);
         }
     }
 
     /// Reads the trajectory's new rows and writes the episodes now complete.
-    pub(crate) fn poll(&mut self) {
+    pub fn poll(&mut self) {
         for line in self.trajectory.new_lines() {
             self.take_trajectory_row(&line);
         }
@@ -246,39 +246,40 @@ impl RunRecord {
     }
 
     /// The episodes so far, in order.
-    pub(crate) fn episodes(&self) -> &[EpisodeRow] {
+    pub fn episodes(&self) -> &[EpisodeRow] {
         &self.rows
     }
 
     /// Where the robot is, if it has moved.
-    pub(crate) fn robot(&self) -> Option<RobotAt> {
+    pub fn robot(&self) -> Option<RobotAt> {
         self.robot
     }
 
     /// The last episodes' paths (oldest first), cm.
     #[cfg(test)]
-    pub(crate) fn paths(&self) -> impl Iterator<Item = &(u32, Vec<DVec2>)> {
+    pub fn paths(&self) -> impl Iterator<Item = &(u32, Vec<DVec2>)> {
         self.paths.iter()
     }
 
     /// The arena, if it is one of the paper's.
-    pub(crate) fn arena(&self) -> Option<ArenaId> {
+    pub fn arena(&self) -> Option<ArenaId> {
         self.arena
     }
 
     /// Ends the record: the last rows, every episode written, and the pictures. Returns the
     /// files drawn.
-    pub(crate) fn finish(&mut self) -> Result<Vec<PathBuf>> {
+    pub fn finish(&mut self) -> Result<Vec<PathBuf>, IoError> {
         self.poll();
         self.write_ready(true);
         if let Some(csv) = &mut self.csv {
-            csv.flush().context("cannot write episodes.csv")?;
+            csv.flush()
+                .map_err(IoError::with("cannot write episodes.csv".into()))?;
         }
         let mut drawn = Vec::new();
-        let mut write = |name: &str, svg: String| -> Result<()> {
+        let mut write = |name: &str, svg: String| -> Result<(), IoError> {
             let path = self.dir.join(name);
             std::fs::write(&path, svg)
-                .with_context(|| format!("cannot write {}", path.display()))?;
+                .map_err(IoError::with(format!("cannot write {}", path.display())))?;
             drawn.push(path);
             Ok(())
         };
@@ -308,7 +309,7 @@ fn flat(x: f64, y: f64) -> BandPoint {
 }
 
 /// Reward per episode, with its moving mean.
-pub(crate) fn rewards_chart(rows: &[EpisodeRow]) -> LineChart {
+pub fn rewards_chart(rows: &[EpisodeRow]) -> LineChart {
     let rewards: Vec<(f64, f64)> = rows
         .iter()
         .map(|r| (f64::from(r.line.episode), r.line.reward))
@@ -345,7 +346,7 @@ pub(crate) fn rewards_chart(rows: &[EpisodeRow]) -> LineChart {
 }
 
 /// Decision latency percentiles per episode, against the budget.
-pub(crate) fn latency_chart(rows: &[EpisodeRow], budget_us: u64) -> LineChart {
+pub fn latency_chart(rows: &[EpisodeRow], budget_us: u64) -> LineChart {
     let series = |name: &str, slot, value: fn(&EpisodeLine) -> u64| Series {
         name: name.into(),
         points: rows

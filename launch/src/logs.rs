@@ -8,18 +8,22 @@
 //! pipe. The launcher follows the files ([`follow`]) and relays their lines.
 
 use std::fs::{File, OpenOptions};
-use std::io::{BufRead, BufReader, Seek, SeekFrom, Write};
+use std::io::{BufRead, BufReader, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::time::Duration;
 
-use anyhow::{Context, Result};
+use tes_topics::Role;
+
+use crate::IoError;
+
+type Result<T, E = IoError> = std::result::Result<T, E>;
 
 /// Which of a child's two outputs a line came from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Stream {
+pub enum Stream {
     /// Standard output: the controller's episode lines and summary.
     Out,
     /// Standard error: the `tracing` log.
@@ -28,17 +32,17 @@ pub(crate) enum Stream {
 
 /// One line a child wrote.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub(crate) struct ChildLine {
+pub struct ChildLine {
     /// The child's role.
-    pub(crate) role: &'static str,
+    pub role: Role,
     /// Which output.
-    pub(crate) stream: Stream,
+    pub stream: Stream,
     /// The line, without its end.
-    pub(crate) text: String,
+    pub text: String,
 }
 
 /// The two files of `role` in `dir`.
-pub(crate) fn paths(dir: &Path, role: &str) -> [(Stream, PathBuf); 2] {
+pub fn paths(dir: &Path, role: &str) -> [(Stream, PathBuf); 2] {
     [
         (Stream::Out, dir.join(format!("{role}.out"))),
         (Stream::Log, dir.join(format!("{role}.log"))),
@@ -46,22 +50,22 @@ pub(crate) fn paths(dir: &Path, role: &str) -> [(Stream, PathBuf); 2] {
 }
 
 /// Empties `role`'s files in `dir` (a new launch starts them afresh).
-pub(crate) fn reset(dir: &Path, role: &str) -> Result<()> {
+pub fn reset(dir: &Path, role: &str) -> Result<()> {
     for (_, path) in paths(dir, role) {
-        File::create(&path).with_context(|| format!("cannot create {}", path.display()))?;
+        File::create(&path).map_err(IoError::with(format!("cannot create {}", path.display())))?;
     }
     Ok(())
 }
 
 /// `role`'s standard output and standard error, appending to its files in `dir`.
-pub(crate) fn open(dir: &Path, role: &str) -> Result<(File, File)> {
+pub fn open(dir: &Path, role: &str) -> Result<(File, File)> {
     let [(_, out), (_, log)] = paths(dir, role);
     let append = |path: &Path| {
         OpenOptions::new()
             .create(true)
             .append(true)
             .open(path)
-            .with_context(|| format!("cannot open {}", path.display()))
+            .map_err(IoError::with(format!("cannot open {}", path.display())))
     };
     Ok((append(&out)?, append(&log)?))
 }
@@ -69,16 +73,16 @@ pub(crate) fn open(dir: &Path, role: &str) -> Result<(File, File)> {
 /// Follows `path` from its current end on a thread of its own, sending each complete line to
 /// `lines`, until `done` is raised and the file has no more complete lines. The file may be
 /// appended to by several processes in turn (a child and its respawned successor).
-pub(crate) fn follow(
+pub fn follow(
     path: PathBuf,
-    role: &'static str,
+    role: Role,
     stream: Stream,
     lines: mpsc::Sender<ChildLine>,
     done: Arc<AtomicBool>,
 ) -> Result<()> {
-    let mut file = File::open(&path).with_context(|| format!("cannot read {}", path.display()))?;
-    file.seek(SeekFrom::End(0))
-        .with_context(|| format!("cannot read {}", path.display()))?;
+    let unreadable = || IoError::with(format!("cannot read {}", path.display()));
+    let mut file = File::open(&path).map_err(unreadable())?;
+    file.seek(SeekFrom::End(0)).map_err(unreadable())?;
     std::thread::Builder::new()
         .name(format!("follow-{role}"))
         .spawn(move || {
@@ -106,88 +110,16 @@ pub(crate) fn follow(
                 std::thread::sleep(Duration::from_millis(10));
             }
         })
-        .context("cannot start a thread to follow a child's output")?;
+        .map_err(IoError::with(
+            "cannot start a thread to follow a child's output".into(),
+        ))?;
     Ok(())
-}
-
-/// The launcher's own output, which must never end the launch: a closed terminal or pipe
-/// (`tes launch | head -2`) only silences it, and the group runs to its end.
-#[derive(Debug, Default)]
-pub(crate) struct Say {
-    out_closed: AtomicBool,
-    /// While a live view owns the terminal: the lines said, newest last, instead of printed.
-    held: std::sync::Mutex<Option<std::collections::VecDeque<String>>>,
-}
-
-/// How many lines [`Say::hold`] keeps.
-const HELD_LINES: usize = 500;
-
-impl Say {
-    /// Keeps what is said from now on (the last [`HELD_LINES`]) instead of printing it: the
-    /// terminal belongs to the live view.
-    pub(crate) fn hold(&self) {
-        if let Ok(mut held) = self.held.lock() {
-            held.get_or_insert_with(Default::default);
-        }
-    }
-
-    /// Prints what is said again (the held lines are dropped: the run folder has them).
-    pub(crate) fn release(&self) {
-        if let Ok(mut held) = self.held.lock() {
-            *held = None;
-        }
-    }
-
-    /// The last `n` held lines, oldest first.
-    pub(crate) fn held_lines(&self, n: usize) -> Vec<String> {
-        match self.held.lock() {
-            Ok(held) => held.as_ref().map_or_else(Vec::new, |h| {
-                h.iter().skip(h.len().saturating_sub(n)).cloned().collect()
-            }),
-            Err(_) => Vec::new(),
-        }
-    }
-
-    /// Whether `line` was held (and so must not be printed).
-    fn held(&self, line: &str) -> bool {
-        let Ok(mut held) = self.held.lock() else {
-            return false;
-        };
-        let Some(held) = held.as_mut() else {
-            return false;
-        };
-        if held.len() == HELD_LINES {
-            held.pop_front();
-        }
-        held.push_back(line.to_owned());
-        true
-    }
-
-    /// Prints `line` on standard output (nothing once that is closed).
-    pub(crate) fn out(&self, line: &str) {
-        if self.held(line) {
-            return;
-        }
-        if !self.out_closed.load(Ordering::Relaxed) {
-            let mut out = std::io::stdout().lock();
-            if writeln!(out, "{line}").and_then(|()| out.flush()).is_err() {
-                self.out_closed.store(true, Ordering::Relaxed);
-            }
-        }
-    }
-
-    /// Prints `line` on standard error (errors ignored: there is nowhere else to say them).
-    pub(crate) fn err(&self, line: &str) {
-        if self.held(line) {
-            return;
-        }
-        let _ = writeln!(std::io::stderr().lock(), "{line}");
-    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::io::Write;
 
     /// Lines appended by two writers in turn (a child and its successor) arrive once each, in
     /// order; a line is sent only once its end is written; what was there before the
@@ -200,13 +132,13 @@ mod tests {
         std::fs::write(&out, "before\n").unwrap();
         let (tx, rx) = mpsc::channel();
         let done = Arc::new(AtomicBool::new(false));
-        follow(out.clone(), "controller", Stream::Out, tx, done.clone()).unwrap();
+        follow(out.clone(), Role::Controller, Stream::Out, tx, done.clone()).unwrap();
         let (mut first, _) = open(dir.path(), "controller").unwrap();
         write!(first, "episode 1\nepisode").unwrap();
         first.flush().unwrap();
         let got = rx.recv_timeout(Duration::from_secs(5)).unwrap();
         assert_eq!(got.text, "episode 1");
-        assert_eq!((got.role, got.stream), ("controller", Stream::Out));
+        assert_eq!((got.role, got.stream), (Role::Controller, Stream::Out));
         assert!(rx.recv_timeout(Duration::from_millis(100)).is_err());
         writeln!(first, " 2").unwrap();
         drop(first);

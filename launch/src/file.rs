@@ -1,0 +1,1050 @@
+//! The launch file: read once into each process's typed settings, checked, and written to the
+//! run directory for the children.
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use tes_bridge::config::{BridgeSettings, TransportKind};
+use tes_controller::config::{ControllerConfig, default_data_dir};
+use tes_perception_sim::process::PerceptionConfig;
+use tes_runtime::channel::WaitStrategy;
+use tes_runtime::lock::{Lock, LockError};
+use tes_runtime::settings::{self, Origin, SettingError};
+use tes_topics::Role;
+
+use crate::children::ChildSpec;
+use crate::{reference, run_folder};
+
+/// What to do when a child dies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum Restart {
+    /// Stop the others and exit non-zero.
+    #[default]
+    Never,
+    /// Respawn it (up to `max_restarts` times).
+    OnFailure,
+}
+
+/// The `[launch]` table (its keys are described in [`super::reference`]).
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LaunchSection {
+    /// Episodes perception runs before the group stops (default 20).
+    pub episodes: u32,
+    /// The arena: 1, 2 or 3 (default 3, the paper's test arena).
+    pub arena: u8,
+    /// Real-time factor: 1.0 = physical time (the paper's 200 ms settle), 0 = as fast as
+    /// possible (default).
+    pub real_time_factor: f64,
+    /// How every process waits: `block` (default), `spin`, `spin-then-block[:<µs>]`.
+    pub wait: WaitStrategy,
+    /// `never` (default) or `on-failure`.
+    pub restart: Restart,
+    /// Respawns allowed per child with `on-failure` (default 3).
+    pub max_restarts: u32,
+    /// Grace period of each shutdown step, ms (default 3000).
+    pub grace_ms: u64,
+    /// Prefix of every iceoryx2 service. Unset (the default), each launch gets one of its own,
+    /// `tes-PID-XXXXXXXX/`, so any number of launches run side by side; a prefix already used
+    /// by a running group is refused.
+    pub service_prefix: String,
+    /// The run folder itself, used as it is (no folder per run, never pruned). Unset (the
+    /// default), each launch gets a folder of its own under `runs_dir`.
+    pub run_dir: Option<PathBuf>,
+    /// Where the per-launch run folders go (default: `runs` in the data directory).
+    pub runs_dir: Option<PathBuf>,
+    /// How many run folders `runs_dir` keeps: the oldest beyond it are removed when a launch
+    /// starts (default 20; 0 keeps every one).
+    pub keep_runs: u32,
+    /// Seed of the world and the agent (default 1).
+    pub seed: u64,
+    /// A group whose controller sends no command for this long is stalled: the launcher
+    /// names the process holding it up and stops the group (`restart = "never"`) or
+    /// restarts that process (`on-failure`), ms of wall time (default 10000, at least 500).
+    pub stall_timeout_ms: u64,
+    /// Record the run to this MCAP file (`tes launch --record`); unset (the default): no
+    /// recording.
+    pub record: Option<PathBuf>,
+    /// The processes this launch starts (`tes launch --roles`): some of `perception-sim`,
+    /// `controller`, `bridge`; the others run on other hosts, reached through the link
+    /// (`[launch.link]`). Empty (the default): all three, on this host, and no link.
+    pub roles: Vec<Role>,
+    /// How a launch with roles reaches the other hosts.
+    pub link: tes_link::LinkSection,
+}
+
+impl Default for LaunchSection {
+    fn default() -> Self {
+        Self {
+            episodes: 20,
+            arena: 3,
+            real_time_factor: 0.0,
+            wait: WaitStrategy::Block,
+            restart: Restart::Never,
+            max_restarts: 3,
+            grace_ms: 3000,
+            service_prefix: String::new(),
+            run_dir: None,
+            runs_dir: None,
+            keep_runs: 20,
+            seed: 1,
+            stall_timeout_ms: 10_000,
+            record: None,
+            roles: Vec::new(),
+            link: tes_link::LinkSection::default(),
+        }
+    }
+}
+
+/// The process name of errors about the `[launch]` table (and about the file as a whole).
+pub const LAUNCH: &str = "launch";
+
+/// Which process a table of a launch file is for.
+pub fn process_of(table: &str) -> Option<&'static str> {
+    match table {
+        "launch" => Some(LAUNCH),
+        "perception" => Some(tes_perception_sim::process::config::PROCESS),
+        "controller" => Some(tes_controller::config::PROCESS),
+        "bridge" => Some(tes_bridge::config::PROCESS),
+        _ => None,
+    }
+}
+
+/// The launch-wide values the launcher sets in the children's tables, as `(table, key)`:
+/// each is set unless the table sets the key itself.
+pub const INHERITED: [(&str, &str); 15] = [
+    ("perception", "arena"),
+    ("perception", "episodes"),
+    ("perception", "real_time_factor"),
+    ("perception", "wait"),
+    ("perception", "service_prefix"),
+    ("perception", "seed"),
+    ("controller", "wait"),
+    ("controller", "service_prefix"),
+    ("controller", "seed"),
+    ("bridge", "seed"),
+    ("bridge", "use_command_degrees"),
+    ("bridge", "ipc.service_prefix"),
+    ("bridge", "ipc.wait"),
+    ("bridge", "brick.time_scale"),
+    ("bridge", "watchdog.deadline_ms"),
+];
+
+/// The tables of a launch file, as the parser reads them.
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct Tables {
+    launch: LaunchSection,
+    perception: PerceptionConfig,
+    controller: ControllerConfig,
+    bridge: BridgeSettings,
+}
+
+/// A whole launch file: each table typed as its process reads it, and where it came from.
+#[derive(Debug, Clone)]
+pub struct LaunchFile {
+    /// `[launch]`: the launch-wide settings.
+    pub launch: LaunchSection,
+    /// `[perception]`: perception-sim's settings, before the launch-wide values go in.
+    pub perception: PerceptionConfig,
+    /// `[controller]`: the controller's settings, before the launch-wide values go in.
+    pub controller: ControllerConfig,
+    /// `[bridge]`: the bridge's settings, before the launch-wide values go in.
+    pub bridge: BridgeSettings,
+    /// The [`INHERITED`] keys the children's tables set themselves, as `table.key`
+    /// (`perception.wait`): the launch-wide values do not replace them.
+    pub own: BTreeSet<String>,
+    /// Where the file came from (errors name it).
+    pub origin: Origin,
+    /// The file as the user wrote it (errors give the line of their key in it).
+    pub text: Option<String>,
+}
+
+impl Default for LaunchFile {
+    fn default() -> Self {
+        let Tables {
+            launch,
+            perception,
+            controller,
+            bridge,
+        } = Tables::default();
+        Self {
+            launch,
+            perception,
+            controller,
+            bridge,
+            own: BTreeSet::new(),
+            origin: Origin::Defaults,
+            text: None,
+        }
+    }
+}
+
+/// The children's settings as they are written to the run directory: the launch file's
+/// tables with the launch-wide values set, each checked.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Children {
+    /// The bridge's.
+    pub bridge: BridgeSettings,
+    /// The controller's.
+    pub controller: ControllerConfig,
+    /// perception-sim's.
+    pub perception: PerceptionConfig,
+}
+
+/// The trajectory perception writes in the run folder, unless its table names a file.
+pub const TRAJECTORY: &str = "trajectory.csv";
+
+/// The latency report the bridge writes in the run folder, unless its table names a file.
+pub const BRIDGE_REPORT: &str = "bridge-report.json";
+
+impl Children {
+    /// Has the children write their records into the run folder `run_dir` where their tables
+    /// name no file of their own: perception's trajectory, the bridge's latency report.
+    pub fn write_into(&mut self, run_dir: &Path) {
+        self.perception
+            .trajectory
+            .get_or_insert_with(|| run_dir.join(TRAJECTORY));
+        self.bridge
+            .ipc
+            .latency_report
+            .get_or_insert_with(|| run_dir.join(BRIDGE_REPORT));
+    }
+}
+
+impl LaunchFile {
+    /// Parses a launch file's text, once, into the typed tables; a key that is unknown, of
+    /// the wrong type or repeated is reported with `origin`, its line and its table and key.
+    pub fn from_toml(text: &str, origin: Origin) -> Result<Self, SettingError> {
+        let t: Tables = settings::parse_tables(LAUNCH, text, origin.clone(), process_of)?;
+        let own = INHERITED
+            .iter()
+            .filter(|(table, key)| settings::is_set(text, Some(table), key))
+            .map(|(table, key)| format!("{table}.{key}"))
+            .collect();
+        Ok(Self {
+            launch: t.launch,
+            perception: t.perception,
+            controller: t.controller,
+            bridge: t.bridge,
+            own,
+            origin,
+            text: Some(text.to_owned()),
+        })
+    }
+
+    /// Keeps `[table] key` as the table sets it: the launch-wide value does not replace it
+    /// (what writing the key in the table does in a file).
+    pub fn keep(&mut self, table: &str, key: &str) {
+        self.own.insert(format!("{table}.{key}"));
+    }
+
+    /// The roles this launch plays, in [`Role::ALL`] order; `None` when it plays all three on
+    /// one host (no link).
+    pub fn roles(&self) -> Option<Vec<Role>> {
+        let roles: Vec<Role> = Role::ALL
+            .into_iter()
+            .filter(|r| self.launch.roles.contains(r))
+            .collect();
+        (!roles.is_empty() && roles.len() < Role::ALL.len()).then_some(roles)
+    }
+
+    /// The arena perception runs: its own `arena` if its table sets one, else `[launch] arena`.
+    pub fn arena(&self) -> u32 {
+        if self.inherits("perception", "arena") {
+            u32::from(self.launch.arena)
+        } else {
+            self.perception.arena
+        }
+    }
+
+    /// Whether the launch-wide value goes into `[table] key`.
+    fn inherits(&self, table: &str, key: &str) -> bool {
+        !self.own.contains(&format!("{table}.{key}"))
+    }
+
+    /// `error`, about a key of `table`, placed at its line in the file.
+    fn place(&self, error: SettingError, table: &str) -> SettingError {
+        error.in_file(self.origin.clone(), Some(table), self.text.as_deref())
+    }
+
+    /// The children's settings: the tables with the launch-wide values set where a table
+    /// does not set its own, every one checked (the first bad key is reported, placed in the
+    /// file).
+    pub fn children(&self) -> Result<Children, SettingError> {
+        let l = &self.launch;
+        check_launch(l).map_err(|e| self.place(e, "launch"))?;
+        // TOML integers end at i64::MAX; a larger seed set in code is written as that.
+        let seed = l.seed.min(i64::MAX.unsigned_abs());
+
+        let mut perception = self.perception.clone();
+        let inherit = |key| self.inherits("perception", key);
+        if inherit("arena") {
+            perception.arena = u32::from(l.arena);
+        }
+        if inherit("episodes") {
+            perception.episodes = l.episodes;
+        }
+        if inherit("real_time_factor") {
+            perception.real_time_factor = l.real_time_factor;
+        }
+        if inherit("wait") {
+            perception.wait = l.wait;
+        }
+        if inherit("service_prefix") {
+            perception.service_prefix.clone_from(&l.service_prefix);
+        }
+        if inherit("seed") {
+            perception.seed = seed;
+        }
+
+        let mut controller = self.controller.clone();
+        let inherit = |key| self.inherits("controller", key);
+        if inherit("wait") {
+            controller.wait = l.wait;
+        }
+        if inherit("service_prefix") {
+            controller.service_prefix.clone_from(&l.service_prefix);
+        }
+        if inherit("seed") {
+            controller.seed = seed;
+        }
+
+        let mut bridge = self.bridge.clone();
+        let inherit = |key| self.inherits("bridge", key);
+        if inherit("seed") {
+            bridge.seed = seed;
+        }
+        if inherit("use_command_degrees") {
+            bridge.use_command_degrees = true;
+        }
+        if inherit("ipc.service_prefix") {
+            bridge.ipc.service_prefix.clone_from(&l.service_prefix);
+        }
+        if inherit("ipc.wait") {
+            bridge.ipc.wait = l.wait;
+        }
+        let simulated = bridge.transport == TransportKind::Sim;
+        let time_scale = if l.real_time_factor == 0.0 {
+            FASTEST_TIME_SCALE
+        } else {
+            1.0 / l.real_time_factor
+        };
+        if inherit("brick.time_scale") {
+            bridge.brick.time_scale = time_scale;
+        }
+        // The watchdog deadline is in brick time: at a speed-up, give the wall clock the
+        // usual second, so a descheduled bridge on a busy machine does not brake a healthy
+        // run. A real brick (serial transport) runs in physical time whatever the scale.
+        if inherit("watchdog.deadline_ms") {
+            let scale = if simulated { time_scale.max(1.0) } else { 1.0 };
+            // Saturating: a deadline beyond i64::MAX ms is no deadline at all.
+            bridge.watchdog.deadline_ms = ((1000.0 * scale).round() as i64).unsigned_abs();
+        }
+
+        // Every child's settings are checked here, so a bad key stops the launch before any
+        // process starts.
+        let bridge_cfg = bridge.check().map_err(|e| self.place(e, "bridge"))?;
+        controller
+            .check()
+            .map_err(|e| self.place(e, "controller"))?;
+        // The watchdog's deadline is brick time; the keep-alives are wall time.
+        let wall_scale = if simulated {
+            bridge_cfg.brick.time_scale
+        } else {
+            1.0
+        };
+        let deadline_wall_ms = bridge_cfg.watchdog_deadline.as_secs_f64() * 1000.0 / wall_scale;
+        if controller.keepalive_ms as f64 * 2.0 > deadline_wall_ms {
+            let reason = format!(
+                "{} must be at most half the bridge's watchdog deadline ({deadline_wall_ms:.0} \
+                 ms of wall time: watchdog.deadline_ms / brick.time_scale), or the watchdog \
+                 brakes moves of a live controller",
+                controller.keepalive_ms
+            );
+            let error = SettingError::new(tes_controller::config::PROCESS, "keepalive_ms", reason);
+            return Err(self.place(error, "controller"));
+        }
+        perception
+            .check()
+            .map_err(|e| self.place(e, "perception"))?;
+        Ok(Children {
+            bridge,
+            controller,
+            perception,
+        })
+    }
+}
+
+/// Checks the `[launch]` table's own keys.
+pub fn check_launch(l: &LaunchSection) -> Result<(), SettingError> {
+    let bad = |key, reason: String| Err(SettingError::new(LAUNCH, key, reason));
+    if !(1..=3).contains(&l.arena) {
+        return bad("arena", format!("must be 1, 2 or 3, got {}", l.arena));
+    }
+    if !(l.real_time_factor.is_finite() && l.real_time_factor >= 0.0) {
+        return bad("real_time_factor", "must be a finite number >= 0".into());
+    }
+    if l.episodes == 0 {
+        return bad("episodes", "must be at least 1".into());
+    }
+    if l.stall_timeout_ms < 500 {
+        return bad(
+            "stall_timeout_ms",
+            format!("must be at least 500, got {}", l.stall_timeout_ms),
+        );
+    }
+    if l.service_prefix.len() > 64 {
+        return bad("service_prefix", "must be at most 64 bytes".into());
+    }
+    let mut seen = BTreeSet::new();
+    for role in &l.roles {
+        if !seen.insert(*role) {
+            return bad("roles", format!("{:?} is listed twice", role.name()));
+        }
+    }
+    if !l.roles.is_empty() {
+        l.link.check()?;
+    }
+    Ok(())
+}
+
+/// The simulated brick's speed-up at real-time factor 0 ("as fast as possible"): motor
+/// motion runs this many times faster than physical time.
+pub const FASTEST_TIME_SCALE: f64 = 200.0;
+
+/// A launch file that cannot be used; when one is refused, nothing is started.
+#[derive(Debug)]
+pub enum LaunchFileError {
+    /// It cannot be read: missing, unreadable, or not UTF-8 text.
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        error: std::io::Error,
+    },
+    /// A key is unknown, of the wrong type, repeated or out of range, the settings contradict
+    /// each other, or the text is not TOML: placed in the file (its origin, line, table and
+    /// key).
+    Setting(SettingError),
+    /// The children's settings cannot be serialised (a bug).
+    Write {
+        /// The launch file (or the embedded defaults).
+        origin: Origin,
+        /// What could not be written.
+        what: String,
+        /// Why.
+        error: Box<dyn std::error::Error + Send + Sync>,
+    },
+    /// The run directory cannot be created or written (disk full, read-only, permissions).
+    RunDir {
+        /// The file or directory.
+        path: PathBuf,
+        /// Why.
+        error: std::io::Error,
+    },
+    /// Another group owns the run directory.
+    Busy(LockError),
+}
+
+impl std::fmt::Display for LaunchFileError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let what = |origin: &Origin| match origin {
+            Origin::File(_) => "launch file",
+            Origin::Text | Origin::Defaults => "launch settings",
+        };
+        match self {
+            LaunchFileError::Read { path, error } => {
+                write!(f, "cannot read the launch file {}: {error}", path.display())?
+            }
+            LaunchFileError::Setting(error) => {
+                let origin = error
+                    .location
+                    .as_ref()
+                    .map_or(&Origin::Defaults, |l| &l.origin);
+                write!(f, "{} {error}", what(origin))?;
+            }
+            LaunchFileError::Write {
+                origin,
+                what: written,
+                error,
+            } => {
+                write!(f, "{} {origin}: {written}: {error}", what(origin))?;
+            }
+            LaunchFileError::RunDir { path, error } => write!(
+                f,
+                "cannot write the run directory: {}: {}",
+                path.display(),
+                tes_runtime::cause::explain(error)
+            )?,
+            LaunchFileError::Busy(LockError::Held { path, pid, .. }) => write!(
+                f,
+                "the run directory {} is in use by another tes launch{}; stop that one first, \
+                 or give this launch a data directory of its own (TES_DATA_DIR) or another \
+                 [launch] run_dir",
+                path.parent().unwrap_or(path).display(),
+                pid.map(|p| format!(" (pid {p})")).unwrap_or_default()
+            )?,
+            LaunchFileError::Busy(LockError::Io { path, error, .. }) => write!(
+                f,
+                "cannot lock the run directory: {}: {}",
+                path.display(),
+                tes_runtime::cause::explain(error)
+            )?,
+        }
+        f.write_str("; nothing was started")
+    }
+}
+
+impl std::error::Error for LaunchFileError {}
+
+/// Reads and parses a launch file; a problem is reported with the file, the line and the key.
+pub fn read_launch_file(path: &Path) -> Result<LaunchFile, LaunchFileError> {
+    let text = std::fs::read_to_string(path).map_err(|error| LaunchFileError::Read {
+        path: path.to_owned(),
+        error,
+    })?;
+    LaunchFile::from_toml(&text, Origin::File(path.to_owned())).map_err(LaunchFileError::Setting)
+}
+
+/// A launch ready to start: its children's settings written, its run directory owned.
+#[derive(Debug)]
+pub struct Prepared {
+    /// The children, in start order.
+    pub specs: Vec<ChildSpec>,
+    /// This launch's run folder: the children's settings, output and logs, the resolved launch
+    /// file, the episode table, the trajectories and, at the end, the pictures.
+    pub run_dir: PathBuf,
+    /// Old run folders removed to keep `[launch] keep_runs`.
+    pub pruned: Vec<PathBuf>,
+    /// The group's service prefix (its own unless the file sets one).
+    pub service_prefix: String,
+    /// The run directory's lock, held for the group's life.
+    pub _lock: Lock,
+}
+
+/// The order the children start in: the bridge first (the brick is there before any command
+/// comes), perception last (its first observation finds the controller listening).
+pub const START_ORDER: [Role; 3] = [Role::Bridge, Role::Controller, Role::Perception];
+
+/// A service prefix no other launch has: this process's id and the clock's low bits.
+pub fn unique_service_prefix() -> String {
+    let ns = tes_runtime::clock::monotonic_ns();
+    format!("tes-{}-{:08x}/", std::process::id(), ns & 0xffff_ffff)
+}
+
+/// The resolved launch file a run folder keeps.
+pub const RESOLVED_LAUNCH_FILE: &str = "launch.toml";
+
+/// Checks every child's settings, takes the run directory for this launch and writes their
+/// settings there. A launch without a service prefix gets one of its own.
+pub fn prepare(file: &LaunchFile) -> Result<Prepared, LaunchFileError> {
+    let as_given = file;
+    let mut file = file.clone();
+    if file.launch.service_prefix.is_empty() {
+        file.launch.service_prefix = unique_service_prefix();
+    }
+    let mut children = file.children().map_err(LaunchFileError::Setting)?;
+    let unwritable = |what: String| {
+        let origin = file.origin.clone();
+        move |error: Box<dyn std::error::Error + Send + Sync>| LaunchFileError::Write {
+            origin,
+            what,
+            error,
+        }
+    };
+    let run_dir_error = |path: &Path| {
+        let path = path.to_owned();
+        move |error| LaunchFileError::RunDir { path, error }
+    };
+    let (run_dir, pruned, lock) = match &file.launch.run_dir {
+        Some(dir) => {
+            std::fs::create_dir_all(dir).map_err(run_dir_error(dir))?;
+            let lock = Lock::acquire(&dir.join("launch.lock"), "run directory")
+                .map_err(LaunchFileError::Busy)?;
+            (dir.clone(), Vec::new(), lock)
+        }
+        None => {
+            let runs = file
+                .launch
+                .runs_dir
+                .clone()
+                .unwrap_or_else(|| default_data_dir().join(run_folder::RUNS));
+            std::fs::create_dir_all(&runs).map_err(run_dir_error(&runs))?;
+            // One launch per data directory: the library and the runs are its.
+            let lock = Lock::acquire(&runs.join("launch.lock"), "run directory")
+                .map_err(LaunchFileError::Busy)?;
+            let dir = run_folder::create(&runs, std::time::SystemTime::now())
+                .map_err(run_dir_error(&runs))?;
+            let pruned = run_folder::prune(&runs, file.launch.keep_runs, &dir);
+            run_folder::point_latest_at(&runs, &dir);
+            (dir, pruned, lock)
+        }
+    };
+    // As given: a launch without a service prefix of its own gets a new one when rerun.
+    let resolved = reference::render_resolved(as_given)
+        .map_err(|e| unwritable("cannot write the resolved launch file".into())(e.into()))?;
+    let resolved_path = run_dir.join(RESOLVED_LAUNCH_FILE);
+    std::fs::write(&resolved_path, resolved).map_err(run_dir_error(&resolved_path))?;
+    children.write_into(&run_dir);
+    let mut specs = Vec::new();
+    let plays = |role: &Role| file.launch.roles.is_empty() || file.launch.roles.contains(role);
+    for role in START_ORDER.iter().filter(|r| plays(r)) {
+        let text = match role {
+            Role::Bridge => toml::to_string(&children.bridge),
+            Role::Controller => toml::to_string(&children.controller),
+            Role::Perception => toml::to_string(&children.perception),
+        }
+        .map_err(|e| {
+            unwritable(format!("cannot write the {}'s settings", role.name()))(e.into())
+        })?;
+        let path = run_dir.join(format!("{}.toml", role.name()));
+        std::fs::write(&path, text).map_err(|error| LaunchFileError::RunDir {
+            path: path.clone(),
+            error,
+        })?;
+        specs.push(ChildSpec {
+            role: *role,
+            config: path,
+        });
+    }
+    Ok(Prepared {
+        specs,
+        run_dir,
+        pruned,
+        service_prefix: file.launch.service_prefix.clone(),
+        _lock: lock,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+    use tes_bridge::config::BridgeConfig;
+    use tes_controller::config::PlanningMode;
+
+    /// A launch file `launch.toml` in a fresh directory, with `[launch] run_dir` in that
+    /// directory followed by `extra`; the directory and the file, read.
+    fn launch_file(
+        extra: &str,
+    ) -> (
+        tempfile::TempDir,
+        PathBuf,
+        Result<LaunchFile, LaunchFileError>,
+    ) {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let text = format!(
+            "[launch]\nrun_dir = \"{}\"\n{extra}",
+            dir.path().join("run").display()
+        );
+        let path = dir.path().join("launch.toml");
+        std::fs::write(&path, text).expect("launch file");
+        let file = read_launch_file(&path);
+        (dir, path, file)
+    }
+
+    /// Prepares the children of a launch file with `extra` after its `[launch]` table; the
+    /// directory's `run` holds the children's settings files.
+    fn prepared(extra: &str) -> (tempfile::TempDir, Result<Prepared, LaunchFileError>) {
+        let (dir, _, file) = launch_file(extra);
+        let specs = prepare(&file.expect("a launch file"));
+        (dir, specs)
+    }
+
+    fn bridge_settings(dir: &tempfile::TempDir) -> BridgeConfig {
+        let path = dir.path().join("run/bridge.toml");
+        let text = std::fs::read_to_string(path).expect("bridge.toml");
+        BridgeConfig::from_toml_str(&text).expect("valid bridge settings")
+    }
+
+    /// The setting error a launch file's problem is.
+    fn setting(err: &LaunchFileError) -> &SettingError {
+        match err {
+            LaunchFileError::Setting(e) => e,
+            other => panic!("not a setting error: {other}"),
+        }
+    }
+
+    /// A run directory that cannot be written is named with its cause — never reported as
+    /// invalid settings.
+    #[test]
+    fn an_unwritable_run_directory_is_named_with_its_cause() {
+        for (code, cause) in [
+            (28, "the disk is full"),
+            (30, "the file system is read-only"),
+        ] {
+            let err = LaunchFileError::RunDir {
+                path: PathBuf::from("/data/run"),
+                error: std::io::Error::from_raw_os_error(code),
+            };
+            let shown = err.to_string();
+            assert!(
+                shown.starts_with("cannot write the run directory: /data/run: ")
+                    && shown.contains(cause)
+                    && shown.ends_with("; nothing was started"),
+                "{shown}"
+            );
+        }
+    }
+
+    /// `roles` starts only the named children; an unknown or repeated role, and link settings
+    /// that cannot work, are refused naming their key.
+    #[test]
+    fn roles_name_the_children_and_bad_roles_or_link_settings_are_refused() {
+        let (_, ok) = prepared("roles = [\"controller\"]\n");
+        let specs = ok.expect("prepared").specs;
+        assert_eq!(
+            specs.iter().map(|s| s.role).collect::<Vec<_>>(),
+            [Role::Controller]
+        );
+        let (_, ok) = prepared("roles = [\"bridge\", \"perception-sim\"]\n");
+        let specs = ok.expect("prepared").specs;
+        assert_eq!(
+            specs.iter().map(|s| s.role).collect::<Vec<_>>(),
+            [Role::Bridge, Role::Perception]
+        );
+        for (extra, key, reason) in [
+            ("roles = [\"brige\"]\n", "roles", "unknown role \"brige\""),
+            (
+                "roles = [\"bridge\", \"bridge\"]\n",
+                "roles",
+                "\"bridge\" is listed twice",
+            ),
+            (
+                "roles = [\"bridge\"]\n[launch.link]\ngroup = \"a*b\"\n",
+                "link.group",
+                "is not a group name",
+            ),
+            (
+                "roles = [\"bridge\"]\n[launch.link]\nconnect = [\"udp/10.0.0.1:7447\"]\n",
+                "link.connect",
+                "is not a TCP endpoint",
+            ),
+            (
+                "roles = [\"bridge\"]\n[launch.link]\npeer_timeout_ms = 5\n",
+                "link.peer_timeout_ms",
+                "at least 100",
+            ),
+        ] {
+            // An unknown role is refused as the file is read, the others when it is prepared.
+            let (_dir, _, read) = launch_file(extra);
+            let err = match read {
+                Ok(file) => prepare(&file).expect_err(extra),
+                Err(e) => e,
+            };
+            let e = setting(&err);
+            assert_eq!((e.process, e.key.as_str()), ("launch", key), "{extra}");
+            assert!(e.reason.contains(reason), "{extra}: {}", e.reason);
+        }
+        // Link settings are not checked without roles: nothing uses them.
+        let (_, ok) = prepared("[launch.link]\npeer_timeout_ms = 5\n");
+        assert!(ok.is_ok());
+    }
+
+    #[test]
+    fn keep_alives_must_come_well_within_the_watchdog_deadline() {
+        let (_, ok) = prepared("");
+        assert!(ok.is_ok());
+        let (_, off) = prepared("[controller]\nkeepalive_ms = 0\n");
+        assert!(off.is_ok());
+        let (_, bad) = prepared("[controller]\nkeepalive_ms = 600\n");
+        let err = bad.expect_err("refused");
+        let e = setting(&err);
+        assert_eq!((e.process, e.key.as_str()), ("controller", "keepalive_ms"));
+        assert_eq!(e.line(), Some(4));
+        let err = err.to_string();
+        assert!(
+            err.contains("[controller] keepalive_ms: 600 must be at most half")
+                && err.contains("1000 ms of wall time"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn the_watchdog_deadline_follows_the_simulated_brick_but_not_a_real_one() {
+        // As fast as possible: the simulated brick runs 200x, so its deadline is 200 s of brick
+        // time, one second of wall time.
+        let (dir, specs) = prepared("");
+        assert!(specs.is_ok());
+        let sim = bridge_settings(&dir);
+        assert_eq!(sim.watchdog_deadline, Duration::from_secs(200));
+        // A real NXT lives in physical time whatever the real-time factor.
+        let (dir, specs) = prepared("[bridge]\ntransport = \"serial:/dev/rfcomm0\"\n");
+        assert!(specs.is_ok());
+        let real = bridge_settings(&dir);
+        assert_eq!(real.watchdog_deadline, Duration::from_secs(1));
+    }
+
+    /// A key the parser refuses in any table — unknown, of the wrong type, an enum's unknown
+    /// word — is reported against the user's own file, at its line, with its table and key.
+    #[test]
+    fn a_bad_key_in_a_child_table_names_the_users_file_line_and_key() {
+        // (text after the two-line [launch] table, process, key, line)
+        let cases = [
+            (
+                "episodes = 2\n\n[bridge]\nseed = 3\n[bridge.watchdog]\ndeadline_ms = \"soon\"\n",
+                "bridge",
+                "watchdog.deadline_ms",
+                8,
+            ),
+            ("[bridge]\nwatchdogg = 1\n", "bridge", "watchdogg", 4),
+            ("[bridge]\ntransport = \"usb\"\n", "bridge", "transport", 4),
+            (
+                "[bridge.ipc]\nservice_prefix = \"x/\"\nwait = \"nap\"\n",
+                "bridge",
+                "ipc.wait",
+                5,
+            ),
+            (
+                "[[bridge.actions]]\nid = 0\nleft_deg = 1\nright_deg = 1\nspeed = 3\n",
+                "bridge",
+                "actions[0].speed",
+                7,
+            ),
+            (
+                "[controller]\nepsilon = 0.1\nbudjet_us = 5\n",
+                "controller",
+                "budjet_us",
+                5,
+            ),
+            ("[controller]\nwait = \"nap\"\n", "controller", "wait", 4),
+            (
+                "[controller]\nplanning = \"later\"\n",
+                "controller",
+                "planning",
+                4,
+            ),
+            (
+                "[controller]\nacting_cpu = \"fast\"\n",
+                "controller",
+                "acting_cpu",
+                4,
+            ),
+            (
+                "[perception]\narena = \"three\"\n",
+                "perception",
+                "arena",
+                4,
+            ),
+            ("[perception]\nwait = \"doze\"\n", "perception", "wait", 4),
+            ("wait = \"nap\"\n", "launch", "wait", 3),
+            ("restart = \"always\"\n", "launch", "restart", 3),
+        ];
+        for (extra, process, key, line) in cases {
+            let (_, path, file) = launch_file(extra);
+            let err = file.expect_err(extra);
+            let e = setting(&err);
+            assert_eq!(
+                (e.process, e.key.as_str(), e.line()),
+                (process, key, Some(line)),
+                "{extra}"
+            );
+            let location = e.location.as_ref().expect("placed");
+            assert_eq!(location.origin, Origin::File(path.clone()));
+            let table = if process == "launch" {
+                "launch"
+            } else {
+                process
+            };
+            let shown = err.to_string();
+            let start = format!("launch file {}:{line}:", path.display());
+            assert!(shown.starts_with(&start), "{shown}");
+            assert!(shown.contains(&format!(": [{table}] {key}: ")), "{shown}");
+            assert!(shown.ends_with("; nothing was started"), "{shown}");
+        }
+    }
+
+    /// A value a child's `check` refuses is placed at its key's line in the user's file; a
+    /// refused value the file does not set is said to be a default or a launch-wide value.
+    /// Nothing is written to the run directory.
+    #[test]
+    fn a_range_error_of_a_child_names_the_users_file_line_and_key() {
+        let cases = [
+            (
+                "seed = 2\n[bridge]\nuse_command_degrees = false\n\
+                 [bridge.poll]\nsettle_polls = 0\n",
+                "bridge",
+                "poll.settle_polls",
+                Some(7),
+            ),
+            (
+                "[bridge.watchdog]\ndeadline_ms = 100\n[bridge.poll]\nmoving_period_ms = 100\n",
+                "bridge",
+                "poll.moving_period_ms",
+                Some(6),
+            ),
+            (
+                "[[bridge.actions]]\nid = 1\nleft_deg = 1\nright_deg = 1\n\
+                 [[bridge.actions]]\nid = 1\nleft_deg = 2\nright_deg = 2\n",
+                "bridge",
+                "actions[1].id",
+                Some(8),
+            ),
+            (
+                "[controller]\n# the budget\nbudget_us = 0\n",
+                "controller",
+                "budget_us",
+                Some(5),
+            ),
+            (
+                "[controller]\nplanning = \"between-polls\"\n",
+                "controller",
+                "planning",
+                Some(4),
+            ),
+            (
+                "[perception]\nstep_cap = 0\n",
+                "perception",
+                "step_cap",
+                Some(4),
+            ),
+            ("arena = 4\n", "launch", "arena", Some(3)),
+            (
+                &format!("service_prefix = \"{}\"\n", "x".repeat(65)),
+                "launch",
+                "service_prefix",
+                Some(3),
+            ),
+            // The launch-wide real-time factor makes the brick 100 000 times faster.
+            (
+                "real_time_factor = 0.00001\n",
+                "bridge",
+                "brick.time_scale",
+                None,
+            ),
+        ];
+        for (extra, process, key, line) in cases {
+            let (dir, path, file) = launch_file(extra);
+            let err = prepare(&file.expect(extra)).expect_err(extra);
+            let e = setting(&err);
+            assert_eq!(
+                (e.process, e.key.as_str(), e.line()),
+                (process, key, line),
+                "{extra}"
+            );
+            let shown = err.to_string();
+            let table = format!("[{process}] {key}");
+            match line {
+                Some(line) => {
+                    let start = format!("launch file {}:{line}:1: {table}: ", path.display());
+                    assert!(shown.starts_with(&start), "{shown}");
+                }
+                None => {
+                    let start = format!(
+                        "launch file {}: {table} (not in the file: a default or a launch-wide \
+                         value): ",
+                        path.display()
+                    );
+                    assert!(shown.starts_with(&start), "{shown}");
+                }
+            }
+            for role in Role::ALL {
+                let written = dir.path().join(format!("run/{}.toml", role.name()));
+                assert!(!written.exists(), "{extra}: {role} was written");
+            }
+        }
+    }
+
+    /// The launch-wide values go into the typed tables unless a table sets the key itself
+    /// (in the file, or in code with `keep`).
+    #[test]
+    fn launch_wide_values_go_where_a_table_does_not_set_its_own() {
+        let (_, _, file) = launch_file(
+            "arena = 1\nepisodes = 3\nreal_time_factor = 0.5\nwait = \"spin-then-block\"\n\
+             seed = 5\nservice_prefix = \"g/\"\n\
+             [perception]\nwait = \"block\"\nseed = 9\n\
+             [controller]\nservice_prefix = \"c/\"\n\
+             [bridge]\nuse_command_degrees = false\n[bridge.ipc]\nwait = \"spin\"\n",
+        );
+        let c = file.expect("valid").children().expect("valid");
+        let stb = WaitStrategy::SpinThenBlock(WaitStrategy::DEFAULT_SPIN);
+        let p = &c.perception;
+        assert_eq!((p.arena, p.episodes, p.real_time_factor), (1, 3, 0.5));
+        assert_eq!(
+            (p.wait, p.seed, p.service_prefix.as_str()),
+            (WaitStrategy::Block, 9, "g/")
+        );
+        let k = &c.controller;
+        assert_eq!((k.wait, k.seed, k.service_prefix.as_str()), (stb, 5, "c/"));
+        let b = &c.bridge;
+        assert_eq!((b.seed, b.use_command_degrees), (5, false));
+        assert_eq!(
+            (b.ipc.wait, b.ipc.service_prefix.as_str()),
+            (WaitStrategy::Spin, "g/")
+        );
+        // Twice as fast as physical time: the brick at 2x, its deadline 2 s of brick time.
+        assert_eq!((b.brick.time_scale, b.watchdog.deadline_ms), (2.0, 2000));
+
+        let mut file = LaunchFile::default();
+        file.launch.wait = WaitStrategy::Spin;
+        file.perception.wait = WaitStrategy::Block;
+        file.keep("perception", "wait");
+        let c = file.children().expect("valid");
+        assert_eq!(c.perception.wait, WaitStrategy::Block);
+        assert_eq!(c.controller.wait, WaitStrategy::Spin);
+        assert_eq!(c.controller.planning, PlanningMode::Auto);
+        assert_eq!(c.bridge.ipc.wait, WaitStrategy::Spin);
+        assert!(c.bridge.use_command_degrees);
+        // Without a file, an error names the embedded defaults.
+        file.launch.episodes = 0;
+        let err = LaunchFileError::Setting(file.children().expect_err("no episodes"));
+        assert_eq!(
+            err.to_string(),
+            "launch settings (embedded defaults): [launch] episodes: must be at least 1; \
+             nothing was started"
+        );
+    }
+
+    /// What a child reads from the run directory is exactly the typed settings the launcher
+    /// checked: typed → TOML → typed is the identity for each child.
+    #[test]
+    fn the_children_read_back_exactly_what_the_launcher_checked() {
+        for extra in [
+            "",
+            "wait = \"spin\"\nseed = 77\nreal_time_factor = 1.0\narena = 2\n\
+             [perception]\nsettle_ms = 150\nmotor_timeout_ms = 900\n\
+             [controller]\nlibrary = \"/tmp/tes-lib.tesl\"\nreport = \"/tmp/r.json\"\n\
+             planning = \"thread\"\nacting_cpu = \"none\"\nepsilon = 0.2\n\
+             [bridge]\nseed = 3\n[bridge.link_delay]\nenabled = true\n[bridge.motors]\npower = 60\n\
+             [[bridge.actions]]\nid = 0\nname = \"only\"\nleft_deg = 10\nright_deg = -10\n",
+        ] {
+            let (dir, _, file) = launch_file(extra);
+            let mut file = file.expect("valid");
+            let prepared = prepare(&file).expect("prepared");
+            // Without a prefix of its own, the launch got a unique one.
+            assert!(prepared.service_prefix.starts_with("tes-"), "{prepared:?}");
+            file.launch
+                .service_prefix
+                .clone_from(&prepared.service_prefix);
+            let mut children = file.children().expect("valid");
+            children.write_into(&dir.path().join("run"));
+            assert_eq!(
+                prepared.specs.iter().map(|s| s.role).collect::<Vec<_>>(),
+                START_ORDER
+            );
+            let read = |role: &str| {
+                let path = dir.path().join(format!("run/{role}.toml"));
+                (
+                    std::fs::read_to_string(&path).expect("written"),
+                    Origin::File(path),
+                )
+            };
+            let (text, origin) = read("bridge");
+            let bridge = BridgeSettings::from_toml_in(&text, origin.clone()).expect("bridge");
+            assert_eq!(bridge, children.bridge, "{text}");
+            assert_eq!(
+                BridgeConfig::from_toml_in(&text, origin).ok(),
+                children.bridge.check().ok()
+            );
+            let (text, origin) = read("controller");
+            let controller = ControllerConfig::from_toml_in(&text, origin).expect("controller");
+            assert_eq!(controller, children.controller, "{text}");
+            let (text, origin) = read("perception-sim");
+            let perception = PerceptionConfig::from_toml_in(&text, origin).expect("perception");
+            assert_eq!(perception, children.perception, "{text}");
+        }
+    }
+}

@@ -1,0 +1,971 @@
+//! The supervisor: starts the group's children, relays their lines, watches their progress,
+//! respawns or stops them, and says how the launch went — all as [`Event`]s.
+//!
+//! It is a plain type driven by its caller: [`Supervisor::start`], then
+//! [`Supervisor::step`] until it says the group is stopping (a few times a second is
+//! enough: [`TICK`]), then [`Supervisor::stop`]; [`run`] does all three.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use tes_bridge::config::TransportKind;
+use tes_link::{Link, LinkError, LinkEvent};
+use tes_recorder::live::Recorder;
+use tes_runtime::channel::{self, IpcError};
+use tes_runtime::progress::{ProgressWatch, holdup};
+use tes_topics::{Role, ServiceNames};
+
+use crate::IoError;
+use crate::children::{self, ChildCommand, Running, SpawnError};
+use crate::event::{Event, ExitConsequence, Observer, Verdict};
+use crate::file::{LaunchFile, LaunchFileError, Prepared, Restart, prepare};
+use crate::library::{self, Fingerprint, LibraryOutcome};
+use crate::logs::{self, ChildLine, Stream};
+use crate::recording::{self, RecordingError};
+use crate::run_record::{RobotAt, RunRecord};
+
+/// How long the group may take to start (the controller loads its library and plans)
+/// before the stall watch applies, on top of `stall_timeout_ms`.
+pub const START_ALLOWANCE: Duration = Duration::from_secs(20);
+
+/// How often [`run`] steps the supervisor.
+pub const TICK: Duration = Duration::from_millis(20);
+
+/// How many of a child's last log lines the supervisor keeps, to say why it died.
+const LAST_WORDS: usize = 3;
+
+/// How often the supervisor reads the trajectory perception writes.
+const RECORD_POLL: Duration = Duration::from_millis(250);
+
+/// How often a launch waiting for its peers says so.
+const WAITING_SAID_EVERY: Duration = Duration::from_secs(5);
+
+/// A launch that cannot start or cannot go on.
+#[derive(Debug, thiserror::Error)]
+pub enum LaunchError {
+    /// The launch file or the run folder.
+    #[error(transparent)]
+    File(#[from] LaunchFileError),
+    /// iceoryx2 refused something (listing services, the progress watch).
+    #[error(transparent)]
+    Ipc(#[from] IpcError),
+    /// Another running group uses the service prefix.
+    #[error(
+        "the service prefix {0:?} is in use by another running group; give this launch \
+         another [launch] service_prefix, or leave it unset for one of its own; nothing was \
+         started"
+    )]
+    PrefixInUse(String),
+    /// The link cannot open.
+    #[error("nothing was started")]
+    Link(#[source] LinkError),
+    /// The peers are not all there, or refused this launch.
+    #[error("{0}; nothing was started")]
+    Peers(String),
+    /// A file of the run folder.
+    #[error(transparent)]
+    Io(#[from] IoError),
+    /// A child cannot be started.
+    #[error(transparent)]
+    Spawn(#[from] SpawnError),
+    /// The recording cannot start.
+    #[error(transparent)]
+    Recording(#[from] RecordingError),
+    /// A child cannot be polled.
+    #[error("cannot poll a child")]
+    Poll(#[source] std::io::Error),
+}
+
+/// How a supervisor starts children and when it stops.
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// The program and arguments a child is started with (the supervisor adds `ROLE
+    /// --config FILE`).
+    pub command: ChildCommand,
+    /// Raised (by a signal handler, a live view, the caller), the group stops.
+    pub stop: Arc<AtomicBool>,
+    /// How long the group may take to start before the stall watch applies, on top of
+    /// `[launch] stall_timeout_ms` (default [`START_ALLOWANCE`]).
+    pub start_allowance: Duration,
+}
+
+impl Options {
+    /// Children started with `command`, stopped when `stop` is raised.
+    pub fn new(command: ChildCommand, stop: Arc<AtomicBool>) -> Self {
+        Self {
+            command,
+            stop,
+            start_allowance: START_ALLOWANCE,
+        }
+    }
+}
+
+/// What the group does after a [`Supervisor::step`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Step {
+    /// It runs on.
+    Running,
+    /// It is to stop: call [`Supervisor::stop`].
+    Stopping,
+}
+
+/// Why the group stops.
+#[derive(Debug, Default)]
+struct Ending {
+    /// What failed, if anything.
+    failure: Option<String>,
+    /// Why, for the peers; `None` when a peer stopped it.
+    reason: Option<String>,
+}
+
+/// The group's supervisor: owns its children, its link, its recording and run folder.
+pub struct Supervisor {
+    file: LaunchFile,
+    options: Options,
+    prepared: Prepared,
+    watch: ProgressWatch,
+    link: Option<Link>,
+    recorder: Option<Recorder>,
+    record: RunRecord,
+    children: Vec<Running>,
+    lines: mpsc::Receiver<ChildLine>,
+    following: Arc<AtomicBool>,
+    relay: Relay,
+    library: PathBuf,
+    library_at_start: Option<Fingerprint>,
+    report: Option<PathBuf>,
+    record_polled: Instant,
+    last_steps: Option<u64>,
+    stall_deadline: Instant,
+    progress_seen: [u64; 3],
+    ending: Option<Ending>,
+    // Declared last: dropped after the ports of the watch and the link.
+    _node: iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>,
+}
+
+impl Supervisor {
+    /// Prepares the launch `file` (its run folder, the children's settings), opens its link
+    /// and waits for its peers (a launch with roles), starts its recording and its children.
+    pub fn start(
+        file: &LaunchFile,
+        options: Options,
+        observer: &mut dyn Observer,
+    ) -> Result<Self, LaunchError> {
+        let prepared = prepare(file)?;
+        clean_stale_resources(observer);
+        let prefix = prepared.service_prefix.clone();
+        refuse_a_prefix_in_use(&prefix)?;
+        let node = channel::node_named(
+            &channel::group_node_name(&prefix, channel::Member::Launcher),
+            false,
+        )?;
+        let names = ServiceNames::with_prefix(&prefix);
+        let watch = ProgressWatch::open(&node, &names)?;
+        say_the_plan(file, &prepared, observer);
+        let link = match file.roles() {
+            Some(local) => Some(open_link(file, &local, &names, &options.stop, observer)?),
+            None => None,
+        };
+        let record = RunRecord::create(&prepared.run_dir, file.controller.budget_us, file.arena())?;
+        let library = file.controller.library_path();
+        let report = controller_report(&prepared)?;
+        if report.is_some() {
+            observer.event(&Event::LibraryAtStart {
+                path: library.clone(),
+                exists: std::fs::symlink_metadata(&library).is_ok(),
+            });
+        }
+        let library_at_start = Fingerprint::of(&library);
+        // Subscribed before any child starts, so it misses nothing.
+        let recorder = recording::start(file, &prepared.specs, &prefix, &library)?;
+        if let Some(r) = &recorder {
+            observer.event(&Event::Recording {
+                path: r.path().to_owned(),
+            });
+        }
+        let (lines_tx, lines) = mpsc::channel::<ChildLine>();
+        let following = Arc::new(AtomicBool::new(false));
+        let children = start_children(&options.command, &prepared, &lines_tx, &following)?;
+        for c in &children {
+            observer.event(&Event::ProcessStarted {
+                role: c.spec.role,
+                pid: c.process.child.id(),
+            });
+        }
+        let stall_deadline = Instant::now() + options.start_allowance + stall_timeout(file);
+        Ok(Self {
+            file: file.clone(),
+            options,
+            prepared,
+            watch,
+            link,
+            recorder,
+            record,
+            children,
+            lines,
+            following,
+            relay: Relay::default(),
+            library,
+            library_at_start,
+            report,
+            record_polled: Instant::now(),
+            last_steps: None,
+            stall_deadline,
+            progress_seen: [0; 3],
+            ending: None,
+            _node: node,
+        })
+    }
+
+    /// The run folder.
+    pub fn run_dir(&self) -> &Path {
+        &self.prepared.run_dir
+    }
+
+    /// The group's iceoryx2 service prefix.
+    pub fn service_prefix(&self) -> &str {
+        &self.prepared.service_prefix
+    }
+
+    /// Asks the group to stop (as Ctrl-C does).
+    pub fn request_stop(&self) {
+        self.options.stop.store(true, Ordering::Relaxed);
+    }
+
+    /// One look at the group: the children's new lines, a stop asked for, the link's news,
+    /// the children that exited, the run folder's records, the stall watch.
+    pub fn step(&mut self, observer: &mut dyn Observer) -> Result<Step, LaunchError> {
+        if self.ending.is_some() {
+            return Ok(Step::Stopping);
+        }
+        self.relay_lines(observer);
+        self.check_stop_request(observer);
+        self.follow_link(observer);
+        self.tend_children(observer)?;
+        self.poll_run_record(observer);
+        self.watch_progress(observer)?;
+        Ok(match self.ending {
+            Some(_) => Step::Stopping,
+            None => Step::Running,
+        })
+    }
+
+    /// Stops the group (peers told why, children signalled), takes their last lines, closes
+    /// the link, completes the run folder and the recording, and says what became of the
+    /// library and the launch.
+    pub fn stop(mut self, observer: &mut dyn Observer) -> Verdict {
+        let ending = self.ending.take().unwrap_or_else(|| Ending {
+            failure: None,
+            reason: Some("the group stopped".into()),
+        });
+        self.tell_peers(&ending);
+        let grace = Duration::from_millis(self.file.launch.grace_ms);
+        let mut processes: Vec<&mut children::Process> =
+            self.children.iter_mut().map(|c| &mut c.process).collect();
+        for escalation in children::shutdown(&mut processes, grace) {
+            observer.event(&Event::Escalated(escalation));
+        }
+        self.take_last_lines(observer);
+        if let Some(mut link) = self.link.take() {
+            observer.event(&Event::LinkClosed(link.counts()));
+            link.close();
+        }
+        let drawn = self.record.finish();
+        self.relay.emit_records(&self.record, observer);
+        let mut failures: Vec<String> = ending.failure.into_iter().collect();
+        self.finish_recording(&mut failures, observer);
+        self.add_failed_children(&mut failures);
+        observer.event(&Event::RunFolder {
+            dir: self.prepared.run_dir.clone(),
+            drawn: drawn.map_err(|e| error_chain(&e)),
+        });
+        self.say_what_became_of_the_library(observer);
+        let verdict = Verdict {
+            episodes: self.relay.episodes,
+            failures,
+        };
+        observer.event(&Event::Verdict(verdict.clone()));
+        verdict
+    }
+
+    /// Takes every line the children wrote since the last step.
+    fn relay_lines(&mut self, observer: &mut dyn Observer) {
+        for line in self.lines.try_iter() {
+            self.relay.take(line, &mut self.record, observer);
+        }
+    }
+
+    /// Takes lines until none has come for a moment (a child that just died may still have
+    /// its last words on their way from its files).
+    fn relay_until_quiet(&mut self, observer: &mut dyn Observer) {
+        while let Ok(line) = self.lines.recv_timeout(Duration::from_millis(50)) {
+            self.relay.take(line, &mut self.record, observer);
+        }
+    }
+
+    fn check_stop_request(&mut self, observer: &mut dyn Observer) {
+        if self.ending.is_none() && self.options.stop.load(Ordering::Relaxed) {
+            observer.event(&Event::StopRequested);
+            self.end(
+                None,
+                Some("stop requested (Ctrl-C or SIGTERM) on a peer".into()),
+            );
+        }
+    }
+
+    /// Acts on what the link saw: a peer back, a refused sample, a peer gone or twice, a
+    /// peer's stop.
+    fn follow_link(&mut self, observer: &mut dyn Observer) {
+        let Some(link) = &self.link else { return };
+        for event in link.events() {
+            if self.ending.is_some() {
+                return;
+            }
+            match event {
+                LinkEvent::Joined(role) => observer.event(&Event::LinkUp { role, again: true }),
+                LinkEvent::Refused { topic, why, count } => {
+                    observer.event(&Event::LinkRefused { topic, why, count })
+                }
+                LinkEvent::Left(role) => self.peer_left(role, observer),
+                LinkEvent::Twice(role) => {
+                    let group = self.file.launch.link.group.clone();
+                    let twice = format!(
+                        "link: another launch of group {group:?} plays the {} too",
+                        role.name()
+                    );
+                    observer.event(&Event::LinkTwice { group, role });
+                    self.end(Some(twice.clone()), Some(twice));
+                }
+                LinkEvent::Stop { clean, reason } => {
+                    observer.event(&Event::PeerStopped {
+                        clean,
+                        reason: reason.clone(),
+                    });
+                    let failure = (!clean).then(|| format!("a peer failed: {reason}"));
+                    self.end(failure, None);
+                }
+            }
+        }
+    }
+
+    /// The launch playing `role` is gone: the group stops, non-zero.
+    fn peer_left(&mut self, role: Role, observer: &mut dyn Observer) {
+        let lost = format!(
+            "link: the {}'s launch left the group (its host stopped, was killed or cannot be \
+             reached)",
+            role.name()
+        );
+        observer.event(&Event::LinkDown { role });
+        if role == Role::Controller && self.plays(Role::Bridge) {
+            // As with a controller that dies on this host: a motion under way is braked by
+            // the bridge's watchdog, not cut short by the stop.
+            std::thread::sleep(watchdog_wall(&self.file));
+        }
+        self.end(Some(lost.clone()), Some(lost));
+    }
+
+    /// Looks at each child that exited: perception done, a bridge whose link is down, a
+    /// failure to respawn or to stop the group for.
+    fn tend_children(&mut self, observer: &mut dyn Observer) -> Result<(), LaunchError> {
+        let mut respawned = Vec::new();
+        for i in 0..self.children.len() {
+            if self.ending.is_some() {
+                break;
+            }
+            let Some(status) = self.children[i]
+                .process
+                .child
+                .try_wait()
+                .map_err(LaunchError::Poll)?
+            else {
+                continue;
+            };
+            let role = self.children[i].spec.role;
+            match self.consequence_of(i, status) {
+                ExitConsequence::Restart { .. } => {
+                    self.respawn(i, status, observer)?;
+                    respawned.push(role);
+                }
+                then => self.child_ended(i, status, then, observer),
+            }
+        }
+        for role in respawned {
+            self.watch.forget(role);
+            self.stall_deadline =
+                Instant::now() + self.options.start_allowance + stall_timeout(&self.file);
+        }
+        Ok(())
+    }
+
+    /// What an exit of child `i` with `status` means for the group.
+    fn consequence_of(&self, i: usize, status: std::process::ExitStatus) -> ExitConsequence {
+        let launch = &self.file.launch;
+        let child = &self.children[i];
+        if child.spec.role == Role::Perception && status.success() {
+            ExitConsequence::Finished
+        } else if child.spec.role == Role::Bridge
+            && status.code() == Some(tes_bridge::process::LINK_DOWN_EXIT_STATUS)
+        {
+            ExitConsequence::LinkDown
+        } else if launch.restart == Restart::OnFailure
+            && !status.success()
+            && child.restarts < launch.max_restarts
+        {
+            ExitConsequence::Restart {
+                restart: child.restarts + 1,
+                max: launch.max_restarts,
+            }
+        } else {
+            ExitConsequence::StopGroup
+        }
+    }
+
+    /// Child `i` ended and the group stops for it (`then` says why).
+    fn child_ended(
+        &mut self,
+        i: usize,
+        status: std::process::ExitStatus,
+        then: ExitConsequence,
+        observer: &mut dyn Observer,
+    ) {
+        let role = self.children[i].spec.role;
+        self.children[i].process.status = Some(status);
+        let how = children::describe(status);
+        if then != ExitConsequence::Finished {
+            self.relay_until_quiet(observer);
+        }
+        let said = self.relay.last_error(role);
+        observer.event(&Event::ProcessExited {
+            role,
+            how: how.clone(),
+            said: said.clone(),
+            then,
+        });
+        match then {
+            ExitConsequence::Finished => {
+                self.end(None, Some("perception-sim finished its episodes".into()));
+            }
+            ExitConsequence::LinkDown => {
+                let cause = said.unwrap_or_else(|| "the link to the brick is down".to_owned());
+                self.end(
+                    Some(format!("bridge: {cause}")),
+                    Some("the group stopped".into()),
+                );
+            }
+            _ => {
+                let said = said.map(|e| format!(" ({e})")).unwrap_or_default();
+                let failure = format!("{role} {how}{said}");
+                self.end(Some(failure), Some("the group stopped".into()));
+            }
+        }
+    }
+
+    /// Child `i` failed and may be respawned: it is, after its stale resources are cleaned.
+    fn respawn(
+        &mut self,
+        i: usize,
+        status: std::process::ExitStatus,
+        observer: &mut dyn Observer,
+    ) -> Result<(), LaunchError> {
+        let role = self.children[i].spec.role;
+        self.children[i].restarts += 1;
+        observer.event(&Event::ProcessExited {
+            role,
+            how: children::describe(status),
+            said: None,
+            then: ExitConsequence::Restart {
+                restart: self.children[i].restarts,
+                max: self.file.launch.max_restarts,
+            },
+        });
+        observer.event(&Event::ProcessRestarted {
+            role,
+            restart: self.children[i].restarts,
+            max: self.file.launch.max_restarts,
+        });
+        if let Err(e) = channel::clean_stale_resources() {
+            observer.event(&Event::Warning(e.to_string()));
+        }
+        let child = children::spawn(&self.options.command, &self.children[i].spec)?;
+        observer.event(&Event::ProcessStarted {
+            role,
+            pid: child.id(),
+        });
+        self.children[i].process.child = child;
+        Ok(())
+    }
+
+    /// Reads perception's trajectory now and then: the episodes now complete and where the
+    /// robot is.
+    fn poll_run_record(&mut self, observer: &mut dyn Observer) {
+        if self.record_polled.elapsed() < RECORD_POLL && self.ending.is_none() {
+            return;
+        }
+        self.record_polled = Instant::now();
+        self.record.poll();
+        self.relay.emit_records(&self.record, observer);
+    }
+
+    /// The stall watch: the controller's commands are the group's progress; a group without
+    /// a new one for `stall_timeout_ms` names the process holding it up, and restarts it or
+    /// stops.
+    fn watch_progress(&mut self, observer: &mut dyn Observer) -> Result<(), LaunchError> {
+        if self.ending.is_some() {
+            return Ok(());
+        }
+        self.watch.poll()?;
+        self.emit_progress(observer);
+        let steps = self.watch.latest(Role::Controller).map(|p| p.steps);
+        let timeout = stall_timeout(&self.file);
+        if steps.is_some() && steps != self.last_steps {
+            self.last_steps = steps;
+            self.stall_deadline = Instant::now() + timeout;
+        } else if Instant::now() > self.stall_deadline {
+            self.stalled(timeout, observer);
+        }
+        Ok(())
+    }
+
+    /// Tells each new progress report.
+    fn emit_progress(&mut self, observer: &mut dyn Observer) {
+        for (i, role) in Role::ALL.into_iter().enumerate() {
+            if let Some(p) = self.watch.latest(role)
+                && p.stamp_ns != self.progress_seen[i]
+            {
+                self.progress_seen[i] = p.stamp_ns;
+                observer.event(&Event::Progress { role, progress: *p });
+            }
+        }
+    }
+
+    /// The group made no progress for `timeout`: the holder is restarted (killed here,
+    /// respawned by the next step like any failed child) or the group stops.
+    fn stalled(&mut self, timeout: Duration, observer: &mut dyn Observer) {
+        let latest = Role::ALL.map(|r| self.watch.latest(r).copied());
+        // Reports come every quarter second: a process silent for half the stall is the one.
+        let quiet = (timeout / 2).max(Duration::from_millis(600));
+        let holdup = holdup(&latest, tes_runtime::clock::monotonic_ns(), quiet);
+        let index = self
+            .children
+            .iter()
+            .position(|c| c.spec.role == holdup.role);
+        let launch = &self.file.launch;
+        let restarting = launch.restart == Restart::OnFailure
+            && index.is_some_and(|i| self.children[i].restarts < launch.max_restarts);
+        observer.event(&Event::Stalled {
+            silent_for: timeout,
+            holder: holdup.role,
+            why: holdup.why.clone(),
+            restarting,
+        });
+        match index {
+            Some(i) if restarting => {
+                let _ = self.children[i].process.child.kill();
+                self.stall_deadline = Instant::now() + self.options.start_allowance + timeout;
+            }
+            _ => {
+                let silent = format!(
+                    "the group made no progress for {:.1} s: {holdup}",
+                    timeout.as_secs_f64()
+                );
+                self.end(Some(silent.clone()), Some(silent));
+            }
+        }
+    }
+
+    /// The peers stop too, told why: cleanly unless something failed here.
+    fn tell_peers(&self, ending: &Ending) {
+        if let (Some(link), Some(reason)) = (&self.link, &ending.reason) {
+            match &ending.failure {
+                Some(f) => link.send_stop(false, f),
+                None => link.send_stop(true, reason),
+            }
+        }
+    }
+
+    /// Every child has exited: takes what they wrote last (the controller reports its last
+    /// episode and its summary on the way out).
+    fn take_last_lines(&mut self, observer: &mut dyn Observer) {
+        self.following.store(true, Ordering::Release);
+        let deadline = Instant::now() + Duration::from_secs(2);
+        while let Ok(line) = self
+            .lines
+            .recv_timeout(deadline.saturating_duration_since(Instant::now()))
+        {
+            self.relay.take(line, &mut self.record, observer);
+        }
+    }
+
+    fn finish_recording(&mut self, failures: &mut Vec<String>, observer: &mut dyn Observer) {
+        if let Some(r) = self.recorder.take() {
+            match recording::finish(r) {
+                Ok(recorded) => observer.event(&Event::Recorded(recorded)),
+                Err(e) => failures.push(format!("recorder: {}", error_chain(&e))),
+            }
+        }
+    }
+
+    /// Adds each child that failed (and is not named yet) to `failures`.
+    fn add_failed_children(&self, failures: &mut Vec<String>) {
+        for c in &self.children {
+            let Some(s) = c.process.status else { continue };
+            if s.success() || children::stopped_by_us(s) {
+                continue;
+            }
+            let role = c.spec.role.name();
+            let line = format!("{role} {}", children::describe(s));
+            if !failures.iter().any(|f| f.starts_with(role) || *f == line) {
+                failures.push(line);
+            }
+        }
+    }
+
+    /// The library is the controller's: a launch without it says nothing of it.
+    fn say_what_became_of_the_library(&self, observer: &mut dyn Observer) {
+        if self.report.is_some() {
+            let outcome =
+                LibraryOutcome::read(self.report.as_deref(), &self.library, self.library_at_start);
+            observer.event(&Event::LibraryAtEnd {
+                path: self.library.clone(),
+                outcome,
+            });
+        }
+    }
+
+    /// Whether this launch starts `role`.
+    fn plays(&self, role: Role) -> bool {
+        self.children.iter().any(|c| c.spec.role == role)
+    }
+
+    /// The group is to stop: the first reason given is the one.
+    fn end(&mut self, failure: Option<String>, reason: Option<String>) {
+        self.ending.get_or_insert(Ending { failure, reason });
+    }
+}
+
+/// Runs the launch `file` to its end: [`Supervisor::start`], [`Supervisor::step`] every
+/// [`TICK`] until the group stops, [`Supervisor::stop`].
+pub fn run(
+    file: &LaunchFile,
+    options: Options,
+    observer: &mut dyn Observer,
+) -> Result<Verdict, LaunchError> {
+    let mut supervisor = Supervisor::start(file, options, observer)?;
+    while supervisor.step(observer)? == Step::Running {
+        std::thread::sleep(TICK);
+    }
+    Ok(supervisor.stop(observer))
+}
+
+/// The children's lines, relayed as events; each child's last log lines; the episodes.
+#[derive(Default)]
+struct Relay {
+    last_words: BTreeMap<Role, VecDeque<String>>,
+    /// Episode lines seen.
+    episodes: u32,
+    /// Episodes of the run record told so far.
+    rows_told: usize,
+    /// Where the robot was last told to be.
+    robot_told: Option<RobotAt>,
+}
+
+impl Relay {
+    fn take(&mut self, line: ChildLine, record: &mut RunRecord, observer: &mut dyn Observer) {
+        let ChildLine { role, stream, text } = line;
+        match stream {
+            Stream::Out => {
+                let episode = (role == Role::Controller)
+                    .then(|| tes_controller::summary::EpisodeLine::parse(&text))
+                    .flatten();
+                match episode {
+                    Some(line) => {
+                        self.episodes += 1;
+                        record.controller_line(&text);
+                        observer.event(&Event::EpisodeEnded { line, text });
+                    }
+                    None => observer.event(&Event::Output { role, text }),
+                }
+            }
+            Stream::Log => {
+                let kept = self.last_words.entry(role).or_default();
+                if kept.len() == LAST_WORDS {
+                    kept.pop_front();
+                }
+                kept.push_back(text.clone());
+                observer.event(&Event::Log { role, text });
+            }
+        }
+    }
+
+    /// Tells the episodes the run record completed and where the robot is, if it moved.
+    fn emit_records(&mut self, record: &RunRecord, observer: &mut dyn Observer) {
+        for row in &record.episodes()[self.rows_told..] {
+            observer.event(&Event::EpisodeRecorded(row.clone()));
+        }
+        self.rows_told = record.episodes().len();
+        if let Some(at) = record.robot()
+            && self.robot_told != Some(at)
+        {
+            self.robot_told = Some(at);
+            observer.event(&Event::RobotMoved(at));
+        }
+    }
+
+    /// The last error line `role` logged (else its last line), without a log line's
+    /// timestamp and level.
+    fn last_error(&self, role: Role) -> Option<String> {
+        let kept = self.last_words.get(&role)?;
+        kept.iter()
+            .rev()
+            .find(|l| l.contains(" ERROR ") || l.starts_with("error"))
+            .or_else(|| kept.back())
+            .map(|l| {
+                let l = l.trim();
+                l.split_once(" ERROR ")
+                    .map(|(_, rest)| rest.trim_start())
+                    .or_else(|| l.strip_prefix("error: "))
+                    .unwrap_or(l)
+                    .to_owned()
+            })
+    }
+}
+
+/// Removes the iceoryx2 resources crashed runs left.
+fn clean_stale_resources(observer: &mut dyn Observer) {
+    match channel::clean_stale_resources() {
+        Ok(0) => {}
+        Ok(processes) => observer.event(&Event::StaleResourcesRemoved { processes }),
+        Err(e) => observer.event(&Event::Warning(e.to_string())),
+    }
+}
+
+/// Refuses a prefix a running group uses. A group is there if its processes' progress
+/// services are (a watcher of other services, such as a test subscribing early, is not a
+/// group).
+fn refuse_a_prefix_in_use(prefix: &str) -> Result<(), LaunchError> {
+    let progress = format!("{prefix}{}", tes_topics::service::PROGRESS);
+    if channel::services_with_prefix(&progress)?.is_empty() {
+        Ok(())
+    } else {
+        Err(LaunchError::PrefixInUse(prefix.to_owned()))
+    }
+}
+
+/// Tells what the launch runs and the run folders it pruned.
+fn say_the_plan(file: &LaunchFile, prepared: &Prepared, observer: &mut dyn Observer) {
+    let launch = &file.launch;
+    observer.event(&Event::Planned {
+        arena: u32::from(launch.arena),
+        episodes: launch.episodes,
+        real_time_factor: launch.real_time_factor,
+        wait: launch.wait,
+        restart: launch.restart,
+        service_prefix: prepared.service_prefix.clone(),
+        run_dir: prepared.run_dir.clone(),
+    });
+    if !prepared.pruned.is_empty() {
+        observer.event(&Event::RunFoldersPruned {
+            removed: prepared.pruned.len(),
+            keep: launch.keep_runs,
+        });
+    }
+}
+
+/// The controller's report path, when this launch plays the controller (an old report
+/// removed).
+fn controller_report(prepared: &Prepared) -> Result<Option<PathBuf>, LaunchError> {
+    let Some(spec) = prepared.specs.iter().find(|s| s.role == Role::Controller) else {
+        return Ok(None);
+    };
+    let path = library::controller_report(spec, &prepared.run_dir)?;
+    library::remove_stale_report(&path)?;
+    Ok(Some(path))
+}
+
+/// Starts every child of `prepared` with its output files followed; if one cannot start,
+/// the ones started are stopped.
+fn start_children(
+    command: &ChildCommand,
+    prepared: &Prepared,
+    lines: &mpsc::Sender<ChildLine>,
+    following: &Arc<AtomicBool>,
+) -> Result<Vec<Running>, LaunchError> {
+    let mut children = Vec::new();
+    for spec in &prepared.specs {
+        let started = follow_outputs(spec, lines, following)
+            .map_err(LaunchError::from)
+            .and_then(|()| children::spawn(command, spec).map_err(LaunchError::from));
+        match started {
+            Ok(child) => children.push(Running {
+                spec: spec.clone(),
+                process: children::Process::new(spec.role.name(), child),
+                restarts: 0,
+            }),
+            Err(e) => {
+                let mut started: Vec<&mut children::Process> =
+                    children.iter_mut().map(|c| &mut c.process).collect();
+                children::shutdown(&mut started, Duration::from_secs(1));
+                return Err(e);
+            }
+        }
+    }
+    Ok(children)
+}
+
+/// Starts `spec`'s output files afresh and follows them.
+fn follow_outputs(
+    spec: &crate::children::ChildSpec,
+    lines: &mpsc::Sender<ChildLine>,
+    following: &Arc<AtomicBool>,
+) -> Result<(), IoError> {
+    let dir = spec.run_dir();
+    let role = spec.role;
+    logs::reset(&dir, role.name())?;
+    for (stream, path) in logs::paths(&dir, role.name()) {
+        logs::follow(path, role, stream, lines.clone(), following.clone())?;
+    }
+    Ok(())
+}
+
+/// `[launch] stall_timeout_ms`.
+fn stall_timeout(file: &LaunchFile) -> Duration {
+    Duration::from_millis(file.launch.stall_timeout_ms)
+}
+
+/// The bridge's watchdog deadline in wall time (its settings are in brick time).
+fn watchdog_wall(file: &LaunchFile) -> Duration {
+    match file.children() {
+        Ok(c) => {
+            let scale = if c.bridge.transport == TransportKind::Sim {
+                c.bridge.brick.time_scale.max(1e-3)
+            } else {
+                1.0
+            };
+            Duration::from_secs_f64(c.bridge.watchdog.deadline_ms as f64 / 1000.0 / scale)
+                + Duration::from_millis(200)
+        }
+        Err(_) => Duration::from_secs(1),
+    }
+}
+
+/// An error and its causes, as one line ("what: why: deeper why").
+pub fn error_chain(error: &dyn std::error::Error) -> String {
+    let mut text = error.to_string();
+    let mut source = error.source();
+    while let Some(e) = source {
+        text.push_str(": ");
+        text.push_str(&e.to_string());
+        source = e.source();
+    }
+    text
+}
+
+/// Opens the link of a launch playing `local` and waits until every other role's launch is
+/// there (at most `[launch.link] peer_timeout_ms`), saying whom it waits for.
+fn open_link(
+    file: &LaunchFile,
+    local: &[Role],
+    names: &ServiceNames,
+    stop: &AtomicBool,
+    observer: &mut dyn Observer,
+) -> Result<Link, LaunchError> {
+    let settings = &file.launch.link;
+    let link = Link::open(settings, local, names).map_err(LaunchError::Link)?;
+    observer.event(&Event::LinkOpened {
+        local: local.to_vec(),
+        group: settings.group.clone(),
+        mode: settings.mode,
+        zid: link.zid().to_owned(),
+        listen: settings.listen.clone(),
+        connect: settings.connect.clone(),
+    });
+    wait_for_peers(&link, file, stop, observer)?;
+    Ok(link)
+}
+
+/// Waits until a launch plays each role this one does not.
+fn wait_for_peers(
+    link: &Link,
+    file: &LaunchFile,
+    stop: &AtomicBool,
+    observer: &mut dyn Observer,
+) -> Result<(), LaunchError> {
+    let settings = &file.launch.link;
+    let timeout = Duration::from_millis(settings.peer_timeout_ms);
+    let start = Instant::now();
+    let mut said: Option<Instant> = None;
+    loop {
+        take_events_while_waiting(link, &settings.group, observer)?;
+        let missing = link.missing();
+        if missing.is_empty() {
+            return Ok(());
+        }
+        if stop.load(Ordering::Relaxed) {
+            return Err(LaunchError::Peers(format!(
+                "stop requested while waiting for the {}",
+                role_list(&missing)
+            )));
+        }
+        if start.elapsed() >= timeout {
+            return Err(LaunchError::Peers(format!(
+                "no launch of group {:?} playing the {} was reached within {:.1} s \
+                 ([launch.link] peer_timeout_ms): is it started, with the same group, and can \
+                 this host reach it (listen {:?}, connect {:?})?",
+                settings.group,
+                role_list(&missing),
+                timeout.as_secs_f64(),
+                settings.listen,
+                settings.connect
+            )));
+        }
+        if said.is_none_or(|at| at.elapsed() >= WAITING_SAID_EVERY) {
+            said = Some(Instant::now());
+            observer.event(&Event::LinkWaiting {
+                missing,
+                group: settings.group.clone(),
+                timeout,
+            });
+        }
+        std::thread::sleep(TICK);
+    }
+}
+
+/// The link's events while the launch waits: a role played twice or a peer's stop ends the
+/// wait; a peer that joins is told.
+fn take_events_while_waiting(
+    link: &Link,
+    group: &str,
+    observer: &mut dyn Observer,
+) -> Result<(), LaunchError> {
+    for event in link.events() {
+        match event {
+            LinkEvent::Twice(role) => {
+                return Err(LaunchError::Peers(format!(
+                    "two launches of group {group:?} play the {}: give each role to one launch",
+                    role.name()
+                )));
+            }
+            LinkEvent::Stop { reason, .. } => {
+                return Err(LaunchError::Peers(format!(
+                    "a peer stopped the group while this launch waited ({reason})"
+                )));
+            }
+            LinkEvent::Joined(role) => observer.event(&Event::LinkUp { role, again: false }),
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+/// "perception-sim, bridge".
+pub fn role_list(roles: &[Role]) -> String {
+    roles
+        .iter()
+        .map(|r| r.name())
+        .collect::<Vec<_>>()
+        .join(", ")
+}
