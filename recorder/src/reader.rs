@@ -105,113 +105,42 @@ impl Recording {
 
     /// Reads a recording from its bytes (`path` names it in errors).
     pub fn from_bytes(path: &Path, bytes: &[u8]) -> Result<Self, ReadError> {
-        let path_buf = path.to_owned();
-        if bytes.len() < 8 || &bytes[..8] != mcap::MAGIC {
-            return Err(ReadError::NotMcap {
-                path: path_buf,
-                why: if bytes.is_empty() {
-                    "the file is empty".into()
-                } else {
-                    "it does not start with the MCAP magic bytes".into()
-                },
-            });
-        }
+        check_magic(path, bytes)?;
         // Read up to where the framing breaks, if it does: the mcap crate trusts the lengths.
         let broken = crate::framing::check(bytes).err();
         let bytes = broken.as_ref().map_or(bytes, |b| &bytes[..b.offset]);
-        let records = mcap::read::ChunkFlattener::new_with_options(
-            bytes,
-            mcap::read::Options::IgnoreEndMagic.into(),
-        )
-        .map_err(|e| ReadError::NotMcap {
-            path: path_buf.clone(),
-            why: e.to_string(),
-        })?;
-        let mut channels: BTreeMap<u16, (String, Option<Topic>, Option<String>)> = BTreeMap::new();
+        let records = Records::read(path, bytes)?;
+        let truncated = records.truncation(broken.as_ref());
+        if records.run.is_empty() {
+            return Err(ReadError::NotTes {
+                path: path.to_owned(),
+                topics: records.channels.values().map(|c| c.name.clone()).collect(),
+            });
+        }
+        records.check_versions(path)?;
         let mut rec = Recording {
-            path: path_buf.clone(),
-            run: BTreeMap::new(),
-            end: None,
+            path: path.to_owned(),
+            run: records.run,
+            end: records.end,
             world_map: None,
             observations: Vec::new(),
             commands: Vec::new(),
             keepalives: Vec::new(),
             motor_states: Vec::new(),
-            library: None,
-            truncated: None,
+            library: records.library,
+            truncated,
         };
-        let mut raw: Vec<(Topic, Vec<u8>)> = Vec::new();
-        let mut complete = false;
-        let mut records_read = 0usize;
-        for record in records {
-            let record = match record {
-                Ok(r) => r,
-                Err(e) => {
-                    rec.truncated = Some(format!(
-                        "the file ends or breaks after {records_read} records ({e})"
-                    ));
-                    break;
-                }
-            };
-            records_read += 1;
-            use mcap::records::Record;
-            match record {
-                Record::Channel(c) => {
-                    let topic = Topic::from_name(&c.topic);
-                    channels.insert(c.id, (c.topic, topic, c.metadata.get(VERSION_KEY).cloned()));
-                }
-                Record::Message { header, data } => {
-                    if let Some((_, Some(topic), _)) = channels.get(&header.channel_id) {
-                        raw.push((*topic, data.into_owned()));
-                    }
-                }
-                Record::Metadata(m) if m.name == RUN_METADATA => rec.run = m.metadata,
-                Record::Metadata(m) if m.name == END_METADATA => rec.end = Some(m.metadata),
-                Record::Attachment { header, data, .. } if header.name == LIBRARY_ATTACHMENT => {
-                    rec.library = Some(data.into_owned());
-                }
-                Record::Footer(_) | Record::DataEnd(_) => complete = true,
-                _ => {}
-            }
-        }
-        if let Some(b) = &broken {
-            rec.truncated = Some(format!(
-                "the file breaks after {records_read} records: {}",
-                b.why
-            ));
-        }
-        if rec.truncated.is_none() && !complete {
-            rec.truncated = Some(format!(
-                "the file ends after {records_read} records, without its summary and footer"
-            ));
-        }
-        if rec.run.is_empty() {
-            return Err(ReadError::NotTes {
-                path: path_buf,
-                topics: channels.values().map(|(name, ..)| name.clone()).collect(),
-            });
-        }
-        let version = rec.run.get("format_version").cloned().unwrap_or_default();
-        let versions = std::iter::once(Some(version.clone())).chain(
-            channels
-                .values()
-                .filter(|c| c.1.is_some())
-                .map(|c| c.2.clone()),
-        );
-        for v in versions {
-            let v = v.unwrap_or_default();
-            if v != FORMAT_VERSION.to_string() {
-                return Err(ReadError::FutureVersion {
-                    path: path_buf,
-                    found: if v.is_empty() { "(none)".into() } else { v },
-                });
-            }
-        }
+        rec.decode(records.messages)?;
+        Ok(rec)
+    }
+
+    /// Decodes the messages of our channels into their lists, in file order.
+    fn decode(&mut self, messages: Vec<(Topic, Vec<u8>)>) -> Result<(), ReadError> {
         let mut index: BTreeMap<Topic, usize> = BTreeMap::new();
-        for (topic, data) in raw {
+        for (topic, data) in messages {
             let i = index.entry(topic).or_default();
             let bad = |error| ReadError::BadMessage {
-                path: path_buf.clone(),
+                path: self.path.clone(),
                 topic: topic.name(),
                 index: *i,
                 error,
@@ -219,28 +148,176 @@ impl Recording {
             match topic {
                 Topic::WorldMap => {
                     let map = schema::decode_world_map(&data).map_err(bad)?;
-                    rec.world_map.get_or_insert(map);
+                    self.world_map.get_or_insert(map);
                 }
-                Topic::Observation => rec
+                Topic::Observation => self
                     .observations
                     .push(schema::decode_observation(&data).map_err(bad)?),
-                Topic::Command => rec
+                Topic::Command => self
                     .commands
                     .push(schema::decode_command(&data).map_err(bad)?),
-                Topic::KeepAlive => rec
+                Topic::KeepAlive => self
                     .keepalives
                     .push(schema::decode_command(&data).map_err(bad)?),
-                Topic::MotorState => rec
+                Topic::MotorState => self
                     .motor_states
                     .push(schema::decode_motor_state(&data).map_err(bad)?),
             }
             *i += 1;
         }
-        Ok(rec)
+        Ok(())
     }
 
     /// A value of the run's metadata, or "" if it has none.
     pub fn run_value(&self, key: &str) -> &str {
         self.run.get(key).map_or("", String::as_str)
+    }
+}
+
+/// Refuses bytes that do not start as an MCAP file.
+fn check_magic(path: &Path, bytes: &[u8]) -> Result<(), ReadError> {
+    if bytes.len() < 8 || &bytes[..8] != mcap::MAGIC {
+        return Err(ReadError::NotMcap {
+            path: path.to_owned(),
+            why: if bytes.is_empty() {
+                "the file is empty".into()
+            } else {
+                "it does not start with the MCAP magic bytes".into()
+            },
+        });
+    }
+    Ok(())
+}
+
+/// A channel of the file: its topic name, our topic if it is one of ours, and the format
+/// version its metadata gives.
+struct Channel {
+    name: String,
+    topic: Option<Topic>,
+    version: Option<String>,
+}
+
+/// What the file's records hold, before our messages are decoded.
+struct Records {
+    channels: BTreeMap<u16, Channel>,
+    /// The messages of our channels, undecoded, in file order.
+    messages: Vec<(Topic, Vec<u8>)>,
+    run: BTreeMap<String, String>,
+    end: Option<BTreeMap<String, String>>,
+    library: Option<Vec<u8>>,
+    /// Records read before the end or the first unreadable one.
+    read: usize,
+    /// Why reading stopped early, if a record did not read.
+    unreadable: Option<String>,
+    /// Whether the file's summary or footer was reached.
+    complete: bool,
+}
+
+impl Records {
+    /// Reads every record of `bytes` up to the end or the first that does not read.
+    fn read(path: &Path, bytes: &[u8]) -> Result<Self, ReadError> {
+        let records = mcap::read::ChunkFlattener::new_with_options(
+            bytes,
+            mcap::read::Options::IgnoreEndMagic.into(),
+        )
+        .map_err(|e| ReadError::NotMcap {
+            path: path.to_owned(),
+            why: e.to_string(),
+        })?;
+        let mut out = Records {
+            channels: BTreeMap::new(),
+            messages: Vec::new(),
+            run: BTreeMap::new(),
+            end: None,
+            library: None,
+            read: 0,
+            unreadable: None,
+            complete: false,
+        };
+        for record in records {
+            match record {
+                Ok(record) => out.take(record),
+                Err(e) => {
+                    out.unreadable = Some(format!(
+                        "the file ends or breaks after {} records ({e})",
+                        out.read
+                    ));
+                    break;
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Keeps what `record` says about the run.
+    fn take(&mut self, record: mcap::records::Record<'_>) {
+        use mcap::records::Record;
+        self.read += 1;
+        match record {
+            Record::Channel(c) => {
+                let channel = Channel {
+                    topic: Topic::from_name(&c.topic),
+                    version: c.metadata.get(VERSION_KEY).cloned(),
+                    name: c.topic,
+                };
+                self.channels.insert(c.id, channel);
+            }
+            Record::Message { header, data } => {
+                if let Some(Channel {
+                    topic: Some(topic), ..
+                }) = self.channels.get(&header.channel_id)
+                {
+                    self.messages.push((*topic, data.into_owned()));
+                }
+            }
+            Record::Metadata(m) if m.name == RUN_METADATA => self.run = m.metadata,
+            Record::Metadata(m) if m.name == END_METADATA => self.end = Some(m.metadata),
+            Record::Attachment { header, data, .. } if header.name == LIBRARY_ATTACHMENT => {
+                self.library = Some(data.into_owned());
+            }
+            Record::Footer(_) | Record::DataEnd(_) => self.complete = true,
+            _ => {}
+        }
+    }
+
+    /// `None` for a complete file; otherwise where reading stopped and why (`broken`: where
+    /// the framing check found the file broken).
+    fn truncation(&self, broken: Option<&crate::framing::Break>) -> Option<String> {
+        if let Some(b) = broken {
+            return Some(format!(
+                "the file breaks after {} records: {}",
+                self.read, b.why
+            ));
+        }
+        if self.unreadable.is_some() {
+            return self.unreadable.clone();
+        }
+        (!self.complete).then(|| {
+            format!(
+                "the file ends after {} records, without its summary and footer",
+                self.read
+            )
+        })
+    }
+
+    /// Refuses a run, or a channel of ours, of another format version than this build's.
+    fn check_versions(&self, path: &Path) -> Result<(), ReadError> {
+        let version = self.run.get("format_version").cloned().unwrap_or_default();
+        let versions = std::iter::once(Some(version)).chain(
+            self.channels
+                .values()
+                .filter(|c| c.topic.is_some())
+                .map(|c| c.version.clone()),
+        );
+        for v in versions {
+            let v = v.unwrap_or_default();
+            if v != FORMAT_VERSION.to_string() {
+                return Err(ReadError::FutureVersion {
+                    path: path.to_owned(),
+                    found: if v.is_empty() { "(none)".into() } else { v },
+                });
+            }
+        }
+        Ok(())
     }
 }

@@ -150,6 +150,33 @@ const PLAN_PATIENCE: Duration = Duration::from_secs(300);
 
 /// Replays `recording` (see the [module docs](self)).
 pub fn replay(recording: &Recording) -> Result<ReplayOutcome, ReplayError> {
+    let mut acting = acting_loop(recording)?;
+    let clock = ManualClock::new(1_000_000_000).stepping(1_000);
+    let script = Script::of(recording);
+    let mut outcome = ReplayOutcome {
+        compared: 0,
+        identical: 0,
+        divergence: None,
+        observations: 0,
+    };
+    for (i, obs) in script.observations.iter().enumerate() {
+        let recorded = Recorded {
+            command: script.by_answer.get(&obs.seq).copied(),
+            next_plans: script.next_plans[i],
+        };
+        outcome.divergence = replay_observation(&mut acting, &clock, obs, recorded, &mut outcome)?;
+        if outcome.divergence.is_some() {
+            // Everything recorded counts: "k of N identical" is over the whole run.
+            outcome.compared = recording.commands.len() as u64;
+            break;
+        }
+    }
+    Ok(outcome)
+}
+
+/// The acting loop of the recorded run: its map, settings and starting library, planning on
+/// this thread in pieces, every finished plan held back.
+fn acting_loop(recording: &Recording) -> Result<ActingLoop, ReplayError> {
     let map = recording.world_map.clone().ok_or(ReplayError::NoMap)?;
     let config = ControllerConfig::from_toml(recording.run_value("controller_toml"))?;
     let checked = config.check()?;
@@ -180,103 +207,138 @@ pub fn replay(recording: &Recording) -> Result<ReplayOutcome, ReplayError> {
     };
     let mut acting = ActingLoop::new(map, library, settings, planner)?;
     acting.hold_plans(true);
-    let clock = ManualClock::new(1_000_000_000).stepping(1_000);
+    Ok(acting)
+}
 
-    let by_answer: HashMap<u64, &Command> =
-        recording.commands.iter().map(|c| (c.answers, c)).collect();
-    let last_answered = recording.commands.iter().map(|c| c.answers).max();
-    let mut observations: Vec<&Observation> = recording
-        .observations
-        .iter()
-        .filter(|o| last_answered.is_some_and(|last| o.seq <= last))
-        .collect();
-    observations.sort_by_key(|o| o.seq);
-    // For each observation, the plans count of the next command after it.
-    let mut next_plans = vec![None; observations.len()];
-    let mut upcoming = None;
-    for (i, o) in observations.iter().enumerate().rev() {
-        next_plans[i] = upcoming;
-        if let Some(c) = by_answer.get(&o.seq) {
-            upcoming = Some(c.plans);
+/// What the replay feeds and checks against: the observations up to the last one a command
+/// answered, in sequence order, with the commands by the observation they answer.
+struct Script<'a> {
+    observations: Vec<&'a Observation>,
+    by_answer: HashMap<u64, &'a Command>,
+    /// For each observation, the plans count of the next command after it.
+    next_plans: Vec<Option<u64>>,
+}
+
+impl<'a> Script<'a> {
+    fn of(recording: &'a Recording) -> Self {
+        let by_answer: HashMap<u64, &Command> =
+            recording.commands.iter().map(|c| (c.answers, c)).collect();
+        let last_answered = recording.commands.iter().map(|c| c.answers).max();
+        let mut observations: Vec<&Observation> = recording
+            .observations
+            .iter()
+            .filter(|o| last_answered.is_some_and(|last| o.seq <= last))
+            .collect();
+        observations.sort_by_key(|o| o.seq);
+        let mut next_plans = vec![None; observations.len()];
+        let mut upcoming = None;
+        for (i, o) in observations.iter().enumerate().rev() {
+            next_plans[i] = upcoming;
+            if let Some(c) = by_answer.get(&o.seq) {
+                upcoming = Some(c.plans);
+            }
+        }
+        Self {
+            observations,
+            by_answer,
+            next_plans,
         }
     }
-    let mut outcome = ReplayOutcome {
-        compared: 0,
-        identical: 0,
-        divergence: None,
-        observations: 0,
-    };
-    for (i, obs) in observations.iter().enumerate() {
-        let expected = by_answer.get(&obs.seq).copied();
-        let current = acting.plans();
+}
+
+/// What the recording says about one observation.
+#[derive(Clone, Copy)]
+struct Recorded<'a> {
+    /// The command that answered it, if one did.
+    command: Option<&'a Command>,
+    /// The plans count of the next command after it.
+    next_plans: Option<u64>,
+}
+
+impl Recorded<'_> {
+    /// How many plans the run had adopted when it decided on `obs`, the replay having adopted
+    /// `current`: the command's count, or for an observation that ended an episode (which
+    /// has no command) one more when the next command counts two more.
+    fn target_plans(&self, obs: &Observation, current: u64) -> u64 {
         let ends = obs.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0;
-        let target = match expected {
+        match self.command {
             Some(c) => c.plans,
-            None if ends && next_plans[i].is_some_and(|n| n >= current + 2) => current + 1,
+            None if ends && self.next_plans.is_some_and(|n| n >= current + 2) => current + 1,
             None => current,
-        };
-        let diverge = |got: Option<Decision>, note: Option<String>| Divergence {
-            seq: obs.seq,
-            episode: obs.episode,
-            step: obs.step,
-            expected: expected.map(Decision::of),
-            got,
-            note,
-        };
-        if target > current + 1 || target < current {
-            outcome.divergence = Some(diverge(
-                None,
-                Some(format!(
-                    "the run had adopted {target} plans here, the replay {current}"
-                )),
-            ));
-            break;
         }
-        let adopt = target == current + 1;
-        if adopt {
-            acting.settle_planner(PLAN_PATIENCE)?;
-            acting.hold_plans(false);
+    }
+}
+
+/// Feeds `obs` to `acting`, adopting a plan first where the run did, and compares the
+/// decision with the recorded one (counted in `outcome`); returns where it diverged, if it
+/// did.
+fn replay_observation(
+    acting: &mut ActingLoop,
+    clock: &ManualClock,
+    obs: &Observation,
+    recorded: Recorded<'_>,
+    outcome: &mut ReplayOutcome,
+) -> Result<Option<Divergence>, ReplayError> {
+    let current = acting.plans();
+    let target = recorded.target_plans(obs, current);
+    let diverge = |got: Option<Decision>, note: Option<String>| Divergence {
+        seq: obs.seq,
+        episode: obs.episode,
+        step: obs.step,
+        expected: recorded.command.map(Decision::of),
+        got,
+        note,
+    };
+    if target > current + 1 || target < current {
+        let note = format!("the run had adopted {target} plans here, the replay {current}");
+        return Ok(Some(diverge(None, Some(note))));
+    }
+    let got = decide(acting, clock, obs, target == current + 1)?;
+    outcome.observations += 1;
+    if acting.plans() != target && got.is_some() {
+        let note = format!(
+            "the run decided with {target} plans adopted, the replay with {}",
+            acting.plans()
+        );
+        return Ok(Some(diverge(got, Some(note))));
+    }
+    Ok(match (recorded.command, got) {
+        (None, None) => None,
+        (Some(e), Some(g)) if Decision::of(e) == g => {
+            outcome.compared += 1;
+            outcome.identical += 1;
+            None
         }
-        let step = acting.on_observation(obs, &clock)?;
-        if adopt {
-            acting.hold_plans(true);
-        }
-        outcome.observations += 1;
-        let got = match step {
-            Step::Act { command, .. } => {
-                acting.command_sent(&clock)?;
-                Some(Decision::of(&command))
-            }
-            Step::EpisodeEnded { .. } | Step::Refused(_) => None,
-        };
-        if acting.plans() != target && got.is_some() {
-            outcome.divergence = Some(diverge(
-                got,
-                Some(format!(
-                    "the run decided with {target} plans adopted, the replay with {}",
-                    acting.plans()
-                )),
-            ));
-            break;
-        }
-        match (expected, got) {
-            (None, None) => {}
-            (Some(e), Some(g)) if Decision::of(e) == g => {
+        (e, g) => {
+            if e.is_some() {
                 outcome.compared += 1;
-                outcome.identical += 1;
             }
-            (e, g) => {
-                if e.is_some() {
-                    outcome.compared += 1;
-                }
-                outcome.divergence = Some(diverge(g, None));
-                break;
-            }
+            Some(diverge(g, None))
         }
+    })
+}
+
+/// The acting loop's decision on `obs` (`None`: no command), letting the held-back plan be
+/// adopted first if `adopt`.
+fn decide(
+    acting: &mut ActingLoop,
+    clock: &ManualClock,
+    obs: &Observation,
+    adopt: bool,
+) -> Result<Option<Decision>, ReplayError> {
+    if adopt {
+        acting.settle_planner(PLAN_PATIENCE)?;
+        acting.hold_plans(false);
     }
-    if outcome.divergence.is_some() {
-        // Everything recorded counts: "k of N identical" is over the whole run.
-        outcome.compared = recording.commands.len() as u64;
+    let step = acting.on_observation(obs, clock)?;
+    if adopt {
+        acting.hold_plans(true);
     }
-    Ok(outcome)
+    Ok(match step {
+        Step::Act { command, .. } => {
+            acting.command_sent(clock)?;
+            Some(Decision::of(&command))
+        }
+        Step::EpisodeEnded { .. } | Step::Refused(_) => None,
+    })
 }

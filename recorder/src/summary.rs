@@ -142,132 +142,144 @@ pub struct ExportError {
 /// Writes one CSV file per topic with messages into `dir` (created if missing): a header,
 /// then a row per message; feature lists as space-separated indices. Returns the files.
 pub fn export_csv(recording: &Recording, dir: &Path) -> Result<Vec<PathBuf>, ExportError> {
-    let fail = |path: &Path| {
-        let path = path.to_owned();
-        move |error| ExportError { path, error }
-    };
     std::fs::create_dir_all(dir).map_err(fail(dir))?;
     let mut written = Vec::new();
     let mut file = |topic: Topic, header: &str, rows: Vec<String>| -> Result<(), ExportError> {
         let path = dir.join(format!("{}.csv", topic.stem()));
-        let mut out = std::io::BufWriter::new(std::fs::File::create(&path).map_err(fail(&path))?);
-        writeln!(out, "{header}").map_err(fail(&path))?;
-        for row in rows {
-            writeln!(out, "{row}").map_err(fail(&path))?;
-        }
-        out.flush().map_err(fail(&path))?;
+        write_csv(&path, header, rows)?;
         written.push(path);
         Ok(())
     };
-    let features = |f: &tes_topics::FeatureBits| {
-        f.iter_ones()
-            .map(|i| i.to_string())
-            .collect::<Vec<_>>()
-            .join(" ")
-    };
     file(
         Topic::Observation,
-        "seq,stamp_ns,after_command,episode,step,x,y,orientation,n_features,reward,flags,features",
-        recording
-            .observations
-            .iter()
-            .map(|o| {
-                format!(
-                    "{},{},{},{},{},{},{},{},{},{},{},{}",
-                    o.seq,
-                    o.stamp_ns,
-                    o.after_command,
-                    o.episode,
-                    o.step,
-                    o.state.x,
-                    o.state.y,
-                    o.state.orientation,
-                    o.n_features,
-                    o.reward,
-                    o.flags,
-                    features(&o.features)
-                )
-            })
-            .collect(),
+        OBSERVATION_HEADER,
+        recording.observations.iter().map(observation_row).collect(),
     )?;
-    let commands = |cs: &[tes_topics::Command]| {
-        cs.iter()
-            .map(|c| {
-                format!(
-                    "{},{},{},{},{},{},{},{},{}",
-                    c.seq,
-                    c.answers,
-                    c.stamp_ns,
-                    c.observed_ns,
-                    c.action,
-                    c.left_deg,
-                    c.right_deg,
-                    c.in_flight_action,
-                    c.plans
-                )
-            })
-            .collect()
-    };
-    let command_header =
-        "seq,answers,stamp_ns,observed_ns,action,left_deg,right_deg,in_flight_action,plans";
     file(
         Topic::Command,
-        command_header,
-        commands(&recording.commands),
+        COMMAND_HEADER,
+        recording.commands.iter().map(command_row).collect(),
     )?;
     file(
         Topic::KeepAlive,
-        command_header,
-        commands(&recording.keepalives),
+        COMMAND_HEADER,
+        recording.keepalives.iter().map(command_row).collect(),
     )?;
     file(
         Topic::MotorState,
-        "seq,after_command,stamp_ns,tacho_a,tacho_b,tacho_c,rotation_a,rotation_b,rotation_c,run_a,run_b,run_c,battery_mv,flags",
-        recording
-            .motor_states
-            .iter()
-            .map(|m| {
-                format!(
-                    "{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
-                    m.seq,
-                    m.after_command,
-                    m.stamp_ns,
-                    m.tacho_count[0],
-                    m.tacho_count[1],
-                    m.tacho_count[2],
-                    m.rotation_count[0],
-                    m.rotation_count[1],
-                    m.rotation_count[2],
-                    m.run_state[0],
-                    m.run_state[1],
-                    m.run_state[2],
-                    m.battery_mv,
-                    m.flags
-                )
-            })
-            .collect(),
+        MOTOR_STATE_HEADER,
+        recording.motor_states.iter().map(motor_state_row).collect(),
     )?;
     if let Some(map) = &recording.world_map {
-        let rows = (0..map.n_states as usize)
-            .map(|s| {
-                let next = map.next_state[s][..map.n_effects as usize]
-                    .iter()
-                    .map(|n| n.to_string())
-                    .collect::<Vec<_>>()
-                    .join(" ");
-                format!(
-                    "{s},{},{},{next},{}",
-                    map.reward[s],
-                    map.terminal[s],
-                    features(&map.features[s])
-                )
-            })
-            .collect();
-        file(
-            Topic::WorldMap,
-            "state,reward,terminal,next_state_per_effect,features",
-            rows,
-        )?;
+        file(Topic::WorldMap, WORLD_MAP_HEADER, world_map_rows(map))?;
     }
     Ok(written)
+}
+
+/// Turns an I/O error on `path` into an [`ExportError`] naming it.
+fn fail(path: &Path) -> impl FnOnce(std::io::Error) -> ExportError {
+    let path = path.to_owned();
+    move |error| ExportError { path, error }
+}
+
+/// Writes `header` and then `rows`, a line each, to `path`.
+fn write_csv(path: &Path, header: &str, rows: Vec<String>) -> Result<(), ExportError> {
+    let mut out = std::io::BufWriter::new(std::fs::File::create(path).map_err(fail(path))?);
+    writeln!(out, "{header}").map_err(fail(path))?;
+    for row in rows {
+        writeln!(out, "{row}").map_err(fail(path))?;
+    }
+    out.flush().map_err(fail(path))
+}
+
+/// A feature list as space-separated indices.
+fn features(f: &tes_topics::FeatureBits) -> String {
+    f.iter_ones()
+        .map(|i| i.to_string())
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+const OBSERVATION_HEADER: &str =
+    "seq,stamp_ns,after_command,episode,step,x,y,orientation,n_features,reward,flags,features";
+
+fn observation_row(o: &tes_topics::Observation) -> String {
+    format!(
+        "{},{},{},{},{},{},{},{},{},{},{},{}",
+        o.seq,
+        o.stamp_ns,
+        o.after_command,
+        o.episode,
+        o.step,
+        o.state.x,
+        o.state.y,
+        o.state.orientation,
+        o.n_features,
+        o.reward,
+        o.flags,
+        features(&o.features)
+    )
+}
+
+/// Commands and keep-alives alike.
+const COMMAND_HEADER: &str =
+    "seq,answers,stamp_ns,observed_ns,action,left_deg,right_deg,in_flight_action,plans";
+
+fn command_row(c: &tes_topics::Command) -> String {
+    format!(
+        "{},{},{},{},{},{},{},{},{}",
+        c.seq,
+        c.answers,
+        c.stamp_ns,
+        c.observed_ns,
+        c.action,
+        c.left_deg,
+        c.right_deg,
+        c.in_flight_action,
+        c.plans
+    )
+}
+
+const MOTOR_STATE_HEADER: &str = "seq,after_command,stamp_ns,tacho_a,tacho_b,tacho_c,rotation_a,rotation_b,rotation_c,run_a,run_b,run_c,battery_mv,flags";
+
+fn motor_state_row(m: &tes_topics::MotorState) -> String {
+    format!(
+        "{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+        m.seq,
+        m.after_command,
+        m.stamp_ns,
+        m.tacho_count[0],
+        m.tacho_count[1],
+        m.tacho_count[2],
+        m.rotation_count[0],
+        m.rotation_count[1],
+        m.rotation_count[2],
+        m.run_state[0],
+        m.run_state[1],
+        m.run_state[2],
+        m.battery_mv,
+        m.flags
+    )
+}
+
+const WORLD_MAP_HEADER: &str = "state,reward,terminal,next_state_per_effect,features";
+
+/// A row per state: its reward, whether it is terminal, the state each effect leads to, and
+/// its features.
+fn world_map_rows(map: &tes_topics::WorldMap) -> Vec<String> {
+    (0..map.n_states as usize)
+        .map(|s| {
+            let next = map.next_state[s][..map.n_effects as usize]
+                .iter()
+                .map(|n| n.to_string())
+                .collect::<Vec<_>>()
+                .join(" ");
+            format!(
+                "{s},{},{},{next},{}",
+                map.reward[s],
+                map.terminal[s],
+                features(&map.features[s])
+            )
+        })
+        .collect()
 }
