@@ -1,12 +1,25 @@
 //! TES's benchmarks: the criterion benches under `benches/` (the view learner, the learning
-//! path, the NXT codec) and the harnesses behind `tes bench`:
+//! path, the NXT codec) and the harnesses behind `tes bench`, usable without the command line:
 //!
-//! * [`relay`] — the floor: a bare iceoryx2 two-hop relay of the group's payloads, measured in
-//!   the same run as the group (`tes bench latency`);
+//! * [`latency`] — the controller's per-action latency, the real process group measured
+//!   against its floor in the same run (`tes bench latency`): the measured [`group`], its
+//!   [`floor`] (by [`relay`] over shared memory, or over the Zenoh link), and with `record`
+//!   the [`recorder_cost`];
 //! * [`scaling`] — the acting step's cost against the number of features and views
 //!   (`tes bench scaling`);
-//! * [`fixtures`] — the learned arena libraries both of them, and the benches, run on.
+//! * [`fixtures`] — the learned arena libraries the harnesses and the benches run on.
+//!
+//! Every process a harness starts is a program its caller names ([`latency::Programs`]): the
+//! `tes` command line passes its own executable in each role.
 
+pub mod error;
 pub mod fixtures;
+pub mod floor;
+mod group;
+pub mod latency;
+pub mod recorder_cost;
 pub mod relay;
 pub mod scaling;
+
+pub use error::{BenchError, GroupFailure};
+pub use latency::{CheckedLatency, Harness, LatencyResult, LatencySettings, Note, Programs, Via};

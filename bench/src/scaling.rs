@@ -7,6 +7,8 @@
 //! an arena-shaped CMDP ([`crate::fixtures::arena_like`]) with a trained library
 //! ([`crate::fixtures::library_for`]) and records each part's time and their sum.
 
+use std::fmt::Write as _;
+use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -203,6 +205,62 @@ pub fn charts(points: &[ScalingPoint]) -> [LineChart; 2] {
             markers: true,
         },
     ]
+}
+
+/// The files [`write`] makes, in order.
+pub const OUTPUTS: [&str; 4] = [
+    "scaling.csv",
+    "scaling.json",
+    "scaling-features.svg",
+    "scaling-views.svg",
+];
+
+/// Writes the sweep's `points` into `dir` (made if missing): a CSV row and a JSON object per
+/// point, and the two [`charts`] as SVG ([`OUTPUTS`]).
+pub fn write(dir: &Path, points: &[ScalingPoint]) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let [by_features, by_views] = charts(points);
+    let texts = [
+        csv(points),
+        serde_json::to_string_pretty(points)? + "\n",
+        by_features.to_svg(),
+        by_views.to_svg(),
+    ];
+    for (name, text) in OUTPUTS.into_iter().zip(texts) {
+        let path = dir.join(name);
+        std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    Ok(())
+}
+
+/// The points as CSV: the whole step's figures, then the decision's and the learning's.
+fn csv(points: &[ScalingPoint]) -> String {
+    let mut csv = String::from(
+        "features,views,count,p50_us,p90_us,p99_us,p999_us,max_us,\
+         decision_p50_us,decision_p99_us,decision_max_us,learn_p50_us,learn_p99_us,learn_max_us\n",
+    );
+    for p in points {
+        let (l, d, n) = (&p.latency, &p.decision, &p.learn);
+        let _ = writeln!(
+            csv,
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            p.features,
+            p.views,
+            l.count,
+            l.p50_us,
+            l.p90_us,
+            l.p99_us,
+            l.p999_us,
+            l.max_us,
+            d.p50_us,
+            d.p99_us,
+            d.max_us,
+            n.p50_us,
+            n.p99_us,
+            n.max_us
+        );
+    }
+    csv
 }
 
 #[cfg(test)]

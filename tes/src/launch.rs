@@ -119,20 +119,6 @@ fn launch_file(args: &LaunchArgs) -> Result<LaunchFile> {
     Ok(file)
 }
 
-/// Runs the group `file` describes until it stops; `echo` prints the controller's lines and
-/// the launcher's notes (else only warnings and failures). The launch's verdict is an error
-/// when a process failed.
-pub(crate) fn run_file(file: &LaunchFile, echo: bool) -> Result<Verdict> {
-    let options = Options::new(this_executable()?, stop_on_signals()?);
-    let mut printer = Printer {
-        echo,
-        ..Printer::default()
-    };
-    let verdict = tes_launch::run(file, options, &mut printer)?;
-    verdict_to_result(&verdict)?;
-    Ok(verdict)
-}
-
 /// The children are this executable in their role: `tes child ROLE --config FILE`.
 pub(crate) fn this_executable() -> Result<ChildCommand> {
     let exe = std::env::current_exe().context("cannot find the tes executable")?;
@@ -140,7 +126,7 @@ pub(crate) fn this_executable() -> Result<ChildCommand> {
 }
 
 /// A flag raised by Ctrl-C or SIGTERM.
-fn stop_on_signals() -> Result<Arc<AtomicBool>> {
+pub(crate) fn stop_on_signals() -> Result<Arc<AtomicBool>> {
     let stop = Arc::new(AtomicBool::new(false));
     for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
         signal_hook::flag::register(signal, stop.clone())

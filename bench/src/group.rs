@@ -1,0 +1,279 @@
+//! The measured group of a latency run: its launch file and files, run on one host through
+//! shared memory, or split in two launches linked by Zenoh.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+use tes_controller::config::ThreadPlacement;
+use tes_controller::process::ControllerSummary;
+use tes_launch::children::{self, ChildCommand};
+use tes_launch::{LaunchFile, LaunchSection, Options};
+use tes_learning::library::store::{self, StoredLibrary};
+use tes_runtime::affinity::Placement;
+use tes_runtime::channel::WaitStrategy;
+use tes_runtime::latency::LatencyReport;
+use tes_topics::Role;
+
+use crate::error::{BenchError, GroupFailure, Result};
+use crate::latency::{CheckedLatency, Harness};
+
+/// The files of one latency run, in its directory.
+#[derive(Debug, Clone)]
+pub(crate) struct RunFiles {
+    /// The controller's view library.
+    pub(crate) library: PathBuf,
+    /// The controller's summary (`report`).
+    pub(crate) controller_report: PathBuf,
+    /// The bridge's latency report (observation → command at the bridge).
+    pub(crate) bridge_report: PathBuf,
+}
+
+impl RunFiles {
+    fn in_dir(dir: &Path) -> Self {
+        Self {
+            library: dir.join("library.tesl"),
+            controller_report: dir.join("controller.json"),
+            bridge_report: dir.join("bridge.json"),
+        }
+    }
+}
+
+/// The measured group: its launch file, its starting library, its files.
+pub(crate) struct Group {
+    /// The launch file of the whole group.
+    pub(crate) file: LaunchFile,
+    /// The library every run starts from.
+    stored: StoredLibrary,
+    /// Where the run's files are.
+    files: RunFiles,
+    /// The run's directory.
+    pub(crate) dir: PathBuf,
+}
+
+impl Group {
+    /// The group of `latency`'s run in `dir`, its services under `prefix`, from `stored`.
+    pub(crate) fn new(
+        dir: &Path,
+        prefix: &str,
+        latency: &CheckedLatency,
+        stored: StoredLibrary,
+    ) -> Self {
+        let files = RunFiles::in_dir(dir);
+        Self {
+            file: group_file(dir, prefix, latency, &files),
+            stored,
+            files,
+            dir: dir.to_owned(),
+        }
+    }
+
+    /// Runs `file` (the group's, or a variant of it) from the starting library, and reads
+    /// the bridge's latency report and the controller's summary.
+    pub(crate) fn run(
+        &self,
+        file: &LaunchFile,
+        harness: &mut Harness<'_>,
+    ) -> Result<(LatencyReport, ControllerSummary)> {
+        // Every run starts from the same library (the previous one saved what it learned).
+        store::save(&self.files.library, &self.stored)?;
+        launch(file, "the process group failed", harness)?;
+        read_reports(&self.files)
+    }
+
+    /// [`Group::run`] split in two launches linked by Zenoh over loopback TCP: perception-sim
+    /// and the bridge in this process's launch, the controller in a launch of its own
+    /// ([`crate::latency::Programs::launch`]) with an iceoryx2 domain of its own (so only the
+    /// link connects them).
+    pub(crate) fn run_split(
+        &self,
+        harness: &mut Harness<'_>,
+    ) -> Result<(LatencyReport, ControllerSummary)> {
+        store::save(&self.files.library, &self.stored)?;
+        let port = free_port()?;
+        let (robot, workstation) = split(&self.file, port, &self.dir);
+        let text = tes_launch::reference::render_resolved(&workstation)?;
+        let path = self.dir.join("controller-launch.toml");
+        std::fs::write(&path, text)
+            .map_err(BenchError::io(format!("cannot write {}", path.display())))?;
+        let log = self.dir.join("controller-launch.log");
+        let mut other = spawn_launch(&harness.programs.launch, &path, &log)?;
+        let ran = launch(&robot, "the robot's launch failed", harness);
+        let status = wait_or_kill(
+            &mut other,
+            Duration::from_secs(60),
+            false,
+            "cannot poll the controller's launch",
+        )?;
+        ran?;
+        match status {
+            Some(s) if s.success() => {}
+            Some(s) => {
+                return Err(BenchError::Run(format!(
+                    "the controller's launch {} (see {})",
+                    children::describe(s),
+                    log.display()
+                )));
+            }
+            None => {
+                return Err(BenchError::Run(
+                    "the controller's launch did not stop".into(),
+                ));
+            }
+        }
+        read_reports(&self.files)
+    }
+}
+
+/// Runs the group `file` describes until it stops, its events told to the harness's
+/// observer; a failed verdict is an error, said as `what` with what failed.
+fn launch(file: &LaunchFile, what: &'static str, harness: &mut Harness<'_>) -> Result<()> {
+    let options = Options::new(harness.programs.child.clone(), harness.stop.clone());
+    let verdict =
+        tes_launch::run(file, options, &mut *harness.observer).map_err(|e| BenchError::Group {
+            what,
+            cause: e.into(),
+        })?;
+    if verdict.success() {
+        Ok(())
+    } else {
+        Err(BenchError::Group {
+            what,
+            cause: GroupFailure::Failed(verdict.failures),
+        })
+    }
+}
+
+/// The bridge's latency report and the controller's summary.
+fn read_reports(files: &RunFiles) -> Result<(LatencyReport, ControllerSummary)> {
+    let report = LatencyReport::load(&files.bridge_report).map_err(BenchError::io(format!(
+        "no bridge report at {}",
+        files.bridge_report.display()
+    )))?;
+    let path = &files.controller_report;
+    let text = std::fs::read_to_string(path).map_err(BenchError::io(format!(
+        "no controller report at {}",
+        path.display()
+    )))?;
+    let summary: ControllerSummary = serde_json::from_str(&text).map_err(BenchError::Malformed)?;
+    Ok((report, summary))
+}
+
+/// The launch file of the measured group.
+fn group_file(dir: &Path, prefix: &str, latency: &CheckedLatency, files: &RunFiles) -> LaunchFile {
+    let s = latency.settings();
+    let mut file = LaunchFile {
+        launch: LaunchSection {
+            episodes: u32::MAX,
+            arena: 3,
+            real_time_factor: 0.0,
+            wait: s.wait,
+            service_prefix: prefix.to_owned(),
+            run_dir: Some(dir.join("run")),
+            seed: s.seed,
+            ..LaunchSection::default()
+        },
+        ..LaunchFile::default()
+    };
+    file.perception.actions = latency.total();
+    // The return path (robot motion) is not measured: block, as the floor's source does.
+    file.perception.wait = WaitStrategy::Block;
+    file.keep("perception", "wait");
+    let c = &mut file.controller;
+    c.library = Some(files.library.clone());
+    c.budget_us = s.budget_us;
+    c.warmup_actions = s.warmup;
+    c.report = Some(files.controller_report.clone());
+    // Resolved CPUs or "none", never "auto": the floor's hop was given the same CPU.
+    let ThreadPlacement { acting, planner } = latency.placement();
+    c.acting_cpu = acting.map_or(Placement::Unpinned, Placement::Cpu);
+    c.planner_cpu = planner.map_or(Placement::Unpinned, Placement::Cpu);
+    c.planning = s.planning;
+    c.order = s.order;
+    if let Some(us) = s.planner_idle_spin_us {
+        c.planner_idle_spin_us = us;
+    }
+    // The bridge's [ipc] table as the bench writes it: the launch-wide prefix and wait go in.
+    let ipc = &mut file.bridge.ipc;
+    ipc.budget_us = s.budget_us;
+    ipc.warmup_commands = s.warmup;
+    ipc.latency_report = Some(files.bridge_report.clone());
+    file
+}
+
+/// The group split in two: the robot's launch (perception-sim and the bridge, listening on
+/// `port`) and the workstation's (the controller, connecting to it, its run folder apart).
+fn split(file: &LaunchFile, port: u16, dir: &Path) -> (LaunchFile, LaunchFile) {
+    let group = format!("tes-bench/{}", std::process::id());
+    let mut robot = file.clone();
+    robot.launch.roles = vec![Role::Perception, Role::Bridge];
+    let link = &mut robot.launch.link;
+    link.group.clone_from(&group);
+    link.listen = vec![format!("tcp/127.0.0.1:{port}")];
+    link.connect = Vec::new();
+    link.multicast_scouting = Some(false);
+    // One machine, one clock: the latency is measured across the link.
+    link.restamp = false;
+    let mut workstation = robot.clone();
+    workstation.launch.roles = vec![Role::Controller];
+    workstation.launch.run_dir = Some(dir.join("run-controller"));
+    let link = &mut workstation.launch.link;
+    link.listen = Vec::new();
+    link.connect = vec![format!("tcp/127.0.0.1:{port}")];
+    (robot, workstation)
+}
+
+/// Starts `launch --config CONFIG` in an iceoryx2 domain of its own, its output in `log`.
+fn spawn_launch(launch: &ChildCommand, config: &Path, log: &Path) -> Result<Child> {
+    let file = std::fs::File::create(log).map_err(BenchError::io(
+        "cannot create the controller launch's log".into(),
+    ))?;
+    let shared = file
+        .try_clone()
+        .map_err(BenchError::io("cannot share the log".into()))?;
+    std::process::Command::new(&launch.program)
+        .args(&launch.args)
+        .arg("--config")
+        .arg(config)
+        .env(
+            tes_runtime::channel::DOMAIN_VAR,
+            format!("bench{}", std::process::id()),
+        )
+        .stdin(Stdio::null())
+        .stdout(shared)
+        .stderr(file)
+        .spawn()
+        .map_err(BenchError::io(
+            "cannot start the controller's launch".into(),
+        ))
+}
+
+/// A free TCP port on loopback.
+pub(crate) fn free_port() -> Result<u16> {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .map_err(BenchError::io("no free TCP port on loopback".into()))
+}
+
+/// Waits up to `limit` for `child` to end (at once with `now`); kills it if it has not.
+/// Returns how it ended, or `None` if it was killed. `poll` says a failed poll.
+pub(crate) fn wait_or_kill(
+    child: &mut Child,
+    limit: Duration,
+    now: bool,
+    poll: &str,
+) -> Result<Option<ExitStatus>> {
+    let deadline = Instant::now() + limit;
+    loop {
+        if let Some(s) = child.try_wait().map_err(BenchError::io(poll.to_owned()))? {
+            return Ok(Some(s));
+        }
+        if now || Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            return Ok(None);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}

@@ -1,0 +1,553 @@
+//! The controller's per-action latency measured against the raw transport's floor (`tes bench
+//! latency`).
+//!
+//! [`run`] runs, one after the other:
+//!
+//! 1. **ours** — the real group (through [`tes_launch::run`]): perception-sim on arena Env 3
+//!    at the fastest real-time factor, the controller with a view library trained in Env 1
+//!    and 2, the bridge with the simulated brick; the bridge records each command's latency
+//!    from the observation's stamp, on arrival. With [`Via::Zenoh`] the group is split in two
+//!    launches linked by Zenoh on loopback TCP;
+//! 2. **the floor** ([`crate::floor`]) — the loop's payloads relayed (Observation → Command →
+//!    MotorState) with the same wait strategy, no work, and the same cadence (the mean time
+//!    between our actions, mostly the simulated robot moving), measured where the bridge
+//!    measures: by [`crate::relay`]'s three processes over iceoryx2, or by the same two hops
+//!    over the split launch's Zenoh link;
+//! 3. with `record`, the recorder's cost ([`crate::recorder_cost`]).
+//!
+//! Both leave out the same warm-up and count overruns of the same budget. `wait` applies to
+//! the two measured receivers (controller and bridge, hop and sink); perception and the
+//! floor's source wait for the robot's motion by blocking, since on 2 cores three
+//! busy-polling processes starve each other.
+//!
+//! Every process the harness starts is a program of the caller's ([`Programs`]): the
+//! command line passes its own executable in each role.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+use serde::Serialize;
+use tes_controller::config::{ControllerConfig, Order, PlanningMode, ThreadPlacement};
+use tes_controller::process::ControllerSummary;
+use tes_launch::ChildCommand;
+use tes_launch::event::Observer;
+use tes_learning::library::store::StoredLibrary;
+use tes_runtime::affinity::Placement;
+use tes_runtime::channel::WaitStrategy;
+use tes_runtime::latency::LatencyReport;
+
+use crate::error::{BenchError, Result};
+use crate::fixtures;
+use crate::floor;
+use crate::group::Group;
+use crate::recorder_cost::{self, RecorderComparison};
+
+/// How the group's processes reach each other.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Via {
+    /// One host, shared memory (iceoryx2 only); the floor a raw iceoryx2 relay.
+    #[default]
+    Shm,
+    /// Two launches, each in an iceoryx2 domain of its own, linked by Zenoh over loopback
+    /// TCP; the floor the same two hops over a Zenoh link with no work.
+    Zenoh,
+}
+
+/// The settings of a latency run (`tes bench latency`'s flags).
+#[derive(Debug, Clone, PartialEq)]
+pub struct LatencySettings {
+    /// Actions measured (after the warm-up).
+    pub actions: u64,
+    /// The per-action budget, µs.
+    pub budget_us: u64,
+    /// How the measured receivers wait.
+    pub wait: WaitStrategy,
+    /// Views in the controller's library (trained in Env 1 and Env 2).
+    pub views: usize,
+    /// Actions run first and left out of every figure.
+    pub warmup: u64,
+    /// Seed of the library's training, the world and the controller.
+    pub seed: u64,
+    /// Keep the run's files here instead of a temporary directory.
+    pub out: Option<PathBuf>,
+    /// The controller's acting thread's CPU, and the floor's hop's.
+    pub acting_cpu: Placement,
+    /// The controller's planner thread's CPU.
+    pub planner_cpu: Placement,
+    /// Who plans in the controller.
+    pub planning: PlanningMode,
+    /// When the controller learns from an observation.
+    pub order: Order,
+    /// How long the planner thread polls for its next job after a plan, µs (`None`: the
+    /// controller's default).
+    pub planner_idle_spin_us: Option<u64>,
+    /// Also compare the group with and without the recorder.
+    pub record: bool,
+    /// With `record`: blocks of each kind.
+    pub record_blocks: u64,
+    /// How the processes reach each other.
+    pub via: Via,
+}
+
+impl Default for LatencySettings {
+    /// `tes bench latency`'s defaults.
+    fn default() -> Self {
+        Self {
+            actions: 10_000,
+            budget_us: 1000,
+            wait: WaitStrategy::Block,
+            views: 9,
+            warmup: 1000,
+            seed: 1,
+            out: None,
+            acting_cpu: Placement::Auto,
+            planner_cpu: Placement::Auto,
+            planning: PlanningMode::Auto,
+            order: Order::DecideFirst,
+            planner_idle_spin_us: None,
+            record: false,
+            record_blocks: 4,
+            via: Via::Shm,
+        }
+    }
+}
+
+impl LatencySettings {
+    /// Checks the settings once, and resolves where the controller's threads (and so the
+    /// floor's hop) run on this machine. Errors name the flag.
+    pub fn check(self) -> Result<CheckedLatency> {
+        if self.actions == 0 || self.budget_us == 0 || self.views == 0 {
+            return Err(BenchError::Settings(
+                "--actions, --budget-us and --views must be at least 1".into(),
+            ));
+        }
+        let controller = ControllerConfig {
+            wait: self.wait,
+            acting_cpu: self.acting_cpu,
+            planner_cpu: self.planner_cpu,
+            planning: self.planning,
+            ..ControllerConfig::default()
+        };
+        let planning = controller
+            .planning_for(self.wait)
+            .map_err(|e| BenchError::Settings(format!("--planning: {}", e.reason)))?;
+        // Resolved here, so that the floor's hop gets the acting thread's very CPU.
+        let placement = controller.placement(self.wait, planning).map_err(|e| {
+            BenchError::Settings(format!("--{}: {}", e.key.replace('_', "-"), e.reason))
+        })?;
+        if self.record && self.record_blocks == 0 {
+            return Err(BenchError::Settings(
+                "--record-blocks must be at least 1".into(),
+            ));
+        }
+        Ok(CheckedLatency {
+            settings: self,
+            placement,
+        })
+    }
+}
+
+/// [`LatencySettings`] that passed [`LatencySettings::check`], with the threads' placement.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CheckedLatency {
+    settings: LatencySettings,
+    placement: ThreadPlacement,
+}
+
+impl CheckedLatency {
+    /// The settings.
+    pub fn settings(&self) -> &LatencySettings {
+        &self.settings
+    }
+
+    /// Where the controller's threads run (CPUs or unpinned), the floor's hop with the
+    /// acting thread.
+    pub fn placement(&self) -> ThreadPlacement {
+        self.placement
+    }
+
+    /// Actions in all, warm-up included.
+    pub fn total(&self) -> u64 {
+        self.settings.actions + self.settings.warmup
+    }
+}
+
+/// The programs the harness starts: the command line's own executable in each role.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Programs {
+    /// The group's children; the supervisor adds `ROLE --config FILE` (`tes child`).
+    pub child: ChildCommand,
+    /// A launch of its own, the split run's second; `--config FILE` is added (`tes launch`).
+    pub launch: ChildCommand,
+    /// The floor relay's processes; `ROLE --config FILE` is added (`tes bench relay`).
+    pub relay: ChildCommand,
+    /// The Zenoh floor's controller side; [`floor::HopSettings::args`] are added (`tes
+    /// bench zenoh-floor-hop`).
+    pub floor_hop: ChildCommand,
+}
+
+/// What the harness needs from its caller: the programs it starts, the stop flag, and where
+/// it tells what happens.
+pub struct Harness<'a> {
+    /// The programs.
+    pub programs: Programs,
+    /// Raised (by a signal handler), a running group stops.
+    pub stop: Arc<AtomicBool>,
+    /// Takes every event of every launch of the group.
+    pub observer: &'a mut dyn Observer,
+    /// Takes the harness's progress.
+    pub notes: &'a mut dyn FnMut(&Note),
+}
+
+/// The harness's progress, said as a line by its [`fmt::Display`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Note {
+    /// The controller's starting library is being trained.
+    Training {
+        /// Its views.
+        views: usize,
+    },
+    /// Our group runs.
+    Ours {
+        /// Actions, warm-up included.
+        total: u64,
+    },
+    /// The floor runs.
+    Floor {
+        /// Which floor.
+        via: Via,
+        /// Round trips, warm-up included.
+        total: u64,
+        /// How its receivers wait.
+        wait: WaitStrategy,
+        /// One round trip every this many µs.
+        cycle_us: u64,
+    },
+    /// A block of the recorder's comparison runs.
+    RecorderBlock {
+        /// Its number, from 1.
+        block: u64,
+        /// Blocks in all.
+        of: u64,
+        /// Whether the recorder runs.
+        recorded: bool,
+        /// Actions measured.
+        measured: u64,
+    },
+}
+
+impl fmt::Display for Note {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Training { views } => write!(
+                f,
+                "bench: training a {views}-view library in Env 1 and Env 2"
+            ),
+            Self::Ours { total } => write!(
+                f,
+                "bench: ours — perception-sim → controller → bridge on Env 3, {total} actions"
+            ),
+            Self::Floor {
+                via,
+                total,
+                wait,
+                cycle_us,
+            } => {
+                let kind = match via {
+                    Via::Shm => "a raw iceoryx2 two-hop relay",
+                    Via::Zenoh => {
+                        "the same two hops through the split launch's own Zenoh link on \
+                         loopback TCP, with no work"
+                    }
+                };
+                write!(
+                    f,
+                    "bench: the floor — {kind}, {total} round trips, wait {wait}, one every \
+                     {cycle_us} us"
+                )
+            }
+            Self::RecorderBlock {
+                block,
+                of,
+                recorded,
+                measured,
+            } => write!(
+                f,
+                "bench: recorder comparison, block {block} of {of}: {} the recorder, \
+                 {measured} actions",
+                if *recorded { "with" } else { "without" }
+            ),
+        }
+    }
+}
+
+/// What a latency run measured (`tes bench latency --json` prints it).
+#[derive(Debug, Clone, Serialize)]
+pub struct LatencyResult {
+    /// How the processes reached each other: `shm` or `zenoh`.
+    pub via: Via,
+    /// How the measured receivers waited.
+    pub wait: String,
+    /// Actions measured.
+    pub actions: u64,
+    /// The per-action budget, µs.
+    pub budget_us: u64,
+    /// Views in the starting library.
+    pub views: usize,
+    /// Observation → bridge, median, µs.
+    pub p50_us: u64,
+    /// Observation → bridge, 90th percentile, µs.
+    pub p90_us: u64,
+    /// Observation → bridge, 99th percentile, µs.
+    pub p99_us: u64,
+    /// Observation → bridge, 99.9th percentile, µs.
+    pub p999_us: u64,
+    /// Observation → bridge, the most, µs.
+    pub max_us: u64,
+    /// Actions over the budget.
+    pub misses: u64,
+    /// Heap allocations on the controller's acting path (null if not counted).
+    pub allocations: Option<u64>,
+    /// Of those, the ones inside iceoryx2 sending the command.
+    pub ipc_allocations: Option<u64>,
+    /// The controller's own decision latency (observation stamped → command published).
+    pub decision: LatencyReport,
+    /// Its first part: observation stamped → received by the controller's acting loop.
+    pub wake: LatencyReport,
+    /// Its second part: observation received → command published (the acting path's work).
+    pub compute: LatencyReport,
+    /// When the controller learned: `decide-first` or `learn-first`.
+    pub order: String,
+    /// Deciding first, the learning after each command (command published → views scored and
+    /// updated, the planner handed the model).
+    pub learn: LatencyReport,
+    /// Observations published before the previous learning had finished (they waited for it).
+    pub learning_overran: u64,
+    /// The floor's round trip, median, µs.
+    pub floor_p50_us: u64,
+    /// The floor's round trip, 90th percentile, µs.
+    pub floor_p90_us: u64,
+    /// The floor's round trip, 99th percentile, µs.
+    pub floor_p99_us: u64,
+    /// The floor's round trip, 99.9th percentile, µs.
+    pub floor_p999_us: u64,
+    /// The floor's round trip, the most, µs.
+    pub floor_max_us: u64,
+    /// The floor's round trips over the budget.
+    pub floor_misses: u64,
+    /// The floor's first hop alone (observation stamped → the hop's command published): the
+    /// counterpart of `decision` with no work.
+    pub floor_decision: LatencyReport,
+    /// Ours over the floor's, at the median.
+    pub ratio_p50: f64,
+    /// Ours over the floor's, at the 99th percentile.
+    pub ratio_p99: f64,
+    /// Mean time between actions in our run, which the floor's source kept too, µs.
+    pub cycle_us: u64,
+    /// The seed.
+    pub seed: u64,
+    /// The controller's acting thread's CPU, and the floor's hop's (null: unpinned).
+    pub acting_cpu: Option<usize>,
+    /// The controller's planner thread's CPU (null: unpinned).
+    pub planner_cpu: Option<usize>,
+    /// Plans the controller's planner finished and the acting loop adopted.
+    pub plans: u64,
+    /// Who planned: `thread` or `between-polls`.
+    pub planning: String,
+    /// With `record`: the group with and without the recorder, in alternating blocks (null
+    /// without).
+    pub recorder: Option<RecorderComparison>,
+}
+
+impl LatencyResult {
+    /// Ours, observation → bridge, as a report (the run's own fields).
+    pub fn ours(&self) -> LatencyReport {
+        LatencyReport {
+            count: self.actions,
+            p50_us: self.p50_us,
+            p90_us: self.p90_us,
+            p99_us: self.p99_us,
+            p999_us: self.p999_us,
+            max_us: self.max_us,
+            misses: self.misses,
+            ..LatencyReport::default()
+        }
+    }
+
+    /// The floor's round trip, as a report (the run's own fields).
+    pub fn floor(&self) -> LatencyReport {
+        LatencyReport {
+            p50_us: self.floor_p50_us,
+            p90_us: self.floor_p90_us,
+            p99_us: self.floor_p99_us,
+            p999_us: self.floor_p999_us,
+            max_us: self.floor_max_us,
+            misses: self.floor_misses,
+            ..LatencyReport::default()
+        }
+    }
+}
+
+/// Our group's run: the bridge's report, the controller's summary, and the mean time between
+/// actions.
+struct Ours {
+    report: LatencyReport,
+    controller: ControllerSummary,
+    cycle_us: u64,
+}
+
+/// Runs the group, then the floor, then (with `record`) the recorder's comparison; keeps the
+/// run's files in `out` (else in a temporary directory).
+pub fn run(latency: &CheckedLatency, harness: &mut Harness<'_>) -> Result<LatencyResult> {
+    let s = &latency.settings;
+    let temp;
+    let dir: &Path = match &s.out {
+        Some(d) => {
+            std::fs::create_dir_all(d)
+                .map_err(BenchError::io(format!("cannot create {}", d.display())))?;
+            d
+        }
+        None => {
+            temp = tempfile::tempdir()
+                .map_err(BenchError::io("cannot create a temporary directory".into()))?;
+            temp.path()
+        }
+    };
+    let prefix = format!("tes-bench-{}/", std::process::id());
+    (harness.notes)(&Note::Training { views: s.views });
+    let library = fixtures::arena_library(s.views, 3000, s.seed).map_err(BenchError::fixture)?;
+    let stored = StoredLibrary {
+        library,
+        world: "arena 1+2 (bench)".into(),
+        action_names: Vec::new(),
+        feature_names: Vec::new(),
+    };
+    let group = Group::new(dir, &prefix, latency, stored);
+    let ours = measure_ours(latency, &group, harness)?;
+    let (floor, floor_decision) = measure_floor(latency, dir, &prefix, ours.cycle_us, harness)?;
+    let recorder = if s.record {
+        Some(recorder_cost::compare(&group, s, harness)?)
+    } else {
+        None
+    };
+    Ok(result(latency, ours, &floor, floor_decision, recorder))
+}
+
+/// Runs our group (shared memory or split) and checks it measured what was asked.
+fn measure_ours(
+    latency: &CheckedLatency,
+    group: &Group,
+    harness: &mut Harness<'_>,
+) -> Result<Ours> {
+    let s = &latency.settings;
+    let total = latency.total();
+    (harness.notes)(&Note::Ours { total });
+    let started = Instant::now();
+    let (report, controller) = match s.via {
+        Via::Shm => group.run(&group.file, harness)?,
+        Via::Zenoh => group.run_split(harness)?,
+    };
+    let elapsed = started.elapsed();
+    if report.count < s.actions {
+        return Err(BenchError::Run(format!(
+            "the bridge saw {} measured commands, expected {} (see the run's files with --out)",
+            report.count, s.actions
+        )));
+    }
+    if controller.placement != latency.placement {
+        return Err(BenchError::Run(format!(
+            "the controller placed its threads at {:?}, not at {:?} as asked: the floor's hop would not match",
+            controller.placement, latency.placement
+        )));
+    }
+    let cycle_us = (elapsed.as_micros() / u128::from(total)) as u64;
+    Ok(Ours {
+        report,
+        controller,
+        cycle_us,
+    })
+}
+
+/// Runs the floor of `via` at our cadence: its round trip, and its first hop alone.
+fn measure_floor(
+    latency: &CheckedLatency,
+    dir: &Path,
+    prefix: &str,
+    cycle_us: u64,
+    harness: &mut Harness<'_>,
+) -> Result<(LatencyReport, LatencyReport)> {
+    let s = &latency.settings;
+    (harness.notes)(&Note::Floor {
+        via: s.via,
+        total: latency.total(),
+        wait: s.wait,
+        cycle_us,
+    });
+    let hop_cpu = latency.placement.acting;
+    match s.via {
+        Via::Shm => floor::relay_floor(dir, prefix, cycle_us, s, hop_cpu, &harness.programs.relay),
+        Via::Zenoh => floor::zenoh_floor(dir, cycle_us, s, hop_cpu, &harness.programs.floor_hop),
+    }
+}
+
+/// Ours over the floor's (the floor at least 1 µs).
+fn ratio(ours: u64, floor: u64) -> f64 {
+    ours as f64 / floor.max(1) as f64
+}
+
+/// The run's result from its parts.
+fn result(
+    latency: &CheckedLatency,
+    ours: Ours,
+    floor: &LatencyReport,
+    floor_decision: LatencyReport,
+    recorder: Option<RecorderComparison>,
+) -> LatencyResult {
+    let s = &latency.settings;
+    let Ours {
+        report,
+        controller,
+        cycle_us,
+    } = ours;
+    LatencyResult {
+        via: s.via,
+        wait: s.wait.to_string(),
+        actions: report.count,
+        budget_us: s.budget_us,
+        views: s.views,
+        p50_us: report.p50_us,
+        p90_us: report.p90_us,
+        p99_us: report.p99_us,
+        p999_us: report.p999_us,
+        max_us: report.max_us,
+        misses: report.misses,
+        allocations: controller.allocations,
+        ipc_allocations: controller.ipc_allocations,
+        decision: controller.latency,
+        wake: controller.wake,
+        compute: controller.compute,
+        order: controller.order,
+        learn: controller.learn,
+        learning_overran: controller.learning_overran,
+        floor_p50_us: floor.p50_us,
+        floor_p90_us: floor.p90_us,
+        floor_p99_us: floor.p99_us,
+        floor_p999_us: floor.p999_us,
+        floor_max_us: floor.max_us,
+        floor_misses: floor.misses,
+        floor_decision,
+        ratio_p50: ratio(report.p50_us, floor.p50_us),
+        ratio_p99: ratio(report.p99_us, floor.p99_us),
+        cycle_us,
+        seed: s.seed,
+        acting_cpu: latency.placement.acting,
+        planner_cpu: latency.placement.planner,
+        plans: controller.plans,
+        planning: controller.planning,
+        recorder,
+    }
+}

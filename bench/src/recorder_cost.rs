@@ -1,0 +1,219 @@
+//! The recorder's cost (`tes bench latency --record`): the measured group run in blocks
+//! without and with the recorder, alternating, each from the same starting library, compared
+//! by the medians over the blocks of each kind.
+
+use std::path::Path;
+
+use serde::Serialize;
+use tes_recorder::reader::Recording;
+
+use crate::error::{BenchError, Result};
+use crate::group::Group;
+use crate::latency::{Harness, LatencySettings, Note};
+
+/// One block of the comparison: a run of the group from the starting library, with or
+/// without the recorder.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct RecorderBlock {
+    /// Whether the launcher's recorder ran.
+    pub recorded: bool,
+    /// Observation → bridge, median, µs.
+    pub p50_us: u64,
+    /// Observation → bridge, 99th percentile, µs.
+    pub p99_us: u64,
+    /// Actions over the budget.
+    pub misses: u64,
+    /// Heap allocations on the controller's acting path (null if not counted).
+    pub allocations: Option<u64>,
+    /// With the recorder: the observations, commands and motor states it wrote.
+    pub written: Option<[u64; 3]>,
+    /// With the recorder: the samples it could not take in time.
+    pub missed: Option<u64>,
+}
+
+/// The recorder's cost as the medians over blocks of each kind.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RecorderComparison {
+    /// In the order they ran.
+    pub blocks: Vec<RecorderBlock>,
+    /// Median over the blocks without the recorder of their p50, µs.
+    pub without_p50_us: f64,
+    /// Median over the blocks without the recorder of their p99, µs.
+    pub without_p99_us: f64,
+    /// Median over the blocks with the recorder of their p50, µs.
+    pub with_p50_us: f64,
+    /// Median over the blocks with the recorder of their p99, µs.
+    pub with_p99_us: f64,
+    /// `with / without − 1` of the p50 medians (0.05 = 5 % slower with the recorder).
+    pub change_p50: f64,
+    /// `with / without − 1` of the p99 medians.
+    pub change_p99: f64,
+    /// The most allocations any block counted on the acting path with the recorder.
+    pub allocations_with: Option<u64>,
+}
+
+/// Runs `2 × record_blocks` blocks of `actions / record_blocks` measured actions each,
+/// without and with the recorder in turn ([`block_is_recorded`]), and compares them.
+pub(crate) fn compare(
+    group: &Group,
+    settings: &LatencySettings,
+    harness: &mut Harness<'_>,
+) -> Result<RecorderComparison> {
+    let measured = (settings.actions / settings.record_blocks.max(1)).max(1);
+    let mut block_file = group.file.clone();
+    block_file.perception.actions = measured + settings.warmup;
+    let mcap = group.dir.join("bench.mcap");
+    let kinds = 2 * settings.record_blocks;
+    let mut blocks = Vec::new();
+    for i in 0..kinds {
+        let recorded = block_is_recorded(i);
+        (harness.notes)(&Note::RecorderBlock {
+            block: i + 1,
+            of: kinds,
+            recorded,
+            measured,
+        });
+        let mut file = block_file.clone();
+        file.launch.record = recorded.then(|| mcap.clone());
+        let (report, summary) = group.run(&file, harness)?;
+        if report.count < measured {
+            return Err(BenchError::Run(format!(
+                "block {}: the bridge saw {} measured commands, expected {measured}",
+                i + 1,
+                report.count
+            )));
+        }
+        let (written, missed) = if recorded {
+            let (written, missed) = what_was_recorded(&mcap, i + 1)?;
+            (Some(written), Some(missed))
+        } else {
+            (None, None)
+        };
+        blocks.push(RecorderBlock {
+            recorded,
+            p50_us: report.p50_us,
+            p99_us: report.p99_us,
+            misses: report.misses,
+            allocations: summary.allocations,
+            written,
+            missed,
+        });
+    }
+    Ok(comparison(blocks))
+}
+
+/// Whether block `i` of the comparison runs with the recorder: without, with, with, without,
+/// and again, so that a drift of the machine over the run weighs on both kinds alike.
+pub fn block_is_recorded(i: u64) -> bool {
+    matches!(i % 4, 1 | 2)
+}
+
+/// The observations, commands and motor states block `block`'s recording holds, and the
+/// samples its recorder said it missed.
+fn what_was_recorded(mcap: &Path, block: u64) -> Result<([u64; 3], u64)> {
+    let recording = Recording::open(mcap)?;
+    if let Some(why) = &recording.truncated {
+        return Err(BenchError::Run(format!(
+            "block {block}: the recording is incomplete: {why}"
+        )));
+    }
+    let missed = recording.end.as_ref().map_or(0, |end| {
+        [
+            "missed_observations",
+            "missed_commands",
+            "missed_motor_states",
+        ]
+        .iter()
+        .filter_map(|k| end.get(*k).and_then(|v| v.parse::<u64>().ok()))
+        .sum()
+    });
+    let written = [
+        recording.observations.len() as u64,
+        recording.commands.len() as u64,
+        recording.motor_states.len() as u64,
+    ];
+    Ok((written, missed))
+}
+
+/// The comparison of `blocks`: the medians of each kind and their change.
+fn comparison(blocks: Vec<RecorderBlock>) -> RecorderComparison {
+    let of = |recorded: bool, pick: fn(&RecorderBlock) -> u64| {
+        median(blocks.iter().filter(|b| b.recorded == recorded).map(pick))
+    };
+    let (without_p50_us, without_p99_us) = (of(false, |b| b.p50_us), of(false, |b| b.p99_us));
+    let (with_p50_us, with_p99_us) = (of(true, |b| b.p50_us), of(true, |b| b.p99_us));
+    let change = |with: f64, without: f64| with / without.max(1.0) - 1.0;
+    let allocations_with = blocks
+        .iter()
+        .filter(|b| b.recorded)
+        .map(|b| b.allocations)
+        .try_fold(0, |most, n| n.map(|n| most.max(n)));
+    RecorderComparison {
+        change_p50: change(with_p50_us, without_p50_us),
+        change_p99: change(with_p99_us, without_p99_us),
+        blocks,
+        without_p50_us,
+        without_p99_us,
+        with_p50_us,
+        with_p99_us,
+        allocations_with,
+    }
+}
+
+/// The median of `values` (the mean of the middle two for an even count); 0 for none.
+pub fn median(values: impl IntoIterator<Item = u64>) -> f64 {
+    let mut v: Vec<u64> = values.into_iter().collect();
+    v.sort_unstable();
+    match v.len() {
+        0 => 0.0,
+        n if n % 2 == 1 => v[n / 2] as f64,
+        n => (v[n / 2 - 1] + v[n / 2]) as f64 / 2.0,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn block(recorded: bool, p50_us: u64, allocations: Option<u64>) -> RecorderBlock {
+        RecorderBlock {
+            recorded,
+            p50_us,
+            p99_us: 2 * p50_us,
+            misses: 0,
+            allocations,
+            written: None,
+            missed: None,
+        }
+    }
+
+    #[test]
+    fn blocks_alternate_so_a_drift_weighs_on_both_kinds() {
+        let kinds: Vec<bool> = (0..8).map(block_is_recorded).collect();
+        assert_eq!(kinds, [false, true, true, false, false, true, true, false]);
+    }
+
+    #[test]
+    fn the_median_of_an_even_count_is_the_mean_of_the_middle_two() {
+        assert_eq!(median([4, 1, 3, 2]), 2.5);
+        assert_eq!(median([5, 1, 3]), 3.0);
+        assert_eq!(median([]), 0.0);
+    }
+
+    #[test]
+    fn the_comparison_is_of_the_medians_of_each_kind() {
+        let c = comparison(vec![
+            block(false, 100, Some(0)),
+            block(true, 110, Some(0)),
+            block(true, 130, Some(2)),
+            block(false, 100, Some(0)),
+        ]);
+        assert_eq!(c.without_p50_us, 100.0);
+        assert_eq!(c.with_p50_us, 120.0);
+        assert!((c.change_p50 - 0.2).abs() < 1e-12);
+        assert!((c.change_p99 - 0.2).abs() < 1e-12);
+        assert_eq!(c.allocations_with, Some(2));
+        let uncounted = comparison(vec![block(true, 1, None), block(true, 1, Some(3))]);
+        assert_eq!(uncounted.allocations_with, None);
+    }
+}
