@@ -87,4 +87,4 @@ mod topic;
 pub use error::LinkError;
 pub use link::{Link, LinkCounts, LinkEvent};
 pub use settings::{GROUP_NAME_MAX, LinkSection, Mode};
-pub use topic::{Topic, parse_role};
+pub use topic::Topic;

@@ -14,7 +14,6 @@ use zenoh::Wait;
 
 use crate::inbound::{Inbound, tend};
 use crate::outbound::{Ready, outbound};
-use crate::topic::parse_role;
 use crate::{LinkError, LinkSection, Topic};
 
 /// How long an idle forwarding thread sleeps between looks at the stop flag.
@@ -393,7 +392,7 @@ fn watch_members(
             else {
                 return;
             };
-            let (Some(role), true) = (parse_role(role), who != own) else {
+            let (Ok(role), true) = (role.parse::<Role>(), who != own) else {
                 return;
             };
             let put = sample.kind() == zenoh::sample::SampleKind::Put;

@@ -116,11 +116,6 @@ impl fmt::Display for Topic {
     }
 }
 
-/// A role's name as `[launch] roles`, `--roles` and the link's member keys give it.
-pub fn parse_role(name: &str) -> Option<Role> {
-    Role::ALL.into_iter().find(|r| r.name() == name)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -205,13 +200,5 @@ mod tests {
         // Motor states cross only when the bridge and perception are on different hosts.
         assert!(Topic::MotorState.goes_out(&[Bridge]));
         assert!(Topic::MotorState.comes_in(&[Perception, Controller]));
-    }
-
-    #[test]
-    fn roles_parse_from_their_names() {
-        for role in Role::ALL {
-            assert_eq!(parse_role(role.name()), Some(role));
-        }
-        assert_eq!(parse_role("perception"), None);
     }
 }

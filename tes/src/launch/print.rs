@@ -18,16 +18,86 @@ pub(crate) enum To {
     Err,
 }
 
+/// One line of the launcher: where it goes, and whether it is said even when not echoing
+/// (warnings, failures, the children's logs).
+struct Said {
+    to: To,
+    line: String,
+    always: bool,
+}
+
+/// A note on standard error, said only when echoing.
+fn note(line: String) -> Option<Said> {
+    Some(Said {
+        to: To::Err,
+        line,
+        always: false,
+    })
+}
+
+/// A warning or failure on standard error, always said.
+fn warn(line: String) -> Option<Said> {
+    Some(Said {
+        to: To::Err,
+        line,
+        always: true,
+    })
+}
+
+/// A line on standard output, said only when echoing.
+fn out(line: String) -> Option<Said> {
+    Some(Said {
+        to: To::Out,
+        line,
+        always: false,
+    })
+}
+
 /// The lines `event` is said as; `echo` off (a launch run for its files, as the benchmark
 /// does) keeps only warnings, failures and the children's logs.
 pub(crate) fn lines_of(event: &Event, echo: bool) -> Vec<(To, String)> {
-    let (to, line, always) = match event {
-        Event::StaleResourcesRemoved { processes } => (
-            To::Err,
-            format!("launch: removed the stale iceoryx2 resources of {processes} dead processes"),
-            false,
-        ),
-        Event::Warning(w) => (To::Err, format!("launch: warning: {w}"), true),
+    let said = match event {
+        Event::RunFolder { dir, drawn } => return run_folder_lines(dir, drawn, echo),
+        Event::LibraryAtEnd { path, outcome } => {
+            let default = tes_controller::config::default_library_path();
+            return match echo {
+                true => outcome
+                    .lines(path, &default)
+                    .into_iter()
+                    .map(|l| (To::Out, l))
+                    .collect(),
+                false => Vec::new(),
+            };
+        }
+        Event::LinkOpened { .. }
+        | Event::LinkWaiting { .. }
+        | Event::LinkUp { .. }
+        | Event::LinkRefused { .. }
+        | Event::LinkDown { .. }
+        | Event::LinkTwice { .. }
+        | Event::PeerStopped { .. }
+        | Event::LinkClosed(_) => link_line(event),
+        Event::ProcessExited { .. }
+        | Event::Stalled { .. }
+        | Event::Escalated(_)
+        | Event::StopRequested
+        | Event::Log { .. } => process_line(event),
+        _ => run_line(event),
+    };
+    match said {
+        Some(s) if echo || s.always => vec![(s.to, s.line)],
+        _ => Vec::new(),
+    }
+}
+
+/// The lines of the run as a whole: its plan, its library and recording, its episodes and
+/// its end.
+fn run_line(event: &Event) -> Option<Said> {
+    match event {
+        Event::StaleResourcesRemoved { processes } => note(format!(
+            "launch: removed the stale iceoryx2 resources of {processes} dead processes"
+        )),
+        Event::Warning(w) => warn(format!("launch: warning: {w}")),
         Event::Planned {
             arena,
             episodes,
@@ -36,55 +106,46 @@ pub(crate) fn lines_of(event: &Event, echo: bool) -> Vec<(To, String)> {
             restart,
             service_prefix,
             run_dir,
-        } => (
-            To::Err,
-            format!(
-                "launch: arena Env {arena}, {episodes} episodes, real-time factor \
-                 {real_time_factor}, wait {wait}, restart {restart:?}, services \
-                 {service_prefix}*, run folder {}",
-                run_dir.display()
-            ),
-            false,
-        ),
-        Event::RunFoldersPruned { removed, keep } => (
-            To::Err,
-            format!("launch: removed the {removed} oldest run folders (keep_runs = {keep})"),
-            false,
-        ),
-        Event::LinkOpened { .. }
-        | Event::LinkWaiting { .. }
-        | Event::LinkUp { .. }
-        | Event::LinkRefused { .. }
-        | Event::LinkDown { .. }
-        | Event::LinkTwice { .. }
-        | Event::PeerStopped { .. }
-        | Event::LinkClosed(_) => return link_lines(event, echo),
-        Event::LibraryAtStart { path, exists } => (
-            To::Err,
-            if *exists {
-                format!("launch: view library {}", path.display())
-            } else {
-                format!(
-                    "launch: no view library at {}; the controller starts from an empty one",
-                    path.display()
-                )
-            },
-            false,
-        ),
-        Event::Recording { path } => (
-            To::Err,
-            format!("launch: recording to {}", path.display()),
-            false,
-        ),
-        Event::EpisodeEnded { text, .. } | Event::Output { text, .. } => {
-            (To::Out, text.clone(), false)
+        } => note(format!(
+            "launch: arena Env {arena}, {episodes} episodes, real-time factor \
+             {real_time_factor}, wait {wait}, restart {restart:?}, services \
+             {service_prefix}*, run folder {}",
+            run_dir.display()
+        )),
+        Event::RunFoldersPruned { removed, keep } => note(format!(
+            "launch: removed the {removed} oldest run folders (keep_runs = {keep})"
+        )),
+        Event::LibraryAtStart { path, exists: true } => {
+            note(format!("launch: view library {}", path.display()))
         }
-        Event::Log { text, .. } => (To::Err, text.clone(), true),
-        Event::StopRequested => (
-            To::Err,
-            "launch: stop requested; stopping the group".into(),
-            true,
-        ),
+        Event::LibraryAtStart {
+            path,
+            exists: false,
+        } => note(format!(
+            "launch: no view library at {}; the controller starts from an empty one",
+            path.display()
+        )),
+        Event::Recording { path } => note(format!("launch: recording to {}", path.display())),
+        Event::EpisodeEnded { text, .. } | Event::Output { text, .. } => out(text.clone()),
+        Event::Recorded(recorded) => note(format!("launch: {recorded}")),
+        Event::Verdict(v) if v.failures.is_empty() => out(format!(
+            "launch: {} episodes; all processes stopped cleanly",
+            v.episodes
+        )),
+        Event::Verdict(v) => out(format!(
+            "launch: {} episodes; failed: {}",
+            v.episodes,
+            v.failures.join("; ")
+        )),
+        _ => None,
+    }
+}
+
+/// The lines of the processes' lives: their logs, exits, stalls and stops.
+fn process_line(event: &Event) -> Option<Said> {
+    match event {
+        Event::Log { text, .. } => warn(text.clone()),
+        Event::StopRequested => warn("launch: stop requested; stopping the group".into()),
         Event::ProcessExited {
             role,
             how,
@@ -96,62 +157,20 @@ pub(crate) fn lines_of(event: &Event, echo: bool) -> Vec<(To, String)> {
             holder,
             why,
             restarting,
-        } => (
-            To::Err,
-            format!(
-                "launch: the group made no progress for {:.1} s: {} {why}; {}",
-                silent_for.as_secs_f64(),
-                holder.name(),
-                if *restarting {
-                    "restarting it"
-                } else {
-                    "stopping the group"
-                }
-            ),
-            true,
-        ),
-        Event::Escalated(e) => (
-            To::Err,
-            format!(
-                "launch: {} did not stop within {:?} of {}; escalating",
-                e.process, e.grace, e.signal
-            ),
-            true,
-        ),
-        Event::Recorded(recorded) => (To::Err, format!("launch: {recorded}"), false),
-        Event::RunFolder { dir, drawn } => return run_folder_lines(dir, drawn, echo),
-        Event::LibraryAtEnd { path, outcome } => {
-            let default = tes_controller::config::default_library_path();
-            let lines = outcome.lines(path, &default);
-            return if echo {
-                lines.into_iter().map(|l| (To::Out, l)).collect()
+        } => warn(format!(
+            "launch: the group made no progress for {:.1} s: {holder} {why}; {}",
+            silent_for.as_secs_f64(),
+            if *restarting {
+                "restarting it"
             } else {
-                Vec::new()
-            };
-        }
-        Event::Verdict(v) => (
-            To::Out,
-            format!(
-                "launch: {} episodes; {}",
-                v.episodes,
-                if v.failures.is_empty() {
-                    "all processes stopped cleanly".to_owned()
-                } else {
-                    format!("failed: {}", v.failures.join("; "))
-                }
-            ),
-            false,
-        ),
-        Event::EpisodeRecorded(_)
-        | Event::RobotMoved(_)
-        | Event::Progress { .. }
-        | Event::ProcessStarted { .. }
-        | Event::ProcessRestarted { .. } => return Vec::new(),
-    };
-    if echo || always {
-        vec![(to, line)]
-    } else {
-        Vec::new()
+                "stopping the group"
+            }
+        )),
+        Event::Escalated(e) => warn(format!(
+            "launch: {} did not stop within {:?} of {}; escalating",
+            e.process, e.grace, e.signal
+        )),
+        _ => None,
     }
 }
 
@@ -161,33 +180,28 @@ fn exit_line(
     how: &str,
     said: Option<&str>,
     then: ExitConsequence,
-) -> (To, String, bool) {
-    let line = match then {
+) -> Option<Said> {
+    match then {
         ExitConsequence::Finished => {
-            return (
-                To::Err,
-                "launch: perception-sim finished its episodes; stopping the group".into(),
-                false,
-            );
+            note("launch: perception-sim finished its episodes; stopping the group".into())
         }
-        ExitConsequence::Restart { restart, max } => {
-            format!("launch: {role} {how}; respawning it (restart {restart}/{max})")
-        }
-        ExitConsequence::LinkDown => format!(
+        ExitConsequence::Restart { restart, max } => warn(format!(
+            "launch: {role} {how}; respawning it (restart {restart}/{max})"
+        )),
+        ExitConsequence::LinkDown => warn(format!(
             "launch: bridge stopped: {}; stopping the others",
             said.unwrap_or("the link to the brick is down")
-        ),
+        )),
         ExitConsequence::StopGroup => {
             let said = said.map(|e| format!(" ({e})")).unwrap_or_default();
-            format!("launch: {role} {how}{said}; stopping the others")
+            warn(format!("launch: {role} {how}{said}; stopping the others"))
         }
-    };
-    (To::Err, line, true)
+    }
 }
 
 /// The lines of the link's events.
-fn link_lines(event: &Event, echo: bool) -> Vec<(To, String)> {
-    let (line, always) = match event {
+fn link_line(event: &Event) -> Option<Said> {
+    match event {
         Event::LinkOpened {
             local,
             group,
@@ -195,64 +209,41 @@ fn link_lines(event: &Event, echo: bool) -> Vec<(To, String)> {
             zid,
             listen,
             connect,
-        } => (
-            format!(
-                "launch: link: this launch plays {} in group {group:?} (Zenoh {mode:?}, id \
-                 {zid}, listen {listen:?}, connect {connect:?})",
-                role_list(local)
-            ),
-            false,
-        ),
+        } => note(format!(
+            "launch: link: this launch plays {} in group {group:?} (Zenoh {mode:?}, id {zid}, \
+             listen {listen:?}, connect {connect:?})",
+            role_list(local)
+        )),
         Event::LinkWaiting {
             missing,
             group,
             timeout,
-        } => (
-            format!(
-                "launch: link: waiting for the {} (group {group:?}; gives up after {:.0} s)",
-                role_list(missing),
-                timeout.as_secs_f64()
-            ),
-            false,
-        ),
-        Event::LinkUp { role, again: false } => {
-            (format!("launch: link: the {role} is there"), false)
-        }
+        } => note(format!(
+            "launch: link: waiting for the {} (group {group:?}; gives up after {:.0} s)",
+            role_list(missing),
+            timeout.as_secs_f64()
+        )),
+        Event::LinkUp { role, again: false } => note(format!("launch: link: the {role} is there")),
         Event::LinkUp { role, again: true } => {
-            (format!("launch: link: the {role} joined again"), false)
+            note(format!("launch: link: the {role} joined again"))
         }
-        Event::LinkRefused { topic, why, count } => (
-            format!(
-                "launch: link: warning: refused a {topic} sample from a peer: {why} ({count} \
-                 refused so far)"
-            ),
-            true,
-        ),
-        Event::LinkDown { role } => (
-            format!(
-                "launch: link: the {role}'s launch left the group (its host stopped, was \
-                 killed or cannot be reached); stopping the group"
-            ),
-            true,
-        ),
-        Event::LinkTwice { group, role } => (
-            format!(
-                "launch: link: another launch of group {group:?} plays the {role} too; \
-                 stopping the group"
-            ),
-            true,
-        ),
-        Event::PeerStopped { reason, .. } => (
-            format!("launch: link: a peer stopped the group ({reason}); stopping"),
-            true,
-        ),
-        Event::LinkClosed(counts) => (format!("launch: link: from peers {counts}"), false),
-        _ => return Vec::new(),
-    };
-    if echo || always {
-        vec![(To::Err, line)]
-    } else {
-        Vec::new()
+        Event::LinkRefused { topic, why, count } => warn(format!(
+            "launch: link: warning: refused a {topic} sample from a peer: {why} ({count} \
+             refused so far)"
+        )),
+        Event::LinkDown { role } => warn(format!(
+            "launch: link: the {role}'s launch left the group (its host stopped, was killed or \
+             cannot be reached); stopping the group"
+        )),
+        Event::LinkTwice { group, role } => warn(format!(
+            "launch: link: another launch of group {group:?} plays the {role} too; stopping \
+             the group"
+        )),
+        Event::PeerStopped { reason, .. } => warn(format!(
+            "launch: link: a peer stopped the group ({reason}); stopping"
+        )),
+        Event::LinkClosed(counts) => note(format!("launch: link: from peers {counts}")),
+        _ => None,
     }
 }
 
@@ -386,5 +377,70 @@ impl Say {
             return;
         }
         let _ = writeln!(std::io::stderr().lock(), "{line}");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use tes_launch::event::Verdict;
+    use tes_topics::Role;
+
+    use super::*;
+
+    /// The launcher's lines are the events, said as `tes launch` always said them; without
+    /// echo only warnings, failures and the children's logs remain.
+    #[test]
+    fn events_are_said_as_the_launchers_lines() {
+        let events = [
+            Event::StopRequested,
+            Event::ProcessExited {
+                role: Role::Controller,
+                how: "was killed by SIGKILL".into(),
+                said: Some("boom".into()),
+                then: ExitConsequence::StopGroup,
+            },
+            Event::ProcessExited {
+                role: Role::Bridge,
+                how: "exited with status 1".into(),
+                said: None,
+                then: ExitConsequence::Restart { restart: 2, max: 3 },
+            },
+            Event::Stalled {
+                silent_for: Duration::from_millis(1500),
+                holder: Role::Perception,
+                why: "published no observation".into(),
+                restarting: false,
+            },
+            Event::LinkUp {
+                role: Role::Bridge,
+                again: true,
+            },
+            Event::Verdict(Verdict {
+                episodes: 4,
+                failures: vec!["controller was killed by SIGKILL".into()],
+            }),
+        ];
+        let said =
+            |echo| -> Vec<(To, String)> { events.iter().flat_map(|e| lines_of(e, echo)).collect() };
+        let err = |l: &str| (To::Err, l.to_owned());
+        let always = [
+            err("launch: stop requested; stopping the group"),
+            err("launch: controller was killed by SIGKILL (boom); stopping the others"),
+            err("launch: bridge exited with status 1; respawning it (restart 2/3)"),
+            err(
+                "launch: the group made no progress for 1.5 s: perception-sim published no \
+                 observation; stopping the group",
+            ),
+        ];
+        assert_eq!(said(false), always);
+        let mut echoed = always.to_vec();
+        echoed.push(err("launch: link: the bridge joined again"));
+        echoed.push((
+            To::Out,
+            "launch: 4 episodes; failed: controller was killed by SIGKILL".into(),
+        ));
+        assert_eq!(said(true), echoed);
     }
 }
