@@ -95,9 +95,52 @@ impl TargetCheck {
     }
 }
 
+/// The lines that print a run's targets: each target with what was measured and its verdict —
+/// or, for a quick run, the measurements under one note that they are too small to judge.
+pub fn lines(targets: &[TargetCheck]) -> Vec<String> {
+    let quick = targets.iter().any(|t| t.verdict == Verdict::QuickRun);
+    let mut lines = vec![if quick {
+        format!("the paper's targets ({QUICK_RUN_NOTE}):")
+    } else {
+        "the paper's targets:".to_owned()
+    }];
+    for t in targets {
+        lines.push(if t.verdict == Verdict::QuickRun {
+            format!("  {}: {}", t.target, t.measured)
+        } else {
+            format!("  {}: {} — {}", t.target, t.measured, t.verdict.text())
+        });
+    }
+    lines
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn checks(quick: bool) -> Vec<TargetCheck> {
+        vec![
+            TargetCheck::new("a <= 2.5", "3.10", quick, false),
+            TargetCheck::new("b >= 10", "16.0", quick, true),
+        ]
+    }
+
+    #[test]
+    fn a_quick_run_prints_its_numbers_but_no_verdict() {
+        let lines = lines(&checks(true));
+        let text = lines.join("\n");
+        assert!(lines[0].contains(QUICK_RUN_NOTE), "{text}");
+        assert!(!text.contains("hold"), "{text}");
+        assert!(text.contains("a <= 2.5: 3.10") && text.contains("b >= 10: 16.0"));
+    }
+
+    #[test]
+    fn a_full_run_prints_a_verdict_per_target() {
+        let lines = lines(&checks(false));
+        assert_eq!(lines[0], "the paper's targets:");
+        assert_eq!(lines[1], "  a <= 2.5: 3.10 — does not hold");
+        assert_eq!(lines[2], "  b >= 10: 16.0 — holds");
+    }
 
     #[test]
     fn a_quick_run_never_gives_a_verdict() {

@@ -9,9 +9,11 @@ use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use tes_experiments::grid::{self, GridConfig, GridReport};
 use tes_experiments::jobs::{self, JobOptions, Manifest, Shard};
+use tes_experiments::progress::ProgressLines;
 use tes_experiments::robot::{self, RobotConfig, RobotReport};
+use tes_experiments::study::{self, Study, StudyConfigs};
 use tes_experiments::transfer::{self, TransferConfig, TransferReport};
-use tes_experiments::verdict::{QUICK_RUN_NOTE, TargetCheck, Verdict};
+use tes_experiments::verdict::{self, TargetCheck};
 use tes_learning::agents::ExampleStore;
 
 /// Arguments of `tes experiment`.
@@ -279,27 +281,8 @@ fn run_replot(args: &ReplotArgs) -> Result<()> {
     Ok(())
 }
 
-/// The lines printing a run's targets: each target with what was measured and its verdict —
-/// or, for a quick run, the measurements under one note that they are too small to judge.
-fn target_lines(targets: &[TargetCheck]) -> Vec<String> {
-    let quick = targets.iter().any(|t| t.verdict == Verdict::QuickRun);
-    let mut lines = vec![if quick {
-        format!("the paper's targets ({QUICK_RUN_NOTE}):")
-    } else {
-        "the paper's targets:".to_owned()
-    }];
-    for t in targets {
-        lines.push(if t.verdict == Verdict::QuickRun {
-            format!("  {}: {}", t.target, t.measured)
-        } else {
-            format!("  {}: {} — {}", t.target, t.measured, t.verdict.text())
-        });
-    }
-    lines
-}
-
 fn print_targets(targets: &[TargetCheck]) {
-    for line in target_lines(targets) {
+    for line in verdict::lines(targets) {
         println!("{line}");
     }
 }
@@ -458,60 +441,7 @@ fn shard_note(options: JobOptions) -> String {
 struct Progress {
     bar: ProgressBar,
     first: Once,
-    plain: Option<std::sync::Mutex<PlainProgress>>,
-}
-
-/// How often a log without a terminal gets a progress line.
-const PLAIN_PROGRESS_EVERY: std::time::Duration = std::time::Duration::from_secs(30);
-
-/// The state of the plain progress lines.
-struct PlainProgress {
-    what: String,
-    started: std::time::Instant,
-    /// The runs already written when this invocation began (on resume), and when the last
-    /// line was printed.
-    found: Option<u64>,
-    last_line: std::time::Instant,
-}
-
-impl PlainProgress {
-    fn update(&mut self, done: u64, total: u64) {
-        if let Some(line) = self.line(done, total, std::time::Instant::now()) {
-            eprintln!("{line}");
-        }
-    }
-
-    /// The line to print when `done` of `total` runs are written at `now`, if one is due.
-    fn line(&mut self, done: u64, total: u64, now: std::time::Instant) -> Option<String> {
-        let found = *self.found.get_or_insert(done);
-        if done == found {
-            return (found > 0)
-                .then(|| format!("{}: {found}/{total} runs already written", self.what));
-        }
-        if done < total && now.duration_since(self.last_line) < PLAIN_PROGRESS_EVERY {
-            return None;
-        }
-        self.last_line = now;
-        let elapsed = now.duration_since(self.started);
-        let per_run = elapsed.as_secs_f64() / (done - found) as f64;
-        let left = per_run * total.saturating_sub(done) as f64;
-        Some(format!(
-            "{}: {done}/{total} runs ({} elapsed, ~{} left)",
-            self.what,
-            clock(elapsed.as_secs_f64()),
-            clock(left)
-        ))
-    }
-}
-
-/// `1h02m03s`, `4m05s`, `7s`.
-fn clock(seconds: f64) -> String {
-    let s = seconds.round() as u64;
-    match (s / 3600, s / 60 % 60, s % 60) {
-        (0, 0, s) => format!("{s}s"),
-        (0, m, s) => format!("{m}m{s:02}s"),
-        (h, m, s) => format!("{h}h{m:02}m{s:02}s"),
-    }
+    plain: Option<std::sync::Mutex<ProgressLines>>,
 }
 
 impl Progress {
@@ -561,12 +491,10 @@ fn progress_bar(what: &str) -> Progress {
         Progress {
             bar: ProgressBar::hidden(),
             first: Once::new(),
-            plain: Some(std::sync::Mutex::new(PlainProgress {
-                what: format!("{what} experiment"),
-                started: now,
-                found: None,
-                last_line: now,
-            })),
+            plain: Some(std::sync::Mutex::new(ProgressLines::new(
+                format!("{what} experiment"),
+                now,
+            ))),
         }
     }
 }
@@ -775,12 +703,9 @@ fn print_robot(report: &RobotReport, out: &Path) {
     );
 }
 
-/// The three experiments of `tes experiment all`, in the order they run.
-const ALL: [&str; 3] = [grid::EXPERIMENT, transfer::EXPERIMENT, robot::EXPERIMENT];
-
 fn run_all(args: &AllArgs) -> Result<()> {
     set_threads(args.threads)?;
-    let (out, shard, resume) = match &args.jobs.resume {
+    let study = match &args.jobs.resume {
         Some(dir) => {
             if args.jobs.shard.is_some() || args.runs.is_some() || args.quick {
                 bail!(
@@ -788,101 +713,58 @@ fn run_all(args: &AllArgs) -> Result<()> {
                     dir.display()
                 );
             }
-            let shard = Manifest::read(&dir.join(grid::EXPERIMENT))?.shard;
-            (dir.clone(), shard, true)
+            Study::resume(dir)?
         }
-        None => (
-            args.out.clone(),
-            args.jobs.shard.unwrap_or(Shard::ALL),
-            false,
-        ),
-    };
-    let dir = |e: &str| out.join(e);
-    let (grid_config, transfer_config, robot_config) = if resume {
-        (
-            Manifest::read(&dir(grid::EXPERIMENT))?.settings()?,
-            Manifest::read(&dir(transfer::EXPERIMENT))?.settings()?,
-            Manifest::read(&dir(robot::EXPERIMENT))?.settings()?,
-        )
-    } else {
-        let (mut g, mut t, mut r) = if args.quick {
-            (
-                GridConfig::quick(),
-                TransferConfig::quick(),
-                RobotConfig::quick(),
-            )
-        } else {
-            (
-                GridConfig::paper(20, 800),
-                TransferConfig::paper(),
-                RobotConfig::paper(),
-            )
-        };
-        if let Some(runs) = args.runs {
-            (g.runs, t.runs, r.runs) = (runs, runs, runs);
+        None => {
+            let configs = if args.quick {
+                StudyConfigs::quick()
+            } else {
+                StudyConfigs::paper()
+            };
+            let configs = match args.runs {
+                Some(runs) => configs.with_runs(runs),
+                None => configs,
+            };
+            Study::prepare(&args.out, configs, args.jobs.shard.unwrap_or(Shard::ALL))?
         }
-        // Every manifest first, so that an interrupted study resumes from any point.
-        jobs::prepare(&dir(grid::EXPERIMENT), &grid::manifest(&g, shard)?)?;
-        jobs::prepare(&dir(transfer::EXPERIMENT), &transfer::manifest(&t, shard)?)?;
-        jobs::prepare(&dir(robot::EXPERIMENT), &robot::manifest(&r, shard)?)?;
-        (g, t, r)
     };
     let options = JobOptions {
-        shard,
+        shard: study.shard,
         resume: true,
     };
     let started = std::time::Instant::now();
-    let g = grid_with(&grid_config, &dir(grid::EXPERIMENT), options)?;
-    let t = transfer_with(&transfer_config, &dir(transfer::EXPERIMENT), options)?;
-    let r = robot_with(&robot_config, &dir(robot::EXPERIMENT), options)?;
-    match (g, t, r) {
-        (Some(g), Some(t), Some(r)) => {
-            let path = out.join("report.md");
-            tes_experiments::report::write(&path, &g, &t, &r)?;
-            print_grid(&g, &dir(grid::EXPERIMENT));
-            print_transfer(&t, &dir(transfer::EXPERIMENT));
-            print_robot(&r, &dir(robot::EXPERIMENT));
-            println!(
-                "the whole study took {:.1} s; wrote {}",
-                started.elapsed().as_secs_f64(),
-                path.display()
-            );
-        }
-        _ => println!(
-            "shard {shard} of the study written to {}; combine the shards with `tes experiment merge DIR... --out DIR`",
-            out.display()
-        ),
-    }
+    let c = &study.configs;
+    let g = grid_with(&c.grid, &study.dir(grid::EXPERIMENT), options)?;
+    let t = transfer_with(&c.transfer, &study.dir(transfer::EXPERIMENT), options)?;
+    let r = robot_with(&c.robot, &study.dir(robot::EXPERIMENT), options)?;
+    let (Some(g), Some(t), Some(r)) = (g, t, r) else {
+        println!(
+            "shard {} of the study written to {}; combine the shards with `tes experiment merge DIR... --out DIR`",
+            study.shard,
+            study.out.display()
+        );
+        return Ok(());
+    };
+    let path = study.write_report(&g, &t, &r)?;
+    print_grid(&g, &study.dir(grid::EXPERIMENT));
+    print_transfer(&t, &study.dir(transfer::EXPERIMENT));
+    print_robot(&r, &study.dir(robot::EXPERIMENT));
+    println!(
+        "the whole study took {:.1} s; wrote {}",
+        started.elapsed().as_secs_f64(),
+        path.display()
+    );
     Ok(())
 }
 
 fn run_merge(args: &MergeArgs) -> Result<()> {
-    let whole_study = args
-        .dirs
-        .iter()
-        .all(|d| !d.join("manifest.json").exists() && d.join(grid::EXPERIMENT).is_dir());
-    if whole_study {
-        let mut reports = (None, None, None);
-        for experiment in ALL {
-            let shards: Vec<PathBuf> = args.dirs.iter().map(|d| d.join(experiment)).collect();
-            let out = args.out.join(experiment);
-            jobs::merge(&shards, &out)
-                .with_context(|| format!("cannot merge the {experiment} shards"))?;
-            match experiment {
-                "grid" => reports.0 = Some(grid::summarise_dir(&out)?),
-                "transfer" => reports.1 = Some(transfer::summarise_dir(&out)?),
-                _ => reports.2 = Some(robot::summarise_dir(&out)?),
-            }
-        }
-        if let (Some(g), Some(t), Some(r)) = reports {
-            let path = args.out.join("report.md");
-            tes_experiments::report::write(&path, &g, &t, &r)?;
-            println!(
-                "merged {} study shards; wrote {}",
-                args.dirs.len(),
-                path.display()
-            );
-        }
+    if study::are_studies(&args.dirs) {
+        let merged = study::merge(&args.dirs, &args.out)?;
+        println!(
+            "merged {} study shards; wrote {}",
+            args.dirs.len(),
+            merged.report.display()
+        );
         return Ok(());
     }
     let manifest = jobs::merge(&args.dirs, &args.out).context("cannot merge the shards")?;
@@ -904,65 +786,6 @@ fn run_merge(args: &MergeArgs) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn checks(quick: bool) -> Vec<TargetCheck> {
-        vec![
-            TargetCheck::new("a <= 2.5", "3.10", quick, false),
-            TargetCheck::new("b >= 10", "16.0", quick, true),
-        ]
-    }
-
-    #[test]
-    fn without_a_terminal_progress_is_a_line_every_so_often_with_an_estimate_from_this_invocation()
-    {
-        let t0 = std::time::Instant::now();
-        let at = |s: u64| t0 + std::time::Duration::from_secs(s);
-        let mut p = PlainProgress {
-            what: "transfer experiment".into(),
-            started: t0,
-            found: None,
-            last_line: t0,
-        };
-        // Resumed with 40 of 100 runs written: said once, not estimated from.
-        assert_eq!(
-            p.line(40, 100, t0).as_deref(),
-            Some("transfer experiment: 40/100 runs already written")
-        );
-        // A run 10 s later: too soon for a line.
-        assert_eq!(p.line(41, 100, at(10)), None);
-        // 60 s in, 2 runs done here: 30 s a run, 58 to go.
-        assert_eq!(
-            p.line(42, 100, at(60)).as_deref(),
-            Some("transfer experiment: 42/100 runs (1m00s elapsed, ~29m00s left)")
-        );
-        assert_eq!(p.line(43, 100, at(70)), None);
-        // The last run always gets its line.
-        assert_eq!(
-            p.line(100, 100, at(1830)).as_deref(),
-            Some("transfer experiment: 100/100 runs (30m30s elapsed, ~0s left)")
-        );
-        assert_eq!(clock(3723.0), "1h02m03s");
-        // A fresh run says nothing before its first run is done.
-        let mut fresh = PlainProgress { found: None, ..p };
-        assert_eq!(fresh.line(0, 5, at(0)), None);
-    }
-
-    #[test]
-    fn a_quick_run_prints_its_numbers_but_no_verdict() {
-        let lines = target_lines(&checks(true));
-        let text = lines.join("\n");
-        assert!(lines[0].contains(QUICK_RUN_NOTE), "{text}");
-        assert!(!text.contains("hold"), "{text}");
-        assert!(text.contains("a <= 2.5: 3.10") && text.contains("b >= 10: 16.0"));
-    }
-
-    #[test]
-    fn a_full_run_prints_a_verdict_per_target() {
-        let lines = target_lines(&checks(false));
-        assert_eq!(lines[0], "the paper's targets:");
-        assert_eq!(lines[1], "  a <= 2.5: 3.10 — does not hold");
-        assert_eq!(lines[2], "  b >= 10: 16.0 — holds");
-    }
 
     #[test]
     fn replot_takes_a_result_folder() {
