@@ -1,7 +1,8 @@
-//! Feeds arbitrary bytes to the labelled-CSV reader as `tes fit` uses it (tes/src/fit.rs):
-//! line by line (a line that is not UTF-8 stops `tes fit` with `RowError::NotText` naming it),
-//! blank lines skipped, every row parsed, every row as wide as the first; then, as `tes fit`
-//! does, an mDAGL model of `largest label + 1` classes learns the rows in order.
+//! Feeds arbitrary bytes to the labelled-CSV reader as `tes fit` uses it
+//! (learning/src/prequential.rs): line by line (a line that is not UTF-8 stops `tes fit` with
+//! `RowError::NotText` naming it), blank lines skipped, every row parsed, every row as wide as
+//! the first; then, as `tes fit` does, an mDAGL model of `largest label + 1` classes learns the
+//! rows in order.
 //!
 //! A row must parse or give a typed error, never panic; a parsed row must hold only finite
 //! values, one per field after the label, and read back exactly from its own rendering.

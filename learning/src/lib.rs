@@ -13,6 +13,7 @@
 //!   the structure learners RL-DT (decision trees) and LSE-Rmax.
 //! * [`library`] — TES's view library: growing, pruning, and its versioned file store.
 //! * [`labelled_csv`] — the labelled-row format `tes fit` reads.
+//! * [`prequential`] — `tes fit` without the command line: mDAGL over a labelled CSV stream.
 //!
 //! Each module's documentation opens with a runnable example ([`mdagl`]: a view finding the
 //! relevant features of a synthetic stream; [`plan`]: planning on a learned model).
@@ -23,3 +24,4 @@ pub mod labelled_csv;
 pub mod library;
 pub mod mdagl;
 pub mod plan;
+pub mod prequential;
