@@ -1,5 +1,7 @@
-//! The TES learning core: what the agent learns and how it decides, with no IPC, clock or
-//! process code inside (the controller process, the experiments and `tes fit` all build on it).
+//! The TES learning core: what the agent learns and how it decides, with no IPC or process
+//! code inside and no decision that reads a clock (only [`prequential`] times its own work, for
+//! the throughput it reports); the controller process, the experiments and `tes fit` all
+//! build on it.
 //!
 //! * [`mdagl`] — the view learner: online sparse multinomial logistic regression with group
 //!   lasso by dual averaging (the paper's Algorithms 4–5), which picks the few features that
