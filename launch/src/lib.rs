@@ -51,12 +51,14 @@ pub mod reference;
 pub mod role;
 pub mod run_folder;
 pub mod run_record;
+pub mod status;
 pub mod supervisor;
 
 pub use children::{ChildCommand, ChildSpec};
 pub use event::{Event, ExitConsequence, Observer, Verdict};
 pub use file::{LaunchFile, LaunchFileError, LaunchSection, Restart, prepare, read_launch_file};
 pub use role::{RoleError, run_role};
+pub use status::{GroupStatus, Status, StatusError};
 pub use supervisor::{LaunchError, Options, Step, Supervisor, run};
 
 /// A file or directory operation of a launch that failed, said with what it was doing.
