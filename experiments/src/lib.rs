@@ -20,6 +20,7 @@
 //!
 //! Every run is seeded and records its seeds; the same settings give the same numbers.
 
+pub mod console;
 pub mod episode;
 pub mod grid;
 pub mod jobs;

@@ -7,13 +7,13 @@ use std::sync::Once;
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use tes_experiments::console;
 use tes_experiments::grid::{self, GridConfig, GridReport};
 use tes_experiments::jobs::{self, JobOptions, Manifest, Shard};
 use tes_experiments::progress::ProgressLines;
 use tes_experiments::robot::{self, RobotConfig, RobotReport};
 use tes_experiments::study::{self, Study, StudyConfigs};
 use tes_experiments::transfer::{self, TransferConfig, TransferReport};
-use tes_experiments::verdict::{self, TargetCheck};
 use tes_learning::agents::ExampleStore;
 
 /// Arguments of `tes experiment`.
@@ -281,10 +281,14 @@ fn run_replot(args: &ReplotArgs) -> Result<()> {
     Ok(())
 }
 
-fn print_targets(targets: &[TargetCheck]) {
-    for line in verdict::lines(targets) {
-        println!("{line}");
-    }
+/// Prints what an experiment's `summary` says (its [`console`] text); a summary that cannot
+/// be written is a bug of the experiments' crate, said as such.
+fn print_summary(summary: Result<String, std::fmt::Error>) -> Result<()> {
+    print!(
+        "{}",
+        summary.context("cannot write the experiment's summary")?
+    );
+    Ok(())
 }
 
 fn set_threads(threads: Option<usize>) -> Result<()> {
@@ -356,7 +360,7 @@ fn run_transfer(args: &TransferArgs) -> Result<()> {
         None => args.config(None),
     };
     if let Some(report) = transfer_with(&config, &out, options)? {
-        print_transfer(&report, &out);
+        print_summary(console::transfer(&report, &out))?;
     }
     Ok(())
 }
@@ -383,44 +387,6 @@ fn transfer_with(
     let report = transfer::run_with(config, out, options, &bar.callback())?;
     bar.finish(out, "transfer", options);
     Ok(report)
-}
-
-fn print_transfer(report: &TransferReport, out: &Path) {
-    let config = &report.config;
-    println!(
-        "{:.1} s wall clock. Table 2: reward of the first test episode (mean over {} runs)",
-        report.wall_seconds, config.runs
-    );
-    let shown = ["TES", "LWT", "loreRL", "fEpsG"];
-    println!(
-        "  task  size    {}",
-        shown.map(|m| format!("{m:>8}")).join("")
-    );
-    for t in &report.tasks {
-        let cells: String = shown
-            .iter()
-            .map(|m| {
-                t.jumpstart
-                    .get(*m)
-                    .map_or("       -".into(), |s| format!("{:>8.3}", s.mean))
-            })
-            .collect();
-        println!("  {:>4}  {:<6}{cells}", t.task, t.size);
-    }
-    let n = report.tasks.len();
-    print_targets(&report.targets);
-    println!(
-        "TES's accumulated reward beats every random view combination on {}/{n} tasks",
-        report.tes_beats_all_rands
-    );
-    println!("agent seconds per test episode:");
-    for (m, s) in &report.seconds_per_episode {
-        println!("  {m:<8} {:>9.4} s", s.mean);
-    }
-    println!(
-        "wrote summary.json, episodes.csv, table2.svg, fig4b-task*.svg to {}",
-        out.display()
-    );
 }
 
 fn shard_note(options: JobOptions) -> String {
@@ -546,7 +512,7 @@ fn run_grid(args: &GridArgs) -> Result<()> {
         None => args.config(None),
     };
     if let Some(report) = grid_with(&config, &out, options)? {
-        print_grid(&report, &out);
+        print_summary(console::grid(&report, &out))?;
     }
     Ok(())
 }
@@ -570,44 +536,6 @@ fn grid_with(config: &GridConfig, out: &Path, options: JobOptions) -> Result<Opt
     let report = grid::run_with(config, out, options, &bar.callback())?;
     bar.finish(out, "grid", options);
     Ok(report)
-}
-
-fn print_grid(report: &GridReport, out: &Path) {
-    println!("{}; {:.1} s wall clock", report.task, report.wall_seconds);
-    let show = |title: &str, finals: &std::collections::BTreeMap<String, grid::Summary>| {
-        println!("{title}");
-        for (name, s) in finals {
-            println!("  {name:<8} {:>9.2}  [{:.2}, {:.2}]", s.mean, s.lo, s.hi);
-        }
-    };
-    show(
-        "Fig. 3a  accumulated reward after the last episode, 10 features (95% CI)",
-        &report.fig3a_final,
-    );
-    show(
-        "Fig. 3b  accumulated reward after the last episode, 210 features (95% CI)",
-        &report.fig3b_final,
-    );
-    println!("Fig. 3c  accumulated reward after the last episode by irrelevant features");
-    for (name, by_level) in &report.fig3c {
-        let cells: Vec<String> = by_level
-            .iter()
-            .map(|(level, s)| format!("{level}: {:.2}", s.mean))
-            .collect();
-        println!("  {name:<8} {}", cells.join("  "));
-    }
-    println!("Table 1  agent seconds per episode");
-    for (name, t) in &report.table1 {
-        println!(
-            "  {name:<8} {:>9.4} s  ({} features)",
-            t.seconds_per_episode.mean, t.features
-        );
-    }
-    print_targets(&report.targets);
-    println!(
-        "wrote summary.json, episodes.csv, fig3a.svg, fig3b.svg, fig3c.svg to {}",
-        out.display()
-    );
 }
 
 impl RobotArgs {
@@ -651,7 +579,7 @@ fn run_robot(args: &RobotArgs) -> Result<()> {
         None => args.config(None),
     };
     if let Some(report) = robot_with(&config, &out, options)? {
-        print_robot(&report, &out);
+        print_summary(console::robot(&report, &out))?;
     }
     Ok(())
 }
@@ -675,32 +603,6 @@ fn robot_with(
     let report = robot::run_with(config, out, options, &bar.callback())?;
     bar.finish(out, "robot", options);
     Ok(report)
-}
-
-fn print_robot(report: &RobotReport, out: &Path) {
-    println!(
-        "{:.1} s wall clock. Accumulated reward on Env 3 after {} episodes (95% CI), difference to TES, seconds per episode:",
-        report.wall_seconds, report.config.episodes
-    );
-    for (name, s) in &report.accumulated {
-        let diff = report
-            .difference_to_tes
-            .get(name)
-            .map_or("        ".to_owned(), |d| format!("{:>+8.2}", d.mean));
-        let secs = report
-            .seconds_per_episode
-            .get(name)
-            .map_or(f64::NAN, |t| t.mean);
-        println!(
-            "  {name:<10} {:>8.2} [{:.2}, {:.2}]  {diff}  {secs:.4} s",
-            s.mean, s.lo, s.hi
-        );
-    }
-    print_targets(&report.targets);
-    println!(
-        "wrote summary.json, episodes.csv, fig8.svg, fig9.svg to {}",
-        out.display()
-    );
 }
 
 fn run_all(args: &AllArgs) -> Result<()> {
@@ -746,9 +648,9 @@ fn run_all(args: &AllArgs) -> Result<()> {
         return Ok(());
     };
     let path = study.write_report(&g, &t, &r)?;
-    print_grid(&g, &study.dir(grid::EXPERIMENT));
-    print_transfer(&t, &study.dir(transfer::EXPERIMENT));
-    print_robot(&r, &study.dir(robot::EXPERIMENT));
+    print_summary(console::grid(&g, &study.dir(grid::EXPERIMENT)))?;
+    print_summary(console::transfer(&t, &study.dir(transfer::EXPERIMENT)))?;
+    print_summary(console::robot(&r, &study.dir(robot::EXPERIMENT)))?;
     println!(
         "the whole study took {:.1} s; wrote {}",
         started.elapsed().as_secs_f64(),
@@ -769,9 +671,12 @@ fn run_merge(args: &MergeArgs) -> Result<()> {
     }
     let manifest = jobs::merge(&args.dirs, &args.out).context("cannot merge the shards")?;
     match manifest.experiment.as_str() {
-        "grid" => print_grid(&grid::summarise_dir(&args.out)?, &args.out),
-        "transfer" => print_transfer(&transfer::summarise_dir(&args.out)?, &args.out),
-        "robot" => print_robot(&robot::summarise_dir(&args.out)?, &args.out),
+        "grid" => print_summary(console::grid(&grid::summarise_dir(&args.out)?, &args.out))?,
+        "transfer" => print_summary(console::transfer(
+            &transfer::summarise_dir(&args.out)?,
+            &args.out,
+        ))?,
+        "robot" => print_summary(console::robot(&robot::summarise_dir(&args.out)?, &args.out))?,
         other => bail!("unknown experiment {other:?} in the shards' manifests"),
     }
     println!(

@@ -1,0 +1,150 @@
+//! What `tes experiment` prints when an experiment ends: each report's figures and tables in
+//! a few lines, its verdicts on the paper's targets, and where its files went.
+
+use std::fmt::{self, Write as _};
+use std::path::Path;
+
+use crate::grid::GridReport;
+use crate::robot::RobotReport;
+use crate::transfer::TransferReport;
+
+/// What `tes experiment grid` prints of `report`, written to `out`: Fig. 3a–c's final
+/// rewards, Table 1's times and the paper's targets.
+pub fn grid(report: &GridReport, out: &Path) -> Result<String, fmt::Error> {
+    let mut text = String::new();
+    writeln!(
+        text,
+        "{}; {:.1} s wall clock",
+        report.task, report.wall_seconds
+    )?;
+    for (title, finals) in [
+        (
+            "Fig. 3a  accumulated reward after the last episode, 10 features (95% CI)",
+            &report.fig3a_final,
+        ),
+        (
+            "Fig. 3b  accumulated reward after the last episode, 210 features (95% CI)",
+            &report.fig3b_final,
+        ),
+    ] {
+        writeln!(text, "{title}")?;
+        for (name, s) in finals {
+            writeln!(
+                text,
+                "  {name:<8} {:>9.2}  [{:.2}, {:.2}]",
+                s.mean, s.lo, s.hi
+            )?;
+        }
+    }
+    writeln!(
+        text,
+        "Fig. 3c  accumulated reward after the last episode by irrelevant features"
+    )?;
+    for (name, by_level) in &report.fig3c {
+        let cells: Vec<String> = by_level
+            .iter()
+            .map(|(level, s)| format!("{level}: {:.2}", s.mean))
+            .collect();
+        writeln!(text, "  {name:<8} {}", cells.join("  "))?;
+    }
+    writeln!(text, "Table 1  agent seconds per episode")?;
+    for (name, t) in &report.table1 {
+        writeln!(
+            text,
+            "  {name:<8} {:>9.4} s  ({} features)",
+            t.seconds_per_episode.mean, t.features
+        )?;
+    }
+    for line in crate::verdict::lines(&report.targets) {
+        writeln!(text, "{line}")?;
+    }
+    writeln!(
+        text,
+        "wrote summary.json, episodes.csv, fig3a.svg, fig3b.svg, fig3c.svg to {}",
+        out.display()
+    )?;
+    Ok(text)
+}
+
+/// What `tes experiment transfer` prints of `report`, written to `out`: Table 2's
+/// jumpstarts, the paper's targets and the agents' times.
+pub fn transfer(report: &TransferReport, out: &Path) -> Result<String, fmt::Error> {
+    let mut text = String::new();
+    let config = &report.config;
+    writeln!(
+        text,
+        "{:.1} s wall clock. Table 2: reward of the first test episode (mean over {} runs)",
+        report.wall_seconds, config.runs
+    )?;
+    let shown = ["TES", "LWT", "loreRL", "fEpsG"];
+    writeln!(
+        text,
+        "  task  size    {}",
+        shown.map(|m| format!("{m:>8}")).join("")
+    )?;
+    for t in &report.tasks {
+        let cells: String = shown
+            .iter()
+            .map(|m| {
+                t.jumpstart
+                    .get(*m)
+                    .map_or("       -".into(), |s| format!("{:>8.3}", s.mean))
+            })
+            .collect();
+        writeln!(text, "  {:>4}  {:<6}{cells}", t.task, t.size)?;
+    }
+    let n = report.tasks.len();
+    for line in crate::verdict::lines(&report.targets) {
+        writeln!(text, "{line}")?;
+    }
+    writeln!(
+        text,
+        "TES's accumulated reward beats every random view combination on {}/{n} tasks",
+        report.tes_beats_all_rands
+    )?;
+    writeln!(text, "agent seconds per test episode:")?;
+    for (m, s) in &report.seconds_per_episode {
+        writeln!(text, "  {m:<8} {:>9.4} s", s.mean)?;
+    }
+    writeln!(
+        text,
+        "wrote summary.json, episodes.csv, table2.svg, fig4b-task*.svg to {}",
+        out.display()
+    )?;
+    Ok(text)
+}
+
+/// What `tes experiment robot` prints of `report`, written to `out`: the accumulated
+/// rewards on Env 3 with their difference to TES and times, and the paper's targets.
+pub fn robot(report: &RobotReport, out: &Path) -> Result<String, fmt::Error> {
+    let mut text = String::new();
+    writeln!(
+        text,
+        "{:.1} s wall clock. Accumulated reward on Env 3 after {} episodes (95% CI), difference to TES, seconds per episode:",
+        report.wall_seconds, report.config.episodes
+    )?;
+    for (name, s) in &report.accumulated {
+        let diff = report
+            .difference_to_tes
+            .get(name)
+            .map_or("        ".to_owned(), |d| format!("{:>+8.2}", d.mean));
+        let secs = report
+            .seconds_per_episode
+            .get(name)
+            .map_or(f64::NAN, |t| t.mean);
+        writeln!(
+            text,
+            "  {name:<10} {:>8.2} [{:.2}, {:.2}]  {diff}  {secs:.4} s",
+            s.mean, s.lo, s.hi
+        )?;
+    }
+    for line in crate::verdict::lines(&report.targets) {
+        writeln!(text, "{line}")?;
+    }
+    writeln!(
+        text,
+        "wrote summary.json, episodes.csv, fig8.svg, fig9.svg to {}",
+        out.display()
+    )?;
+    Ok(text)
+}
