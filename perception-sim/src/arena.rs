@@ -265,139 +265,22 @@ impl Arena {
     /// Builds and checks an arena from a layout: marks and ball inside the area, death spots
     /// inside the grid and not under the ball, at least one cell to start in.
     pub fn from_layout(layout: ArenaLayout) -> Result<Self, ArenaError> {
-        let cells = layout.cells;
-        if !(2..=32).contains(&cells) {
-            return Err(ArenaError::BadSize(cells));
-        }
-        let side = layout.side_cm;
-        if !(side.is_finite() && side > 0.0) {
-            return Err(ArenaError::BadSide(side));
-        }
-        let cell_cm = side / cells as f64;
-        let cell_of = |p: DVec2| -> Option<usize> {
-            let inside = (0.0..side).contains(&p.x) && (0.0..side).contains(&p.y);
-            inside.then(|| {
-                let x = ((p.x / cell_cm) as usize).min(cells - 1);
-                let y = ((p.y / cell_cm) as usize).min(cells - 1);
-                y * cells + x
-            })
-        };
-        let mut cell_flags = vec![0u8; cells * cells];
-        for (what, colour, marks) in [
-            ("green mark", MarkColour::Green, &layout.green_marks),
-            ("blue mark", MarkColour::Blue, &layout.blue_marks),
-        ] {
-            for &m in marks {
-                let c = cell_of(m).ok_or(ArenaError::OutsideArea {
-                    what,
-                    x: m.x,
-                    y: m.y,
-                })?;
-                cell_flags[c] |= colour.flag();
-            }
-        }
-        let ball_cell = cell_of(layout.ball).ok_or(ArenaError::OutsideArea {
-            what: "ball",
-            x: layout.ball.x,
-            y: layout.ball.y,
-        })?;
-        cell_flags[ball_cell] |= FLAG_BALL;
-        for &(x, y) in &layout.death_cells {
-            if x >= cells || y >= cells {
-                return Err(ArenaError::DeathOutside { x, y });
-            }
-            cell_flags[y * cells + x] |= FLAG_DEATH;
-        }
-        if cell_flags[ball_cell] & FLAG_DEATH != 0 {
-            return Err(ArenaError::BallOnDeath);
-        }
-        let starts: Vec<u32> = (0..cells * cells)
-            .filter(|&c| cell_flags[c] & (FLAG_BALL | FLAG_DEATH) == 0)
-            .map(|c| c as u32)
-            .collect();
-        if starts.is_empty() {
-            return Err(ArenaError::NoStartCell);
-        }
-
-        let n_in = cells * cells * N_ORIENTATIONS;
-        let mut reward = Vec::with_capacity(n_in + 1);
-        let mut terminal = Vec::with_capacity(n_in + 1);
-        let mut offsets = Vec::with_capacity(n_in + 2);
-        let mut indices = Vec::new();
-        let mut oracle = Vec::with_capacity(n_in);
-        let mut man = Vec::with_capacity(n_in);
-        offsets.push(0);
-        let unit = side / RINGS as f64;
-        let mut rings = Vec::new();
-        for c in 0..cells * cells {
-            let flags = cell_flags[c];
-            let centre = DVec2::new(
-                ((c % cells) as f64 + 0.5) * cell_cm,
-                ((c / cells) as f64 + 0.5) * cell_cm,
-            );
-            rings.clear();
-            for (base, points) in [
-                (GREEN_RINGS, layout.green_marks.as_slice()),
-                (BLUE_RINGS, layout.blue_marks.as_slice()),
-                (BALL_RINGS, std::slice::from_ref(&layout.ball)),
-            ] {
-                for &p in points {
-                    let d = p.distance(centre) / unit;
-                    if d < RINGS as f64 {
-                        rings.push((base + d.floor() as usize) as u32);
-                    }
-                }
-            }
-            rings.sort_unstable();
-            rings.dedup();
-            let green = flags & FLAG_GREEN != 0;
-            let blue = flags & FLAG_BLUE != 0;
-            let governing = flags & layout.governing.flag() != 0;
-            let (r, t) = if flags & FLAG_BALL != 0 {
-                (BALL_REWARD, true)
-            } else if flags & FLAG_DEATH != 0 {
-                (DEATH_REWARD, true)
-            } else {
-                (STEP_REWARD, false)
-            };
-            for o in 0..N_ORIENTATIONS {
-                reward.push(r);
-                terminal.push(t);
-                indices.extend_from_slice(&rings);
-                indices.push((ORIENTATION_FEATURES + o) as u32);
-                indices.push(if green {
-                    GREEN_IN_CELL
-                } else {
-                    NO_GREEN_IN_CELL
-                } as u32);
-                indices.push(if blue { BLUE_IN_CELL } else { NO_BLUE_IN_CELL } as u32);
-                offsets.push(indices.len());
-                let g = layout.governing;
-                let bit = if governing {
-                    g.in_cell_feature()
-                } else {
-                    g.not_in_cell_feature()
-                };
-                oracle.push([(ORIENTATION_FEATURES + o) as u32, bit as u32]);
-                man.push([o as u32, 8 + u32::from(!green), 10 + u32::from(!blue)]);
-            }
-        }
-        // The out state: −1, terminal, no features.
-        reward.push(OUT_REWARD);
-        terminal.push(true);
-        offsets.push(indices.len());
+        let grid = Grid::of(&layout)?;
+        let cell_flags = grid.mark_cells(&layout)?;
+        let starts = start_cells(&cell_flags)?;
+        let states = StateTables::build(&layout, &grid, &cell_flags);
         Ok(Self {
             id: None,
             layout,
-            cell_cm,
+            cell_cm: grid.cell_cm,
             cell_flags,
             starts,
-            reward,
-            terminal,
-            offsets,
-            indices,
-            oracle,
-            man,
+            reward: states.reward,
+            terminal: states.terminal,
+            offsets: states.offsets,
+            indices: states.indices,
+            oracle: states.oracle,
+            man: states.man,
         })
     }
 
@@ -761,6 +644,196 @@ impl fmt::Display for Arena {
         }
         Ok(())
     }
+}
+
+/// An arena's grid of cells: its size and a cell's side.
+struct Grid {
+    cells: usize,
+    cell_cm: f64,
+    side: f64,
+}
+
+impl Grid {
+    /// The grid of `layout`, its size and side checked.
+    fn of(layout: &ArenaLayout) -> Result<Self, ArenaError> {
+        let cells = layout.cells;
+        if !(2..=32).contains(&cells) {
+            return Err(ArenaError::BadSize(cells));
+        }
+        let side = layout.side_cm;
+        if !(side.is_finite() && side > 0.0) {
+            return Err(ArenaError::BadSide(side));
+        }
+        Ok(Self {
+            cells,
+            cell_cm: side / cells as f64,
+            side,
+        })
+    }
+
+    /// The cell a point of the area lies in, if it is inside.
+    fn cell_of(&self, p: DVec2) -> Option<usize> {
+        let inside = (0.0..self.side).contains(&p.x) && (0.0..self.side).contains(&p.y);
+        inside.then(|| {
+            let x = ((p.x / self.cell_cm) as usize).min(self.cells - 1);
+            let y = ((p.y / self.cell_cm) as usize).min(self.cells - 1);
+            y * self.cells + x
+        })
+    }
+
+    /// The centre of cell `c`.
+    fn centre(&self, c: usize) -> DVec2 {
+        DVec2::new(
+            ((c % self.cells) as f64 + 0.5) * self.cell_cm,
+            ((c / self.cells) as f64 + 0.5) * self.cell_cm,
+        )
+    }
+
+    /// Each cell's flags: the marks, the ball and the death spots it holds, all checked to
+    /// lie on the grid, the ball not on a death spot.
+    fn mark_cells(&self, layout: &ArenaLayout) -> Result<Vec<u8>, ArenaError> {
+        let cells = self.cells;
+        let mut cell_flags = vec![0u8; cells * cells];
+        for (what, colour, marks) in [
+            ("green mark", MarkColour::Green, &layout.green_marks),
+            ("blue mark", MarkColour::Blue, &layout.blue_marks),
+        ] {
+            for &m in marks {
+                let c = self.cell_of(m).ok_or(ArenaError::OutsideArea {
+                    what,
+                    x: m.x,
+                    y: m.y,
+                })?;
+                cell_flags[c] |= colour.flag();
+            }
+        }
+        let ball_cell = self.cell_of(layout.ball).ok_or(ArenaError::OutsideArea {
+            what: "ball",
+            x: layout.ball.x,
+            y: layout.ball.y,
+        })?;
+        cell_flags[ball_cell] |= FLAG_BALL;
+        for &(x, y) in &layout.death_cells {
+            if x >= cells || y >= cells {
+                return Err(ArenaError::DeathOutside { x, y });
+            }
+            cell_flags[y * cells + x] |= FLAG_DEATH;
+        }
+        if cell_flags[ball_cell] & FLAG_DEATH != 0 {
+            return Err(ArenaError::BallOnDeath);
+        }
+        Ok(cell_flags)
+    }
+}
+
+/// The cells an episode may start in: neither the ball's nor a death spot; at least one.
+fn start_cells(cell_flags: &[u8]) -> Result<Vec<u32>, ArenaError> {
+    let starts: Vec<u32> = (0..cell_flags.len())
+        .filter(|&c| cell_flags[c] & (FLAG_BALL | FLAG_DEATH) == 0)
+        .map(|c| c as u32)
+        .collect();
+    if starts.is_empty() {
+        return Err(ArenaError::NoStartCell);
+    }
+    Ok(starts)
+}
+
+/// The per-state tables of an arena (a state per cell and orientation, then the out state):
+/// reward, terminality, the features in CSR form, and the oracle's and the hand-made views'
+/// features.
+struct StateTables {
+    reward: Vec<f64>,
+    terminal: Vec<bool>,
+    offsets: Vec<usize>,
+    indices: Vec<u32>,
+    oracle: Vec<[u32; 2]>,
+    man: Vec<[u32; 3]>,
+}
+
+impl StateTables {
+    /// The tables of `layout`'s arena on `grid` with its cells' flags.
+    fn build(layout: &ArenaLayout, grid: &Grid, cell_flags: &[u8]) -> Self {
+        let n_in = grid.cells * grid.cells * N_ORIENTATIONS;
+        let mut states = Self {
+            reward: Vec::with_capacity(n_in + 1),
+            terminal: Vec::with_capacity(n_in + 1),
+            offsets: Vec::with_capacity(n_in + 2),
+            indices: Vec::new(),
+            oracle: Vec::with_capacity(n_in),
+            man: Vec::with_capacity(n_in),
+        };
+        states.offsets.push(0);
+        let mut rings = Vec::new();
+        for (c, &flags) in cell_flags.iter().enumerate() {
+            rings_around(layout, grid, grid.centre(c), &mut rings);
+            states.push_cell(layout, flags, &rings);
+        }
+        // The out state: −1, terminal, no features.
+        states.reward.push(OUT_REWARD);
+        states.terminal.push(true);
+        states.offsets.push(states.indices.len());
+        states
+    }
+
+    /// The states of one cell with `flags`, one per orientation, whose ring features are
+    /// `rings`.
+    fn push_cell(&mut self, layout: &ArenaLayout, flags: u8, rings: &[u32]) {
+        let green = flags & FLAG_GREEN != 0;
+        let blue = flags & FLAG_BLUE != 0;
+        let governing = flags & layout.governing.flag() != 0;
+        let (r, t) = if flags & FLAG_BALL != 0 {
+            (BALL_REWARD, true)
+        } else if flags & FLAG_DEATH != 0 {
+            (DEATH_REWARD, true)
+        } else {
+            (STEP_REWARD, false)
+        };
+        for o in 0..N_ORIENTATIONS {
+            self.reward.push(r);
+            self.terminal.push(t);
+            self.indices.extend_from_slice(rings);
+            self.indices.push((ORIENTATION_FEATURES + o) as u32);
+            self.indices.push(if green {
+                GREEN_IN_CELL
+            } else {
+                NO_GREEN_IN_CELL
+            } as u32);
+            self.indices
+                .push(if blue { BLUE_IN_CELL } else { NO_BLUE_IN_CELL } as u32);
+            self.offsets.push(self.indices.len());
+            let g = layout.governing;
+            let bit = if governing {
+                g.in_cell_feature()
+            } else {
+                g.not_in_cell_feature()
+            };
+            self.oracle
+                .push([(ORIENTATION_FEATURES + o) as u32, bit as u32]);
+            self.man
+                .push([o as u32, 8 + u32::from(!green), 10 + u32::from(!blue)]);
+        }
+    }
+}
+
+/// The ring features of a cell centred at `centre` into `rings` (sorted, once each): for
+/// each mark and the ball, the ring of distance it lies in, if within [`RINGS`].
+fn rings_around(layout: &ArenaLayout, grid: &Grid, centre: DVec2, rings: &mut Vec<u32>) {
+    let unit = grid.side / RINGS as f64;
+    rings.clear();
+    for (base, points) in [
+        (GREEN_RINGS, layout.green_marks.as_slice()),
+        (BLUE_RINGS, layout.blue_marks.as_slice()),
+        (BALL_RINGS, std::slice::from_ref(&layout.ball)),
+    ] {
+        for &p in points {
+            let d = p.distance(centre) / unit;
+            if d < RINGS as f64 {
+                rings.push((base + d.floor() as usize) as u32);
+            }
+        }
+    }
+    rings.sort_unstable();
+    rings.dedup();
 }
 
 #[cfg(test)]
