@@ -8,8 +8,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-mod common;
-use common::*;
+use crate::common::*;
 
 /// A private tmux server: its socket name is this test's own.
 struct Tmux {
@@ -72,6 +71,7 @@ fn the_live_view_shows_the_group_and_q_stops_it_cleanly() {
     let config = dir.path().join("launch.toml");
     std::fs::write(&config, launch_file(dir.path(), "")).expect("launch file");
     let exit = dir.path().join("exit");
+    let _sharing = sharing_the_machine();
     let tmux = Tmux {
         socket: format!("tes-tui-test-{}", std::process::id()),
     };

@@ -13,26 +13,15 @@ use std::time::{Duration, Instant};
 
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
-use tes_learning::library::store;
 
-mod common;
-use common::*;
+use crate::common::*;
 
 /// The library at `path`: its tasks seen (each saved run adds one).
 fn tasks_of(path: &Path) -> u32 {
-    store::load_for(path, 3, 20, 312)
+    load_library(path)
         .unwrap_or_else(|e| panic!("the library does not load: {e}"))
         .library
         .tasks_seen()
-}
-
-/// Waits until none of `pids` is alive (they were children of a launcher that died).
-fn wait_gone(pids: &[Pid], limit: Duration) {
-    let deadline = Instant::now() + limit;
-    while pids.iter().any(|&p| kill(p, None).is_ok()) {
-        assert!(Instant::now() < deadline, "children still alive: {pids:?}");
-        std::thread::sleep(Duration::from_millis(10));
-    }
 }
 
 /// How many observations perception re-published (no motion report in time) in `lines`.
@@ -253,7 +242,8 @@ fn killing_the_launcher_twenty_times_never_loses_the_library() {
 fn a_closed_output_pipe_does_not_lose_the_run() {
     let dir = tempfile::tempdir().expect("temp dir");
     std::fs::write(dir.path().join("launch.toml"), launch_file(dir.path(), "")).unwrap();
-    let mut launcher = Command::new(env!("CARGO_BIN_EXE_tes"))
+    let _sharing = sharing_the_machine();
+    let launcher = tes_command()
         .args(["launch", "--episodes", "6", "--config"])
         .arg(dir.path().join("launch.toml"))
         .env("TES_DATA_DIR", dir.path().join("data"))
@@ -261,23 +251,14 @@ fn a_closed_output_pipe_does_not_lose_the_run() {
         .stderr(Stdio::null())
         .spawn()
         .expect("tes launch starts");
-    let out = launcher.stdout.take().expect("stdout");
+    let mut launcher = Killed(launcher);
+    let out = launcher.0.stdout.take().expect("stdout");
     let mut lines = std::io::BufReader::new(out).lines();
     for _ in 0..2 {
         lines.next().expect("a line").expect("text");
     }
     drop(lines); // `head` exits: the pipe's reading end is closed
-    let deadline = Instant::now() + Duration::from_secs(60);
-    let status = loop {
-        if let Some(s) = launcher.try_wait().expect("poll") {
-            break s;
-        }
-        if Instant::now() > deadline {
-            let _ = launcher.kill();
-            panic!("the launcher did not finish");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    let status = wait_exit(&mut launcher.0, Duration::from_secs(60), "the launcher");
     assert!(status.success(), "{status:?}");
     assert_eq!(tasks_of(&dir.path().join("data/library.tesl")), 1);
     let controller = std::fs::read_to_string(dir.path().join("run/controller.out")).unwrap();
@@ -385,6 +366,7 @@ fn a_link_that_comes_back_within_the_timeout_resumes_the_run() {
 #[test]
 fn errors_name_the_real_cause() {
     let dir = tempfile::tempdir().expect("temp dir");
+    let _sharing = sharing_the_machine();
     let out = Command::new("sh")
         .arg("-c")
         .arg(format!(
@@ -403,7 +385,7 @@ fn errors_name_the_real_cause() {
     // A run directory under /sys cannot be created (not even by root).
     let toml = dir.path().join("launch.toml");
     std::fs::write(&toml, "[launch]\nrun_dir = \"/sys/tes-run\"\n").expect("launch file");
-    let out = Command::new(env!("CARGO_BIN_EXE_tes"))
+    let out = tes_command()
         .args(["launch", "--episodes", "1", "--config"])
         .arg(&toml)
         .env("TES_DATA_DIR", dir.path().join("data"))

@@ -1,30 +1,21 @@
 //! `tes launch --print-config`: the launch file of the defaults, every key commented, and the
-//! reference page `docs/config.md`, both from tes/src/launch/reference.rs. (The checks that
+//! reference page `docs/config.md`, both from launch/src/reference.rs. (The checks that
 //! need the launcher's own types — the `[launch]` table, the keys unset by default — are the
 //! unit tests beside that file.)
 
-mod common;
-
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 use std::time::Duration;
 
-use common::Group;
 use tes_bridge::config::BridgeSettings;
 use tes_controller::config::ControllerConfig;
 use tes_perception_sim::process::PerceptionConfig;
 use tes_runtime::settings::Origin;
 
+use crate::common::{Group, tes};
+
 /// How to bring docs/config.md up to date, as the failing test says.
 const REGENERATE: &str = "cargo run -p tes -- launch --print-config=markdown > docs/config.md \
-                          (or: TES_UPDATE_DOCS=1 cargo test -p tes --test config_reference)";
-
-fn tes(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_tes"))
-        .args(args)
-        .output()
-        .expect("tes runs")
-}
+                          (or: TES_UPDATE_DOCS=1 cargo test -p tes --test it config_reference)";
 
 /// What `tes launch <flag>` prints; it must exit 0 and say nothing on stderr.
 fn printed(flag: &str) -> String {
@@ -129,7 +120,7 @@ fn every_key_of_the_childrens_settings_is_in_the_reference() {
     assert!(
         missing.is_empty(),
         "not in the reference: {missing:?}; describe them in KEYS of \
-         tes/src/launch/reference.rs, then {REGENERATE}"
+         launch/src/reference.rs, then {REGENERATE}"
     );
     assert!(!md.contains("Not described yet"), "{REGENERATE}");
 }

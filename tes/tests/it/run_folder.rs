@@ -9,8 +9,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-mod common;
-use common::*;
+use crate::common::*;
 
 /// A launch file with its own service prefix, no fixed run folder, and `extra`.
 fn launch_file_with_runs(extra: &str) -> String {

@@ -3,22 +3,17 @@
 //! documented keys with consistent values. (Figures are for the benchmarks to judge, not
 //! for tests.) A guard kills the bench and its process group if the test fails.
 
+use std::io::Read;
+use std::process::Stdio;
+use std::time::Duration;
+
 use serde_json::json;
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
 
-/// Kills the bench (its children die with it by their parent-death signal) on drop.
-struct Killed(Child);
-
-impl Drop for Killed {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
+use crate::common::*;
 
 fn run(args: &[&str], data: &std::path::Path, limit: Duration) -> (bool, String, String) {
-    let child = Command::new(env!("CARGO_BIN_EXE_tes"))
+    let _sharing = sharing_the_machine();
+    let child = tes_command()
         .args(args)
         .env("TES_DATA_DIR", data)
         .stdout(Stdio::piped())
@@ -26,26 +21,16 @@ fn run(args: &[&str], data: &std::path::Path, limit: Duration) -> (bool, String,
         .spawn()
         .expect("tes starts");
     let mut guard = Killed(child);
-    let started = Instant::now();
-    loop {
-        if let Some(status) = guard.0.try_wait().expect("poll") {
-            let mut out = String::new();
-            let mut err = String::new();
-            use std::io::Read;
-            if let Some(mut o) = guard.0.stdout.take() {
-                o.read_to_string(&mut out).expect("stdout");
-            }
-            if let Some(mut e) = guard.0.stderr.take() {
-                e.read_to_string(&mut err).expect("stderr");
-            }
-            return (status.success(), out, err);
-        }
-        assert!(
-            started.elapsed() < limit,
-            "tes {args:?} did not finish within {limit:?}"
-        );
-        std::thread::sleep(Duration::from_millis(50));
+    let status = wait_exit(&mut guard.0, limit, &format!("tes {args:?}"));
+    let mut out = String::new();
+    let mut err = String::new();
+    if let Some(mut o) = guard.0.stdout.take() {
+        o.read_to_string(&mut out).expect("stdout");
     }
+    if let Some(mut e) = guard.0.stderr.take() {
+        e.read_to_string(&mut err).expect("stderr");
+    }
+    (status.success(), out, err)
 }
 
 #[test]

@@ -16,8 +16,7 @@ use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 use tes_recorder::reader::Recording;
 
-mod common;
-use common::*;
+use crate::common::*;
 
 const LIMIT: Duration = Duration::from_secs(180);
 
@@ -34,20 +33,6 @@ fn record(dir: &Path, extra: &str, episodes: u32) -> (PathBuf, Vec<String>) {
         "{err:?}"
     );
     (file, out)
-}
-
-fn replay(file: &Path, args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_tes"))
-        .arg("replay")
-        .arg(file)
-        .args(args)
-        .output()
-        .expect("tes replay runs");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
 }
 
 /// What PyPI's `mcap` reader sees: `topic schema-name schema-encoding message-encoding count`

@@ -7,14 +7,12 @@
 //! stale resources removed when a test ends, failed or not.
 
 use std::path::PathBuf;
-use std::process::Command;
 use std::time::{Duration, Instant};
 
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 
-mod common;
-use common::*;
+use crate::common::*;
 
 /// A TCP port that was free a moment ago (the link listens on it).
 fn free_port() -> u16 {
@@ -111,7 +109,7 @@ impl Drop for Host {
     fn drop(&mut self) {
         drop(self.group.take());
         // The guard of `Group` cleans the test's own domain; this host's is its own.
-        let _ = Command::new(env!("CARGO_BIN_EXE_tes"))
+        let _ = tes_command()
             .args(["status", "--clean"])
             .env("TES_IPC_DOMAIN", &self.domain)
             .output();
@@ -145,26 +143,6 @@ fn group_name(test: &str) -> String {
     format!("tes-test/{}/{test}", std::process::id())
 }
 
-/// Mean reward of episodes `from..to` in a launch's episode lines.
-fn mean_reward(lines: &[String], from: usize, to: usize) -> f64 {
-    let rewards: Vec<f64> = lines
-        .iter()
-        .filter(|l| l.starts_with("episode "))
-        .filter_map(|l| {
-            l.split_once("reward ")
-                .and_then(|(_, r)| r.split(',').next())
-                .and_then(|r| r.trim().parse().ok())
-        })
-        .collect();
-    assert!(rewards.len() >= to, "{} episodes: {lines:?}", rewards.len());
-    rewards[from..to].iter().sum::<f64>() / (to - from) as f64
-}
-
-/// Waits for a launcher to exit, at most `limit`; its success and output.
-fn finish(group: &mut Group, limit: Duration) -> (bool, Vec<String>, Vec<String>) {
-    group.finish(limit)
-}
-
 /// Split over Zenoh, the group runs its 80 episodes, learns (its last 40 beat a random
 /// policy's over the same seeded budget, as on one host), and the library is saved on the
 /// controller's side only; both launches stop cleanly and leave nothing in their domains.
@@ -195,8 +173,8 @@ fn split_across_two_hosts_the_group_learns_and_saves_on_the_controllers_side() {
         80,
         &[],
     );
-    let (ok_r, out_r, err_r) = finish(robot.group(), Duration::from_secs(600));
-    let (ok_w, out_w, err_w) = finish(workstation.group(), Duration::from_secs(60));
+    let (ok_r, out_r, err_r) = robot.group().finish(Duration::from_secs(600));
+    let (ok_w, out_w, err_w) = workstation.group().finish(Duration::from_secs(60));
     assert!(ok_r, "robot: stdout {out_r:?}\nstderr {err_r:?}");
     assert!(ok_w, "workstation: stdout {out_w:?}\nstderr {err_w:?}");
     let episodes = out_w.iter().filter(|l| l.starts_with("episode ")).count();
@@ -208,17 +186,8 @@ fn split_across_two_hosts_the_group_learns_and_saves_on_the_controllers_side() {
     assert!(recorded.world_map.is_some());
     assert_eq!(recorded.commands.len() as u64, reported_actions(&out_w));
     assert!(recorded.observations.len() > recorded.commands.len());
-    let replay = Command::new(env!("CARGO_BIN_EXE_tes"))
-        .arg("replay")
-        .arg(&recording)
-        .output()
-        .expect("tes replay runs");
-    let said = String::from_utf8_lossy(&replay.stdout);
-    assert!(
-        replay.status.success(),
-        "{said} {}",
-        String::from_utf8_lossy(&replay.stderr)
-    );
+    let (ok, said, stderr) = replay(&recording, &[]);
+    assert!(ok, "{said} {stderr}");
     let n = recorded.commands.len();
     assert_eq!(
         said.trim(),
@@ -242,8 +211,7 @@ fn split_across_two_hosts_the_group_learns_and_saves_on_the_controllers_side() {
     );
 
     // The library is the workstation's; the robot's data directory has none.
-    let stored = tes_learning::library::store::load_for(&library, 3, 20, 312)
-        .expect("the saved library loads");
+    let stored = load_library(&library).expect("the saved library loads");
     assert!(!stored.library.is_empty());
     assert!(!robot.dir.path().join("data/library.tesl").exists());
     for host in [&robot, &workstation] {
@@ -276,8 +244,8 @@ fn ctrl_c_on_either_host_stops_the_other_cleanly() {
         };
         let pid = Pid::from_raw(target.group().launcher.id() as i32);
         kill(pid, Signal::SIGINT).expect("SIGINT");
-        let (ok_r, out_r, err_r) = finish(robot.group(), Duration::from_secs(60));
-        let (ok_w, out_w, err_w) = finish(workstation.group(), Duration::from_secs(60));
+        let (ok_r, out_r, err_r) = robot.group().finish(Duration::from_secs(60));
+        let (ok_w, out_w, err_w) = workstation.group().finish(Duration::from_secs(60));
         assert!(ok_r, "{interrupted}: robot: {out_r:?}\n{err_r:?}");
         assert!(ok_w, "{interrupted}: workstation: {out_w:?}\n{err_w:?}");
         assert!(
@@ -315,18 +283,14 @@ fn losing_the_controllers_host_mid_move_brakes_and_stops_the_robot_non_zero() {
     // Physical time (the watchdog's deadline is then 1 s of wall time) and every action a
     // long move, 20 000° a wheel (about 30 s); the bridge says when a command reaches the
     // brick.
-    let actions: String = (0..3)
-        .map(|id| {
-            format!(
-                "[[bridge.actions]]\nid = {id}\nname = \"long-{id}\"\nleft_deg = 20000\nright_deg = 20000\n"
-            )
-        })
-        .collect();
     robot.env.push(("RUST_LOG", "warn,tes_bridge=debug"));
     robot.start_with(
         "roles = [\"perception-sim\", \"bridge\"]\nreal_time_factor = 1.0",
         &robot_link,
-        &format!("[bridge]\nuse_command_degrees = false\n{actions}"),
+        &format!(
+            "[bridge]\nuse_command_degrees = false\n{}",
+            long_move_actions()
+        ),
         10_000,
         &[],
     );
@@ -360,7 +324,7 @@ fn losing_the_controllers_host_mid_move_brakes_and_stops_the_robot_non_zero() {
     );
     assert_braked_at_the_deadline(&lines);
 
-    let (ok, out, err) = finish(robot.group(), Duration::from_secs(60));
+    let (ok, out, err) = robot.group().finish(Duration::from_secs(60));
     assert!(!ok, "the robot's launch must fail: {out:?}\n{err:?}");
     let err = lines.into_iter().chain(err).collect::<Vec<_>>().join("\n");
     assert!(

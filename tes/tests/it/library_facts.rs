@@ -7,15 +7,14 @@
 //! fails.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 use std::time::Duration;
 
-mod common;
-use common::*;
+use crate::common::*;
 
 /// `tes library ARGS` with the data directory `data`.
 fn tes_library(data: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_tes"))
+    tes_command()
         .arg("library")
         .args(args)
         .env("TES_DATA_DIR", data)

@@ -10,8 +10,7 @@ use std::time::{Duration, Instant};
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 
-mod common;
-use common::*;
+use crate::common::*;
 
 /// A bad launch file — an unknown key or table, a value of the wrong type or out of range,
 /// text that is not TOML, bytes that are not UTF-8, no file at all — makes `tes launch` exit
@@ -138,25 +137,9 @@ fn a_launched_group_runs_its_episodes_and_saves_the_library() {
     );
     // The library is on disk and loads, for the arena's shape.
     let library = dir.path().join("data/library.tesl");
-    let stored = tes_learning::library::store::load_for(&library, 3, 20, 312)
-        .expect("the saved library loads");
+    let stored = load_library(&library).expect("the saved library loads");
     assert!(!stored.library.is_empty());
     assert!(!group.children_alive());
-}
-
-/// Mean reward of episodes `from..to` in a launch's episode lines.
-fn mean_reward(lines: &[String], from: usize, to: usize) -> f64 {
-    let rewards: Vec<f64> = lines
-        .iter()
-        .filter(|l| l.starts_with("episode "))
-        .filter_map(|l| {
-            l.split_once("reward ")
-                .and_then(|(_, r)| r.split(',').next())
-                .and_then(|r| r.trim().parse().ok())
-        })
-        .collect();
-    assert!(rewards.len() >= to, "{} episodes: {lines:?}", rewards.len());
-    rewards[from..to].iter().sum::<f64>() / (to - from) as f64
 }
 
 /// The group learns: over the same seeded budget of 80 episodes on Env 3, the learner's
@@ -236,14 +219,7 @@ fn a_killed_child_is_respawned_and_the_run_goes_on() {
 fn ctrl_c_stops_the_group_cleanly_leaving_no_child_or_service() {
     let dir = tempfile::tempdir().expect("temp dir");
     let toml = launch_file(dir.path(), "real_time_factor = 0.01\n");
-    let prefix = format!(
-        "tes-test/{}/{}/",
-        std::process::id(),
-        dir.path()
-            .file_name()
-            .and_then(|n| n.to_str())
-            .unwrap_or("x")
-    );
+    let prefix = service_prefix(dir.path());
     let mut group = Group::start(dir.path(), &toml, 10_000);
     group.wait_for_episodes(2, Duration::from_secs(60));
     assert!(
@@ -265,8 +241,7 @@ fn ctrl_c_stops_the_group_cleanly_leaving_no_child_or_service() {
     let left = tes_runtime::channel::services_with_prefix(&prefix).expect("list");
     assert!(left.is_empty(), "services left behind: {left:?}");
     // The controller saved the library on its way out.
-    tes_learning::library::store::load_for(&dir.path().join("data/library.tesl"), 3, 20, 312)
-        .expect("the library loads");
+    load_library(&dir.path().join("data/library.tesl")).expect("the library loads");
 }
 
 /// Process faults: each of the three processes is SIGKILLed 20 times at seeded
@@ -315,7 +290,7 @@ fn every_process_survives_twenty_kills_and_the_library_always_loads() {
                 Duration::from_secs(30),
             );
             if role == "controller" && library.exists() {
-                tes_learning::library::store::load_for(&library, 3, 20, 312).unwrap_or_else(|e| {
+                load_library(&library).unwrap_or_else(|e| {
                     panic!("round {round}: the library on disk does not load: {e}")
                 });
             }
@@ -330,8 +305,7 @@ fn every_process_survives_twenty_kills_and_the_library_always_loads() {
         err.iter().any(|l| l.contains("stop requested")),
         "{out:?}\n{err:?}"
     );
-    tes_learning::library::store::load_for(&library, 3, 20, 312)
-        .expect("the library saved at shutdown loads");
+    load_library(&library).expect("the library saved at shutdown loads");
     assert!(!group.children_alive());
 }
 
@@ -348,26 +322,13 @@ fn the_bridge_brakes_within_its_deadline_when_the_controller_vanishes_mid_move()
     // Physical time (the watchdog's deadline is then 1 s of wall time), and every action a
     // long move: 20 000° a wheel, about 30 s at the default power. (Perception re-publishes
     // its observation after its 5 s motion timeout; the controller then commands again.)
-    let actions: String = (0..3)
-        .map(|id| {
-            format!(
-                "[[bridge.actions]]\nid = {id}\nname = \"long-{id}\"\nleft_deg = 20000\nright_deg = 20000\n"
-            )
-        })
-        .collect();
     let extra = format!(
         "restart = \"on-failure\"\nreal_time_factor = 1.0\n\
-         [bridge]\nuse_command_degrees = false\n{actions}"
+         [bridge]\nuse_command_degrees = false\n{}",
+        long_move_actions()
     );
     let group = Group::start(dir.path(), &launch_file(dir.path(), &extra), 1000);
-    let prefix = format!(
-        "tes-test/{}/{}/",
-        std::process::id(),
-        dir.path()
-            .file_name()
-            .and_then(|n| n.to_str())
-            .unwrap_or("x"),
-    );
+    let prefix = service_prefix(dir.path());
     let names = ServiceNames::with_prefix(&prefix);
     let node = tes_runtime::channel::node(false).expect("node");
     let states = Inbox::<MotorState>::open(

@@ -1,22 +1,155 @@
-//! What the launch tests share: a launched group that is killed (with its children) and
-//! cleaned up on drop, and line waiting.
-
-// Each test binary uses its own part of this module.
-#![allow(dead_code)]
+//! What the tests share: running `tes`, a launched group that is killed (with its children)
+//! and cleaned up on drop, a process killed on drop, waiting for lines and for an exit, each
+//! test's own service prefix, reading what a launch printed, and keeping other tests' groups
+//! away from the tests that must be alone on the machine.
 
 use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
-use std::sync::mpsc;
+use std::process::{Child, Command, ExitStatus, Output, Stdio};
+use std::sync::{Condvar, Mutex, PoisonError, mpsc};
+use std::thread::ThreadId;
 use std::time::{Duration, Instant};
 
 use nix::unistd::Pid;
+use tes_controller::summary::EpisodeLine;
+use tes_learning::library::store::{self, StoreError, StoredLibrary};
+
+/// The built `tes` binary, as a command to add arguments to.
+pub fn tes_command() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_tes"))
+}
+
+/// Runs `tes ARGS` to its end; its output.
+pub fn tes(args: &[&str]) -> Output {
+    tes_command()
+        .args(args)
+        .output()
+        .expect("the tes binary runs")
+}
+
+/// `tes replay FILE ARGS`: its success, stdout and stderr.
+pub fn replay(file: &Path, args: &[&str]) -> (bool, String, String) {
+    let out = tes_command()
+        .arg("replay")
+        .arg(file)
+        .args(args)
+        .output()
+        .expect("tes replay runs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// A process killed (and reaped) on drop, so that a failing test leaves none behind; the
+/// children of a `tes` process follow it by their parent-death signal.
+pub struct Killed(pub Child);
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Waits for `child` to exit, at most `limit` (else the test fails naming `what`).
+pub fn wait_exit(child: &mut Child, limit: Duration, what: &str) -> ExitStatus {
+    let deadline = Instant::now() + limit;
+    loop {
+        if let Some(status) = child.try_wait().expect("poll") {
+            return status;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "{what} did not finish within {limit:?}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Who uses the machine: how many groups run, and which test, if any, has it to itself.
+struct Machine {
+    groups: usize,
+    alone: Option<ThreadId>,
+}
+
+static MACHINE: Mutex<Machine> = Mutex::new(Machine {
+    groups: 0,
+    alone: None,
+});
+static MACHINE_CHANGED: Condvar = Condvar::new();
+
+/// Held while a test runs a group of processes: no other test that must be alone on the
+/// machine ([`Alone`]) runs then.
+pub struct Sharing(());
+
+/// Waits until no other test is alone on the machine; it is then shared until the guard
+/// drops. (The test that is alone may start groups of its own.)
+pub fn sharing_the_machine() -> Sharing {
+    let me = std::thread::current().id();
+    let mut m = MACHINE.lock().unwrap_or_else(PoisonError::into_inner);
+    while m.alone.is_some_and(|t| t != me) {
+        m = MACHINE_CHANGED
+            .wait(m)
+            .unwrap_or_else(PoisonError::into_inner);
+    }
+    m.groups += 1;
+    Sharing(())
+}
+
+impl Drop for Sharing {
+    fn drop(&mut self) {
+        MACHINE
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .groups -= 1;
+        MACHINE_CHANGED.notify_all();
+    }
+}
+
+/// Held by a test that no other test's group may run beside. As test binaries of their own
+/// they never met; in one binary, libtest runs them side by side:
+///
+/// * a test that loads every core (an experiment on all threads): a group's background
+///   threads (planning, saving) run under `SCHED_IDLE`, get no time beside it, and the
+///   controller does not stop within the launcher's grace periods;
+/// * a test that runs `tes status`, which opens the progress services of every group of the
+///   machine for a moment: a group launched again on a prefix just stopped would find it in
+///   use and be refused.
+pub struct Alone(());
+
+/// Waits until no group runs and no other test is alone; the machine is then this test's
+/// (and its own groups') until the guard drops. Take it before starting a group.
+pub fn alone_on_the_machine() -> Alone {
+    let me = std::thread::current().id();
+    let mut m = MACHINE.lock().unwrap_or_else(PoisonError::into_inner);
+    while m.alone.is_some() || m.groups > 0 {
+        m = MACHINE_CHANGED
+            .wait(m)
+            .unwrap_or_else(PoisonError::into_inner);
+    }
+    m.alone = Some(me);
+    Alone(())
+}
+
+impl Drop for Alone {
+    fn drop(&mut self) {
+        MACHINE.lock().unwrap_or_else(PoisonError::into_inner).alone = None;
+        MACHINE_CHANGED.notify_all();
+    }
+}
 
 /// A launched group, killed on drop.
 pub struct Group {
+    /// The `tes launch` process.
     pub launcher: Child,
+    /// Its standard output, line by line.
     pub stdout: mpsc::Receiver<String>,
+    /// Its standard error, line by line.
     pub stderr: mpsc::Receiver<String>,
+    /// Released once the group is killed and cleaned up (fields drop after `drop`).
+    _sharing: Sharing,
 }
 
 impl Group {
@@ -62,7 +195,8 @@ impl Group {
         args: &[&str],
         env: &[(&str, &str)],
     ) -> Self {
-        let mut command = Command::new(env!("CARGO_BIN_EXE_tes"));
+        let sharing = sharing_the_machine();
+        let mut command = tes_command();
         command.arg("launch");
         if let Some(config) = config {
             command.arg("--config").arg(config);
@@ -94,22 +228,13 @@ impl Group {
             launcher,
             stdout,
             stderr,
+            _sharing: sharing,
         }
     }
 
     /// Waits for the launcher to exit (at most `limit`); returns its success and output.
     pub fn finish(&mut self, limit: Duration) -> (bool, Vec<String>, Vec<String>) {
-        let deadline = Instant::now() + limit;
-        let status = loop {
-            if let Some(s) = self.launcher.try_wait().expect("poll") {
-                break s;
-            }
-            assert!(
-                Instant::now() < deadline,
-                "tes launch did not finish in {limit:?}"
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        };
+        let status = wait_exit(&mut self.launcher, limit, "tes launch");
         std::thread::sleep(Duration::from_millis(100));
         (
             status.success(),
@@ -136,14 +261,7 @@ impl Group {
             let Ok(pid) = entry.file_name().to_string_lossy().parse::<i32>() else {
                 continue;
             };
-            let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
-                continue;
-            };
-            // `pid (comm) state ppid …`; comm may hold spaces, so split after the last ')'.
-            let ppid = stat
-                .rsplit_once(')')
-                .and_then(|(_, rest)| rest.split_whitespace().nth(1))
-                .and_then(|p| p.parse::<u32>().ok());
+            let ppid = parent_of(pid);
             let cmdline = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
             let args: Vec<&[u8]> = cmdline.split(|&b| b == 0).collect();
             if ppid == Some(parent)
@@ -181,22 +299,14 @@ impl Group {
         )
     }
 
+    /// Whether any child of the launcher is still alive.
     pub fn children_alive(&self) -> bool {
         let parent = self.launcher.id();
         std::fs::read_dir("/proc")
             .expect("procfs")
             .filter_map(Result::ok)
             .filter_map(|e| e.file_name().to_string_lossy().parse::<i32>().ok())
-            .any(|pid| {
-                std::fs::read_to_string(format!("/proc/{pid}/stat"))
-                    .ok()
-                    .and_then(|s| {
-                        s.rsplit_once(')')
-                            .and_then(|(_, r)| r.split_whitespace().nth(1))
-                            .and_then(|p| p.parse::<u32>().ok())
-                    })
-                    == Some(parent)
-            })
+            .any(|pid| parent_of(pid) == Some(parent))
     }
 }
 
@@ -210,6 +320,29 @@ impl Drop for Group {
         }
         let _ = tes_runtime::channel::clean_stale_resources();
     }
+}
+
+/// Waits until none of `pids` is alive (they were children of a launcher that died): a
+/// SIGKILLed process is gone only once each of its threads has run to its end, which its
+/// background threads (under `SCHED_IDLE`) do late on a loaded machine.
+pub fn wait_gone(pids: &[Pid], limit: Duration) {
+    let deadline = Instant::now() + limit;
+    while pids
+        .iter()
+        .any(|&p| nix::sys::signal::kill(p, None).is_ok())
+    {
+        assert!(Instant::now() < deadline, "children still alive: {pids:?}");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+/// The parent's pid of process `pid`, if it is alive.
+fn parent_of(pid: i32) -> Option<u32> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // `pid (comm) state ppid …`; comm may hold spaces, so split after the last ')'.
+    stat.rsplit_once(')')
+        .and_then(|(_, rest)| rest.split_whitespace().nth(1))
+        .and_then(|p| p.parse().ok())
 }
 
 /// Collects lines from `lines` until `done` holds for those seen (at most `limit`, else the
@@ -232,13 +365,52 @@ pub fn wait_for_lines(
     seen
 }
 
+/// The iceoryx2 service prefix of the group a test launches in `dir`: its own, by this test
+/// process and the directory's name.
+pub fn service_prefix(dir: &Path) -> String {
+    format!(
+        "tes-test/{}/{}/",
+        std::process::id(),
+        dir.file_name().and_then(|n| n.to_str()).unwrap_or("x")
+    )
+}
+
+/// A launch file for a group in `dir`: its own service prefix, its run folder `dir/run`, and
+/// `extra` after the `[launch]` table's first keys.
 pub fn launch_file(dir: &Path, extra: &str) -> String {
     format!(
-        "[launch]\nservice_prefix = \"tes-test/{}/{}/\"\nrun_dir = \"{}\"\n{extra}",
-        std::process::id(),
-        dir.file_name().and_then(|n| n.to_str()).unwrap_or("x"),
+        "[launch]\nservice_prefix = \"{}\"\nrun_dir = \"{}\"\n{extra}",
+        service_prefix(dir),
         dir.join("run").display()
     )
+}
+
+/// `[[bridge.actions]]` tables making every action a long move: 20 000° a wheel, about 30 s
+/// at the default power in physical time.
+pub fn long_move_actions() -> String {
+    (0..3)
+        .map(|id| {
+            format!(
+                "[[bridge.actions]]\nid = {id}\nname = \"long-{id}\"\nleft_deg = 20000\nright_deg = 20000\n"
+            )
+        })
+        .collect()
+}
+
+/// The library at `path`, loaded for the arena's shape (3 actions, 20 effects, 312 features).
+pub fn load_library(path: &Path) -> Result<StoredLibrary, StoreError> {
+    store::load_for(path, 3, 20, 312)
+}
+
+/// Mean reward of episodes `from..to` in a launch's episode lines.
+pub fn mean_reward(lines: &[String], from: usize, to: usize) -> f64 {
+    let rewards: Vec<f64> = lines
+        .iter()
+        .filter_map(|l| EpisodeLine::parse(l))
+        .map(|e| e.reward)
+        .collect();
+    assert!(rewards.len() >= to, "{} episodes: {lines:?}", rewards.len());
+    rewards[from..to].iter().sum::<f64>() / (to - from) as f64
 }
 
 /// The actions the controller's summary line reports (`controller: 3 episodes, 89 actions, …`).

@@ -7,25 +7,19 @@
 //! resources even when a test fails. Other groups of the machine (other tests, other users)
 //! may be listed too: the tests look only at their own.
 
-use std::process::{Command, Output};
-use std::sync::Mutex;
+use std::process::Output;
 use std::time::{Duration, Instant};
 
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 use serde_json::Value;
 
-mod common;
-use common::*;
-
-/// The tests of this file one at a time: a launch removes every dead node of the machine,
-/// which would take the crashed group away from under the other test.
-static SERIAL: Mutex<()> = Mutex::new(());
+use crate::common::*;
 
 const ROLES: [&str; 3] = ["perception-sim", "controller", "bridge"];
 
 fn tes_status(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_tes"))
+    tes_command()
         .arg("status")
         .args(args)
         .output()
@@ -102,7 +96,10 @@ fn listed_group(dir: &std::path::Path) -> (Group, Value) {
 /// with uptime and progress, in JSON and in the table; once stopped, it is not listed.
 #[test]
 fn a_running_group_is_listed_with_its_processes_and_gone_once_stopped() {
-    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    // Alone: `tes status` opens every group's services (see `Alone`), and any launch removes
+    // every dead node of the machine, which would take the crashed group away from under
+    // this file's other test.
+    let _alone = alone_on_the_machine();
     let dir = tempfile::tempdir().expect("temp dir");
     let (mut group, listed) = listed_group(dir.path());
     let launcher = group.launcher.id();
@@ -169,7 +166,10 @@ fn a_running_group_is_listed_with_its_processes_and_gone_once_stopped() {
 /// pid it had, with the hint to clean; `--clean` removes it.
 #[test]
 fn a_crashed_group_is_listed_stale_until_cleaned() {
-    let _serial = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    // Alone: `tes status` opens every group's services (see `Alone`), and any launch removes
+    // every dead node of the machine, which would take the crashed group away from under
+    // this file's other test.
+    let _alone = alone_on_the_machine();
     let dir = tempfile::tempdir().expect("temp dir");
     let (mut group, listed) = listed_group(dir.path());
     let launcher = group.launcher.id();
@@ -186,6 +186,8 @@ fn a_crashed_group_is_listed_stale_until_cleaned() {
     kill(launcher_pid, Signal::SIGKILL).expect("kill the launcher");
     let (ok, _, _) = group.finish(Duration::from_secs(10));
     assert!(!ok);
+    let children: Vec<Pid> = pids.iter().map(|&p| Pid::from_raw(p)).collect();
+    wait_gone(&children, Duration::from_secs(30));
 
     let json = status_json(&[]);
     // Any launch or clean-up elsewhere on the machine may have removed the dead nodes by

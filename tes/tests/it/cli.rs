@@ -1,14 +1,10 @@
 //! The `tes` command line, run as a user would.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
-fn tes(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_tes"))
-        .args(args)
-        .output()
-        .expect("the tes binary runs")
-}
+use tes_experiments::jobs::summary_without_timings;
+
+use crate::common::*;
 
 fn demo_csv() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/fit-demo.csv")
@@ -177,6 +173,7 @@ fn labels_beyond_classes_and_bad_settings_are_refused() {
 
 #[test]
 fn experiment_grid_writes_its_summary_csv_and_plots() {
+    let _alone = alone_on_the_machine();
     let dir = tempfile::tempdir().expect("temp dir");
     let out = dir.path().join("grid");
     let out_s = out.to_string_lossy().into_owned();
@@ -347,39 +344,16 @@ fn a_corrupt_library_is_refused_naming_the_file() {
     );
 }
 
-/// `summary.json` of `dir` without what depends on the clock: wall and agent seconds, and
-/// Table 1's time ratios and the targets' figures and verdicts on them.
-fn summary_without_timings(dir: &Path) -> serde_json::Value {
-    fn strip(v: &mut serde_json::Value) {
-        match v {
-            serde_json::Value::Object(map) => {
-                let timed = map
-                    .get("target")
-                    .and_then(|t| t.as_str())
-                    .is_some_and(|t| t.starts_with("Table 1:"));
-                if timed {
-                    map.remove("measured");
-                    map.remove("verdict");
-                }
-                map.retain(|key, _| {
-                    !matches!(key.as_str(), "wall_seconds" | "seconds_per_episode")
-                        && !key.ends_with("_time")
-                });
-                map.values_mut().for_each(strip);
-            }
-            serde_json::Value::Array(items) => items.iter_mut().for_each(strip),
-            _ => {}
-        }
-    }
+/// `summary.json` of `dir`.
+fn summary(dir: &Path) -> serde_json::Value {
     let path = dir.join("summary.json");
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let mut v: serde_json::Value = serde_json::from_str(&text).expect("summary.json is JSON");
-    strip(&mut v);
-    v
+    serde_json::from_str(&text).expect("summary.json is JSON")
 }
 
 #[test]
 fn experiment_all_gives_the_separate_commands_results_to_the_last_digit() {
+    let _alone = alone_on_the_machine();
     let dir = tempfile::tempdir().expect("temp dir");
     let study = dir.path().join("study");
     let out = tes(&[
@@ -410,8 +384,8 @@ fn experiment_all_gives_the_separate_commands_results_to_the_last_digit() {
             String::from_utf8_lossy(&out.stderr)
         );
         assert_eq!(
-            summary_without_timings(&study.join(experiment)),
-            summary_without_timings(&alone),
+            summary_without_timings(&summary(&study.join(experiment))),
+            summary_without_timings(&summary(&alone)),
             "{experiment}: `tes experiment all` and the separate command differ"
         );
     }
@@ -433,6 +407,7 @@ fn an_experiment_stopped_with_ctrl_c_resumes_from_its_records_to_the_same_summar
     use nix::unistd::Pid;
     use std::time::{Duration, Instant};
 
+    let _alone = alone_on_the_machine();
     let dir = tempfile::tempdir().expect("temp dir");
     let (cut, whole) = (dir.path().join("cut"), dir.path().join("whole"));
     let args = |out: &Path| -> Vec<String> {
@@ -451,7 +426,7 @@ fn an_experiment_stopped_with_ctrl_c_resumes_from_its_records_to_the_same_summar
         .chain([out.to_string_lossy().into_owned()])
         .collect()
     };
-    let mut child = Command::new(env!("CARGO_BIN_EXE_tes"))
+    let mut child = tes_command()
         .args(args(&cut))
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
@@ -498,8 +473,8 @@ fn an_experiment_stopped_with_ctrl_c_resumes_from_its_records_to_the_same_summar
         String::from_utf8_lossy(&alone.stderr)
     );
     assert_eq!(
-        summary_without_timings(&cut),
-        summary_without_timings(&whole),
+        summary_without_timings(&summary(&cut)),
+        summary_without_timings(&summary(&whole)),
         "the resumed run's summary differs from the uninterrupted run's"
     );
 }
