@@ -98,7 +98,7 @@ impl Default for LatencySettings {
     fn default() -> Self {
         Self {
             actions: 10_000,
-            budget_us: 1000,
+            budget_us: tes_runtime::settings::DEFAULT_BUDGET_US,
             wait: WaitStrategy::Block,
             views: 9,
             warmup: 1000,

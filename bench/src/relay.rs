@@ -70,7 +70,7 @@ impl Default for RelayConfig {
             wait: WaitStrategy::Block,
             messages: 10_000,
             warmup: 1_000,
-            budget_us: 1000,
+            budget_us: tes_runtime::settings::DEFAULT_BUDGET_US,
             report: None,
             hop_report: None,
             idle_timeout_ms: 10_000,

@@ -25,27 +25,50 @@ use crate::nxt::{Mode, Port, PortSelector, RegulationMode, RunState, SetOutputSt
 /// The largest wheel rotation one action may ask for, degrees (100 turns).
 pub const MAX_ACTION_DEG: i32 = 36_000;
 
-/// How the wheel motors are wired and driven (the `[motors]` table).
+/// The range of `[motors] power`.
+pub const POWER_RANGE: std::ops::RangeInclusive<i8> = 1..=100;
+
+/// How the wheel motors are wired and driven (the `[motors]` table). Each field's doc is its
+/// key's entry in the launch file's reference (`tes launch --print-config`), as for
+/// [`BridgeSettings`](crate::config::BridgeSettings).
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct MotorsConfig {
     /// Output port of the left wheel motor.
+    ///
+    /// Values: `"A"` | `"B"` | `"C"`.
     pub left_port: Port,
     /// Output port of the right wheel motor.
+    ///
+    /// Values: `"A"` | `"B"` | `"C"`; not `left_port`.
     pub right_port: Port,
-    /// Power (speed set-point with regulation), 1..=100.
+    /// Power (the speed set-point with regulation).
+    ///
+    /// Values: [`POWER_RANGE`].
     pub power: i8,
     /// Brake at the tacho limit (MODE bit BRAKE) rather than coast.
+    ///
+    /// Values: `true` | `false`.
     pub brake: bool,
     /// Turn on regulation (MODE bit REGULATED) with `regulation`.
+    ///
+    /// Values: `true` | `false`.
     pub regulated: bool,
-    /// Regulation mode: `"idle"`, `"speed"` or `"sync"`.
+    /// The regulation mode.
+    ///
+    /// Values: `"idle"` | `"speed"` | `"sync"`; not `idle` when `regulated`.
     pub regulation: RegulationMode,
     /// The left motor is mounted so that positive power drives the wheel backwards.
+    ///
+    /// Values: `true` | `false`.
     pub left_reversed: bool,
     /// The right motor is mounted so that positive power drives the wheel backwards.
+    ///
+    /// Values: `true` | `false`.
     pub right_reversed: bool,
-    /// Ask the brick to acknowledge each SETOUTPUTSTATE (costs a Bluetooth round trip each).
+    /// Ask the brick to acknowledge each SETOUTPUTSTATE (a Bluetooth round trip each).
+    ///
+    /// Values: `true` | `false`.
     pub acknowledge: bool,
 }
 
@@ -65,18 +88,27 @@ impl Default for MotorsConfig {
     }
 }
 
-/// One abstract action: how far each wheel turns (an `[[actions]]` entry).
+/// One abstract action: how far each wheel turns (an `[[actions]]` entry). Each field's doc is
+/// its key's entry in the launch file's reference, as for [`MotorsConfig`].
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ActionSpec {
-    /// The action id the controller sends in `Command::action`.
+    /// The action id the controller sends. Required in each entry.
+    ///
+    /// Values: integer, at least 0, unique.
     pub id: u32,
-    /// A name for logs.
+    /// A name for logs (optional: empty when left out).
+    ///
+    /// Values: text.
     #[serde(default)]
     pub name: String,
-    /// Signed rotation of the left wheel, degrees.
+    /// Signed rotation of the left wheel. Required in each entry.
+    ///
+    /// Values: degrees, within ±[`MAX_ACTION_DEG`].
     pub left_deg: i32,
-    /// Signed rotation of the right wheel, degrees.
+    /// Signed rotation of the right wheel. Required in each entry.
+    ///
+    /// Values: degrees, within ±[`MAX_ACTION_DEG`].
     pub right_deg: i32,
 }
 
@@ -163,8 +195,8 @@ pub struct ActionMap {
 }
 
 impl ActionMap {
-    /// Validates `cfg`: distinct wheel ports, power in 1..=100, a non-empty table with unique
-    /// ids and rotations within ±[`MAX_ACTION_DEG`].
+    /// Validates `cfg`: distinct wheel ports, power in [`POWER_RANGE`], a non-empty table with
+    /// unique ids and rotations within ±[`MAX_ACTION_DEG`].
     pub fn new(cfg: ActionConfig) -> Result<Self, ActionConfigError> {
         let err = |key: &str, reason: String| ActionConfigError {
             key: key.to_owned(),
@@ -177,10 +209,15 @@ impl ActionMap {
                 format!("must differ from left_port ({:?})", m.left_port),
             ));
         }
-        if !(1..=100).contains(&m.power) {
+        if !POWER_RANGE.contains(&m.power) {
             return Err(err(
                 "motors.power",
-                format!("must be in 1..=100, got {}", m.power),
+                format!(
+                    "must be in {}..={}, got {}",
+                    POWER_RANGE.start(),
+                    POWER_RANGE.end(),
+                    m.power
+                ),
             ));
         }
         if m.regulated && m.regulation == RegulationMode::Idle {

@@ -26,7 +26,7 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 use tes_runtime::channel::WaitStrategy;
-use tes_runtime::settings::{Origin, SettingError};
+use tes_runtime::settings::{MIN_BUDGET_US, Origin, SettingError};
 
 use crate::actions::{ActionConfig, ActionMap, ActionSpec, MotorsConfig, paper_actions};
 use crate::brick::SimBrickConfig;
@@ -154,15 +154,48 @@ fn check_brick(brick: &SimBrickConfig) -> Result<(), SettingError> {
 /// The default `link_timeout_ms`: long enough for a Bluetooth serial link to connect.
 pub const DEFAULT_LINK_TIMEOUT_MS: u64 = 5000;
 
-/// The simulated Bluetooth link delay (the `[link_delay]` table).
+/// The least `link_timeout_ms`.
+pub const MIN_LINK_TIMEOUT_MS: u64 = 100;
+
+/// The longest `[link_delay] mean_ms`.
+pub const MAX_LINK_DELAY_MEAN_MS: u64 = 10_000;
+
+/// The range of `[serial] read_timeout_ms`.
+pub const READ_TIMEOUT_MS_RANGE: std::ops::RangeInclusive<u64> = 10..=60_000;
+
+/// The least `[watchdog] deadline_ms`.
+pub const MIN_WATCHDOG_DEADLINE_MS: u64 = 50;
+
+/// The range of `[poll] moving_period_ms` (which must also be shorter than the watchdog's
+/// deadline).
+pub const MOVING_PERIOD_MS_RANGE: std::ops::RangeInclusive<u64> = 1..=1000;
+
+/// The range of `[poll] idle_period_ms`.
+pub const IDLE_PERIOD_MS_RANGE: std::ops::RangeInclusive<u64> = 10..=600_000;
+
+/// The range of `[poll] settle_polls`.
+pub const SETTLE_POLLS_RANGE: std::ops::RangeInclusive<u32> = 1..=100;
+
+/// The least `[poll] keepalive_period_ms`.
+pub const MIN_KEEPALIVE_PERIOD_MS: u64 = 1000;
+
+/// The simulated Bluetooth link delay on each reply of the `sim` transport (and of `bridge
+/// brick --pty`): the `[link_delay]` table. Each field's doc is its key's entry in the launch
+/// file's reference (`tes launch --print-config`), as for [`BridgeSettings`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct LinkDelayConfig {
-    /// Delay each reply of the `sim` transport (and of `bridge brick --pty`).
+    /// Delay each reply.
+    ///
+    /// Values: `true` | `false`.
     pub enabled: bool,
-    /// Mean delay per reply, ms.
+    /// Mean delay per reply.
+    ///
+    /// Values: ms, at most [`MAX_LINK_DELAY_MEAN_MS`].
     pub mean_ms: u64,
-    /// Uniform jitter around the mean, ms.
+    /// Uniform jitter around the mean.
+    ///
+    /// Values: ms, at most `mean_ms`.
     pub jitter_ms: u64,
 }
 
@@ -176,19 +209,30 @@ impl Default for LinkDelayConfig {
     }
 }
 
-/// Serial settings (the `[serial]` table).
+/// Serial settings (the `[serial]` table). Each field's doc is its key's entry in the launch
+/// file's reference, as for [`BridgeSettings`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SerialSection {
     /// Line speed (ignored by rfcomm and pseudo-terminals).
+    ///
+    /// Values: bit/s.
     pub baud_rate: u32,
-    /// Time to wait for a whole reply, ms.
+    /// Time to wait for a whole reply.
+    ///
+    /// Values: ms, [`READ_TIMEOUT_MS_RANGE`].
     pub read_timeout_ms: u64,
-    /// Wait between reconnection attempts, ms.
+    /// Wait between reconnection attempts.
+    ///
+    /// Values: ms.
     pub reconnect_backoff_ms: u64,
-    /// Consecutive timeouts before reopening the device.
+    /// Consecutive timeouts before the device is reopened.
+    ///
+    /// Values: count, at least 1.
     pub max_timeouts: u32,
-    /// Open the device exclusively.
+    /// Open the device exclusively (TIOCEXCL): no second process on the same device.
+    ///
+    /// Values: `true` | `false`.
     pub exclusive: bool,
 }
 
@@ -204,17 +248,26 @@ impl Default for SerialSection {
     }
 }
 
-/// How the bridge polls the brick (the `[poll]` table).
+/// How the bridge polls the brick (the `[poll]` table; periods in brick time). Each field's
+/// doc is its key's entry in the launch file's reference, as for [`BridgeSettings`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct PollConfig {
-    /// Poll period while a wheel moves, ms.
+    /// Poll period (GETOUTPUTSTATE of the wheels) while a wheel moves.
+    ///
+    /// Values: ms, [`MOVING_PERIOD_MS_RANGE`], below `[bridge.watchdog] deadline_ms`.
     pub moving_period_ms: u64,
-    /// Heartbeat period while at rest (all ports and the battery are read and published), ms.
+    /// Heartbeat period at rest: all ports and the battery are read and published.
+    ///
+    /// Values: ms, [`IDLE_PERIOD_MS_RANGE`].
     pub idle_period_ms: u64,
     /// Consecutive polls with idle wheels and unchanged counts before a move is settled.
+    ///
+    /// Values: count, [`SETTLE_POLLS_RANGE`].
     pub settle_polls: u32,
-    /// Period of KEEPALIVE telegrams to the brick (keeps it from sleeping), ms.
+    /// Period of KEEPALIVE telegrams to the brick (they keep it from sleeping).
+    ///
+    /// Values: ms, at least [`MIN_KEEPALIVE_PERIOD_MS`].
     pub keepalive_period_ms: u64,
 }
 
@@ -246,26 +299,48 @@ impl PollConfig {
     }
 }
 
-/// iceoryx2 settings (the `[ipc]` table).
+/// iceoryx2 settings (the `[ipc]` table): waiting for commands, and the latency figures.
+/// Each field's doc is its key's entry in the launch file's reference, as for
+/// [`BridgeSettings`].
 #[derive(Debug, Clone, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct IpcConfig {
-    /// Prefix for every service name (to run several systems side by side, or in tests).
+    /// Prefixed to every iceoryx2 service name (to run groups side by side).
+    ///
+    /// Values: text, at most [`SERVICE_PREFIX_MAX`](tes_runtime::settings::SERVICE_PREFIX_MAX)
+    /// bytes.
     pub service_prefix: String,
-    /// How to wait for commands: `block` (default), `spin`, `spin-then-block[:<µs>]`.
+    /// How the bridge waits for commands.
+    ///
+    /// Values: `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>`.
     pub wait: WaitStrategy,
-    /// The per-action budget the observation → command latency is held to, µs (default
-    /// 1000): overruns are counted in the latency report.
+    /// The per-action budget the observation-to-command latency is held to; overruns are
+    /// counted in the latency report.
+    ///
+    /// Values: µs, at least [`MIN_BUDGET_US`].
     pub budget_us: u64,
-    /// Commands left out of the latency report (default 0).
+    /// Commands left out of the latency report.
+    ///
+    /// Values: count.
     pub warmup_commands: u64,
-    /// Where to write the latency report (JSON) at exit (default: nowhere).
+    /// Where to write the latency report (JSON: percentiles, maximum, misses) at exit.
+    /// Unset: nowhere.
+    ///
+    /// Values: path.
+    ///
+    /// Example: `"/path/to/bridge-latency.json"`.
     pub latency_report: Option<std::path::PathBuf>,
     /// Where to write the latency of every `latency_window` consecutive commands after the
-    /// warm-up, one CSV row per window, at exit (default: nowhere): shows drift over a long
-    /// run.
+    /// warm-up, one CSV row per window, at exit: it shows drift over a long run. Unset:
+    /// nowhere.
+    ///
+    /// Values: path.
+    ///
+    /// Example: `"/path/to/bridge-windows.csv"`.
     pub latency_windows: Option<std::path::PathBuf>,
-    /// Commands per window of `latency_windows` (default 50 000, at least 1).
+    /// Commands per window of `latency_windows`.
+    ///
+    /// Values: commands, at least 1.
     pub latency_window: u64,
 }
 
@@ -274,7 +349,7 @@ impl Default for IpcConfig {
         Self {
             service_prefix: String::new(),
             wait: WaitStrategy::Block,
-            budget_us: 1000,
+            budget_us: tes_runtime::settings::DEFAULT_BUDGET_US,
             warmup_commands: 0,
             latency_report: None,
             latency_windows: None,
@@ -294,20 +369,33 @@ impl IpcConfig {
 /// The bridge's settings file as written: every key, typed, with its default (TOML: a file of
 /// the bridge's own, or the `[bridge]` table of a launch file). [`check`](Self::check) turns
 /// it into the [`BridgeConfig`] the bridge runs with. Written back with serde
-/// (`toml::to_string`), it reads back the same.
+/// (`toml::to_string`), it reads back the same. Each field's doc (and each field's of its
+/// nested tables) is its key's entry in the launch file's reference (`tes launch
+/// --print-config`): what it does, then its unit or values on a `Values:` line; the defaults
+/// are the structs' `Default`s.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct BridgeSettings {
-    /// `transport`: `"sim"` (default) or `"serial:PATH"`.
+    /// What carries the telegrams: the simulated brick, in-process; or a serial device — a
+    /// real NXT over Bluetooth (`serial:/dev/rfcomm0`) or the pseudo-terminal that `bridge
+    /// brick --pty` serves.
+    ///
+    /// Values: `"sim"` | `"serial:<path>"`.
     pub transport: TransportKind,
-    /// `seed`: seeds the simulated brick and the simulated link delay (default 0).
+    /// Seeds the simulated brick and the simulated link delay.
+    ///
+    /// Values: integer, 0 to 2^63 - 1.
     pub seed: u64,
-    /// `use_command_degrees`: drive the wheels by the command's `left_deg`/`right_deg`
-    /// (default false).
+    /// Drive the wheels by each command's `left_deg`/`right_deg` instead of looking its
+    /// action id up in `[[bridge.actions]]`.
+    ///
+    /// Values: `true` | `false`.
     pub use_command_degrees: bool,
-    /// `link_timeout_ms`: a link to the brick that has not come up this long after the start,
-    /// or has been down this long since, stops the bridge with an error naming the transport
-    /// (and with it the launch), ms of wall time (default 5000, at least 100).
+    /// A link to the brick that has not come up this long after the start, or has been down
+    /// this long since, stops the bridge with an error naming the transport (and with it the
+    /// launch).
+    ///
+    /// Values: ms of wall time, at least [`MIN_LINK_TIMEOUT_MS`].
     pub link_timeout_ms: u64,
     /// `[link_delay]`.
     pub link_delay: LinkDelayConfig,
@@ -346,12 +434,15 @@ impl Default for BridgeSettings {
     }
 }
 
-/// The dead man's switch (the `[watchdog]` table).
+/// The dead man's switch (the `[watchdog]` table). Its field's doc is its key's entry in the
+/// launch file's reference, as for [`BridgeSettings`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct WatchdogSection {
     /// Brake the motors when no command or keep-alive arrives within this long while one
-    /// runs, ms (default 1000, at least 50; brick time).
+    /// runs. It must exceed the longest action's duration.
+    ///
+    /// Values: ms of brick time, at least [`MIN_WATCHDOG_DEADLINE_MS`].
     pub deadline_ms: u64,
 }
 
@@ -419,89 +510,20 @@ impl BridgeSettings {
     /// Checks every key; the first bad one is reported (its key dotted: `poll.settle_polls`).
     /// Returns the configuration the bridge runs with.
     pub fn check(&self) -> Result<BridgeConfig, SettingError> {
-        let raw = self;
-        let ms = Duration::from_millis;
-        if raw.watchdog.deadline_ms < 50 {
-            return Err(invalid(
-                "watchdog.deadline_ms",
-                format!("must be at least 50, got {}", raw.watchdog.deadline_ms),
-            ));
-        }
-        let p = raw.poll;
-        if !(1..=1000).contains(&p.moving_period_ms) {
-            return Err(invalid(
-                "poll.moving_period_ms",
-                format!("must be in 1..=1000, got {}", p.moving_period_ms),
-            ));
-        }
-        if p.moving_period_ms >= raw.watchdog.deadline_ms {
-            return Err(invalid(
-                "poll.moving_period_ms",
-                format!(
-                    "must be shorter than watchdog.deadline_ms ({})",
-                    raw.watchdog.deadline_ms
-                ),
-            ));
-        }
-        if !(10..=600_000).contains(&p.idle_period_ms) {
-            return Err(invalid(
-                "poll.idle_period_ms",
-                format!("must be in 10..=600000, got {}", p.idle_period_ms),
-            ));
-        }
-        if !(1..=100).contains(&p.settle_polls) {
-            return Err(invalid(
-                "poll.settle_polls",
-                format!("must be in 1..=100, got {}", p.settle_polls),
-            ));
-        }
-        if p.keepalive_period_ms < 1000 {
-            return Err(invalid(
-                "poll.keepalive_period_ms",
-                format!("must be at least 1000, got {}", p.keepalive_period_ms),
-            ));
-        }
-        let s = raw.serial;
-        if !(10..=60_000).contains(&s.read_timeout_ms) {
-            return Err(invalid(
-                "serial.read_timeout_ms",
-                format!("must be in 10..=60000, got {}", s.read_timeout_ms),
-            ));
-        }
-        if s.max_timeouts == 0 {
-            return Err(invalid("serial.max_timeouts", "must be at least 1"));
-        }
-        if raw.link_timeout_ms < 100 {
-            return Err(invalid(
-                "link_timeout_ms",
-                format!("must be at least 100, got {}", raw.link_timeout_ms),
-            ));
-        }
-        let d = raw.link_delay;
-        if d.jitter_ms > d.mean_ms || d.mean_ms > 10_000 {
-            return Err(invalid(
-                "link_delay.jitter_ms",
-                format!(
-                    "need jitter_ms <= mean_ms <= 10000, got jitter {} mean {}",
-                    d.jitter_ms, d.mean_ms
-                ),
-            ));
-        }
-        check_brick(&raw.brick)?;
+        self.check_watchdog()?;
+        self.check_poll()?;
+        self.check_serial()?;
+        self.check_link()?;
+        check_brick(&self.brick)?;
         let actions = ActionMap::new(ActionConfig {
-            motors: raw.motors.clone(),
-            actions: raw.actions.clone(),
+            motors: self.motors.clone(),
+            actions: self.actions.clone(),
         })
         .map_err(|e| invalid(&e.key, e.reason))?;
-        if raw.ipc.service_prefix.len() > 64 {
-            return Err(invalid("ipc.service_prefix", "must be at most 64 bytes"));
-        }
-        if raw.ipc.latency_window == 0 {
-            return Err(invalid("ipc.latency_window", "must be at least 1"));
-        }
-        if raw.ipc.budget_us == 0 {
-            return Err(invalid("ipc.budget_us", "must be at least 1"));
-        }
+        self.check_ipc()?;
+        let raw = self;
+        let ms = Duration::from_millis;
+        let (d, s, p) = (raw.link_delay, raw.serial, raw.poll);
         Ok(BridgeConfig {
             transport: raw.transport.clone(),
             seed: raw.seed,
@@ -515,6 +537,144 @@ impl BridgeSettings {
             brick: raw.brick.clone(),
             actions,
         })
+    }
+
+    /// `[watchdog]`: the deadline.
+    fn check_watchdog(&self) -> Result<(), SettingError> {
+        let raw = self;
+        if raw.watchdog.deadline_ms < MIN_WATCHDOG_DEADLINE_MS {
+            return Err(invalid(
+                "watchdog.deadline_ms",
+                format!(
+                    "must be at least {MIN_WATCHDOG_DEADLINE_MS}, got {}",
+                    raw.watchdog.deadline_ms
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// `[poll]`: the periods, within their ranges and the moving one within the watchdog's
+    /// deadline.
+    fn check_poll(&self) -> Result<(), SettingError> {
+        let (raw, p) = (self, self.poll);
+        if !MOVING_PERIOD_MS_RANGE.contains(&p.moving_period_ms) {
+            return Err(invalid(
+                "poll.moving_period_ms",
+                format!(
+                    "must be in {}..={}, got {}",
+                    MOVING_PERIOD_MS_RANGE.start(),
+                    MOVING_PERIOD_MS_RANGE.end(),
+                    p.moving_period_ms
+                ),
+            ));
+        }
+        if p.moving_period_ms >= raw.watchdog.deadline_ms {
+            return Err(invalid(
+                "poll.moving_period_ms",
+                format!(
+                    "must be shorter than watchdog.deadline_ms ({})",
+                    raw.watchdog.deadline_ms
+                ),
+            ));
+        }
+        if !IDLE_PERIOD_MS_RANGE.contains(&p.idle_period_ms) {
+            return Err(invalid(
+                "poll.idle_period_ms",
+                format!(
+                    "must be in {}..={}, got {}",
+                    IDLE_PERIOD_MS_RANGE.start(),
+                    IDLE_PERIOD_MS_RANGE.end(),
+                    p.idle_period_ms
+                ),
+            ));
+        }
+        if !SETTLE_POLLS_RANGE.contains(&p.settle_polls) {
+            return Err(invalid(
+                "poll.settle_polls",
+                format!(
+                    "must be in {}..={}, got {}",
+                    SETTLE_POLLS_RANGE.start(),
+                    SETTLE_POLLS_RANGE.end(),
+                    p.settle_polls
+                ),
+            ));
+        }
+        if p.keepalive_period_ms < MIN_KEEPALIVE_PERIOD_MS {
+            return Err(invalid(
+                "poll.keepalive_period_ms",
+                format!(
+                    "must be at least {MIN_KEEPALIVE_PERIOD_MS}, got {}",
+                    p.keepalive_period_ms
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// `[serial]`: the read timeout and the timeouts allowed in a row.
+    fn check_serial(&self) -> Result<(), SettingError> {
+        let s = self.serial;
+        if !READ_TIMEOUT_MS_RANGE.contains(&s.read_timeout_ms) {
+            return Err(invalid(
+                "serial.read_timeout_ms",
+                format!(
+                    "must be in {}..={}, got {}",
+                    READ_TIMEOUT_MS_RANGE.start(),
+                    READ_TIMEOUT_MS_RANGE.end(),
+                    s.read_timeout_ms
+                ),
+            ));
+        }
+        if s.max_timeouts == 0 {
+            return Err(invalid("serial.max_timeouts", "must be at least 1"));
+        }
+        Ok(())
+    }
+
+    /// The link's timeout and `[link_delay]`.
+    fn check_link(&self) -> Result<(), SettingError> {
+        let raw = self;
+        if raw.link_timeout_ms < MIN_LINK_TIMEOUT_MS {
+            return Err(invalid(
+                "link_timeout_ms",
+                format!(
+                    "must be at least {MIN_LINK_TIMEOUT_MS}, got {}",
+                    raw.link_timeout_ms
+                ),
+            ));
+        }
+        let d = raw.link_delay;
+        if d.jitter_ms > d.mean_ms || d.mean_ms > MAX_LINK_DELAY_MEAN_MS {
+            return Err(invalid(
+                "link_delay.jitter_ms",
+                format!(
+                    "need jitter_ms <= mean_ms <= {MAX_LINK_DELAY_MEAN_MS}, got jitter {} mean {}",
+                    d.jitter_ms, d.mean_ms
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// `[ipc]`: the service prefix, the latency window and the budget.
+    fn check_ipc(&self) -> Result<(), SettingError> {
+        let raw = self;
+        tes_runtime::settings::service_prefix(
+            PROCESS,
+            "ipc.service_prefix",
+            &raw.ipc.service_prefix,
+        )?;
+        if raw.ipc.latency_window == 0 {
+            return Err(invalid("ipc.latency_window", "must be at least 1"));
+        }
+        if raw.ipc.budget_us < MIN_BUDGET_US {
+            return Err(invalid(
+                "ipc.budget_us",
+                format!("must be at least {MIN_BUDGET_US}"),
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -547,12 +707,11 @@ impl BridgeConfig {
         self
     }
 
-    /// Sets `[ipc] service_prefix`; refused (key `ipc.service_prefix`) beyond 64 bytes.
+    /// Sets `[ipc] service_prefix`; refused (key `ipc.service_prefix`) beyond
+    /// [`SERVICE_PREFIX_MAX`](tes_runtime::settings::SERVICE_PREFIX_MAX) bytes.
     pub fn with_service_prefix(mut self, prefix: impl Into<String>) -> Result<Self, ConfigError> {
         let prefix = prefix.into();
-        if prefix.len() > 64 {
-            return Err(invalid("ipc.service_prefix", "must be at most 64 bytes").into());
-        }
+        tes_runtime::settings::service_prefix(PROCESS, "ipc.service_prefix", &prefix)?;
         self.ipc.service_prefix = prefix;
         Ok(self)
     }

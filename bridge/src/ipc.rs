@@ -35,6 +35,7 @@ use iceoryx2::prelude::*;
 use tes_runtime::channel::{Idle, LatestInbox, Outbox, WaitStrategy};
 use tes_runtime::latency::{LatencyRecorder, LatencyReport};
 use tes_runtime::progress::{ProgressOutbox, ProgressWatch};
+use tes_runtime::wait::IDLE_TICK;
 use tes_topics::{Command, MotorState, Role, motor_flags, progress_flags};
 
 use crate::bridge::{Bridge, BridgeError};
@@ -196,10 +197,10 @@ pub fn run_with<T: Transport, C: Clock>(
     let mut was_down = false;
     loop {
         // Brick time to wall time (the simulated brick may run faster than the wall clock);
-        // at most 100 ms, so the stop flag is seen.
+        // at most the idle tick, so the stop flag is seen.
         let timeout = clock
             .real_duration(bridge.next_wakeup(clock.now()))
-            .clamp(Duration::from_micros(20), Duration::from_millis(100));
+            .clamp(Duration::from_micros(20), IDLE_TICK);
         match commands.next(timeout, &stop)? {
             Ok(cmd) => {
                 on_command(bridge, clock, latency, cmd, &mut summary);

@@ -173,7 +173,7 @@ impl Default for ActingSettings {
     fn default() -> Self {
         Self {
             order: Order::DecideFirst,
-            budget_us: 1000,
+            budget_us: tes_runtime::settings::DEFAULT_BUDGET_US,
             warmup_actions: 0,
             epsilon: 0.05,
             seed: 1,

@@ -27,91 +27,135 @@ pub use crate::acting::Order;
 
 /// Settings of the controller process (TOML: the `[controller]` table of a launch file, or a
 /// file of its own). Every key is optional. Written back with serde (`toml::to_string`), it
-/// reads back the same.
+/// reads back the same. Each field's doc is its key's entry in the launch file's reference
+/// (`tes launch --print-config`): what it does, then its unit or values on a `Values:` line;
+/// the defaults are this struct's `Default`.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ControllerConfig {
-    /// `library`: the view library file (default: [`default_library_path`]). Created on the
-    /// first save if missing; a file that exists but cannot be read stops the controller.
+    /// The view library file. Unset: `library.tesl` in the data directory (`$TES_DATA_DIR`,
+    /// else `$XDG_DATA_HOME/tes`, else `~/.local/share/tes`). Created at the first save if
+    /// missing; a file that exists but cannot be read stops the controller.
+    ///
+    /// Values: path.
+    ///
+    /// Example: `"/path/to/library.tesl"`.
     pub library: Option<PathBuf>,
-    /// `budget_us`: the per-action latency budget, µs (default 1000).
+    /// The per-action latency budget, observation to command.
+    ///
+    /// Values: µs, at least [`MIN_BUDGET_US`](tes_runtime::settings::MIN_BUDGET_US).
     pub budget_us: u64,
-    /// `wait`: `block` (default), `spin`, `spin-then-block` or `spin-then-block:<µs>`.
+    /// How the acting loop waits for observations.
+    ///
+    /// Values: `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>`.
     pub wait: WaitStrategy,
-    /// `seed`: exploration seed (default 1).
+    /// Seed of the exploration.
+    ///
+    /// Values: integer, 0 to 2^63 - 1.
     pub seed: u64,
-    /// `epsilon`: probability of a random action (paper §5.2: 0.05).
+    /// Probability of a random action (paper §5.2: 0.05).
+    ///
+    /// Values: probability, 0 to 1.
     pub epsilon: f64,
-    /// `lambda`: mDAGL's group-lasso strength for fresh views (paper: 0.05).
+    /// mDAGL's group-lasso strength for fresh views (paper: 0.05).
+    ///
+    /// Values: finite, at least 0.
     pub lambda: f64,
-    /// `alpha`: mDAGL's step scale for fresh views (paper §5.2: 0.5).
+    /// mDAGL's step scale for fresh views (paper §5.2: 0.5).
+    ///
+    /// Values: finite, above 0.
     pub alpha: f64,
-    /// `max_views`: the library's size limit M (paper: 20).
+    /// The library's size limit M (paper: 20).
+    ///
+    /// Values: count, at least 1.
     pub max_views: usize,
-    /// `service_prefix`: prefixed to every iceoryx2 service name (to run groups side by side).
+    /// Prefixed to every iceoryx2 service name (to run groups side by side).
+    ///
+    /// Values: text, at most [`SERVICE_PREFIX_MAX`](tes_runtime::settings::SERVICE_PREFIX_MAX)
+    /// bytes.
     pub service_prefix: String,
-    /// `map_timeout_s`: how long to wait for perception's world map (default 30 s).
+    /// How long to wait for perception's world map at the start.
+    ///
+    /// Values: s, above 0.
     pub map_timeout_s: f64,
-    /// `save_interval_s`: save the library at an episode's end only if this long has passed
-    /// since the last save (default 10 s; 0 = after every episode). It is always saved at
-    /// shutdown. Taking the snapshot costs the acting loop a copy of every working view, so at
-    /// the simulator's fastest pace (dozens of episodes a second) saving every episode would
-    /// put that copy in front of every episode's first decision.
+    /// Save the library at an episode's end only if this long has passed since the last
+    /// save; it is always saved at shutdown. A save copies every working view on the acting
+    /// loop, so saving after every episode at the fastest pace (dozens of episodes a second)
+    /// delays each episode's first decision.
+    ///
+    /// Values: s, at least 0; 0 = after every episode.
     pub save_interval_s: f64,
-    /// `plan_sweeps`: the most value-iteration sweeps the planner thread makes per hand-over
-    /// of the model (default 500; an unfinished plan continues at the next hand-over). Fewer
-    /// sweeps leave more CPU to the loop on a small machine at the cost of staler plans.
+    /// The most value-iteration sweeps the planner makes per hand-over of the model (an
+    /// unfinished plan continues at the next). Fewer leave more CPU to the loop on a small
+    /// machine, at the cost of staler plans.
+    ///
+    /// Values: count, at least 1.
     pub plan_sweeps: usize,
-    /// `warmup_actions`: actions left out of the latency and allocation figures (default 0).
+    /// Actions left out of the latency and allocation figures.
+    ///
+    /// Values: count.
     pub warmup_actions: u64,
-    /// `report`: where to write the run's summary as JSON at exit (default: nowhere).
+    /// Where to write the run's summary as JSON at exit. Unset: nowhere.
+    ///
+    /// Values: path.
+    ///
+    /// Example: `"/path/to/report.json"`.
     pub report: Option<PathBuf>,
-    /// `keepalive_ms`: while a command's move is under way, send the bridge a keep-alive this
-    /// often (default 250 ms; 0 = never). The bridge's watchdog brakes the motors when neither
-    /// commands nor keep-alives arrive within its deadline, so with keep-alives it acts as a
-    /// dead man's switch: a long move goes on while the controller lives and is braked within
-    /// the deadline once it is gone. Keep it well below the bridge's `watchdog.deadline_ms`.
+    /// While a command's move is under way, send the bridge a keep-alive this often. The
+    /// bridge's watchdog brakes the motors when neither commands nor keep-alives arrive
+    /// within its deadline, so with keep-alives it acts as a dead man's switch: a long move
+    /// goes on while the controller lives and is braked once the controller is gone.
+    ///
+    /// Values: ms; 0 = never; at most half the bridge's watchdog deadline in wall time.
     pub keepalive_ms: u64,
-    /// `acting_cpu`: the CPU the acting loop's thread runs on — a CPU number, `"none"`
-    /// (unpinned) or `"auto"` (the default): with `wait = "block"` on two or more CPUs, the
-    /// last CPU this process may run on, else unpinned. Pinned, a blocking acting thread is
-    /// woken where its memory is warm instead of wherever the scheduler finds room, which
-    /// shortens both its wake-up and its compute (docs/performance.md). A spinning thread
-    /// never sleeps, so `auto` leaves it unpinned.
+    /// The CPU the acting loop's thread runs on. `auto`: with `wait = "block"` on two or
+    /// more CPUs, the last CPU this process may run on, else unpinned; `none`: unpinned.
+    /// Pinned, a blocking thread wakes where its memory is warm instead of wherever the
+    /// scheduler finds room, which shortens both its wake-up and its compute
+    /// (docs/performance.md). A spinning thread never sleeps, so `auto` leaves it unpinned.
+    ///
+    /// Values: CPU number | `"auto"` | `"none"`.
     pub acting_cpu: Placement,
-    /// `planner_cpu`: the planner thread's CPU — a number, `"none"` or `"auto"` (the default:
-    /// where the acting thread is pinned, the first allowed CPU other than its own, so that
-    /// planning never runs on the acting thread's CPU; else unpinned).
+    /// The planner thread's CPU. `auto`: when the acting thread is pinned, the first allowed
+    /// CPU other than its own (planning never runs on the acting thread's CPU), else
+    /// unpinned; `none`: unpinned. A CPU number is refused with between-polls or inline
+    /// planning (there is no planner thread).
+    ///
+    /// Values: CPU number | `"auto"` | `"none"`.
     pub planner_cpu: Placement,
-    /// `planning`: who plans — `thread` (a planner thread under `SCHED_IDLE`),
-    /// `between-polls` (the acting thread itself, in slices, while it spins waiting for the
-    /// next observation; needs `wait = "spin"` or `"spin-then-block"`) or `auto` (the default:
-    /// between polls with `wait = "spin"`, else the thread). Spinning on two cores leaves a
-    /// planner thread almost no time; between polls, the spin does the planning. Resolved by
-    /// [`ControllerConfig::check`] (or [`ControllerConfig::planning_for`]) into [`Planning`].
-    /// `inline`: the acting thread makes each plan whole right after learning, which follows
-    /// the command, and adopts it at the next observation — every run with the same seeds
-    /// adopts the same plans at the same steps, whatever the timing (for reproducible runs;
-    /// the next observation waits for a plan that takes longer than the robot's move).
+    /// Who plans: `thread`, a planner thread under SCHED_IDLE; `between-polls`, the acting
+    /// thread, in slices, while it spins waiting for the next observation (needs `wait =
+    /// "spin"` or `"spin-then-block"`); `inline`, the acting thread, each plan whole right
+    /// after the learning that follows the command, adopted at the next observation (every
+    /// run with the same seeds adopts the same plans at the same steps, whatever the timing;
+    /// the next observation waits for a plan that takes longer than the robot's move);
+    /// `auto`, between polls with `wait = "spin"`, else the thread. Spinning on two cores
+    /// leaves a planner thread almost no time; between polls, the spin does the planning.
+    ///
+    /// Values: `auto` | `thread` | `between-polls` | `inline`.
     pub planning: PlanningMode,
-    /// `plan_slice`: with `planning = "between-polls"`, the states' worth of planning work done
-    /// between two polls (default 32). One slice is what an observation arriving mid-slice
-    /// waits at most; the slice that starts an action's refresh or adopts the plan is the
-    /// longest.
+    /// With between-polls planning, the states' worth of planning done between two polls:
+    /// the most an observation arriving mid-slice waits (the slice that starts an action's
+    /// refresh or adopts the plan is the longest).
+    ///
+    /// Values: states, at least 1.
     pub plan_slice: usize,
-    /// `order`: when an observation is learned from — `decide-first` (the default: adopt a
-    /// finished plan, decide and publish the command, then score and update the views and hand
-    /// the planner the model) or `learn-first` (all of that before the command). Both make the
-    /// same decisions; deciding first keeps the learning off the decision's latency.
+    /// When the controller learns from an observation: `decide-first` adopts a finished
+    /// plan, decides and publishes the command first, then scores and updates the views and
+    /// hands the planner the model; `learn-first` does all that before deciding. Both make
+    /// the same decisions; deciding first keeps the learning off the decision's latency.
+    ///
+    /// Values: `decide-first` | `learn-first`.
     pub order: Order,
-    /// `planner_idle_spin_us`: with a planner thread, how long it polls for its next job
-    /// after finishing a plan before it sleeps, µs (default 5000; 0 = sleep at once). It polls
-    /// under `SCHED_IDLE`, so only with time no other thread wants (and not at all if the
-    /// system refuses `SCHED_IDLE`). Polling keeps its CPU out of the idle halt: with a bridge
-    /// that sleeps on events, the bridge woken by a command is put on that CPU and runs at
-    /// once, where a halted virtual CPU takes tens of µs to come back; and the next hand-over
-    /// wakes no sleeping thread. 5 ms covers an action at the simulator's fastest pace (about
-    /// 2 ms); at the physical pace it is a few percent of a CPU's idle time.
+    /// With a planner thread: how long it polls for its next job after a plan before it
+    /// sleeps. It polls under SCHED_IDLE, so only with time nobody else wants (and not at
+    /// all if the system refuses SCHED_IDLE). Polling keeps its CPU out of the idle halt: a
+    /// bridge that sleeps on events, woken by a command, is put on that CPU and runs at
+    /// once, where a halted virtual CPU takes tens of µs to come back; and the next
+    /// hand-over wakes no sleeping thread. 5 ms covers an action at the simulator's fastest
+    /// pace (about 2 ms); at the physical pace it is a few percent of a CPU's idle time.
+    ///
+    /// Values: µs; 0 = sleep at once.
     pub planner_idle_spin_us: u64,
 }
 
@@ -197,7 +241,7 @@ impl Default for ControllerConfig {
     fn default() -> Self {
         Self {
             library: None,
-            budget_us: 1000,
+            budget_us: tes_runtime::settings::DEFAULT_BUDGET_US,
             wait: WaitStrategy::Block,
             seed: 1,
             epsilon: 0.05,
@@ -295,7 +339,7 @@ impl ControllerConfig {
     /// resolve to (see [`CheckedController`]).
     pub fn check(&self) -> Result<CheckedController, ConfigError> {
         let bad = |key, reason: &str| Err(ConfigError::new(PROCESS, key, reason));
-        if self.budget_us == 0 {
+        if self.budget_us < tes_runtime::settings::MIN_BUDGET_US {
             return bad("budget_us", "must be at least 1");
         }
         if !(0.0..=1.0).contains(&self.epsilon) {
@@ -334,6 +378,7 @@ impl ControllerConfig {
         if self.plan_slice == 0 {
             return bad("plan_slice", "must be at least 1");
         }
+        tes_runtime::settings::service_prefix(PROCESS, "service_prefix", &self.service_prefix)?;
         let planning = self.planning_for(self.wait)?;
         let placement = self.placement(self.wait, planning)?;
         Ok(CheckedController {
@@ -491,6 +536,24 @@ mod tests {
         assert!(err.reason.contains("budjet_us"), "{err}");
         let err = ControllerConfig::from_toml("acting_cpu = \"fast\"").unwrap_err();
         assert!(err.reason.contains("\"none\""), "{err}");
+    }
+
+    /// Like every process's, the controller's service prefix is held to the one limit.
+    #[test]
+    fn a_service_prefix_longer_than_the_limit_is_refused() {
+        let fits = "c".repeat(tes_runtime::settings::SERVICE_PREFIX_MAX);
+        let cfg = ControllerConfig {
+            service_prefix: fits.clone(),
+            ..ControllerConfig::default()
+        };
+        assert!(cfg.check().is_ok());
+        let err = ControllerConfig::from_toml(&format!("seed = 2\nservice_prefix = \"{fits}c\"\n"))
+            .unwrap_err();
+        assert_eq!(
+            (err.process, err.key.as_str(), err.line()),
+            (PROCESS, "service_prefix", Some(2))
+        );
+        assert_eq!(err.reason, "must be at most 64 bytes");
     }
 
     /// The string-valued keys are enums: each of their words reads, and anything else is

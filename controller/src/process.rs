@@ -25,6 +25,7 @@ use tes_runtime::channel::{self, Idle, Inbox, IpcError, LatestOutbox, WaitStrate
 use tes_runtime::clock::{Clock, MonotonicClock};
 use tes_runtime::progress::ProgressOutbox;
 use tes_runtime::ring::RingOutbox;
+use tes_runtime::wait::IDLE_TICK;
 use tes_topics::{Command, Observation, Role, ServiceNames, WorldMap};
 use thiserror::Error;
 
@@ -226,9 +227,7 @@ pub fn run(
         library,
         ports: &ports,
         clock: MonotonicClock,
-        idle_timeout: settings.keepalive.map_or(Duration::from_millis(100), |k| {
-            k.min(Duration::from_millis(100))
-        }),
+        idle_timeout: settings.keepalive.map_or(IDLE_TICK, |k| k.min(IDLE_TICK)),
         ipc_allocations: 0,
         warmup_allocations: None,
     };

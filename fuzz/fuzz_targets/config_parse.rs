@@ -1,7 +1,7 @@
-//! Feeds arbitrary text to every process's settings parser: the controller's, perception's
-//! and the bridge's (the `[controller]`, `[perception]` and `[bridge]` tables of a launch
-//! file). `tes launch`'s own `[launch]` table is parsed in the `tes` binary crate, which has
-//! no library to link, so it is not fuzzed here.
+//! Feeds arbitrary text to every settings parser: the controller's, perception's and the
+//! bridge's (the `[controller]`, `[perception]` and `[bridge]` tables of a launch file), and
+//! the launch file's as a whole (`tes_launch::LaunchFile`, with the children's settings it
+//! derives).
 //!
 //! A parser must never panic; an error must name a key and a reason, and be placed in the
 //! text it came from (at a line whenever the text sets the key); a settings value it accepts
@@ -14,7 +14,9 @@ use std::time::Duration;
 use libfuzzer_sys::fuzz_target;
 use tes_bridge::config::{BridgeConfig, ConfigError};
 use tes_controller::config::ControllerConfig;
+use tes_launch::LaunchFile;
 use tes_perception_sim::process::PerceptionConfig;
+use tes_runtime::settings::Origin;
 
 /// Every refusal names its process, a key and a reason, and is placed in the text.
 macro_rules! assert_named {
@@ -76,5 +78,13 @@ fuzz_target!(|data: &[u8]| {
         }
         Err(ConfigError::Setting(e)) => assert_named!(e, "bridge"),
         Err(e @ ConfigError::Read { .. }) => panic!("no file was read: {e}"),
+    }
+    // A launch file: its children's settings, the launch-wide values filled in, are each
+    // checked again; a refusal names the table's process, a key and a reason, placed.
+    if let Ok(file) = LaunchFile::from_toml(&text, Origin::Text)
+        && let Err(e) = file.children()
+    {
+        assert!(!e.key.is_empty() && !e.reason.is_empty(), "{e}");
+        assert!(e.location.is_some(), "not placed: {e}");
     }
 });

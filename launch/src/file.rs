@@ -27,53 +27,108 @@ pub enum Restart {
     OnFailure,
 }
 
-/// The `[launch]` table (its keys are described in [`super::reference`]).
+/// The `[launch]` table. Each field's doc is its key's entry in the launch file's reference
+/// ([`super::reference`], generated from these docs by build.rs): what it does, then its unit
+/// or values on a `Values:` line; the defaults are this struct's `Default`.
 #[derive(Debug, Clone, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LaunchSection {
-    /// Episodes perception runs before the group stops (default 20).
+    /// Episodes perception runs before the group stops (`--episodes` overrides it).
+    ///
+    /// Values: count, at least 1.
     pub episodes: u32,
-    /// The arena: 1, 2 or 3 (default 3, the paper's test arena).
+    /// The arena perception simulates; 3 is the paper's test arena.
+    ///
+    /// Values: `1` | `2` | `3`.
     pub arena: u8,
-    /// Real-time factor: 1.0 = physical time (the paper's 200 ms settle), 0 = as fast as
-    /// possible (default).
+    /// The pace: 1.0 = physical time (the paper's 200 ms settle after each motion), 0 = as
+    /// fast as possible. It sets perception's settle time and the simulated brick's time
+    /// scale (1 / factor; [`FASTEST_TIME_SCALE`] at 0).
+    ///
+    /// Values: factor, finite, at least 0.
     pub real_time_factor: f64,
-    /// How every process waits: `block` (default), `spin`, `spin-then-block[:<µs>]`.
+    /// How every process waits for its next input: `block` sleeps until notified (no CPU
+    /// while idle); `spin` busy-polls (lowest latency, a core per process);
+    /// `spin-then-block` busy-polls for 200 µs (or the µs given), then sleeps.
+    ///
+    /// Values: `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>`.
     pub wait: WaitStrategy,
-    /// `never` (default) or `on-failure`.
+    /// What to do when a child dies: `never` stops the others and exits non-zero;
+    /// `on-failure` respawns it, at most `max_restarts` times.
+    ///
+    /// Values: `never` | `on-failure`.
     pub restart: Restart,
-    /// Respawns allowed per child with `on-failure` (default 3).
+    /// Respawns allowed per child with `restart = "on-failure"`.
+    ///
+    /// Values: count.
     pub max_restarts: u32,
-    /// Grace period of each shutdown step, ms (default 3000).
+    /// Grace period of each shutdown step: SIGINT, then SIGTERM after this long, then
+    /// SIGKILL after as long again.
+    ///
+    /// Values: ms.
     pub grace_ms: u64,
-    /// Prefix of every iceoryx2 service. Unset (the default), each launch gets one of its own,
-    /// `tes-PID-XXXXXXXX/`, so any number of launches run side by side; a prefix already used
-    /// by a running group is refused.
+    /// Prefix of every iceoryx2 service name. Empty: each launch gets one of its own,
+    /// `tes-PID-XXXXXXXX/`, so any number of launches run side by side; a prefix already
+    /// used by a running group is refused.
+    ///
+    /// Values: text, at most [`SERVICE_PREFIX_MAX`](tes_runtime::settings::SERVICE_PREFIX_MAX)
+    /// bytes.
     pub service_prefix: String,
-    /// The run folder itself, used as it is (no folder per run, never pruned). Unset (the
-    /// default), each launch gets a folder of its own under `runs_dir`.
+    /// This launch's run folder, used as it is: no folder of its own per launch, never
+    /// pruned (it holds the lock that keeps a second launch out). Unset: each launch gets a
+    /// run folder of its own in `runs_dir`.
+    ///
+    /// Values: path.
+    ///
+    /// Example: `"/path/to/run"`.
     pub run_dir: Option<PathBuf>,
-    /// Where the per-launch run folders go (default: `runs` in the data directory).
+    /// Where each launch makes its run folder, named by its UTC start time
+    /// (`2026-12-02T19-05-33Z`): the resolved launch file, the children's settings, output
+    /// and logs, `episodes.csv`, `trajectory.csv`, the latency reports and, at the end,
+    /// `rewards.svg`, `latency.svg` and `arena.svg`; `latest` links to the newest. Unset:
+    /// `runs` in the data directory (`$TES_DATA_DIR`, else `$XDG_DATA_HOME/tes`, else
+    /// `~/.local/share/tes`).
+    ///
+    /// Values: path.
+    ///
+    /// Example: `"/path/to/runs"`.
     pub runs_dir: Option<PathBuf>,
-    /// How many run folders `runs_dir` keeps: the oldest beyond it are removed when a launch
-    /// starts (default 20; 0 keeps every one).
+    /// How many run folders `runs_dir` keeps: when a launch starts, the oldest beyond this
+    /// are removed.
+    ///
+    /// Values: count; 0 = keep every one.
     pub keep_runs: u32,
-    /// Seed of the world and the agent (default 1).
+    /// Seed of the world, the agent and the simulated brick.
+    ///
+    /// Values: integer, 0 to 2^63 - 1.
     pub seed: u64,
     /// A group whose controller sends no command for this long is stalled: the launcher
     /// names the process holding it up and stops the group (`restart = "never"`) or
-    /// restarts that process (`on-failure`), ms of wall time (default 10000, at least 500).
+    /// restarts that process (`on-failure`).
+    ///
+    /// Values: ms of wall time, at least [`MIN_STALL_TIMEOUT_MS`].
     pub stall_timeout_ms: u64,
-    /// Record the run to this MCAP file (`tes launch --record`); unset (the default): no
-    /// recording.
+    /// Record the run to this file (`tes launch --record` overrides it): the world map and
+    /// every observation, command, keep-alive and motor state, with the run's settings, seed
+    /// and starting library; `tes replay` reads it (docs/recording.md). A relative path is
+    /// taken from the directory `tes launch` runs in. Unset: no recording.
+    ///
+    /// Values: path of an MCAP file.
+    ///
+    /// Example: `"run.mcap"`.
     pub record: Option<PathBuf>,
-    /// The processes this launch starts (`tes launch --roles`): some of `perception-sim`,
-    /// `controller`, `bridge`; the others run on other hosts, reached through the link
-    /// (`[launch.link]`). Empty (the default): all three, on this host, and no link.
+    /// The processes this launch starts (`tes launch --roles` overrides it); the others run
+    /// on other hosts, reached through the link (`[launch.link]`, docs/multi-host.md).
+    /// Empty: all three on this host, over shared memory only, and no link.
+    ///
+    /// Values: list of `perception-sim`, `controller`, `bridge`.
     pub roles: Vec<Role>,
-    /// How a launch with roles reaches the other hosts.
+    /// How a launch with roles reaches the other hosts (the `[launch.link]` table).
     pub link: tes_link::LinkSection,
 }
+
+/// The least `[launch] stall_timeout_ms`: a stall is longer than any healthy pause.
+pub const MIN_STALL_TIMEOUT_MS: u64 = 500;
 
 impl Default for LaunchSection {
     fn default() -> Self {
@@ -112,25 +167,156 @@ pub fn process_of(table: &str) -> Option<&'static str> {
     }
 }
 
-/// The launch-wide values the launcher sets in the children's tables, as `(table, key)`:
-/// each is set unless the table sets the key itself.
-pub const INHERITED: [(&str, &str); 15] = [
-    ("perception", "arena"),
-    ("perception", "episodes"),
-    ("perception", "real_time_factor"),
-    ("perception", "wait"),
-    ("perception", "service_prefix"),
-    ("perception", "seed"),
-    ("controller", "wait"),
-    ("controller", "service_prefix"),
-    ("controller", "seed"),
-    ("bridge", "seed"),
-    ("bridge", "use_command_degrees"),
-    ("bridge", "ipc.service_prefix"),
-    ("bridge", "ipc.wait"),
-    ("bridge", "brick.time_scale"),
-    ("bridge", "watchdog.deadline_ms"),
+/// A key of a child's table that the launcher fills in from `[launch]` unless the table sets
+/// it itself.
+#[derive(Debug, Clone, Copy)]
+pub struct Inherited {
+    /// The child's table (`perception`, `controller`, `bridge`).
+    pub table: &'static str,
+    /// The key, dotted within the table (`ipc.wait`).
+    pub key: &'static str,
+    /// The value it gets, as the reference says it.
+    pub value: &'static str,
+    /// Sets it in the children's settings from the `[launch]` table.
+    pub apply: fn(&LaunchSection, &mut Children),
+}
+
+impl Inherited {
+    /// Its dotted name from the top of the file (`bridge.ipc.wait`).
+    pub fn path(&self) -> String {
+        format!("{}.{}", self.table, self.key)
+    }
+}
+
+/// What the reference says a child's `service_prefix` gets.
+const PREFIX_VALUE: &str = "`[launch] service_prefix` (the launch's own prefix when that is empty)";
+
+/// The launch-wide values the launcher sets in the children's tables: each is set unless the
+/// table sets the key itself. The one list of them: [`LaunchFile::children`] applies it, the
+/// reference marks its keys inherited with their `value`.
+pub const INHERITED: &[Inherited] = &[
+    Inherited {
+        table: "perception",
+        key: "arena",
+        value: "`[launch] arena`",
+        apply: |l, c| c.perception.arena = u32::from(l.arena),
+    },
+    Inherited {
+        table: "perception",
+        key: "episodes",
+        value: "`[launch] episodes` (or `--episodes`)",
+        apply: |l, c| c.perception.episodes = l.episodes,
+    },
+    Inherited {
+        table: "perception",
+        key: "real_time_factor",
+        value: "`[launch] real_time_factor`",
+        apply: |l, c| c.perception.real_time_factor = l.real_time_factor,
+    },
+    Inherited {
+        table: "perception",
+        key: "wait",
+        value: "`[launch] wait`",
+        apply: |l, c| c.perception.wait = l.wait,
+    },
+    Inherited {
+        table: "perception",
+        key: "service_prefix",
+        value: PREFIX_VALUE,
+        apply: |l, c| c.perception.service_prefix.clone_from(&l.service_prefix),
+    },
+    Inherited {
+        table: "perception",
+        key: "seed",
+        value: "`[launch] seed`",
+        apply: |l, c| c.perception.seed = launch_seed(l),
+    },
+    Inherited {
+        table: "controller",
+        key: "wait",
+        value: "`[launch] wait`",
+        apply: |l, c| c.controller.wait = l.wait,
+    },
+    Inherited {
+        table: "controller",
+        key: "service_prefix",
+        value: PREFIX_VALUE,
+        apply: |l, c| c.controller.service_prefix.clone_from(&l.service_prefix),
+    },
+    Inherited {
+        table: "controller",
+        key: "seed",
+        value: "`[launch] seed`",
+        apply: |l, c| c.controller.seed = launch_seed(l),
+    },
+    Inherited {
+        table: "bridge",
+        key: "seed",
+        value: "`[launch] seed`",
+        apply: |l, c| c.bridge.seed = launch_seed(l),
+    },
+    Inherited {
+        table: "bridge",
+        key: "use_command_degrees",
+        value: "`true`",
+        apply: |_, c| c.bridge.use_command_degrees = true,
+    },
+    Inherited {
+        table: "bridge",
+        key: "ipc.service_prefix",
+        value: PREFIX_VALUE,
+        apply: |l, c| c.bridge.ipc.service_prefix.clone_from(&l.service_prefix),
+    },
+    Inherited {
+        table: "bridge",
+        key: "ipc.wait",
+        value: "`[launch] wait`",
+        apply: |l, c| c.bridge.ipc.wait = l.wait,
+    },
+    Inherited {
+        table: "bridge",
+        key: "brick.time_scale",
+        value: "1 / `[launch] real_time_factor`, or 200 at real-time factor 0",
+        apply: |l, c| c.bridge.brick.time_scale = brick_time_scale(l),
+    },
+    Inherited {
+        table: "bridge",
+        key: "watchdog.deadline_ms",
+        value: "1000 × `[bridge.brick] time_scale` (at least × 1) with the simulated brick, one \
+                second of wall time; 1000 with a serial transport",
+        apply: |l, c| c.bridge.watchdog.deadline_ms = watchdog_deadline_ms(l, &c.bridge),
+    },
 ];
+
+/// The seed the children get: `[launch] seed`, at most `i64::MAX` (TOML integers end there;
+/// a larger seed set in code is written as that).
+fn launch_seed(l: &LaunchSection) -> u64 {
+    l.seed.min(i64::MAX.unsigned_abs())
+}
+
+/// The simulated brick's time scale at the launch's pace: 1 / `real_time_factor`, or
+/// [`FASTEST_TIME_SCALE`] as fast as possible.
+fn brick_time_scale(l: &LaunchSection) -> f64 {
+    if l.real_time_factor == 0.0 {
+        FASTEST_TIME_SCALE
+    } else {
+        1.0 / l.real_time_factor
+    }
+}
+
+/// The bridge's watchdog deadline in a launch, ms of brick time. The deadline is in brick
+/// time: at a speed-up, it gives the wall clock the usual second, so a descheduled bridge on
+/// a busy machine does not brake a healthy run. A real brick (serial transport) runs in
+/// physical time whatever the scale.
+fn watchdog_deadline_ms(l: &LaunchSection, bridge: &BridgeSettings) -> u64 {
+    let scale = if bridge.transport == TransportKind::Sim {
+        brick_time_scale(l).max(1.0)
+    } else {
+        1.0
+    };
+    // Saturating: a deadline beyond i64::MAX ms is no deadline at all.
+    ((1000.0 * scale).round() as i64).unsigned_abs()
+}
 
 /// The tables of a launch file, as the parser reads them.
 #[derive(Deserialize, Default)]
@@ -221,8 +407,8 @@ impl LaunchFile {
         let t: Tables = settings::parse_tables(LAUNCH, text, origin.clone(), process_of)?;
         let own = INHERITED
             .iter()
-            .filter(|(table, key)| settings::is_set(text, Some(table), key))
-            .map(|(table, key)| format!("{table}.{key}"))
+            .filter(|i| settings::is_set(text, Some(i.table), i.key))
+            .map(Inherited::path)
             .collect();
         Ok(Self {
             launch: t.launch,
@@ -274,84 +460,36 @@ impl LaunchFile {
     /// does not set its own, every one checked (the first bad key is reported, placed in the
     /// file).
     pub fn children(&self) -> Result<Children, SettingError> {
-        let l = &self.launch;
-        check_launch(l).map_err(|e| self.place(e, "launch"))?;
-        // TOML integers end at i64::MAX; a larger seed set in code is written as that.
-        let seed = l.seed.min(i64::MAX.unsigned_abs());
-
-        let mut perception = self.perception.clone();
-        let inherit = |key| self.inherits("perception", key);
-        if inherit("arena") {
-            perception.arena = u32::from(l.arena);
-        }
-        if inherit("episodes") {
-            perception.episodes = l.episodes;
-        }
-        if inherit("real_time_factor") {
-            perception.real_time_factor = l.real_time_factor;
-        }
-        if inherit("wait") {
-            perception.wait = l.wait;
-        }
-        if inherit("service_prefix") {
-            perception.service_prefix.clone_from(&l.service_prefix);
-        }
-        if inherit("seed") {
-            perception.seed = seed;
-        }
-
-        let mut controller = self.controller.clone();
-        let inherit = |key| self.inherits("controller", key);
-        if inherit("wait") {
-            controller.wait = l.wait;
-        }
-        if inherit("service_prefix") {
-            controller.service_prefix.clone_from(&l.service_prefix);
-        }
-        if inherit("seed") {
-            controller.seed = seed;
-        }
-
-        let mut bridge = self.bridge.clone();
-        let inherit = |key| self.inherits("bridge", key);
-        if inherit("seed") {
-            bridge.seed = seed;
-        }
-        if inherit("use_command_degrees") {
-            bridge.use_command_degrees = true;
-        }
-        if inherit("ipc.service_prefix") {
-            bridge.ipc.service_prefix.clone_from(&l.service_prefix);
-        }
-        if inherit("ipc.wait") {
-            bridge.ipc.wait = l.wait;
-        }
-        let simulated = bridge.transport == TransportKind::Sim;
-        let time_scale = if l.real_time_factor == 0.0 {
-            FASTEST_TIME_SCALE
-        } else {
-            1.0 / l.real_time_factor
+        check_launch(&self.launch).map_err(|e| self.place(e, "launch"))?;
+        let mut children = Children {
+            bridge: self.bridge.clone(),
+            controller: self.controller.clone(),
+            perception: self.perception.clone(),
         };
-        if inherit("brick.time_scale") {
-            bridge.brick.time_scale = time_scale;
+        for inherited in INHERITED {
+            if self.inherits(inherited.table, inherited.key) {
+                (inherited.apply)(&self.launch, &mut children);
+            }
         }
-        // The watchdog deadline is in brick time: at a speed-up, give the wall clock the
-        // usual second, so a descheduled bridge on a busy machine does not brake a healthy
-        // run. A real brick (serial transport) runs in physical time whatever the scale.
-        if inherit("watchdog.deadline_ms") {
-            let scale = if simulated { time_scale.max(1.0) } else { 1.0 };
-            // Saturating: a deadline beyond i64::MAX ms is no deadline at all.
-            bridge.watchdog.deadline_ms = ((1000.0 * scale).round() as i64).unsigned_abs();
-        }
+        self.check_children(&children)?;
+        Ok(children)
+    }
 
-        // Every child's settings are checked here, so a bad key stops the launch before any
-        // process starts.
+    /// Checks every child's settings, so that a bad key stops the launch before any process
+    /// starts, and that the controller's keep-alives come well within the bridge's watchdog
+    /// deadline.
+    fn check_children(&self, children: &Children) -> Result<(), SettingError> {
+        let Children {
+            bridge,
+            controller,
+            perception,
+        } = children;
         let bridge_cfg = bridge.check().map_err(|e| self.place(e, "bridge"))?;
         controller
             .check()
             .map_err(|e| self.place(e, "controller"))?;
         // The watchdog's deadline is brick time; the keep-alives are wall time.
-        let wall_scale = if simulated {
+        let wall_scale = if bridge.transport == TransportKind::Sim {
             bridge_cfg.brick.time_scale
         } else {
             1.0
@@ -370,11 +508,7 @@ impl LaunchFile {
         perception
             .check()
             .map_err(|e| self.place(e, "perception"))?;
-        Ok(Children {
-            bridge,
-            controller,
-            perception,
-        })
+        Ok(())
     }
 }
 
@@ -390,15 +524,16 @@ pub fn check_launch(l: &LaunchSection) -> Result<(), SettingError> {
     if l.episodes == 0 {
         return bad("episodes", "must be at least 1".into());
     }
-    if l.stall_timeout_ms < 500 {
+    if l.stall_timeout_ms < MIN_STALL_TIMEOUT_MS {
         return bad(
             "stall_timeout_ms",
-            format!("must be at least 500, got {}", l.stall_timeout_ms),
+            format!(
+                "must be at least {MIN_STALL_TIMEOUT_MS}, got {}",
+                l.stall_timeout_ms
+            ),
         );
     }
-    if l.service_prefix.len() > 64 {
-        return bad("service_prefix", "must be at most 64 bytes".into());
-    }
+    settings::service_prefix(LAUNCH, "service_prefix", &l.service_prefix)?;
     let mut seen = BTreeSet::new();
     for role in &l.roles {
         if !seen.insert(*role) {

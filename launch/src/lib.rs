@@ -5,7 +5,7 @@
 //! The three are separate OS processes sharing fixed-size buffers through iceoryx2. What a
 //! launch does:
 //!
-//! * [`file`]: reads an optional TOML launch file (`[launch]`, `[perception]`,
+//! * [`mod@file`]: reads an optional TOML launch file (`[launch]`, `[perception]`,
 //!   `[controller]`, `[bridge]`) once, into each process's typed settings; sets the
 //!   launch-wide values on them where a table does not set its own; checks every child's
 //!   settings *before* starting anything (a bad key is reported with the file, its line, the

@@ -1,17 +1,24 @@
 //! The launch file's reference: every key of every table, with its unit or allowed values and
-//! what it does — the one place the keys are described.
+//! what it does.
 //!
-//! [`TABLES`] and [`KEYS`] hold the words; the values come from the code: the defaults are the
-//! config structs' own `Default`s, serialised, and the keys the launcher fills in for the
-//! children are [`INHERITED`]. Two renderings are made from them: a launch file with every key
-//! at its default, each commented (`tes launch --print-config`), and the markdown page
-//! `docs/config.md` (`tes launch --print-config=markdown`). The tests derive the key set from
-//! the config structs themselves, so a key added to one of them without a line here fails them
-//! with its name.
+//! A key's words live in one place, the doc comment of its field in the config struct its
+//! table is read into (`tes_launch::file::LaunchSection`, `tes_link::LinkSection`,
+//! `tes_perception_sim::process::PerceptionConfig`, `tes_controller::config::ControllerConfig`,
+//! `tes_bridge::config::BridgeSettings` and its nested tables): what the key does, then a
+//! `Values:` line with its unit or allowed values (numeric limits as links to the constants
+//! the structs' `check()` uses), and for a key unset by default an `Example:` line. This
+//! crate's build script (build.rs) parses those files and generates [`KEYS`] from them. The
+//! values come from the code too: the defaults are the config structs' own `Default`s,
+//! serialised, and the keys the launcher fills in for the children are [`INHERITED`]; the
+//! per-table prose is [`TABLES`], here. Two renderings are made from them: a launch file
+//! with every key at its default, each commented (`tes launch --print-config`), and the
+//! markdown page `docs/config.md` (`tes launch --print-config=markdown`). The tests derive
+//! the key set from the config structs' parsers, so a field added without a doc or a
+//! `Values:` line fails them with its name.
 
 use std::fmt::Write as _;
 
-use crate::file::{INHERITED, LaunchFile};
+use crate::file::{INHERITED, Inherited, LaunchFile};
 
 /// The reference cannot be rendered: a table's values do not serialise (a bug in a config
 /// struct), or the text cannot be written.
@@ -48,22 +55,21 @@ pub struct Table {
     pub about: &'static str,
 }
 
-/// One key of the launch file, as the reference describes it.
+/// One key of the launch file, as the reference describes it (generated from its field's doc
+/// comment: see the module docs).
 #[derive(Debug, Clone, Copy)]
 pub struct Key {
     /// The table it is in ([`Table::name`]).
     pub table: &'static str,
     /// Its name in the table.
     pub key: &'static str,
-    /// Its unit, or the values it takes.
+    /// Its unit, or the values it takes (its doc's `Values:` line).
     pub allowed: &'static str,
-    /// What it does.
+    /// What it does (its doc, without the `Values:` and `Example:` lines).
     pub meaning: &'static str,
     /// For a key that is unset by default (no TOML value can say "unset"): a value to show,
-    /// commented out.
+    /// commented out (its doc's `Example:` line).
     pub example: Option<&'static str>,
-    /// For a key the launcher fills in for a child ([`INHERITED`]): the value it sets.
-    pub inherited: Option<&'static str>,
 }
 
 impl Key {
@@ -72,46 +78,11 @@ impl Key {
         format!("{}.{}", self.table, self.key)
     }
 
-    /// The same key, unset by default and shown as `value` (TOML), commented out.
-    const fn example(self, value: &'static str) -> Self {
-        Self {
-            example: Some(value),
-            ..self
-        }
-    }
-
-    /// The same key, filled in by the launcher with `value` unless the table sets it.
-    const fn inherited(self, value: &'static str) -> Self {
-        Self {
-            inherited: Some(value),
-            ..self
-        }
+    /// For a key the launcher fills in for a child ([`INHERITED`]): the value it sets.
+    pub fn inherited(&self) -> Option<&'static str> {
+        inherited(self.table, self.key).map(|i| i.value)
     }
 }
-
-/// A key of `table`.
-const fn key(
-    table: &'static str,
-    key: &'static str,
-    allowed: &'static str,
-    meaning: &'static str,
-) -> Key {
-    Key {
-        table,
-        key,
-        allowed,
-        meaning,
-        example: None,
-        inherited: None,
-    }
-}
-
-/// Allowed values of every `wait` key.
-const WAIT: &str = "`block` | `spin` | `spin-then-block` | `spin-then-block:<µs>`";
-/// Allowed values of every `service_prefix` key.
-const PREFIX: &str = "text, at most 64 bytes";
-/// Allowed values of a boolean key.
-const BOOL: &str = "`true` | `false`";
 
 /// The tables of a launch file, in order (a table comes before the tables nested in it).
 pub const TABLES: &[Table] = &[
@@ -195,757 +166,7 @@ pub const TABLES: &[Table] = &[
     },
 ];
 
-/// Every key of every table, in the order the reference lists them.
-pub const KEYS: &[Key] = &[
-    // [launch]
-    key(
-        "launch",
-        "episodes",
-        "count, at least 1",
-        "Episodes perception runs before the group stops (`--episodes` overrides it).",
-    ),
-    key(
-        "launch",
-        "arena",
-        "`1` | `2` | `3`",
-        "The arena perception simulates; 3 is the paper's test arena.",
-    ),
-    key(
-        "launch",
-        "real_time_factor",
-        "factor, finite, at least 0",
-        "The pace: 1.0 = physical time (the paper's 200 ms settle after each motion), 0 = as \
-         fast as possible. It sets perception's settle time and the simulated brick's time \
-         scale (1 / factor; 200 at 0).",
-    ),
-    key(
-        "launch",
-        "wait",
-        WAIT,
-        "How every process waits for its next input: `block` sleeps until notified (no CPU \
-         while idle); `spin` busy-polls (lowest latency, a core per process); \
-         `spin-then-block` busy-polls for 200 µs (or the µs given), then sleeps.",
-    ),
-    key(
-        "launch",
-        "restart",
-        "`never` | `on-failure`",
-        "What to do when a child dies: `never` stops the others and exits non-zero; \
-         `on-failure` respawns it, at most `max_restarts` times.",
-    ),
-    key(
-        "launch",
-        "max_restarts",
-        "count",
-        "Respawns allowed per child with `restart = \"on-failure\"`.",
-    ),
-    key(
-        "launch",
-        "grace_ms",
-        "ms",
-        "Grace period of each shutdown step: SIGINT, then SIGTERM after this long, then \
-         SIGKILL after as long again.",
-    ),
-    key(
-        "launch",
-        "service_prefix",
-        PREFIX,
-        "Prefix of every iceoryx2 service name. Empty: each launch gets one of its own, \
-         `tes-PID-XXXXXXXX/`, so any number of launches run side by side; a prefix already \
-         used by a running group is refused.",
-    ),
-    key(
-        "launch",
-        "run_dir",
-        "path",
-        "This launch's run folder, used as it is: no folder of its own per launch, never \
-         pruned (it holds the lock that keeps a second launch out). Unset: each launch gets \
-         a run folder of its own in `runs_dir`.",
-    )
-    .example("\"/path/to/run\""),
-    key(
-        "launch",
-        "runs_dir",
-        "path",
-        "Where each launch makes its run folder, named by its UTC start time \
-         (`2026-12-02T19-05-33Z`): the resolved launch file, the children's settings, output \
-         and logs, `episodes.csv`, `trajectory.csv`, the latency reports and, at the end, \
-         `rewards.svg`, `latency.svg` and `arena.svg`; `latest` links to the newest. Unset: \
-         `runs` in the data directory (`$TES_DATA_DIR`, else `$XDG_DATA_HOME/tes`, else \
-         `~/.local/share/tes`).",
-    )
-    .example("\"/path/to/runs\""),
-    key(
-        "launch",
-        "keep_runs",
-        "count; 0 = keep every one",
-        "How many run folders `runs_dir` keeps: when a launch starts, the oldest beyond this \
-         are removed.",
-    ),
-    key(
-        "launch",
-        "seed",
-        "integer, 0 to 2^63 - 1",
-        "Seed of the world, the agent and the simulated brick.",
-    ),
-    key(
-        "launch",
-        "stall_timeout_ms",
-        "ms of wall time, at least 500",
-        "A group whose controller sends no command for this long is stalled: the launcher \
-         names the process holding it up and stops the group (`restart = \"never\"`) or \
-         restarts that process (`on-failure`).",
-    ),
-    key(
-        "launch",
-        "record",
-        "path of an MCAP file",
-        "Record the run to this file (`tes launch --record` overrides it): the world map and          every observation, command, keep-alive and motor state, with the run's settings, seed          and starting library; `tes replay` reads it (docs/recording.md). A relative path is          taken from the directory `tes launch` runs in. Unset: no recording.",
-    )
-    .example("\"run.mcap\""),
-    key(
-        "launch",
-        "roles",
-        "list of `perception-sim`, `controller`, `bridge`",
-        "The processes this launch starts (`tes launch --roles` overrides it); the others \
-         run on other hosts, reached through the link (`[launch.link]`, docs/multi-host.md). \
-         Empty: all three on this host, over shared memory only, and no link.",
-    ),
-    // [launch.link]
-    key(
-        "launch.link",
-        "group",
-        "text: ASCII letters, digits, `-`, `_`, `.`, parts separated by `/`; at most 64 bytes",
-        "The group's name on Zenoh, the first part of every key: the launches of one group \
-         give the same, two groups on one network different ones.",
-    ),
-    key(
-        "launch.link",
-        "mode",
-        "`peer` | `client`",
-        "`peer`: the launches connect to each other directly; `client`: through a Zenoh \
-         router that `connect` names.",
-    ),
-    key(
-        "launch.link",
-        "listen",
-        "list of TCP endpoints (`tcp/ADDRESS:PORT`)",
-        "Where this launch accepts its peers' connections. The default listens on loopback \
-         only; a host that other machines connect to names an address of its own, e.g. \
-         `[\"tcp/192.168.1.20:7447\"]`.",
-    ),
-    key(
-        "launch.link",
-        "connect",
-        "list of TCP endpoints (`tcp/ADDRESS:PORT`)",
-        "The peers (or the router) this launch connects to.",
-    ),
-    key(
-        "launch.link",
-        "multicast_scouting",
-        BOOL,
-        "Find peers on the local network by UDP multicast (224.0.0.224:7446). Unset: on when \
-         `connect` is empty, off when it names peers.",
-    )
-    .example("false"),
-    key(
-        "launch.link",
-        "peer_timeout_ms",
-        "ms, at least 100",
-        "How long a launch waits for the launches of the other roles before it gives up \
-         (non-zero exit; it names the roles it waited for). Nothing starts before they are \
-         all there.",
-    ),
-    key(
-        "launch.link",
-        "restamp",
-        BOOL,
-        "Stamp observations and commands that arrive from a peer with this host's clock, \
-         keeping the differences between their stamps (hosts' monotonic clocks differ); \
-         `false` keeps the sender's stamps, for launches on one machine (tests, `tes bench \
-         latency --via zenoh`).",
-    ),
-    // [perception]
-    key(
-        "perception",
-        "arena",
-        "`1` | `2` | `3`",
-        "The arena simulated.",
-    )
-    .inherited("`[launch] arena`"),
-    key(
-        "perception",
-        "episodes",
-        "count, at least 1",
-        "Episodes to run before exiting.",
-    )
-    .inherited("`[launch] episodes` (or `--episodes`)"),
-    key(
-        "perception",
-        "actions",
-        "count; 0 = no limit",
-        "Stop after this many actions in all, ending the episode then as truncated (for \
-         benchmarks that run a fixed number of actions).",
-    ),
-    key(
-        "perception",
-        "seed",
-        "integer, 0 to 2^63 - 1",
-        "Seed of the start poses and the wheel slip.",
-    )
-    .inherited("`[launch] seed`"),
-    key(
-        "perception",
-        "real_time_factor",
-        "factor, finite, at least 0",
-        "1.0 = the paper's physical settle after each motion (`settle_ms`); 0 = none.",
-    )
-    .inherited("`[launch] real_time_factor`"),
-    key(
-        "perception",
-        "settle_ms",
-        "ms",
-        "The idle time after a motion at real-time factor 1 (scaled by `real_time_factor`).",
-    ),
-    key(
-        "perception",
-        "step_cap",
-        "count, at least 1",
-        "Actions after which an episode is cut off.",
-    ),
-    key(
-        "perception",
-        "wait",
-        WAIT,
-        "How perception waits for motion reports.",
-    )
-    .inherited("`[launch] wait`"),
-    key(
-        "perception",
-        "service_prefix",
-        PREFIX,
-        "Prefixed to every iceoryx2 service name.",
-    )
-    .inherited("`[launch] service_prefix` (the launch's own prefix when that is empty)"),
-    key(
-        "perception",
-        "motor_timeout_ms",
-        "ms, at least 1",
-        "Re-publish an observation (flagged RESYNC) when no motion report follows it within \
-         this time.",
-    ),
-    key(
-        "perception",
-        "left_port",
-        "`0` (A) | `1` (B) | `2` (C); not `right_port`",
-        "The NXT output port driving the left wheel (as `[bridge.motors] left_port`).",
-    ),
-    key(
-        "perception",
-        "right_port",
-        "`0` (A) | `1` (B) | `2` (C); not `left_port`",
-        "The NXT output port driving the right wheel (as `[bridge.motors] right_port`).",
-    ),
-    key(
-        "perception",
-        "trajectory",
-        "path",
-        "Where to write the run's trajectory: one CSV row per action (state, action, effect, \
-         reward, poses before and after, why the episode ended). Unset: a launch writes \
-         `trajectory.csv` in its run folder.",
-    )
-    .example("\"/path/to/trajectory.csv\""),
-    // [controller]
-    key(
-        "controller",
-        "library",
-        "path",
-        "The view library file. Unset: `library.tesl` in the data directory. Created at the \
-         first save if missing; a file that exists but cannot be read stops the controller.",
-    )
-    .example("\"/path/to/library.tesl\""),
-    key(
-        "controller",
-        "budget_us",
-        "µs, at least 1",
-        "The per-action latency budget, observation to command.",
-    ),
-    key(
-        "controller",
-        "wait",
-        WAIT,
-        "How the acting loop waits for observations.",
-    )
-    .inherited("`[launch] wait`"),
-    key(
-        "controller",
-        "seed",
-        "integer, 0 to 2^63 - 1",
-        "Seed of the exploration.",
-    )
-    .inherited("`[launch] seed`"),
-    key(
-        "controller",
-        "epsilon",
-        "probability, 0 to 1",
-        "Probability of a random action (paper section 5.2: 0.05).",
-    ),
-    key(
-        "controller",
-        "lambda",
-        "finite, at least 0",
-        "mDAGL's group-lasso strength for fresh views (paper: 0.05).",
-    ),
-    key(
-        "controller",
-        "alpha",
-        "finite, above 0",
-        "mDAGL's step scale for fresh views (paper section 5.2: 0.5).",
-    ),
-    key(
-        "controller",
-        "max_views",
-        "count, at least 1",
-        "The library's size limit M (paper: 20).",
-    ),
-    key(
-        "controller",
-        "service_prefix",
-        PREFIX,
-        "Prefixed to every iceoryx2 service name.",
-    )
-    .inherited("`[launch] service_prefix` (the launch's own prefix when that is empty)"),
-    key(
-        "controller",
-        "map_timeout_s",
-        "s, above 0",
-        "How long to wait for perception's world map at the start.",
-    ),
-    key(
-        "controller",
-        "save_interval_s",
-        "s, at least 0; 0 = after every episode",
-        "Save the library at an episode's end only if this long has passed since the last \
-         save; it is always saved at shutdown. A save copies every working view on the acting \
-         loop, so saving after every episode at the fastest pace delays each episode's first \
-         decision.",
-    ),
-    key(
-        "controller",
-        "plan_sweeps",
-        "count, at least 1",
-        "The most value-iteration sweeps the planner makes per hand-over of the model (an \
-         unfinished plan continues at the next). Fewer leave more CPU to the loop on a small \
-         machine, at the cost of staler plans.",
-    ),
-    key(
-        "controller",
-        "warmup_actions",
-        "count",
-        "Actions left out of the latency and allocation figures.",
-    ),
-    key(
-        "controller",
-        "report",
-        "path",
-        "Where to write the run's summary as JSON at exit. Unset: nowhere.",
-    )
-    .example("\"/path/to/report.json\""),
-    key(
-        "controller",
-        "keepalive_ms",
-        "ms; 0 = never; at most half the bridge's watchdog deadline in wall time",
-        "While a command's move is under way, send the bridge a keep-alive this often, so \
-         that the bridge's watchdog lets a long move go on while the controller lives and \
-         brakes it once the controller is gone.",
-    ),
-    key(
-        "controller",
-        "acting_cpu",
-        "CPU number | `\"auto\"` | `\"none\"`",
-        "The CPU the acting loop's thread runs on. `auto`: with `wait = \"block\"` on two or \
-         more CPUs, the last CPU this process may run on, else unpinned; `none`: unpinned. \
-         Pinned, a blocking thread wakes where its memory is warm.",
-    ),
-    key(
-        "controller",
-        "planner_cpu",
-        "CPU number | `\"auto\"` | `\"none\"`",
-        "The planner thread's CPU. `auto`: when the acting thread is pinned, the first allowed \
-         CPU other than its own, else unpinned; `none`: unpinned. A CPU number is refused with \
-         between-polls planning (there is no planner thread).",
-    ),
-    key(
-        "controller",
-        "planning",
-        "`auto` | `thread` | `between-polls` | `inline`",
-        "Who plans: `thread`, a planner thread under SCHED_IDLE; `between-polls`, the acting \
-         thread, in slices, while it spins waiting for the next observation (needs `wait = \
-         \"spin\"` or `\"spin-then-block\"`); `inline`, the acting thread, each plan whole \
-         right after the learning that follows the command, adopted at the next observation \
-         (every run with the same seeds adopts the same plans at the same steps); `auto`, \
-         between polls with `wait = \"spin\"`, else the thread.",
-    ),
-    key(
-        "controller",
-        "plan_slice",
-        "states, at least 1",
-        "With between-polls planning, the states' worth of planning done between two polls: \
-         the most an observation arriving mid-slice waits.",
-    ),
-    key(
-        "controller",
-        "order",
-        "`decide-first` | `learn-first`",
-        "When the controller learns from an observation: `decide-first` publishes the command \
-         first, then scores and updates the views and hands the planner the model; \
-         `learn-first` does all that before deciding. Both make the same decisions; deciding \
-         first keeps the learning off the decision's latency.",
-    ),
-    key(
-        "controller",
-        "planner_idle_spin_us",
-        "µs, 0 = sleep at once",
-        "With a planner thread: how long it polls for its next job after a plan before it \
-         sleeps. It polls under SCHED_IDLE, with time nobody else wants, which keeps its CPU \
-         out of the idle halt: a bridge woken by a command is put there and runs at once. 5 ms \
-         covers an action at the simulator's fastest pace.",
-    ),
-    // [bridge]
-    key(
-        "bridge",
-        "transport",
-        "`\"sim\"` | `\"serial:<path>\"`",
-        "What carries the telegrams: the simulated brick, in-process; or a serial device — a \
-         real NXT over Bluetooth (`serial:/dev/rfcomm0`) or the pseudo-terminal that `bridge \
-         brick --pty` serves.",
-    ),
-    key(
-        "bridge",
-        "seed",
-        "integer, 0 to 2^63 - 1",
-        "Seeds the simulated brick and the simulated link delay.",
-    )
-    .inherited("`[launch] seed`"),
-    key(
-        "bridge",
-        "use_command_degrees",
-        BOOL,
-        "Drive the wheels by each command's `left_deg`/`right_deg` instead of looking its \
-         action id up in `[[bridge.actions]]`.",
-    )
-    .inherited("`true`"),
-    key(
-        "bridge",
-        "link_timeout_ms",
-        "ms of wall time, at least 100",
-        "A link to the brick that has not come up this long after the start, or has been \
-         down this long since, stops the bridge with an error naming the transport (and with \
-         it the launch).",
-    ),
-    // [bridge.link_delay]
-    key("bridge.link_delay", "enabled", BOOL, "Delay each reply."),
-    key(
-        "bridge.link_delay",
-        "mean_ms",
-        "ms, at most 10000",
-        "Mean delay per reply.",
-    ),
-    key(
-        "bridge.link_delay",
-        "jitter_ms",
-        "ms, at most `mean_ms`",
-        "Uniform jitter around the mean.",
-    ),
-    // [bridge.serial]
-    key(
-        "bridge.serial",
-        "baud_rate",
-        "bit/s",
-        "Line speed (ignored by rfcomm and pseudo-terminals).",
-    ),
-    key(
-        "bridge.serial",
-        "read_timeout_ms",
-        "ms, 10 to 60000",
-        "Time to wait for a whole reply.",
-    ),
-    key(
-        "bridge.serial",
-        "reconnect_backoff_ms",
-        "ms",
-        "Wait between reconnection attempts.",
-    ),
-    key(
-        "bridge.serial",
-        "max_timeouts",
-        "count, at least 1",
-        "Consecutive timeouts before the device is reopened.",
-    ),
-    key(
-        "bridge.serial",
-        "exclusive",
-        BOOL,
-        "Open the device exclusively (TIOCEXCL): no second process on the same device.",
-    ),
-    // [bridge.watchdog]
-    key(
-        "bridge.watchdog",
-        "deadline_ms",
-        "ms of brick time, at least 50",
-        "Brake the motors when no command or keep-alive arrives within this long while one \
-         runs. It must exceed the longest action's duration.",
-    )
-    .inherited(
-        "1000 × `[bridge.brick] time_scale` (at least × 1) with the simulated brick, one \
-         second of wall time; 1000 with a serial transport",
-    ),
-    // [bridge.poll]
-    key(
-        "bridge.poll",
-        "moving_period_ms",
-        "ms, 1 to 1000, below `[bridge.watchdog] deadline_ms`",
-        "Poll period (GETOUTPUTSTATE of the wheels) while a wheel moves.",
-    ),
-    key(
-        "bridge.poll",
-        "idle_period_ms",
-        "ms, 10 to 600000",
-        "Heartbeat period at rest: all ports and the battery are read and published.",
-    ),
-    key(
-        "bridge.poll",
-        "settle_polls",
-        "count, 1 to 100",
-        "Consecutive polls with idle wheels and unchanged counts before a move is settled.",
-    ),
-    key(
-        "bridge.poll",
-        "keepalive_period_ms",
-        "ms, at least 1000",
-        "Period of KEEPALIVE telegrams to the brick (they keep it from sleeping).",
-    ),
-    // [bridge.ipc]
-    key(
-        "bridge.ipc",
-        "service_prefix",
-        PREFIX,
-        "Prefixed to every iceoryx2 service name.",
-    )
-    .inherited("`[launch] service_prefix` (the launch's own prefix when that is empty)"),
-    key(
-        "bridge.ipc",
-        "wait",
-        WAIT,
-        "How the bridge waits for commands.",
-    )
-    .inherited("`[launch] wait`"),
-    key(
-        "bridge.ipc",
-        "budget_us",
-        "µs",
-        "The per-action budget the observation-to-command latency is held to; overruns are \
-         counted in the latency report.",
-    ),
-    key(
-        "bridge.ipc",
-        "warmup_commands",
-        "count",
-        "Commands left out of the latency report.",
-    ),
-    key(
-        "bridge.ipc",
-        "latency_report",
-        "path",
-        "Where to write the latency report (JSON: percentiles, maximum, misses) at exit. \
-         Unset: nowhere.",
-    )
-    .example("\"/path/to/bridge-latency.json\""),
-    key(
-        "bridge.ipc",
-        "latency_windows",
-        "path",
-        "Where to write the latency of every `latency_window` consecutive commands after the \
-         warm-up, one CSV row per window, at exit: it shows drift over a long run. Unset: \
-         nowhere.",
-    )
-    .example("\"/path/to/bridge-windows.csv\""),
-    key(
-        "bridge.ipc",
-        "latency_window",
-        "commands, at least 1",
-        "Commands per window of `latency_windows`.",
-    ),
-    // [bridge.brick]
-    key(
-        "bridge.brick",
-        "speed_per_power",
-        "°/s per unit of power, above 0",
-        "Steady speed per unit of power (an unloaded NXT motor: about 9 to 10).",
-    ),
-    key(
-        "bridge.brick",
-        "unregulated_speed_factor",
-        "factor, above 0",
-        "Steady speed of an unregulated motor relative to a regulated one (load, battery sag).",
-    ),
-    key(
-        "bridge.brick",
-        "time_constant_s",
-        "s, above 0",
-        "Time constant of the speed's response to power.",
-    ),
-    key(
-        "bridge.brick",
-        "coast_time_constant_s",
-        "s, above 0",
-        "Time constant of a coasting (floating) motor's slow-down.",
-    ),
-    key(
-        "bridge.brick",
-        "brake_time_constant_s",
-        "s, above 0",
-        "Time constant of a braking motor's slow-down.",
-    ),
-    key(
-        "bridge.brick",
-        "stop_speed_dps",
-        "°/s, above 0",
-        "Below this speed an undriven motor is at rest.",
-    ),
-    key(
-        "bridge.brick",
-        "speed_noise",
-        "0 to 0.5",
-        "Relative standard deviation of a command's steady speed (0 = noiseless).",
-    ),
-    key("bridge.brick", "battery_mv", "mV", "Fresh battery voltage."),
-    key(
-        "bridge.brick",
-        "battery_noise_mv",
-        "mV",
-        "Half-width of the uniform noise on a battery reading (0 = noiseless).",
-    ),
-    key(
-        "bridge.brick",
-        "battery_drain_mv_per_s",
-        "mV/s, at least 0",
-        "Battery drain per powered motor per second.",
-    ),
-    key(
-        "bridge.brick",
-        "sleep_timeout_min",
-        "minutes",
-        "The sleep timeout KEEPALIVE reports.",
-    ),
-    key(
-        "bridge.brick",
-        "name",
-        "at most 14 ASCII characters",
-        "The brick name GETDEVICEINFO reports.",
-    ),
-    key(
-        "bridge.brick",
-        "address",
-        "6 bytes",
-        "The Bluetooth address GETDEVICEINFO reports.",
-    ),
-    key(
-        "bridge.brick",
-        "free_flash",
-        "bytes",
-        "The free user flash GETDEVICEINFO reports.",
-    ),
-    key(
-        "bridge.brick",
-        "time_scale",
-        "factor, 0.001 to 10000",
-        "How many times faster than the wall clock the simulated physics runs (1 = physical \
-         time). The watchdog deadline and the poll periods are in brick time, so they scale \
-         with it.",
-    )
-    .inherited("1 / `[launch] real_time_factor`, or 200 at real-time factor 0"),
-    // [bridge.motors]
-    key(
-        "bridge.motors",
-        "left_port",
-        "`\"A\"` | `\"B\"` | `\"C\"`",
-        "Output port of the left wheel motor.",
-    ),
-    key(
-        "bridge.motors",
-        "right_port",
-        "`\"A\"` | `\"B\"` | `\"C\"`; not `left_port`",
-        "Output port of the right wheel motor.",
-    ),
-    key(
-        "bridge.motors",
-        "power",
-        "1 to 100",
-        "Power (the speed set-point with regulation).",
-    ),
-    key(
-        "bridge.motors",
-        "brake",
-        BOOL,
-        "Brake at the tacho limit (MODE bit BRAKE) rather than coast.",
-    ),
-    key(
-        "bridge.motors",
-        "regulated",
-        BOOL,
-        "Turn on regulation (MODE bit REGULATED) with `regulation`.",
-    ),
-    key(
-        "bridge.motors",
-        "regulation",
-        "`\"idle\"` | `\"speed\"` | `\"sync\"`; not `idle` when `regulated`",
-        "The regulation mode.",
-    ),
-    key(
-        "bridge.motors",
-        "left_reversed",
-        BOOL,
-        "The left motor is mounted so that positive power drives the wheel backwards.",
-    ),
-    key(
-        "bridge.motors",
-        "right_reversed",
-        BOOL,
-        "The right motor is mounted so that positive power drives the wheel backwards.",
-    ),
-    key(
-        "bridge.motors",
-        "acknowledge",
-        BOOL,
-        "Ask the brick to acknowledge each SETOUTPUTSTATE (a Bluetooth round trip each).",
-    ),
-    // [[bridge.actions]]
-    key(
-        "bridge.actions",
-        "id",
-        "integer, at least 0, unique",
-        "The action id the controller sends. Required in each entry.",
-    ),
-    key(
-        "bridge.actions",
-        "name",
-        "text",
-        "A name for logs (optional: empty when left out).",
-    ),
-    key(
-        "bridge.actions",
-        "left_deg",
-        "degrees, within ±36000",
-        "Signed rotation of the left wheel. Required in each entry.",
-    ),
-    key(
-        "bridge.actions",
-        "right_deg",
-        "degrees, within ±36000",
-        "Signed rotation of the right wheel. Required in each entry.",
-    ),
-];
+include!(concat!(env!("OUT_DIR"), "/keys.rs"));
 
 /// The defaults of a launch file, one TOML table per process (`launch`, `perception`,
 /// `controller`, `bridge`): the config structs' `Default`s, serialised. Keys that are unset
@@ -992,25 +213,32 @@ pub fn is_table(value: &toml::Value) -> bool {
     }
 }
 
-/// Whether the launcher fills `[table] key` in for a child ([`INHERITED`]).
-fn is_inherited(table: &str, key: &str) -> bool {
-    INHERITED.iter().any(|(t, k)| {
-        // `bridge.ipc` + `wait` is INHERITED's `bridge` + `ipc.wait`.
-        let full = format!("{t}.{k}");
-        full.strip_prefix(table)
+/// The [`INHERITED`] entry of `[table] key`, if the launcher fills it in for a child.
+fn inherited(table: &str, key: &str) -> Option<&'static Inherited> {
+    // `bridge.ipc` + `wait` is INHERITED's `bridge` + `ipc.wait`.
+    INHERITED.iter().find(|i| {
+        i.path()
+            .strip_prefix(table)
             .and_then(|rest| rest.strip_prefix('.'))
             == Some(key)
     })
 }
 
+/// Whether the launcher fills `[table] key` in for a child ([`INHERITED`]).
+fn is_inherited(table: &str, key: &str) -> bool {
+    inherited(table, key).is_some()
+}
+
 /// How the reference describes a key the defaults have but [`KEYS`] does not (printed all
 /// the same; the tests refuse it).
-const UNDESCRIBED: Key = key(
-    "",
-    "",
-    "?",
-    "Not described yet: add it to KEYS in tes/src/launch/reference.rs.",
-);
+const UNDESCRIBED: Key = Key {
+    table: "",
+    key: "",
+    allowed: "?",
+    meaning: "Not described yet: document its field (with a `Values:` line) in its config \
+              struct.",
+    example: None,
+};
 
 /// The keys of `table` in reference order, each with its description: the described ones,
 /// then any key of its defaults `values` that is not described.
@@ -1138,7 +366,7 @@ fn write_key(
             None => comment(out, &format!("{}. Default: unset.", k.allowed)),
         }
         if inherited {
-            let from = k.inherited.unwrap_or("the launch-wide value");
+            let from = k.inherited().unwrap_or("the launch-wide value");
             comment(
                 out,
                 &format!("Inherited: unless this table sets it, a launch sets it to {from}."),
@@ -1195,21 +423,17 @@ pub fn render_markdown() -> Result<String> {
     out.push_str("# Launch file reference\n\n");
     writeln!(
         out,
-        "<!-- Generated from tes/src/launch/reference.rs by `{REGENERATE}`; \
-         do not edit by hand. -->\n"
+        "<!-- Generated from the config structs' field docs (by launch/build.rs and \
+         launch/src/reference.rs): `{REGENERATE}`; do not edit by hand. -->\n"
     )?;
     out.push_str(INTRO);
     out.push_str("\n## Inherited keys\n\n");
     out.push_str(INHERITANCE);
     out.push_str("\n| key | in a launch |\n|---|---|\n");
-    for (table, key) in INHERITED {
-        let path = format!("{table}.{key}");
-        let row = KEYS.iter().find(|k| k.path() == path);
-        let (table, key) = row.map_or((table, key), |k| (k.table, k.key));
-        let from = row
-            .and_then(|k| k.inherited)
-            .unwrap_or("the launch-wide value");
-        writeln!(out, "| `[{table}] {key}` | {} |", cell(from))?;
+    for i in INHERITED {
+        let path = i.path();
+        let (table, key) = path.rsplit_once('.').unwrap_or((i.table, i.key));
+        writeln!(out, "| `[{table}] {key}` | {} |", cell(i.value))?;
     }
     for table in TABLES {
         let header = if table.array {
@@ -1244,7 +468,7 @@ pub fn render_markdown() -> Result<String> {
             }
             let mut meaning = k.meaning.to_owned();
             if is_inherited(table.name, &name) {
-                let from = k.inherited.unwrap_or("the launch-wide value");
+                let from = k.inherited().unwrap_or("the launch-wide value");
                 default = format!("{default}; in a launch: {from}");
                 meaning = format!("**Inherited.** {meaning}");
             }
@@ -1286,8 +510,9 @@ field ...`).
 - The launcher then fills in the inherited keys (below) and checks every process's settings \
 (ranges, and keys that contradict each other, such as a keep-alive too slow for the bridge's \
 watchdog); the first bad key is reported the same way, and nothing is started.
-- It writes each child's settings, as the child runs them, to the run directory \
-(`[launch] run_dir`): `perception-sim.toml`, `controller.toml`, `bridge.toml`.
+- It writes each child's settings, as the child runs them, to the launch's run folder \
+(in `[launch] runs_dir`, or `[launch] run_dir`): `perception-sim.toml`, `controller.toml`, \
+`bridge.toml`.
 - `--episodes N` overrides `[launch] episodes`.
 ";
 
@@ -1438,7 +663,7 @@ mod tests {
         assert_eq!(
             tables, typed_tables,
             "a table of the launch file has no struct in struct_fields() (or one is gone): \
-             add it there and to TABLES in tes/src/launch/reference.rs"
+             add it there and to TABLES in launch/src/reference.rs"
         );
         for (table, fields) in typed {
             for field in fields {
@@ -1465,8 +690,7 @@ mod tests {
         assert!(
             missing.is_empty(),
             "keys the config structs know but the launch file reference does not describe: \
-             {missing:?}; add a line for each to KEYS in tes/src/launch/reference.rs, e.g. \
-             key(\"controller\", \"name\", \"unit or allowed values\", \"what it does\"), then \
+             {missing:?}; is its struct's source file in SOURCES of launch/build.rs? Then \
              regenerate the docs: {REGENERATE}"
         );
     }
@@ -1479,7 +703,8 @@ mod tests {
             .collect();
         assert!(
             unknown.is_empty(),
-            "keys in tes/src/launch/reference.rs that no config struct has: {unknown:?}"
+            "keys in the reference (launch/build.rs) that no config struct's parser knows: \
+             {unknown:?}"
         );
         assert_eq!(
             reference_keys().len(),
@@ -1495,7 +720,7 @@ mod tests {
         let every = render_toml(true).expect("renders");
         let file =
             LaunchFile::from_toml(&every, Origin::Text).unwrap_or_else(|e| panic!("{e}\n{every}"));
-        let own: BTreeSet<String> = INHERITED.iter().map(|(t, k)| format!("{t}.{k}")).collect();
+        let own: BTreeSet<String> = INHERITED.iter().map(Inherited::path).collect();
         assert_eq!(file.own, own);
     }
 
@@ -1521,26 +746,66 @@ mod tests {
         );
     }
 
-    /// The keys the reference marks inherited are exactly the ones the launcher fills in.
+    /// Every key of the reference is inherited exactly when [`INHERITED`] lists it.
     #[test]
     fn the_inherited_keys_are_the_launchers() {
-        for (table, key) in INHERITED {
-            let path = format!("{table}.{key}");
+        for i in INHERITED {
+            let path = i.path();
             let row = KEYS.iter().find(|k| k.path() == path);
             assert!(
-                row.is_some_and(|k| k.inherited.is_some() && is_inherited(k.table, k.key)),
-                "{path} is inherited: describe it with .inherited(...)"
+                row.is_some_and(|k| k.inherited() == Some(i.value)),
+                "{path} is inherited but has no key of the reference"
             );
         }
-        for k in KEYS.iter().filter(|k| k.inherited.is_some()) {
-            assert!(
-                is_inherited(k.table, k.key),
-                "{} is not in INHERITED",
-                k.path()
-            );
-        }
+        let marked = KEYS.iter().filter(|k| k.inherited().is_some()).count();
+        assert_eq!(marked, INHERITED.len());
         assert!(!is_inherited("bridge", "wait"));
         assert!(!is_inherited("bridge.i", "pc.wait"));
+    }
+
+    /// Each field of a config struct says what it does and, on a `Values:` line, its unit or
+    /// values: the build script makes the reference from them.
+    #[test]
+    fn every_key_has_a_doc_and_a_values_line() {
+        let lacking: Vec<String> = KEYS
+            .iter()
+            .filter_map(|k| match (k.meaning.is_empty(), k.allowed.is_empty()) {
+                (true, _) => Some(format!("{}: no doc comment", k.path())),
+                (false, true) => Some(format!("{}: no `Values:` line in its doc", k.path())),
+                (false, false) => None,
+            })
+            .collect();
+        assert!(
+            lacking.is_empty(),
+            "fields of the config structs without their reference text: {lacking:?}; document \
+             each (what it does, then a paragraph `Values: <unit or values>.`), then \
+             regenerate the docs: {REGENERATE}"
+        );
+        // A link to a constant is its value; a doc link of another kind is code.
+        for k in KEYS {
+            for text in [k.meaning, k.allowed] {
+                assert!(
+                    !text.contains("[`"),
+                    "{}: unresolved link in {text:?}",
+                    k.path()
+                );
+            }
+        }
+        let prefix = KEYS
+            .iter()
+            .find(|k| k.path() == "controller.service_prefix");
+        assert_eq!(
+            prefix.map(|k| k.allowed),
+            Some("text, at most 64 bytes"),
+            "SERVICE_PREFIX_MAX resolved"
+        );
+        // A range, of floats, defined in another file than the field that links it.
+        let scale = KEYS.iter().find(|k| k.path() == "bridge.brick.time_scale");
+        assert_eq!(
+            scale.map(|k| k.allowed),
+            Some("factor, 0.001 to 10000"),
+            "TIME_SCALE_RANGE resolved"
+        );
     }
 
     #[test]

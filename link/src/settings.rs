@@ -5,8 +5,8 @@ use tes_runtime::settings::SettingError;
 
 use crate::LinkError;
 
-/// The longest group name, in bytes (as for the launch's `service_prefix`).
-pub const GROUP_NAME_MAX: usize = 64;
+/// The longest group name, in bytes (as a launch's `service_prefix`).
+pub const GROUP_NAME_MAX: usize = tes_runtime::settings::SERVICE_PREFIX_MAX;
 
 /// The process whose settings the table belongs to, for [`SettingError`].
 const PROCESS: &str = "launch";
@@ -22,28 +22,57 @@ pub enum Mode {
     Client,
 }
 
-/// The `[launch.link]` table: how a launch with roles reaches its peers.
+/// The `[launch.link]` table: how a launch with roles reaches its peers. Each field's doc is
+/// its key's entry in the launch file's reference (`tes launch --print-config`): what it does,
+/// then its unit or values on a `Values:` line; the defaults are this struct's `Default`.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LinkSection {
-    /// The group's name on Zenoh: the first part of every key (default `tes`). Launches of
-    /// one group give the same; two groups on one network give different ones.
+    /// The group's name on Zenoh, the first part of every key: the launches of one group give
+    /// the same, two groups on one network different ones.
+    ///
+    /// Values: text: ASCII letters, digits, `-`, `_`, `.`, parts separated by `/`; at most
+    /// [`GROUP_NAME_MAX`] bytes.
     pub group: String,
-    /// `peer` (default) or `client`.
+    /// `peer`: the launches connect to each other directly; `client`: through a Zenoh router
+    /// that `connect` names.
+    ///
+    /// Values: `peer` | `client`.
     pub mode: Mode,
-    /// Endpoints this launch listens on (default `tcp/127.0.0.1:7447`, loopback only).
+    /// Where this launch accepts its peers' connections. The default listens on loopback
+    /// only; a host that other machines connect to names an address of its own, e.g.
+    /// `["tcp/192.168.1.20:7447"]`.
+    ///
+    /// Values: list of TCP endpoints (`tcp/ADDRESS:PORT`).
     pub listen: Vec<String>,
-    /// Endpoints of peers (or the router) to connect to (default none).
+    /// The peers (or the router) this launch connects to.
+    ///
+    /// Values: list of TCP endpoints (`tcp/ADDRESS:PORT`).
     pub connect: Vec<String>,
-    /// Find peers by UDP multicast scouting: on by default when `connect` is empty.
+    /// Find peers on the local network by UDP multicast (224.0.0.224:7446). Unset: on when
+    /// `connect` is empty, off when it names peers.
+    ///
+    /// Values: `true` | `false`.
+    ///
+    /// Example: `false`.
     pub multicast_scouting: Option<bool>,
-    /// How long to wait for the other roles' launches before giving up, ms (default 30000).
+    /// How long a launch waits for the launches of the other roles before it gives up
+    /// (non-zero exit; it names the roles it waited for). Nothing starts before they are all
+    /// there.
+    ///
+    /// Values: ms, at least [`MIN_PEER_TIMEOUT_MS`].
     pub peer_timeout_ms: u64,
-    /// Stamp arriving observations and commands with this host's clock at arrival, keeping
-    /// the differences between their stamps (default true: hosts' monotonic clocks differ).
-    /// `false` keeps the sender's stamps, for hosts that share a clock (one machine).
+    /// Stamp observations and commands that arrive from a peer with this host's clock,
+    /// keeping the differences between their stamps (hosts' monotonic clocks differ);
+    /// `false` keeps the sender's stamps, for launches on one machine (tests, `tes bench
+    /// latency --via zenoh`).
+    ///
+    /// Values: `true` | `false`.
     pub restamp: bool,
 }
+
+/// The least `peer_timeout_ms`.
+pub const MIN_PEER_TIMEOUT_MS: u64 = 100;
 
 impl Default for LinkSection {
     fn default() -> Self {
@@ -113,10 +142,13 @@ impl LinkSection {
                     .into(),
             );
         }
-        if self.peer_timeout_ms < 100 {
+        if self.peer_timeout_ms < MIN_PEER_TIMEOUT_MS {
             return bad(
                 "link.peer_timeout_ms",
-                format!("must be at least 100, got {}", self.peer_timeout_ms),
+                format!(
+                    "must be at least {MIN_PEER_TIMEOUT_MS}, got {}",
+                    self.peer_timeout_ms
+                ),
             );
         }
         Ok(())

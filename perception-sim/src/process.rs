@@ -31,6 +31,7 @@ use rand_chacha::ChaCha8Rng;
 use tes_runtime::channel::{self, Idle, Inbox, IpcError, Outbox};
 use tes_runtime::clock::monotonic_ns;
 use tes_runtime::progress::{ProgressOutbox, ProgressWatch};
+use tes_runtime::wait::IDLE_TICK;
 use tes_topics::{
     FeatureBits, MAX_STATES, MotorState, NO_ACTION, Observation, Role, ServiceNames,
     StateAttributes, WorldMap, motor_flags, observation_flags, progress_flags,
@@ -385,15 +386,12 @@ impl Camera<'_> {
             }
             // Off the acting path (the command is out or the controller is gone): keep the
             // map reachable for a controller that starts now, and report.
-            if self.maps_updated.elapsed() >= Duration::from_millis(100) {
+            if self.maps_updated.elapsed() >= IDLE_TICK {
                 self.maps_updated = std::time::Instant::now();
                 self.maps.update_connections()?;
                 self.progress.publish_due(monotonic_ns())?;
             }
-            match self
-                .motors
-                .next(left.min(Duration::from_millis(100)), stop)?
-            {
+            match self.motors.next(left.min(IDLE_TICK), stop)? {
                 Err(Idle::Stopped) => return Ok(MotionWait::Stopped),
                 Err(Idle::Timeout) => {}
                 Ok(m) if m.flags & motor_flags::LINK_DOWN != 0 => {

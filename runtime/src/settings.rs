@@ -377,9 +377,46 @@ pub fn cpu(
     }
 }
 
+/// The longest service prefix a group may have, in bytes: every process's `service_prefix`
+/// (the bridge's `[ipc] service_prefix`, the launch's `[launch] service_prefix`) is held to it
+/// by [`service_prefix`].
+pub const SERVICE_PREFIX_MAX: usize = 64;
+
+/// The decision budget, µs: the default per-action latency budget, observation to command
+/// (the controller's `budget_us`, the bridge's `[ipc] budget_us`).
+pub const DEFAULT_BUDGET_US: u64 = 1000;
+
+/// The least per-action latency budget a process takes, µs.
+pub const MIN_BUDGET_US: u64 = 1;
+
+/// Checks a `service_prefix` key of `process`: at most [`SERVICE_PREFIX_MAX`] bytes.
+pub fn service_prefix(
+    process: &'static str,
+    key: &'static str,
+    prefix: &str,
+) -> Result<(), SettingError> {
+    if prefix.len() > SERVICE_PREFIX_MAX {
+        return Err(SettingError::new(
+            process,
+            key,
+            format!("must be at most {SERVICE_PREFIX_MAX} bytes"),
+        ));
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_service_prefix_is_held_to_its_limit() {
+        let at_most = "x".repeat(SERVICE_PREFIX_MAX);
+        assert!(service_prefix("demo", "service_prefix", &at_most).is_ok());
+        let e = service_prefix("demo", "service_prefix", &format!("{at_most}x")).unwrap_err();
+        assert_eq!((e.process, e.key.as_str()), ("demo", "service_prefix"));
+        assert_eq!(e.reason, "must be at most 64 bytes");
+    }
 
     #[derive(Debug, PartialEq, serde::Deserialize)]
     #[serde(deny_unknown_fields)]

@@ -26,6 +26,11 @@ use std::fmt;
 use std::str::FromStr;
 use std::time::Duration;
 
+/// The idle tick: the longest a process's loop waits for its next input before it looks
+/// again at its stop flag and its other chores (perception's map updates, the controller's
+/// keep-alives, the bridge's stop flag).
+pub const IDLE_TICK: Duration = Duration::from_millis(100);
+
 /// How a process waits for its next input.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum WaitStrategy {

@@ -88,7 +88,7 @@ pub struct LatencyArgs {
     #[arg(long, default_value_t = 10_000)]
     actions: u64,
     /// The per-action budget, µs.
-    #[arg(long, default_value_t = 1000)]
+    #[arg(long, default_value_t = tes_runtime::settings::DEFAULT_BUDGET_US)]
     budget_us: u64,
     /// How every process waits: block, spin, spin-then-block or spin-then-block:<µs>.
     #[arg(long, default_value = "block")]

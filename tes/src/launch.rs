@@ -65,13 +65,8 @@ pub struct LaunchArgs {
     /// Start only these processes (comma-separated: perception-sim, controller, bridge;
     /// overrides `[launch] roles`); the others run on other hosts, reached over Zenoh
     /// (`[launch.link]`, docs/multi-host.md).
-    #[arg(long, value_delimiter = ',', value_name = "ROLE,...", value_parser = parse_role)]
-    roles: Option<Vec<Role>>,
-}
-
-/// A role as the command line names it.
-pub(crate) fn parse_role(name: &str) -> Result<Role, tes_topics::UnknownRole> {
-    name.parse()
+    #[arg(long, value_delimiter = ',', value_name = "ROLE,...")]
+    roles: Option<Vec<String>>,
 }
 
 /// Runs `tes launch`.
@@ -109,8 +104,14 @@ fn launch_file(args: &LaunchArgs) -> Result<LaunchFile> {
     if let Some(path) = &args.record {
         file.launch.record = Some(path.clone());
     }
-    if let Some(roles) = &args.roles {
-        file.launch.roles.clone_from(roles);
+    if let Some(names) = &args.roles {
+        // Parsed here rather than by clap, so that a bad role is said as every refusal of a
+        // launch is: with the flag, and that nothing was started.
+        let roles: Result<Vec<Role>, _> = names.iter().map(|n| n.parse::<Role>()).collect();
+        file.launch.roles = match roles {
+            Ok(roles) => roles,
+            Err(e) => bail!("--roles: {e}; nothing was started"),
+        };
         // Said by the user, so placed as theirs: a bad role is named with the flag.
         if let Err(e) = tes_launch::file::check_launch(&file.launch) {
             bail!("--roles: {}; nothing was started", e.reason);

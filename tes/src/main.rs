@@ -43,7 +43,6 @@ enum Command {
     #[command(hide = true)]
     Child {
         /// perception-sim, controller or bridge.
-        #[arg(value_parser = launch::parse_role)]
         role: tes_topics::Role,
         /// The role's settings (TOML).
         #[arg(long)]

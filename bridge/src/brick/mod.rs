@@ -47,42 +47,83 @@ use crate::nxt::{
     telegram_type,
 };
 
-/// Physics and identity of the simulated brick (the `[brick]` table of the bridge config).
+/// The largest `speed_noise`: a relative standard deviation of the steady speed.
+pub const MAX_SPEED_NOISE: f64 = 0.5;
+
+/// The longest brick `name`, in ASCII characters (the name field of GETDEVICEINFO).
+pub const BRICK_NAME_MAX: usize = 14;
+
+/// Physics and identity of the simulated brick (the `[brick]` table of the bridge config;
+/// serial transports ignore it). Each field's doc is its key's entry in the launch file's
+/// reference (`tes launch --print-config`), as for
+/// [`BridgeSettings`](crate::config::BridgeSettings).
+///
+/// The bridge process drives the brick by a [`ScaledClock`](crate::clock::ScaledClock) of
+/// `time_scale` and converts its waits back to wall time.
 #[derive(Debug, Clone, PartialEq, serde::Deserialize, serde::Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SimBrickConfig {
-    /// Steady speed per unit of power, °/s (unloaded NXT motor: ≈ 9–10).
+    /// Steady speed per unit of power (an unloaded NXT motor: about 9 to 10).
+    ///
+    /// Values: °/s per unit of power, above 0.
     pub speed_per_power: f64,
     /// Steady speed of an unregulated motor relative to a regulated one (load, battery sag).
+    ///
+    /// Values: factor, above 0.
     pub unregulated_speed_factor: f64,
-    /// Time constant of the speed response to power, s.
+    /// Time constant of the speed's response to power.
+    ///
+    /// Values: s, above 0.
     pub time_constant_s: f64,
-    /// Time constant of a coasting (floating) motor's slow-down, s.
+    /// Time constant of a coasting (floating) motor's slow-down.
+    ///
+    /// Values: s, above 0.
     pub coast_time_constant_s: f64,
-    /// Time constant of a braking motor's slow-down, s.
+    /// Time constant of a braking motor's slow-down.
+    ///
+    /// Values: s, above 0.
     pub brake_time_constant_s: f64,
-    /// Below this speed (°/s) an undriven motor is at rest.
+    /// Below this speed an undriven motor is at rest.
+    ///
+    /// Values: °/s, above 0.
     pub stop_speed_dps: f64,
     /// Relative standard deviation of a command's steady speed (0 = noiseless).
+    ///
+    /// Values: 0 to [`MAX_SPEED_NOISE`].
     pub speed_noise: f64,
-    /// Fresh battery voltage, mV.
+    /// Fresh battery voltage.
+    ///
+    /// Values: mV.
     pub battery_mv: u16,
-    /// Half-width of the uniform noise on a battery reading, mV (0 = noiseless).
+    /// Half-width of the uniform noise on a battery reading (0 = noiseless).
+    ///
+    /// Values: mV.
     pub battery_noise_mv: u16,
-    /// Battery drain per powered motor per second, mV.
+    /// Battery drain per powered motor per second.
+    ///
+    /// Values: mV/s, at least 0.
     pub battery_drain_mv_per_s: f64,
-    /// Sleep timeout KEEPALIVE reports, minutes.
+    /// The sleep timeout KEEPALIVE reports.
+    ///
+    /// Values: minutes.
     pub sleep_timeout_min: u32,
-    /// Brick name GETDEVICEINFO reports (at most 14 ASCII characters).
+    /// The brick name GETDEVICEINFO reports.
+    ///
+    /// Values: at most [`BRICK_NAME_MAX`] ASCII characters.
     pub name: String,
-    /// Bluetooth address GETDEVICEINFO reports.
+    /// The Bluetooth address GETDEVICEINFO reports.
+    ///
+    /// Values: 6 bytes.
     pub address: [u8; 6],
-    /// Free user flash GETDEVICEINFO reports, bytes.
+    /// The free user flash GETDEVICEINFO reports.
+    ///
+    /// Values: bytes.
     pub free_flash: u32,
     /// How many times faster than the wall clock the simulated physics runs (1 = physical
-    /// time). The bridge process drives the brick by a [`ScaledClock`](crate::clock::ScaledClock)
-    /// of this scale and converts its waits back to wall time; the watchdog deadline and poll
-    /// periods are in brick time, so they scale with it. Ignored by serial transports.
+    /// time). The watchdog deadline and the poll periods are in brick time, so they scale
+    /// with it.
+    ///
+    /// Values: factor, [`TIME_SCALE_RANGE`](crate::config::TIME_SCALE_RANGE).
     pub time_scale: f64,
 }
 
@@ -150,16 +191,22 @@ impl SimBrickConfig {
                 });
             }
         }
-        if self.speed_noise > 0.5 {
+        if self.speed_noise > MAX_SPEED_NOISE {
             return Err(BrickConfigError {
                 key: "speed_noise",
-                reason: format!("must be at most 0.5, got {}", self.speed_noise),
+                reason: format!(
+                    "must be at most {MAX_SPEED_NOISE}, got {}",
+                    self.speed_noise
+                ),
             });
         }
-        if self.name.len() > 14 || !self.name.is_ascii() {
+        if self.name.len() > BRICK_NAME_MAX || !self.name.is_ascii() {
             return Err(BrickConfigError {
                 key: "name",
-                reason: format!("must be at most 14 ASCII characters, got {:?}", self.name),
+                reason: format!(
+                    "must be at most {BRICK_NAME_MAX} ASCII characters, got {:?}",
+                    self.name
+                ),
             });
         }
         Ok(())

@@ -10,39 +10,72 @@ use tes_runtime::settings::Origin;
 use crate::arena::ArenaId;
 
 /// Settings of the perception-sim process (TOML; every key optional). Written back with serde
-/// (`toml::to_string`), they read back the same.
+/// (`toml::to_string`), they read back the same. Each field's doc is its key's entry in the
+/// launch file's reference (`tes launch --print-config`): what it does, then its unit or
+/// values on a `Values:` line; the defaults are this struct's `Default`.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PerceptionConfig {
-    /// `arena`: 1, 2 or 3 (default 3).
+    /// The arena simulated.
+    ///
+    /// Values: `1` | `2` | `3`.
     pub arena: u32,
-    /// `episodes`: how many to run before exiting (default 20).
+    /// Episodes to run before exiting.
+    ///
+    /// Values: count, at least 1.
     pub episodes: u32,
-    /// `actions`: stop after this many actions in all, ending the episode then as truncated
-    /// (default 0: no limit; for benchmarks that run a fixed number of actions).
+    /// Stop after this many actions in all, ending the episode then as truncated (for
+    /// benchmarks that run a fixed number of actions).
+    ///
+    /// Values: count; 0 = no limit.
     pub actions: u64,
-    /// `seed`: start poses and slip (default 1).
+    /// Seed of the start poses and the wheel slip.
+    ///
+    /// Values: integer, 0 to 2^63 - 1.
     pub seed: u64,
-    /// `real_time_factor`: 1.0 = the paper's physical 200 ms settle; 0 = none (default).
+    /// 1.0 = the paper's physical settle after each motion (`settle_ms`); 0 = none.
+    ///
+    /// Values: factor, finite, at least 0.
     pub real_time_factor: f64,
-    /// `settle_ms`: the idle time after a motion at real-time factor 1 (default 200).
+    /// The idle time after a motion at real-time factor 1 (scaled by `real_time_factor`).
+    ///
+    /// Values: ms.
     pub settle_ms: u64,
-    /// `step_cap`: actions after which an episode is cut off (default 100).
+    /// Actions after which an episode is cut off.
+    ///
+    /// Values: count, at least 1.
     pub step_cap: u32,
-    /// `wait`: `block` (default), `spin`, `spin-then-block` or `spin-then-block:<µs>`.
+    /// How perception waits for motion reports.
+    ///
+    /// Values: `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>`.
     pub wait: WaitStrategy,
-    /// `service_prefix`: prefixed to every iceoryx2 service name.
+    /// Prefixed to every iceoryx2 service name (to run groups side by side).
+    ///
+    /// Values: text, at most [`SERVICE_PREFIX_MAX`](tes_runtime::settings::SERVICE_PREFIX_MAX)
+    /// bytes.
     pub service_prefix: String,
-    /// `motor_timeout_ms`: re-publish an observation (flagged RESYNC) when no motion report
-    /// follows it within this time (default 5000).
+    /// Re-publish an observation (flagged RESYNC) when no motion report follows it within
+    /// this time.
+    ///
+    /// Values: ms, at least 1.
     pub motor_timeout_ms: u64,
-    /// `left_port`, `right_port`: which NXT output ports (0 = A, 1 = B, 2 = C) drive the left
-    /// and right wheels (defaults 1 and 2, as the bridge's).
+    /// The NXT output port driving the left wheel (as the bridge's `[bridge.motors]
+    /// left_port`).
+    ///
+    /// Values: `0` (A) | `1` (B) | `2` (C); not `right_port`.
     pub left_port: usize,
-    /// See `left_port`.
+    /// The NXT output port driving the right wheel (as the bridge's `[bridge.motors]
+    /// right_port`).
+    ///
+    /// Values: `0` (A) | `1` (B) | `2` (C); not `left_port`.
     pub right_port: usize,
-    /// `trajectory`: where to write the run's trajectory, one CSV row per action (default
-    /// unset: none; a launch sets it to `trajectory.csv` in its run folder).
+    /// Where to write the run's trajectory: one CSV row per action (state, action, effect,
+    /// reward, poses before and after, why the episode ended). Unset: none; a launch writes
+    /// `trajectory.csv` in its run folder.
+    ///
+    /// Values: path.
+    ///
+    /// Example: `"/path/to/trajectory.csv"`.
     pub trajectory: Option<std::path::PathBuf>,
 }
 
@@ -155,6 +188,7 @@ impl PerceptionConfig {
         if self.motor_timeout_ms == 0 {
             return bad("motor_timeout_ms", "must be at least 1");
         }
+        tes_runtime::settings::service_prefix(PROCESS, "service_prefix", &self.service_prefix)?;
         let port_rule = "left_port and right_port must be different ports 0-2";
         if self.right_port > 2 && self.left_port <= 2 {
             return bad("right_port", port_rule);
@@ -211,6 +245,24 @@ mod tests {
         assert_eq!(checked.settle(), Duration::from_millis(100));
         assert_eq!(checked.motor_timeout(), Duration::from_secs(5));
         assert_eq!(checked.wait(), WaitStrategy::Block);
+    }
+
+    /// Like every process's, perception's service prefix is held to the one limit.
+    #[test]
+    fn a_service_prefix_longer_than_the_limit_is_refused() {
+        let fits = "p".repeat(tes_runtime::settings::SERVICE_PREFIX_MAX);
+        let cfg = PerceptionConfig {
+            service_prefix: fits.clone(),
+            ..PerceptionConfig::default()
+        };
+        assert!(cfg.check().is_ok());
+        let err = PerceptionConfig::from_toml(&format!("seed = 2\nservice_prefix = \"{fits}p\"\n"))
+            .unwrap_err();
+        assert_eq!(
+            (err.process, err.key.as_str(), err.line()),
+            (PROCESS, "service_prefix", Some(2))
+        );
+        assert_eq!(err.reason, "must be at most 64 bytes");
     }
 
     #[test]
