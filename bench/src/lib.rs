@@ -2,7 +2,7 @@
 //! path, the NXT codec) and the harnesses behind `tes bench`, usable without the command line:
 //!
 //! * [`latency`] — the controller's per-action latency, the real process group measured
-//!   against its floor in the same run (`tes bench latency`): the measured [`group`], its
+//!   against its floor in the same run (`tes bench latency`): the measured group, its
 //!   [`floor`] (by [`relay`] over shared memory, or over the Zenoh link), and with `record`
 //!   the [`recorder_cost`];
 //! * [`scaling`] — the acting step's cost against the number of features and views

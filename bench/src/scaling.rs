@@ -207,7 +207,7 @@ pub fn charts(points: &[ScalingPoint]) -> [LineChart; 2] {
     ]
 }
 
-/// The files [`write`] makes, in order.
+/// The files [`write()`] makes, in order.
 pub const OUTPUTS: [&str; 4] = [
     "scaling.csv",
     "scaling.json",

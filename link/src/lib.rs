@@ -86,5 +86,5 @@ mod topic;
 
 pub use error::LinkError;
 pub use link::{Link, LinkCounts, LinkEvent};
-pub use settings::{GROUP_NAME_MAX, LinkSection, Mode};
+pub use settings::{GROUP_NAME_MAX, LinkSection, MIN_PEER_TIMEOUT_MS, Mode};
 pub use topic::Topic;

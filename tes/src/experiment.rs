@@ -401,7 +401,7 @@ fn shard_note(options: JobOptions) -> String {
 }
 
 /// Progress on stderr: a bar (runs done, elapsed, the time left) on a terminal; elsewhere (a
-/// batch job's log, `nohup`) a plain line at most every [`PLAIN_PROGRESS_EVERY`] and at the
+/// batch job's log, `nohup`) a plain line at most every [`PROGRESS_LINE_EVERY`](tes_experiments::progress::PROGRESS_LINE_EVERY) and at the
 /// end. The estimate is made from the runs finished in this invocation, not those found on
 /// resume.
 struct Progress {

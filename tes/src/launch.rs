@@ -1,7 +1,7 @@
 //! `tes launch`: perception-sim, controller and bridge as one process group.
 //!
 //! The group is [`tes_launch`]'s: this module reads the arguments, installs the signal
-//! handlers, and observes the supervisor's events — printed as lines ([`print`]) or drawn
+//! handlers, and observes the supervisor's events — printed as lines ([`mod@print`]) or drawn
 //! in the live view ([`tui`]). Each child is this executable again, `tes child ROLE`.
 
 use std::path::PathBuf;
