@@ -241,16 +241,8 @@ pub struct Arena {
     cell_flags: Vec<u8>,
     /// Non-terminal cells.
     starts: Vec<u32>,
-    /// Reward for entering each state.
-    reward: Vec<f64>,
-    terminal: Vec<bool>,
-    /// Sparse features, CSR.
-    offsets: Vec<usize>,
-    indices: Vec<u32>,
-    /// Per in-area state: orientation indicator and the governing colour's mark bit.
-    oracle: Vec<[u32; 2]>,
-    /// Per in-area state: man-loreRL's features, numbered 0..12.
-    man: Vec<[u32; 3]>,
+    /// Each state's reward, terminality and features.
+    states: StateTables,
 }
 
 impl Arena {
@@ -275,12 +267,7 @@ impl Arena {
             cell_cm: grid.cell_cm,
             cell_flags,
             starts,
-            reward: states.reward,
-            terminal: states.terminal,
-            offsets: states.offsets,
-            indices: states.indices,
-            oracle: states.oracle,
-            man: states.man,
+            states,
         })
     }
 
@@ -532,7 +519,7 @@ impl Arena {
     ///
     /// If `state ≥ n_states()`.
     pub fn reward(&self, state: usize) -> f64 {
-        self.reward[state]
+        self.states.reward[state]
     }
 
     /// Whether entering `state` ends the episode (the ball, a death spot, the out state).
@@ -541,17 +528,17 @@ impl Arena {
     ///
     /// If `state ≥ n_states()`.
     pub fn is_terminal(&self, state: usize) -> bool {
-        self.terminal[state]
+        self.states.terminal[state]
     }
 
     /// The reward for entering each state, by state.
     pub fn rewards(&self) -> &[f64] {
-        &self.reward
+        &self.states.reward
     }
 
     /// Whether each state is terminal, by state.
     pub fn terminals(&self) -> &[bool] {
-        &self.terminal
+        &self.states.terminal
     }
 
     /// The features on in `state`, sorted: the green, blue and ball rings that hold a mark
@@ -562,7 +549,7 @@ impl Arena {
     ///
     /// If `state ≥ n_states()`.
     pub fn features(&self, state: usize) -> &[u32] {
-        &self.indices[self.offsets[state]..self.offsets[state + 1]]
+        &self.states.indices[self.states.offsets[state]..self.states.offsets[state + 1]]
     }
 
     /// The features the true dynamics depend on, over all states: the 8 orientation
@@ -588,7 +575,7 @@ impl Arena {
     /// If `state ≥ n_states()`.
     pub fn oracle_features(&self, state: usize) -> &[u32] {
         assert!(state < self.n_states(), "state {state} does not exist");
-        self.oracle.get(state).map_or(&[], |f| f.as_slice())
+        self.states.oracle.get(state).map_or(&[], |f| f.as_slice())
     }
 
     /// The true dynamics context of `state`: `8 · (governing mark in the cell) + orientation`,
@@ -617,7 +604,7 @@ impl Arena {
     /// If `state ≥ n_states()`.
     pub fn man_features(&self, state: usize) -> &[u32] {
         assert!(state < self.n_states(), "state {state} does not exist");
-        self.man.get(state).map_or(&[], |f| f.as_slice())
+        self.states.man.get(state).map_or(&[], |f| f.as_slice())
     }
 }
 
@@ -741,12 +728,17 @@ fn start_cells(cell_flags: &[u8]) -> Result<Vec<u32>, ArenaError> {
 /// The per-state tables of an arena (a state per cell and orientation, then the out state):
 /// reward, terminality, the features in CSR form, and the oracle's and the hand-made views'
 /// features.
+#[derive(Debug, Clone, PartialEq)]
 struct StateTables {
+    /// Reward for entering each state.
     reward: Vec<f64>,
     terminal: Vec<bool>,
+    /// Sparse features, CSR.
     offsets: Vec<usize>,
     indices: Vec<u32>,
+    /// Per in-area state: orientation indicator and the governing colour's mark bit.
     oracle: Vec<[u32; 2]>,
+    /// Per in-area state: man-loreRL's features, numbered 0..12.
     man: Vec<[u32; 3]>,
 }
 

@@ -217,8 +217,8 @@ impl Arena {
             wheels_deg,
             pose: next,
             state,
-            reward: self.reward[state],
-            terminal: self.terminal[state],
+            reward: self.states.reward[state],
+            terminal: self.states.terminal[state],
         })
     }
 
