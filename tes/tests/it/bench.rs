@@ -188,61 +188,25 @@ fn latency_via_zenoh_runs_the_split_group_and_its_floor_in_one_invocation() {
 #[test]
 fn bad_bench_arguments_are_refused_before_anything_starts() {
     let dir = tempfile::tempdir().unwrap();
-    let (ok, _, stderr) = run(
-        &["bench", "latency", "--wait", "nap"],
-        dir.path(),
-        Duration::from_secs(30),
-    );
-    assert!(!ok);
-    assert!(stderr.contains("--wait"), "{stderr}");
-    let (ok, _, stderr) = run(
-        &["bench", "latency", "--actions", "0"],
-        dir.path(),
-        Duration::from_secs(30),
-    );
-    assert!(!ok);
-    assert!(stderr.contains("--actions"), "{stderr}");
-    let (ok, _, stderr) = run(
-        &["bench", "latency", "--acting-cpu", "100000"],
-        dir.path(),
-        Duration::from_secs(30),
-    );
-    assert!(!ok);
-    assert!(
-        stderr.contains("--acting-cpu")
-            && stderr.contains("CPU 100000")
-            && stderr.contains("allowed"),
-        "{stderr}"
-    );
-    let (ok, _, stderr) = run(
-        &["bench", "latency", "--acting-cpu", "fast"],
-        dir.path(),
-        Duration::from_secs(30),
-    );
-    assert!(!ok);
-    assert!(
-        stderr.contains("--acting-cpu") && stderr.contains("none"),
-        "{stderr}"
-    );
-    // Planning between polls needs a spinning wait.
-    let (ok, _, stderr) = run(
-        &["bench", "latency", "--planning", "between-polls"],
-        dir.path(),
-        Duration::from_secs(30),
-    );
-    assert!(!ok);
-    assert!(
-        stderr.contains("--planning") && stderr.contains("spin"),
-        "{stderr}"
-    );
-    let (ok, _, stderr) = run(
-        &["bench", "latency", "--order", "later"],
-        dir.path(),
-        Duration::from_secs(30),
-    );
-    assert!(!ok);
-    assert!(
-        stderr.contains("--order") && stderr.contains("decide-first"),
-        "{stderr}"
-    );
+    // Each bad argument, and what its message must name. Planning between polls needs a
+    // spinning wait.
+    let cases: [(&[&str], &[&str]); 6] = [
+        (&["--wait", "nap"], &["--wait"]),
+        (&["--actions", "0"], &["--actions"]),
+        (
+            &["--acting-cpu", "100000"],
+            &["--acting-cpu", "CPU 100000", "allowed"],
+        ),
+        (&["--acting-cpu", "fast"], &["--acting-cpu", "none"]),
+        (&["--planning", "between-polls"], &["--planning", "spin"]),
+        (&["--order", "later"], &["--order", "decide-first"]),
+    ];
+    for (bad, named) in cases {
+        let args: Vec<&str> = ["bench", "latency"].iter().chain(bad).copied().collect();
+        let (ok, _, stderr) = run(&args, dir.path(), Duration::from_secs(30));
+        assert!(!ok, "{bad:?} was accepted");
+        for word in named {
+            assert!(stderr.contains(word), "{bad:?}: no {word:?} in\n{stderr}");
+        }
+    }
 }
