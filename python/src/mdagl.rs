@@ -12,8 +12,12 @@ use tes_learning::mdagl::{Features, Mdagl as Model, MdaglError, MdaglParams};
 /// Rows of one batch, borrowed from NumPy arrays.
 #[derive(Clone, Copy)]
 enum Rows<'a> {
-    /// Real values, `width` per row, row-major.
-    Dense { values: &'a [f64], width: usize },
+    /// Real values, `width` per row, row-major (`rows` of them: a width of 0 still has rows).
+    Dense {
+        values: &'a [f64],
+        rows: usize,
+        width: usize,
+    },
     /// The column indices of each row's ones (SciPy's CSR without its data array):
     /// row `r` is `indices[indptr[r]..indptr[r + 1]]`.
     Sparse {
@@ -25,11 +29,15 @@ enum Rows<'a> {
 impl<'a> Rows<'a> {
     /// Dense rows from a C-contiguous 2-D array.
     fn dense(x: &'a PyReadonlyArray2<'_, f64>) -> PyResult<Self> {
-        let (_, width) = x.as_array().dim();
+        let (rows, width) = x.as_array().dim();
         let values = x.as_slice().map_err(|_| {
             PyValueError::new_err("X must be C-contiguous (numpy.ascontiguousarray(X))")
         })?;
-        Ok(Self::Dense { values, width })
+        Ok(Self::Dense {
+            values,
+            rows,
+            width,
+        })
     }
 
     /// Sparse rows from CSR arrays, whose row pointers are checked here.
@@ -46,14 +54,16 @@ impl<'a> Rows<'a> {
 
     fn len(&self) -> usize {
         match *self {
-            Rows::Dense { values, width } => values.len().checked_div(width).unwrap_or(0),
+            Rows::Dense { rows, .. } => rows,
             Rows::Sparse { indptr, .. } => indptr.len().saturating_sub(1),
         }
     }
 
     fn row(&self, r: usize) -> Features<'a> {
         match *self {
-            Rows::Dense { values, width } => Features::Dense(&values[r * width..(r + 1) * width]),
+            Rows::Dense { values, width, .. } => {
+                Features::Dense(&values[r * width..(r + 1) * width])
+            }
             Rows::Sparse { indptr, indices } => {
                 // In range: `check_indptr` accepted these pointers.
                 let (start, end) = (indptr[r] as usize, indptr[r + 1] as usize);

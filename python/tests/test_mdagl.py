@@ -169,3 +169,11 @@ def test_the_package_docstring_example_runs():
     import doctest
 
     assert doctest.testmod(tes).failed == 0
+
+
+def test_an_intercept_only_model_learns_rows_of_no_features():
+    model = tes.Mdagl(0, 2, intercept=True)
+    model.partial_fit(np.zeros((3, 0)), [1, 1, 0])
+    assert model.n_updates_ == 3
+    assert model.predict_proba(np.zeros((2, 0))).shape == (2, 2)
+    assert model.intercept_.shape == (2,)
