@@ -33,6 +33,27 @@ fn run(args: &[&str], data: &std::path::Path, limit: Duration) -> (bool, String,
     (status.success(), out, err)
 }
 
+/// The floor measured something, its first hop lies inside its round trip, and the p50
+/// ratio is the run's p50 over the floor's.
+fn assert_floor_consistent(v: &serde_json::Value) {
+    let floor_p50 = v["floor_p50_us"].as_u64().expect("floor p50");
+    assert!(floor_p50 > 0, "{v}");
+    assert!(
+        v["floor_decision"]["p50_us"].as_u64().unwrap() <= floor_p50,
+        "{v}"
+    );
+    let ratio = v["ratio_p50"].as_f64().unwrap();
+    let p50 = v["p50_us"].as_f64().unwrap();
+    assert!((ratio - p50 / floor_p50 as f64).abs() < 1e-9, "{v}");
+}
+
+/// Every one of `files` was kept in the `--out` folder.
+fn assert_kept(out: &std::path::Path, files: &[&str]) {
+    for file in files {
+        assert!(out.join(file).exists(), "{file} kept with --out");
+    }
+}
+
 #[test]
 fn latency_runs_both_paths_and_reports_every_key() {
     let dir = tempfile::tempdir().unwrap();
@@ -111,24 +132,21 @@ fn latency_runs_both_paths_and_reports_every_key() {
         v["max_us"].as_u64().unwrap(),
     );
     assert!(0 < p50 && p50 <= p99 && p99 <= max, "{v}");
-    assert!(v["floor_p50_us"].as_u64().unwrap() > 0);
-    // The floor's first hop is part of its round trip.
-    assert!(v["floor_decision"]["p50_us"].as_u64().unwrap() <= v["floor_p50_us"].as_u64().unwrap());
-    let ratio = v["ratio_p50"].as_f64().unwrap();
-    assert!((ratio - p50 as f64 / v["floor_p50_us"].as_f64().unwrap()).abs() < 1e-9);
+    assert_floor_consistent(&v);
     // The controller counts its acting path's allocations (the tes binary installs the
     // counting allocator): none, its command included (a blackboard store, not a loan).
     assert_eq!(v["allocations"], 0, "{v}");
     assert_eq!(v["ipc_allocations"], 0, "{v}");
-    for file in [
-        "floor.json",
-        "floor-first-hop.json",
-        "bridge.json",
-        "controller.json",
-        "library.tesl",
-    ] {
-        assert!(out.join(file).exists(), "{file} kept with --out");
-    }
+    assert_kept(
+        &out,
+        &[
+            "floor.json",
+            "floor-first-hop.json",
+            "bridge.json",
+            "controller.json",
+            "library.tesl",
+        ],
+    );
 }
 
 #[test]
@@ -158,31 +176,24 @@ fn latency_via_zenoh_runs_the_split_group_and_its_floor_in_one_invocation() {
     let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
     assert_eq!(v["via"], "zenoh", "{v}");
     assert_eq!(v["actions"], 100, "{v}");
-    // The split run and its floor both measured every action, the floor's first hop (timed
-    // in the floor's controller process) inside its round trip.
+    // The split run and its floor both measured every action, the floor's first hop timed
+    // in the floor's controller process.
     for part in ["decision", "floor_decision"] {
         assert_eq!(v[part]["count"], 100, "{part}: {v}");
     }
-    let floor_p50 = v["floor_p50_us"].as_u64().expect("floor p50");
-    assert!(floor_p50 > 0, "{v}");
-    assert!(
-        v["floor_decision"]["p50_us"].as_u64().unwrap() <= floor_p50,
-        "{v}"
-    );
-    let ratio = v["ratio_p50"].as_f64().unwrap();
-    let p50 = v["p50_us"].as_f64().unwrap();
-    assert!((ratio - p50 / floor_p50 as f64).abs() < 1e-9, "{v}");
+    assert_floor_consistent(&v);
     // Across the link the acting path still allocates nothing.
     assert_eq!(v["allocations"], 0, "{v}");
-    for file in [
-        "floor-first-hop.json",
-        "floor-hop.log",
-        "controller.json",
-        "bridge.json",
-        "controller-launch.log",
-    ] {
-        assert!(out.join(file).exists(), "{file} kept with --out");
-    }
+    assert_kept(
+        &out,
+        &[
+            "floor-first-hop.json",
+            "floor-hop.log",
+            "controller.json",
+            "bridge.json",
+            "controller-launch.log",
+        ],
+    );
 }
 
 #[test]
