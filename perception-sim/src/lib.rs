@@ -4,7 +4,8 @@
 //!   features, logistic true dynamics, and the 15-task suite the transfer experiments use.
 //! * [`arena`] — the paper's §5.2 robot arenas (Env 1–3): a differential-drive robot with
 //!   surface-dependent wheel slip, 8 orientations, 20 effects and the 312 camera features.
-//! * [`process`] — the perception-sim process: an arena and its camera over iceoryx2.
+//! * `process` — the perception-sim process: an arena and its camera over iceoryx2 (the
+//!   default `process` feature; without it the crate is the worlds alone, with no IPC).
 //!
 //! Every world is seeded and reproducible; per-step methods allocate nothing.
 //!
@@ -23,4 +24,5 @@
 
 pub mod arena;
 pub mod grid;
+#[cfg(feature = "process")]
 pub mod process;

@@ -31,6 +31,7 @@
 //! assert_eq!(obs.features.iter_ones().collect::<Vec<_>>(), vec![3, 311]);
 //! ```
 
+#[cfg(feature = "ipc")]
 use iceoryx2::prelude::ZeroCopySend;
 
 pub mod names;
@@ -175,8 +176,8 @@ impl ServiceNames {
 ///
 /// Bit `i` of word `i / 64` is feature `i`. Bits at or beyond the observation's
 /// `n_features` are always clear.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
-#[type_name("tes::FeatureBits")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("tes::FeatureBits"))]
 #[repr(C)]
 pub struct FeatureBits {
     /// The raw bit words.
@@ -254,8 +255,12 @@ impl FeatureBits {
 
 /// The state attributes that identify a state in the robot arenas: the discretised pose. The
 /// "out of the area" state has [`StateAttributes::OUT`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, ZeroCopySend)]
-#[type_name("tes::StateAttributes")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+#[cfg_attr(
+    feature = "ipc",
+    derive(ZeroCopySend),
+    type_name("tes::StateAttributes")
+)]
 #[repr(C)]
 pub struct StateAttributes {
     /// Grid column of the robot's cell.
@@ -440,8 +445,8 @@ pub mod progress_flags {
 /// publishes observation `out_seq` after using the motion of command `in_seq`; the controller
 /// answers observation `in_seq` with command `out_seq`; the bridge executes command `in_seq`
 /// and reports the motion of command `out_seq` settled.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
-#[type_name("tes::Progress")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("tes::Progress"))]
 #[repr(C)]
 pub struct Progress {
     /// Monotonic clock (ns) when published.
@@ -481,8 +486,8 @@ pub mod observation_flags {
 }
 
 /// What perception publishes each time the robot comes to rest: the state and its features.
-#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
-#[type_name("tes::Observation")]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("tes::Observation"))]
 #[repr(C)]
 pub struct Observation {
     /// Strictly increasing per publisher, starting at 1.
@@ -508,8 +513,8 @@ pub struct Observation {
 }
 
 /// What the controller sends the bridge: one of the robot's abstract actions and its wheel targets.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
-#[type_name("tes::Command")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("tes::Command"))]
 #[repr(C)]
 pub struct Command {
     /// Strictly increasing per publisher, starting at 1.
@@ -611,8 +616,8 @@ pub mod motor_flags {
 }
 
 /// What the bridge reports from the brick: wheel rotation counts and motor states.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
-#[type_name("tes::MotorState")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("tes::MotorState"))]
 #[repr(C)]
 pub struct MotorState {
     /// Strictly increasing per publisher, starting at 1.
@@ -702,6 +707,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "ipc")]
     fn type_names_are_stable() {
         // iceoryx2 matches services by payload type name; keep them independent of module paths.
         // SAFETY: `type_name` only returns a static string.

@@ -2,6 +2,7 @@
 //! at start — every state's features, the effects' known meaning, rewards and terminal states —
 //! so the controller can plan without knowing anything about arenas.
 
+#[cfg(feature = "ipc")]
 use iceoryx2::prelude::ZeroCopySend;
 
 use crate::{FeatureBits, StateAttributes};
@@ -20,8 +21,8 @@ pub const MAX_ACTIONS: usize = 4;
 /// States are numbered `(y · width + x) · orientations + orientation`; one more state,
 /// `width · height · orientations`, is "out of the area", reported in an
 /// [`Observation`](crate::Observation) with `x = y = u16::MAX`.
-#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("tes::WorldMap")]
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("tes::WorldMap"))]
 #[repr(C)]
 pub struct WorldMap {
     /// Strictly increasing per publisher.
