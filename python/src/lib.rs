@@ -3,7 +3,10 @@
 //! and scikit-learn's names. Errors cross the boundary as Python exceptions carrying the Rust
 //! message; nothing here panics on input.
 
+mod agents;
 mod mdagl;
+mod structure;
+mod worlds;
 
 use pyo3::prelude::*;
 
@@ -11,6 +14,14 @@ use pyo3::prelude::*;
 #[pymodule]
 fn _tes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<mdagl::Mdagl>()?;
+    m.add_class::<structure::Structure>()?;
+    m.add_class::<agents::Agent>()?;
+    m.add_class::<worlds::GridWorld>()?;
+    m.add_class::<worlds::ArenaWorld>()?;
+    m.add(
+        "LibraryFileError",
+        m.py().get_type::<agents::LibraryFileError>(),
+    )?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

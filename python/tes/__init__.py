@@ -1,5 +1,13 @@
-"""TES from Python: mDAGL (online sparse multinomial logistic regression with group lasso),
-over the same Rust code as the ``tes`` controller and ``tes fit``.
+"""TES from Python: mDAGL, the paper's agents and its worlds, over the same Rust code as the
+``tes`` controller (Nguyen et al., *Scalable transfer learning in heterogeneous, dynamic
+environments*, AIJ 2017).
+
+* :class:`Mdagl` — online sparse multinomial logistic regression with group lasso.
+* :mod:`tes.agents` — ``LoreRL``, ``TES``, ``LWT``, ``FEpsG`` on any environment that
+  declares its structure (:mod:`tes.structure`); :mod:`tes.adapters` has ready structures.
+* :func:`run` — an agent's episodes on a Gymnasium environment.
+* ``tes/GridTask-v0`` and ``tes/Arena-v0`` — the paper's worlds, registered with Gymnasium on
+  import (:mod:`tes.envs`).
 
 >>> import numpy as np, tes
 >>> model = tes.Mdagl(n_features=4, n_classes=2)
@@ -7,7 +15,32 @@ over the same Rust code as the ``tes`` controller and ``tes fit``.
 4
 """
 
-from tes._mdagl import Mdagl
-from tes._tes import __version__
+import gymnasium as _gymnasium
 
-__all__ = ["Mdagl", "__version__"]
+from tes import adapters, agents, evaluate, structure
+from tes._mdagl import Mdagl
+from tes._run import run
+from tes._tes import LibraryFileError, __version__
+
+__all__ = [
+    "Mdagl",
+    "LibraryFileError",
+    "adapters",
+    "agents",
+    "evaluate",
+    "run",
+    "structure",
+    "__version__",
+]
+
+
+def _register() -> None:
+    for env_id, entry_point in (
+        ("tes/GridTask-v0", "tes.envs:GridTaskEnv"),
+        ("tes/Arena-v0", "tes.envs:ArenaEnv"),
+    ):
+        if env_id not in _gymnasium.registry:
+            _gymnasium.register(id=env_id, entry_point=entry_point)
+
+
+_register()

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import threading
 import time
@@ -14,20 +13,10 @@ import numpy as np
 import pytest
 
 import tes
+from conftest import tes_binary
 
 REPO = Path(__file__).resolve().parents[2]
 DEMO = REPO / "data" / "fit-demo.csv"
-
-
-def tes_binary() -> str:
-    """The `tes` executable: $TES_BIN, else one built in the repository, else on PATH."""
-    candidates = [os.environ.get("TES_BIN")]
-    candidates += [str(REPO / "target" / p / "tes") for p in ("release", "debug")]
-    candidates.append(shutil.which("tes"))
-    for c in candidates:
-        if c and Path(c).is_file() and os.access(c, os.X_OK):
-            return c
-    pytest.fail("no tes executable: set TES_BIN or run `cargo build -p tes` first")
 
 
 def demo() -> tuple[np.ndarray, np.ndarray]:
