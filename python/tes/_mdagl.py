@@ -18,8 +18,12 @@ def _is_sparse(x: Any) -> bool:
 def _csr_ones(x: Any) -> tuple[np.ndarray, np.ndarray]:
     """Row pointers (int64) and strictly increasing column indices (uint32) of a sparse
     matrix whose stored entries are all 1."""
-    csr = x.tocsr(copy=True)
-    csr.sum_duplicates()  # also sorts each row's indices
+    csr = x.tocsr()
+    if not csr.has_canonical_format:
+        # Sorted, duplicate-free rows are what the native side takes; tidy a copy, never
+        # the caller's matrix.
+        csr = csr.copy()
+        csr.sum_duplicates()
     data = np.asarray(csr.data)
     if data.size and not np.all(data == 1):
         bad = int(np.flatnonzero(data != 1)[0])
