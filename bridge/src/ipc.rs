@@ -54,7 +54,7 @@ pub struct RunOptions {
 }
 
 impl RunOptions {
-    /// Options for the `bridge run` process: stop on SIGINT/SIGTERM.
+    /// Options for the `tes-bridge run` process: stop on SIGINT/SIGTERM.
     pub fn process() -> Self {
         Self {
             handle_signals: true,

@@ -14,7 +14,7 @@
 //!   actions by default).
 //! - [`watchdog`]: brakes the motors when commands stop arriving while a motor runs.
 //! - [`bridge`]: the logic tying these together, free of IPC; [`ipc`] runs it over iceoryx2;
-//!   [`process`] builds it all from a config (the `bridge run` binary and `tes launch`).
+//!   [`process`] builds it all from a config (the `tes-bridge run` binary and `tes launch`).
 //! - [`pty`]: serves the simulated brick on a pseudo-terminal for any NXT client.
 //! - [`config`]: the TOML configuration; `transport = "serial:/dev/rfcomm0"` swaps in a real NXT.
 //!

@@ -1,8 +1,8 @@
 //! `bridge`: the TES actuation process, and a simulated NXT brick server.
 //!
 //! ```text
-//! bridge run [--config FILE] [--time-scale K]      commands in over iceoryx2, NXT telegrams out
-//! bridge brick --pty PATH [--seed N] [--config FILE] [--link-delay]
+//! tes-bridge run [--config FILE] [--time-scale K]      commands in over iceoryx2, NXT telegrams out
+//! tes-bridge brick --pty PATH [--seed N] [--config FILE] [--link-delay]
 //!                                                   serve the simulated brick on a pseudo-terminal
 //! ```
 
@@ -22,7 +22,7 @@ use tes_bridge::transport::LinkDelay;
 
 #[derive(Debug, Parser)]
 #[command(
-    name = "bridge",
+    name = "tes-bridge",
     version,
     about = "TES bridge: controller commands to LEGO NXT direct commands"
 )]
@@ -122,7 +122,7 @@ fn brick(link: &Path, cfg: &BridgeConfig) -> anyhow::Result<()> {
         SimBrick::new(cfg.brick.clone(), cfg.seed).context("building the simulated brick")?;
     let server = PtyServer::open(link)
         .with_context(|| format!("serving the brick at {}", link.display()))?;
-    // The brick (and its simulated link) run at `[brick] time_scale`, like under `bridge run`.
+    // The brick (and its simulated link) run at `[brick] time_scale`, like under `tes-bridge run`.
     let clock = ScaledClock::new(cfg.brick.time_scale);
     let delay = cfg.link_delay.map(|(mean, jitter)| {
         LinkDelay::new(

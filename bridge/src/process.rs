@@ -1,4 +1,4 @@
-//! The bridge process's entry point, for the `bridge run` binary and for launchers: builds
+//! The bridge process's entry point, for the `tes-bridge run` binary and for launchers: builds
 //! the transport the config names — the simulated brick (running at `[brick] time_scale`) or a
 //! serial link — and runs the iceoryx2 loop until a signal or the stop flag.
 //!

@@ -1,6 +1,6 @@
 """An independent NXT client for the simulated brick: nxt-python's devfile backend.
 
-Usage: python3 nxt_client.py PATH   (PATH: the pseudo-terminal `bridge brick --pty PATH` links)
+Usage: python3 nxt_client.py PATH   (PATH: the pseudo-terminal `tes-bridge brick --pty PATH` links)
 
 Exits non-zero with a message on the first failed check. Driven by tests/it/nxt_python.rs.
 """

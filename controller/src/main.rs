@@ -2,7 +2,7 @@
 //! observations, commanding the bridge over iceoryx2. Usually started by `tes launch`.
 //!
 //! ```text
-//! controller run [--config FILE] [--library PATH] [--budget-us B] [--wait STRATEGY]
+//! tes-controller run [--config FILE] [--library PATH] [--budget-us B] [--wait STRATEGY]
 //! ```
 
 use std::path::PathBuf;
@@ -15,7 +15,7 @@ use tes_controller::process;
 
 #[derive(Debug, Parser)]
 #[command(
-    name = "controller",
+    name = "tes-controller",
     version,
     about = "TES controller process: learn, plan, act"
 )]
@@ -30,7 +30,7 @@ enum Cmd {
     Run(RunArgs),
 }
 
-/// Options of `controller run`; each overrides the config file's key of the same name.
+/// Options of `tes-controller run`; each overrides the config file's key of the same name.
 #[derive(Debug, clap::Args)]
 pub struct RunArgs {
     /// TOML file with the controller's settings (keys of `ControllerConfig`).

@@ -123,7 +123,7 @@ pub const TABLES: &[Table] = &[
         name: "bridge.link_delay",
         array: false,
         about: "A simulated Bluetooth delay on each reply of the `sim` transport (and of \
-                `bridge brick --pty`).",
+                `tes-bridge brick --pty`).",
     },
     Table {
         name: "bridge.serial",

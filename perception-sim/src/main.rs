@@ -2,7 +2,7 @@
 //! camera, publishing observations over iceoryx2. Usually started by `tes launch`.
 //!
 //! ```text
-//! perception-sim run [--config FILE] [--arena 1|2|3] [--episodes N] [--seed S]
+//! tes-perception-sim run [--config FILE] [--arena 1|2|3] [--episodes N] [--seed S]
 //! ```
 
 use std::path::PathBuf;
@@ -14,7 +14,7 @@ use tes_perception_sim::process::{self, PerceptionConfig};
 
 #[derive(Debug, Parser)]
 #[command(
-    name = "perception-sim",
+    name = "tes-perception-sim",
     version,
     about = "TES perception process: a simulated arena and its camera"
 )]
@@ -29,7 +29,7 @@ enum Cmd {
     Run(RunArgs),
 }
 
-/// Options of `perception-sim run`; each overrides the config file's key of the same name.
+/// Options of `tes-perception-sim run`; each overrides the config file's key of the same name.
 #[derive(Debug, clap::Args)]
 struct RunArgs {
     /// TOML file with the perception settings (keys of `PerceptionConfig`).

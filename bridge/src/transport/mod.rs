@@ -3,7 +3,7 @@
 //! - [`SimTransport`]: the [`SimBrick`](crate::brick::SimBrick) in-process, stepped to a
 //!   [`Clock`](crate::clock::Clock) at each telegram.
 //! - [`SerialTransport`]: a serial device (`/dev/rfcomm0` for a Bluetooth-paired NXT, or the
-//!   pseudo-terminal `bridge brick --pty` serves), with read timeouts and reconnection.
+//!   pseudo-terminal `tes-bridge brick --pty` serves), with read timeouts and reconnection.
 //! - [`DelayedTransport`]: wraps either and delays each reply like a Bluetooth link
 //!   (≈ 30 ms with jitter), for realistic timing off the robot.
 //!

@@ -1,4 +1,4 @@
-//! The serial transport, end to end, against `bridge brick --pty`.
+//! The serial transport, end to end, against `tes-bridge brick --pty`.
 
 use std::time::Duration;
 

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 
-/// A `bridge brick --pty` child; killed and reaped on drop, whatever happens in the test.
+/// A `tes-bridge brick --pty` child; killed and reaped on drop, whatever happens in the test.
 pub struct BrickProcess {
     child: Option<Child>,
     pub link: PathBuf,
@@ -16,7 +16,7 @@ pub struct BrickProcess {
 impl BrickProcess {
     /// Starts the brick server linked at `link` and waits for the link to appear.
     pub fn spawn(link: &Path, seed: u64) -> Self {
-        let child = Command::new(env!("CARGO_BIN_EXE_bridge"))
+        let child = Command::new(env!("CARGO_BIN_EXE_tes-bridge"))
             .args(["brick", "--pty"])
             .arg(link)
             .args(["--seed", &seed.to_string()])
@@ -33,7 +33,7 @@ impl BrickProcess {
         let deadline = Instant::now() + Duration::from_secs(20);
         while std::fs::symlink_metadata(link).is_err() {
             if let Some(status) = me.child.as_mut().and_then(|c| c.try_wait().ok().flatten()) {
-                panic!("bridge brick exited early: {status}");
+                panic!("tes-bridge brick exited early: {status}");
             }
             assert!(
                 Instant::now() < deadline,

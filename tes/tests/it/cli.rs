@@ -478,3 +478,43 @@ fn an_experiment_stopped_with_ctrl_c_resumes_from_its_records_to_the_same_summar
         "the resumed run's summary differs from the uninterrupted run's"
     );
 }
+
+/// Every executable the workspace builds is named `tes` or `tes-…`, so installing one never
+/// shadows, or is shadowed by, a system command (iproute2 ships `bridge`).
+#[test]
+fn every_executable_is_named_after_tes() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let workspace: toml::Table = read_toml(&root.join("Cargo.toml"));
+    let members = workspace["workspace"]["members"]
+        .as_array()
+        .expect("the workspace lists its members");
+    let mut names = Vec::new();
+    for member in members {
+        let dir = root.join(member.as_str().expect("a member is a path"));
+        let manifest = read_toml(&dir.join("Cargo.toml"));
+        let package = manifest["package"]["name"].as_str().unwrap_or_default();
+        let bins = manifest.get("bin").and_then(|b| b.as_array()).cloned();
+        match bins {
+            Some(bins) => names.extend(
+                bins.iter()
+                    .filter_map(|b| b.get("name").and_then(|n| n.as_str()).map(str::to_owned)),
+            ),
+            // Cargo's default binary takes the package's name.
+            None if dir.join("src/main.rs").exists() => names.push(package.to_owned()),
+            None => {}
+        }
+    }
+    assert!(names.contains(&"tes-bridge".to_owned()), "{names:?}");
+    for name in &names {
+        assert!(
+            name == "tes" || name.starts_with("tes-"),
+            "the executable {name:?} is not named tes-…"
+        );
+    }
+}
+
+fn read_toml(path: &Path) -> toml::Table {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    text.parse()
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
