@@ -179,9 +179,9 @@ pub const SETTLE_POLLS_RANGE: std::ops::RangeInclusive<u32> = 1..=100;
 /// The least `[poll] keepalive_period_ms`.
 pub const MIN_KEEPALIVE_PERIOD_MS: u64 = 1000;
 
-/// The simulated Bluetooth link delay on each reply of the `sim` transport (and of `bridge
-/// brick --pty`): the `[link_delay]` table. Each field's doc is its key's entry in the launch
-/// file's reference (`tes launch --print-config`), as for [`BridgeSettings`].
+/// The simulated Bluetooth link delay on each reply of the `sim` transport (and of
+/// `tes-bridge brick --pty`): the `[link_delay]` table. Each field's doc is its key's entry in
+/// the launch file's reference (`tes launch --print-config`), as for [`BridgeSettings`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct LinkDelayConfig {
@@ -377,8 +377,8 @@ impl IpcConfig {
 #[serde(default, deny_unknown_fields)]
 pub struct BridgeSettings {
     /// What carries the telegrams: the simulated brick, in-process; or a serial device — a
-    /// real NXT over Bluetooth (`serial:/dev/rfcomm0`) or the pseudo-terminal that `bridge
-    /// brick --pty` serves.
+    /// real NXT over Bluetooth (`serial:/dev/rfcomm0`) or the pseudo-terminal that
+    /// `tes-bridge brick --pty` serves.
     ///
     /// Values: `"sim"` | `"serial:<path>"`.
     pub transport: TransportKind,
