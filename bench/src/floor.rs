@@ -25,7 +25,7 @@ use tes_runtime::latency::{LatencyRecorder, LatencyReport};
 use tes_topics::{Command, Observation, Role, ServiceNames, StateAttributes, WorldMap};
 
 use crate::error::{BenchError, Result};
-use crate::group::{free_port, wait_or_kill};
+use crate::group::{free_port, remove_domain_of, wait_or_kill};
 use crate::latency::LatencySettings;
 use crate::relay::{self, RelayConfig};
 
@@ -251,8 +251,10 @@ pub fn zenoh_floor(
         Duration::from_secs(10),
         measured.is_err(),
         "cannot poll the floor's controller side",
-    )?;
+    );
     drop(robot);
+    remove_domain_of(&floor_domain());
+    let status = status?;
     let round = measured.map_err(|e| BenchError::SeeAlso {
         log: log.clone(),
         cause: Box::new(e),
@@ -287,10 +289,7 @@ fn spawn_hop(floor_hop: &ChildCommand, hop: &HopSettings, log: &Path) -> Result<
     std::process::Command::new(&floor_hop.program)
         .args(&floor_hop.args)
         .args(hop.args())
-        .env(
-            tes_runtime::channel::DOMAIN_VAR,
-            format!("benchfloor{}", std::process::id()),
-        )
+        .env(tes_runtime::channel::DOMAIN_VAR, floor_domain())
         .stdin(Stdio::null())
         .stdout(shared)
         .stderr(file)
@@ -298,6 +297,11 @@ fn spawn_hop(floor_hop: &ChildCommand, hop: &HopSettings, log: &Path) -> Result<
         .map_err(BenchError::io(
             "cannot start the floor's controller side".into(),
         ))
+}
+
+/// The iceoryx2 domain of the floor's controller side: this process's own.
+fn floor_domain() -> String {
+    format!("benchfloor{}", std::process::id())
 }
 
 /// The robot's side of the Zenoh floor: the world map, observations out, commands in.

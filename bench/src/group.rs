@@ -104,7 +104,9 @@ impl Group {
             Duration::from_secs(60),
             false,
             "cannot poll the controller's launch",
-        )?;
+        );
+        remove_domain_of(&split_domain());
+        let status = status?;
         ran?;
         match status {
             Some(s) if s.success() => {}
@@ -235,10 +237,7 @@ fn spawn_launch(launch: &ChildCommand, config: &Path, log: &Path) -> Result<Chil
         .args(&launch.args)
         .arg("--config")
         .arg(config)
-        .env(
-            tes_runtime::channel::DOMAIN_VAR,
-            format!("bench{}", std::process::id()),
-        )
+        .env(tes_runtime::channel::DOMAIN_VAR, split_domain())
         .stdin(Stdio::null())
         .stdout(shared)
         .stderr(file)
@@ -246,6 +245,30 @@ fn spawn_launch(launch: &ChildCommand, config: &Path, log: &Path) -> Result<Chil
         .map_err(BenchError::io(
             "cannot start the controller's launch".into(),
         ))
+}
+
+/// The iceoryx2 domain of the split run's controller launch: this process's own.
+fn split_domain() -> String {
+    format!("bench{}", std::process::id())
+}
+
+/// Removes what iceoryx2 keeps of `domain` once its processes have ended (the segment it keeps
+/// per domain included), so a bench leaves nothing in shared memory. A process of it still
+/// alive (a killed launch's children are stopping) leaves the domain to `tes status --clean`.
+pub(crate) fn remove_domain_of(domain: &str) {
+    for _ in 0..50 {
+        match tes_runtime::channel::remove_domain(domain) {
+            Ok(true) => return,
+            Ok(false) => std::thread::sleep(Duration::from_millis(100)),
+            Err(e) => {
+                eprintln!("warning: cannot remove the iceoryx2 domain {domain}: {e}");
+                return;
+            }
+        }
+    }
+    eprintln!(
+        "warning: the iceoryx2 domain {domain} still has a live process; tes status --clean removes it later"
+    );
 }
 
 /// A free TCP port on loopback.

@@ -27,9 +27,10 @@ use iceoryx2::service::Service;
 
 pub use crate::board::{LatestInbox, LatestOutbox};
 pub use crate::ipc::{
-    DOMAIN_VAR, IpcError, Member, NODE_NAME_MAX, NodeEntry, NodeLiveness, clean_stale_resources,
-    config, group_node, group_node_name, ipc_err, list_nodes, node, node_named,
-    parse_group_node_name, prefix_of, pubsub, services_with_prefix, shared_node,
+    DOMAIN_VAR, IpcError, Member, NODE_NAME_MAX, NodeEntry, NodeLiveness, clean_stale_domains,
+    clean_stale_resources, config, group_node, group_node_name, ipc_err, list_nodes, node,
+    node_named, parse_group_node_name, prefix_of, pubsub, remove_domain, services_with_prefix,
+    shared_node,
 };
 use crate::ipc::{listener, notifier};
 pub use crate::wait::{BadWaitStrategy, WaitStrategy};

@@ -42,27 +42,175 @@ pub const DOMAIN_VAR: &str = "TES_IPC_DOMAIN";
 /// A domain name iceoryx2 cannot use as a file name prefix is ignored with a warning.
 pub fn config() -> &'static Config {
     static CONFIG: std::sync::OnceLock<Config> = std::sync::OnceLock::new();
-    CONFIG.get_or_init(|| {
+    CONFIG.get_or_init(|| match std::env::var(DOMAIN_VAR) {
+        Ok(domain) if !domain.is_empty() => domain_config(&domain).unwrap_or_else(|| {
+            eprintln!(
+                "{DOMAIN_VAR}={domain:?} is not a domain name (ASCII letters, digits, '-'); \
+                 using the default domain"
+            );
+            Config::default()
+        }),
+        _ => Config::default(),
+    })
+}
+
+/// The iceoryx2 config of domain `domain`, if it is a domain name (ASCII letters, digits,
+/// '-': nothing iceoryx2 or a file name would read otherwise).
+fn domain_config(domain: &str) -> Option<Config> {
+    let valid = !domain.is_empty()
+        && domain
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'-');
+    let name = iceoryx2::prelude::FileName::new(domain_prefix(domain).as_bytes()).ok()?;
+    valid.then(|| {
         let mut config = Config::default();
-        if let Ok(domain) = std::env::var(DOMAIN_VAR)
-            && !domain.is_empty()
-        {
-            let prefix = format!("iox2_{domain}_");
-            match iceoryx2::prelude::FileName::new(prefix.as_bytes()) {
-                Ok(name)
-                    if domain
-                        .bytes()
-                        .all(|b| b.is_ascii_alphanumeric() || b == b'-') =>
-                {
-                    config.global.prefix = name;
-                }
-                _ => eprintln!(
-                    "{DOMAIN_VAR}={domain:?} is not a domain name (ASCII letters, digits, '-'); \
-                     using the default domain"
-                ),
+        config.global.prefix = name;
+        config
+    })
+}
+
+/// The file name prefix of domain `domain`'s iceoryx2 files.
+fn domain_prefix(domain: &str) -> String {
+    format!("iox2_{domain}_")
+}
+
+/// Where iceoryx2 keeps its files: shared memory, and its directory under the temporary one.
+fn iceoryx2_dirs() -> [std::path::PathBuf; 2] {
+    [
+        std::path::PathBuf::from("/dev/shm"),
+        std::env::temp_dir().join("iceoryx2"),
+    ]
+}
+
+/// The domains (other than the default) that have files on this machine, from their names
+/// (`iox2_<domain>_<hash>_…`; the default domain's are `iox2_<hash>_…`).
+fn domains_on_machine() -> Vec<String> {
+    let mut domains = Vec::new();
+    for path in files_under(&iceoryx2_dirs()) {
+        let name = path.file_name().map(|n| n.to_string_lossy().into_owned());
+        let Some(rest) = name.as_deref().and_then(|n| n.strip_prefix("iox2_")) else {
+            continue;
+        };
+        let Some((domain, _)) = rest.split_once('_') else {
+            continue;
+        };
+        let is_hash = domain.len() == 40 && domain.bytes().all(|b| b.is_ascii_hexdigit());
+        if !is_hash && domain_config(domain).is_some() && !domains.iter().any(|d| d == domain) {
+            domains.push(domain.to_owned());
+        }
+    }
+    domains
+}
+
+/// Every regular file under `dirs`, recursively (unreadable directories are skipped).
+fn files_under(dirs: &[std::path::PathBuf]) -> Vec<std::path::PathBuf> {
+    let mut files = Vec::new();
+    let mut pending = dirs.to_vec();
+    while let Some(dir) = pending.pop() {
+        let Ok(entries) = std::fs::read_dir(&dir) else {
+            continue;
+        };
+        for entry in entries.filter_map(Result::ok) {
+            match entry.file_type() {
+                Ok(t) if t.is_dir() => pending.push(entry.path()),
+                Ok(_) => files.push(entry.path()),
+                Err(_) => {}
             }
         }
-        config
+    }
+    files
+}
+
+/// Removes everything iceoryx2 keeps of domain `domain` on this machine — its dead nodes'
+/// resources, then its remaining files, the management segment iceoryx2 keeps per domain
+/// included — unless a process still runs in it. Returns whether the domain was removed
+/// (`false`: a node of it is alive, and nothing was touched). For the owner of a domain once
+/// its processes have ended (the latency bench's, a test's), and for `tes status --clean`.
+pub fn remove_domain(domain: &str) -> Result<bool, IpcError> {
+    let Some(config) = domain_config(domain) else {
+        return Err(IpcError {
+            context: "remove a domain",
+            message: format!("{domain:?} is not a domain name"),
+        });
+    };
+    let mut alive = false;
+    let mut failures = Vec::new();
+    Node::<ipc::Service>::list(&config, |state| {
+        match state {
+            NodeState::<ipc::Service>::Dead(view) => {
+                if let Err(e) = view.try_remove_stale_resources() {
+                    failures.push(format!("{e:?}"));
+                }
+            }
+            NodeState::Alive(_) | NodeState::Inaccessible(_) | NodeState::Undefined(_) => {
+                alive = true;
+            }
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(ipc_err("list a domain's nodes"))?;
+    if alive {
+        return Ok(false);
+    }
+    if let Some(first) = failures.first() {
+        return Err(IpcError {
+            context: "remove a dead node's stale resources",
+            message: format!("{first} ({} failures)", failures.len()),
+        });
+    }
+    let prefix = domain_prefix(domain);
+    for path in files_under(&iceoryx2_dirs()) {
+        let ours = path
+            .file_name()
+            .is_some_and(|n| n.to_string_lossy().starts_with(&prefix));
+        let removed = if ours {
+            std::fs::remove_file(&path)
+        } else {
+            Ok(())
+        };
+        match removed {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(IpcError {
+                    context: "remove a domain's file",
+                    message: format!("{}: {e}", path.display()),
+                });
+            }
+            _ => {}
+        }
+    }
+    Ok(true)
+}
+
+/// How recently a domain's files may have changed for [`clean_stale_domains`] to leave it: a
+/// process creates its domain's files a moment before its node appears in the registry.
+const DOMAIN_SETTLE: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// [`remove_domain`] for every domain other than the default with files on this machine, no
+/// live process, and no file changed in the last 10 s (a process just starting in it has no
+/// node yet): what dead groups, benches and tests in domains of their own left. Returns how
+/// many domains were removed.
+pub fn clean_stale_domains() -> Result<usize, IpcError> {
+    let mut removed = 0;
+    for domain in domains_on_machine() {
+        if !recently_changed(&domain) {
+            removed += usize::from(remove_domain(&domain)?);
+        }
+    }
+    Ok(removed)
+}
+
+/// Whether any of `domain`'s files changed within [`DOMAIN_SETTLE`] (or cannot be dated).
+fn recently_changed(domain: &str) -> bool {
+    let prefix = domain_prefix(domain);
+    files_under(&iceoryx2_dirs()).iter().any(|path| {
+        let ours = path
+            .file_name()
+            .is_some_and(|n| n.to_string_lossy().starts_with(&prefix));
+        ours && std::fs::metadata(path)
+            .and_then(|m| m.modified())
+            .map_or(true, |t| {
+                t.elapsed().map_or(true, |age| age < DOMAIN_SETTLE)
+            })
     })
 }
 
@@ -369,6 +517,57 @@ pub(crate) fn service_name(name: &str) -> Result<ServiceName, IpcError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn files_of(domain: &str) -> Vec<std::path::PathBuf> {
+        let prefix = domain_prefix(domain);
+        files_under(&iceoryx2_dirs())
+            .into_iter()
+            .filter(|p| {
+                p.file_name()
+                    .is_some_and(|n| n.to_string_lossy().starts_with(&prefix))
+            })
+            .collect()
+    }
+
+    /// A domain keeps its files while a node of it lives; once none does, `remove_domain`
+    /// leaves nothing of it, not even the segment iceoryx2 keeps per domain.
+    #[test]
+    fn a_domain_is_removed_whole_once_its_processes_end() {
+        let domain = format!("tesunit{}", std::process::id());
+        let config = domain_config(&domain).expect("a domain name");
+        let node = NodeBuilder::new()
+            .config(&config)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ipc::Service>()
+            .expect("a node in the domain");
+        let service = node
+            .service_builder(&"tes/unit".try_into().expect("a service name"))
+            .publish_subscribe::<u64>()
+            .open_or_create()
+            .expect("a service");
+        assert!(!files_of(&domain).is_empty());
+        assert!(domains_on_machine().contains(&domain));
+        assert!(
+            !remove_domain(&domain).expect("listed"),
+            "a live node keeps it"
+        );
+        assert!(!files_of(&domain).is_empty());
+        drop(service);
+        drop(node);
+        assert!(remove_domain(&domain).expect("removed"));
+        assert_eq!(files_of(&domain), Vec::<std::path::PathBuf>::new());
+        assert!(!domains_on_machine().contains(&domain));
+    }
+
+    #[test]
+    fn only_domain_names_are_domains() {
+        assert!(domain_config("bench42").is_some());
+        assert!(domain_config("t1-2host").is_some());
+        for bad in ["", "a_b", "../x", "a b"] {
+            assert!(domain_config(bad).is_none(), "{bad:?}");
+            assert!(remove_domain(bad).is_err(), "{bad:?}");
+        }
+    }
 
     /// Every member's node name reads back as its group's prefix and the member, whatever
     /// the prefix holds (nothing, slashes, even a member's name).

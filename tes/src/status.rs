@@ -66,6 +66,13 @@ pub(crate) fn render(status: &Status) -> String {
             if n == 1 { "" } else { "es" }
         );
     }
+    if let Some(n) = status.domains_cleaned.filter(|&n| n > 0) {
+        let _ = writeln!(
+            out,
+            "removed {n} iceoryx2 domain{} whose processes had all ended",
+            if n == 1 { "" } else { "s" }
+        );
+    }
     if status.groups.is_empty() {
         let _ = writeln!(out, "{NONE_RUNNING}");
         return out;
@@ -163,11 +170,13 @@ mod tests {
         let status = Status {
             groups: group_nodes(&[entry("other", 3, Alive)]),
             cleaned: None,
+            domains_cleaned: None,
         };
         assert_eq!(render(&status), format!("{NONE_RUNNING}\n"));
         let cleaned = Status {
             groups: Vec::new(),
             cleaned: Some(2),
+            domains_cleaned: Some(0),
         };
         assert_eq!(
             render(&cleaned),
@@ -198,6 +207,7 @@ mod tests {
         let text = render(&Status {
             groups,
             cleaned: None,
+            domains_cleaned: None,
         });
         let lines: Vec<&str> = text.lines().collect();
         assert_eq!(

@@ -217,3 +217,58 @@ fn a_crashed_group_is_listed_stale_until_cleaned() {
     assert!(cleaned["cleaned"].is_u64(), "{cleaned}");
     assert!(group_with_prefix(&cleaned, &prefix).is_none(), "{cleaned}");
 }
+
+/// A domain of its own (a latency bench's, a test host's) that a dead process left — here the
+/// segment iceoryx2 keeps per domain — is removed by `--clean` once it has settled, and a
+/// domain whose node lives is left alone.
+#[test]
+fn clean_removes_a_dead_domain_and_keeps_a_live_one() {
+    use iceoryx2::prelude::*;
+    let _alone = alone_on_the_machine();
+    let node_in = |domain: &str| {
+        let mut config = iceoryx2::config::Config::default();
+        config.global.prefix =
+            FileName::new(format!("iox2_{domain}_").as_bytes()).expect("a file name prefix");
+        NodeBuilder::new()
+            .config(&config)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ipc::Service>()
+            .expect("a node in the domain")
+    };
+    let files_of = |domain: &str| -> Vec<std::path::PathBuf> {
+        let prefix = format!("iox2_{domain}_");
+        std::fs::read_dir("/dev/shm")
+            .expect("/dev/shm")
+            .filter_map(Result::ok)
+            .filter(|e| e.file_name().to_string_lossy().starts_with(&prefix))
+            .map(|e| e.path())
+            .collect()
+    };
+    let dead = format!("tdead{}", std::process::id());
+    let live = format!("tlive{}", std::process::id());
+    drop(node_in(&dead));
+    let keep = node_in(&live);
+    // Settled: the clean-up leaves a domain whose files changed in the last 10 s.
+    let settle = |domain: &str| {
+        let old = std::time::SystemTime::now() - Duration::from_secs(60);
+        for path in files_of(domain) {
+            let file = std::fs::File::options()
+                .write(true)
+                .open(&path)
+                .expect("open");
+            file.set_modified(old).expect("backdate");
+        }
+    };
+    settle(&dead);
+    settle(&live);
+    assert!(!files_of(&dead).is_empty());
+
+    let json = status_json(&["--clean"]);
+    assert!(json["domains_cleaned"].as_u64() >= Some(1), "{json}");
+    assert_eq!(files_of(&dead), Vec::<std::path::PathBuf>::new());
+    assert!(!files_of(&live).is_empty(), "a live domain is kept");
+    drop(keep);
+    settle(&live);
+    let _ = status_json(&["--clean"]);
+    assert_eq!(files_of(&live), Vec::<std::path::PathBuf>::new());
+}
