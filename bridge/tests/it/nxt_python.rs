@@ -1,31 +1,18 @@
 //! The simulated brick against an independent NXT client: nxt-python's devfile backend.
 
-use std::io::Write as _;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use crate::util::BrickProcess;
 
-fn nxt_python_available() -> bool {
-    Command::new("python3")
-        .args(["-c", "import nxt.locator, nxt.motor"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success())
-}
-
+/// Ignored, with its reason, where nxt-python cannot be imported; under CI it always runs
+/// (see `build.rs`).
 #[test]
+#[cfg_attr(
+    not(tes_nxt_python),
+    ignore = "nxt-python is not installed: python3 -m pip install nxt-python==3.5.1"
+)]
 fn nxt_python_drives_the_simulated_brick() {
-    if !nxt_python_available() {
-        // Written straight to stderr: libtest would swallow `eprintln!` of a passing test.
-        let _ = writeln!(
-            std::io::stderr(),
-            "SKIPPED nxt_python_drives_the_simulated_brick: `python3 -c \"import nxt\"` failed; \
-             install the client with `python3 -m pip install nxt-python==3.5.1` to run this test"
-        );
-        return;
-    }
     let dir = tempfile::tempdir().expect("tempdir");
     let brick = BrickProcess::spawn(&dir.path().join("nxt"), 21);
     let script = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/nxt_client.py");
