@@ -27,6 +27,16 @@ pub enum Restart {
     OnFailure,
 }
 
+impl std::fmt::Display for Restart {
+    /// As the launch file spells it: `never`, `on-failure`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Restart::Never => "never",
+            Restart::OnFailure => "on-failure",
+        })
+    }
+}
+
 /// The `[launch]` table. Each field's doc is its key's entry in the launch file's reference
 /// ([`super::reference`], generated from these docs by build.rs): what it does, then its unit
 /// or values on a `Values:` line; the defaults are this struct's `Default`.

@@ -27,13 +27,13 @@ enum Which {
     Export {
         /// The library file (default: the robot's library, as for `show`).
         path: Option<PathBuf>,
-        /// Emit JSON (the only format; the flag keeps the command explicit).
-        #[arg(long, required = true)]
+        /// Emit JSON: the only format, and the default; accepted so that scripts may say it.
+        #[arg(long)]
         json: bool,
     },
 }
 
-/// The report `show` prints and `export --json` emits.
+/// The report `show` prints and `export` emits as JSON.
 #[derive(Debug, Serialize)]
 struct Report {
     file: String,

@@ -1,5 +1,6 @@
-//! `tes` — the front door to TES: fit views on data, and (as the system grows) launch the
-//! process group, rerun the paper's experiments, inspect view libraries and run benchmarks.
+//! `tes` — the front door to TES: launch the process group and look at it (`status`,
+//! `replay`), rerun the paper's experiments, fit views on data, inspect view libraries and run
+//! benchmarks. Each subcommand is a thin shell over a library crate.
 
 use std::process::ExitCode;
 

@@ -107,9 +107,9 @@ fn run_line(event: &Event) -> Option<Said> {
             service_prefix,
             run_dir,
         } => note(format!(
-            "launch: arena Env {arena}, {episodes} episodes, real-time factor \
-             {real_time_factor}, wait {wait}, restart {restart:?}, services \
-             {service_prefix}*, run folder {}",
+            "launch: arena Env {arena}, {}, real-time factor {real_time_factor}, wait {wait}, \
+             restart {restart}, services {service_prefix}*, run folder {}",
+            count(u64::from(*episodes), "episode"),
             run_dir.display()
         )),
         Event::RunFoldersPruned { removed, keep } => note(format!(
@@ -129,16 +129,21 @@ fn run_line(event: &Event) -> Option<Said> {
         Event::EpisodeEnded { text, .. } | Event::Output { text, .. } => out(text.clone()),
         Event::Recorded(recorded) => note(format!("launch: {recorded}")),
         Event::Verdict(v) if v.failures.is_empty() => out(format!(
-            "launch: {} episodes; all processes stopped cleanly",
-            v.episodes
+            "launch: {}; all processes stopped cleanly",
+            count(u64::from(v.episodes), "episode")
         )),
         Event::Verdict(v) => out(format!(
-            "launch: {} episodes; failed: {}",
-            v.episodes,
+            "launch: {}; failed: {}",
+            count(u64::from(v.episodes), "episode"),
             v.failures.join("; ")
         )),
         _ => None,
     }
+}
+
+/// `n` and `noun`, plural unless `n` is 1: "1 episode", "20 episodes".
+fn count(n: u64, noun: &str) -> String {
+    format!("{n} {noun}{}", if n == 1 { "" } else { "s" })
 }
 
 /// The lines of the processes' lives: their logs, exits, stalls and stops.
@@ -183,7 +188,7 @@ fn exit_line(
 ) -> Option<Said> {
     match then {
         ExitConsequence::Finished => {
-            note("launch: perception-sim finished its episodes; stopping the group".into())
+            note("launch: perception-sim finished its episodes; the group stopped".into())
         }
         ExitConsequence::Restart { restart, max } => warn(format!(
             "launch: {role} {how}; respawning it (restart {restart}/{max})"
@@ -292,15 +297,40 @@ pub(crate) struct Printer {
     pub(crate) say: Say,
     /// Whether the launcher's own notes are printed (else only warnings and failures).
     pub(crate) echo: bool,
+    /// Lines held back until the group has stopped: perception-sim ends first, so its
+    /// "finished" line would come before the controller's last episode line.
+    pub(crate) deferred: Vec<(To, String)>,
 }
 
 impl Observer for Printer {
     fn event(&mut self, event: &Event) {
-        for (to, line) in lines_of(event, self.echo) {
-            match to {
-                To::Out => self.say.out(&line),
-                To::Err => self.say.err(&line),
+        let lines = lines_of(event, self.echo);
+        match event {
+            Event::ProcessExited {
+                then: ExitConsequence::Finished,
+                ..
+            } => {
+                self.deferred.extend(lines);
+                return;
             }
+            Event::RunFolder { .. } | Event::LibraryAtEnd { .. } | Event::Verdict(_) => {
+                for (to, line) in std::mem::take(&mut self.deferred) {
+                    self.say_line(to, &line);
+                }
+            }
+            _ => {}
+        }
+        for (to, line) in lines {
+            self.say_line(to, &line);
+        }
+    }
+}
+
+impl Printer {
+    fn say_line(&self, to: To, line: &str) {
+        match to {
+            To::Out => self.say.out(line),
+            To::Err => self.say.err(line),
         }
     }
 }
@@ -442,5 +472,74 @@ mod tests {
             "launch: 4 episodes; failed: controller was killed by SIGKILL".into(),
         ));
         assert_eq!(said(true), echoed);
+    }
+
+    /// The plan says its settings as the launch file spells them, and counts in words.
+    #[test]
+    fn the_plan_is_said_in_the_files_words() {
+        let planned = Event::Planned {
+            arena: 3,
+            episodes: 1,
+            real_time_factor: 0.0,
+            wait: tes_runtime::channel::WaitStrategy::default(),
+            restart: tes_launch::file::Restart::Never,
+            service_prefix: "tes-1-2/".into(),
+            run_dir: "runs/x".into(),
+        };
+        let lines = lines_of(&planned, true);
+        let line = &lines[0].1;
+        assert!(
+            line.starts_with("launch: arena Env 3, 1 episode, real-time factor 0,")
+                && line.contains(", restart never,"),
+            "{line}"
+        );
+        let ended = Event::Verdict(Verdict {
+            episodes: 1,
+            failures: Vec::new(),
+        });
+        assert_eq!(
+            lines_of(&ended, true),
+            [(
+                To::Out,
+                "launch: 1 episode; all processes stopped cleanly".into()
+            )]
+        );
+    }
+
+    /// perception-sim ends before the controller has said its last episode: its "finished"
+    /// line waits until the group has stopped, so it comes after every episode line.
+    #[test]
+    fn the_finished_line_comes_after_the_last_episode() {
+        let mut printer = Printer {
+            echo: true,
+            ..Printer::default()
+        };
+        printer.say.hold();
+        for event in [
+            Event::ProcessExited {
+                role: Role::Perception,
+                how: "exited with status 0".into(),
+                said: None,
+                then: ExitConsequence::Finished,
+            },
+            Event::Output {
+                role: Role::Controller,
+                text: "episode 19: reward 1.00".into(),
+            },
+            Event::Verdict(Verdict {
+                episodes: 20,
+                failures: Vec::new(),
+            }),
+        ] {
+            printer.event(&event);
+        }
+        assert_eq!(
+            printer.say.held_lines(10),
+            [
+                "episode 19: reward 1.00",
+                "launch: perception-sim finished its episodes; the group stopped",
+                "launch: 20 episodes; all processes stopped cleanly",
+            ]
+        );
     }
 }

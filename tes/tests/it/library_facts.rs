@@ -166,9 +166,14 @@ fn a_launch_states_the_library_facts_and_tes_library_show_finds_the_library() {
         );
     }
 
-    // `export --json` without a path: the same library, names included.
-    let exported = tes_library(&data, &["export", "--json"]);
+    // `export` without a path: the same library, names included; JSON with or without the
+    // flag.
+    let exported = tes_library(&data, &["export"]);
     assert!(exported.status.success());
+    assert_eq!(
+        tes_library(&data, &["export", "--json"]).stdout,
+        exported.stdout
+    );
     let json: serde_json::Value = serde_json::from_slice(&exported.stdout).expect("JSON");
     assert_eq!(json["file"], library.display().to_string());
     let views = json["views"].as_array().expect("views");
