@@ -70,6 +70,22 @@ pub struct BridgeStats {
     pub states: u64,
 }
 
+impl std::fmt::Display for BridgeStats {
+    /// In words, for the log.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} commands carried out, {} unknown actions, {} transport errors, {} watchdog \
+             trips, {} motor states read",
+            self.commands,
+            self.unknown_actions,
+            self.transport_errors,
+            self.watchdog_trips,
+            self.states
+        )
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Phase {
     /// At rest: heartbeats only.

@@ -84,6 +84,45 @@ pub struct RunSummary {
     pub link_down: Option<LinkDown>,
 }
 
+impl std::fmt::Display for RunSummary {
+    /// In words, for the log: the commands, the states published, the latency, how it ended.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let l = &self.latency;
+        write!(
+            f,
+            "{} commands received ({} refused, last sequence number {}), {} motor states \
+             published; command latency p50 {} us p99 {} us max {} us over {} commands",
+            self.commands,
+            self.refused,
+            self.last_seq,
+            self.published,
+            l.p50_us,
+            l.p99_us,
+            l.max_us,
+            l.count
+        )?;
+        if self.interrupted {
+            f.write_str("; stopped by a signal")?;
+        }
+        if let Some(down) = &self.link_down {
+            if down.never_up {
+                write!(
+                    f,
+                    "; the link to the brick never came up ({:?})",
+                    down.down_for
+                )?;
+            } else {
+                write!(
+                    f,
+                    "; the link to the brick was down for {:?}",
+                    down.down_for
+                )?;
+            }
+        }
+        Ok(())
+    }
+}
+
 /// The link to the brick stayed down too long.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LinkDown {
@@ -254,7 +293,7 @@ pub fn run_with<T: Transport, C: Clock>(
     }
     bridge.stop();
     summary.latency = latency.report();
-    tracing::info!(?summary, "bridge loop stopped");
+    tracing::info!(%summary, "bridge loop stopped");
     Ok(summary)
 }
 

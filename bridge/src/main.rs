@@ -135,13 +135,16 @@ fn brick(link: &Path, cfg: &BridgeConfig) -> anyhow::Result<()> {
         link = %link.display(),
         device = %server.slave_path().display(),
         seed = cfg.seed,
-        link_delay = ?cfg.link_delay,
+        link_delay = %match cfg.link_delay {
+            Some((mean, jitter)) => format!("{mean:?} ± {jitter:?}"),
+            None => "none".to_owned(),
+        },
         time_scale = clock.scale(),
         "simulated NXT brick serving; stop with SIGINT or SIGTERM"
     );
     let stats = server
         .serve(&mut brick, &clock, delay, &stop)
         .context("serving the brick")?;
-    tracing::info!(?stats, brick = ?brick.stats(), "simulated brick stopped");
+    tracing::info!(%stats, brick = %brick.stats(), "simulated brick stopped");
     Ok(())
 }

@@ -143,7 +143,7 @@ pub fn run(cfg: &BridgeConfig, opts: &RunOptions) -> Result<RunSummary, ProcessE
         &mut latency,
         cfg.link_timeout,
     )?;
-    tracing::info!(?summary, stats = ?bridge.stats(), "bridge stopped");
+    tracing::info!(%summary, stats = %bridge.stats(), "bridge stopped");
     if let Some(down) = summary.link_down {
         return Err(ProcessError::LinkDown {
             transport: bridge.transport_mut().describe(),

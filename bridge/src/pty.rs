@@ -95,6 +95,24 @@ pub struct ServeStats {
     pub clients: u64,
 }
 
+impl std::fmt::Display for ServeStats {
+    /// In words, for the log: "120 telegrams, 118 replies, 2 bad frames, …".
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} telegrams, {} replies, {} bad frames, {} stale frames, {} bytes skipped, \
+             {} replies dropped, {} clients",
+            self.telegrams,
+            self.replies,
+            self.bad_frames,
+            self.stale_frames,
+            self.skipped_bytes,
+            self.replies_dropped,
+            self.clients
+        )
+    }
+}
+
 /// The simulated brick's pseudo-terminal. Dropping it removes the link.
 #[derive(Debug)]
 pub struct PtyServer {

@@ -654,7 +654,13 @@ fn offers_before_command(strategy: WaitStrategy) -> bool {
 fn log_refusal(obs: &Observation, why: Refusal) {
     match why {
         Refusal::UnknownState => {
-            tracing::warn!(seq = obs.seq, state = ?obs.state, "observation of an unknown state refused");
+            tracing::warn!(
+                seq = obs.seq,
+                x = obs.state.x,
+                y = obs.state.y,
+                orientation = obs.state.orientation,
+                "observation of an unknown state refused"
+            );
         }
         Refusal::Stale { last_seq } => {
             tracing::warn!(

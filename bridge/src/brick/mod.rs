@@ -226,6 +226,17 @@ pub struct BrickStats {
     pub keep_alives: u64,
 }
 
+impl std::fmt::Display for BrickStats {
+    /// In words, for the log.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} telegrams handled, {} errors, {} tones, {} keep-alives",
+            self.telegrams, self.errors, self.tones, self.keep_alives
+        )
+    }
+}
+
 const TICK_NS: u64 = 1_000_000;
 
 /// The simulated brick.
