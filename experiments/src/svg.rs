@@ -145,6 +145,16 @@ fn ticks(lo: f64, hi: f64) -> Vec<f64> {
     out
 }
 
+/// [`ticks`] for a whole-numbered axis: only whole numbers (every one, when the span is short).
+fn whole_ticks(lo: f64, hi: f64) -> Vec<f64> {
+    let nice = ticks(lo, hi);
+    if nice.iter().all(|t| *t == t.trunc()) {
+        return nice;
+    }
+    let (first, last) = (lo.ceil() as i64, hi.floor() as i64);
+    (first..=last).map(|t| t as f64).collect()
+}
+
 fn fmt_tick(v: f64) -> String {
     if v.abs() >= 1000.0 || v == v.trunc() {
         format!("{v:.0}")
@@ -321,7 +331,18 @@ impl LineChart {
 
         let mut svg = String::new();
         frame.open(&mut svg, &self.title);
-        for t in ticks(x0, x1) {
+        // Episodes and tasks are counted: when every x is whole, so is every tick.
+        let whole_x = self
+            .series
+            .iter()
+            .flat_map(|s| &s.points)
+            .all(|p| p.x == p.x.trunc());
+        let x_ticks = if whole_x {
+            whole_ticks(x0, x1)
+        } else {
+            ticks(x0, x1)
+        };
+        for t in x_ticks {
             let x = sx(t);
             let _ = writeln!(
                 svg,
@@ -715,6 +736,10 @@ mod tests {
     #[test]
     fn ticks_are_round_and_cover_the_range() {
         assert_eq!(ticks(0.0, 10.0), vec![0.0, 2.0, 4.0, 6.0, 8.0, 10.0]);
+        // Two episodes (0 and 1) or three: whole ticks, not 0.5 and 1.5.
+        assert_eq!(whole_ticks(0.0, 1.0), vec![0.0, 1.0]);
+        assert_eq!(whole_ticks(0.0, 2.0), vec![0.0, 1.0, 2.0]);
+        assert_eq!(whole_ticks(0.0, 100.0), ticks(0.0, 100.0));
         let t = ticks(-3.2, 1.1);
         assert!(t.first().is_some_and(|&v| v >= -3.2) && t.len() >= 4);
     }

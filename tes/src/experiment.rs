@@ -372,7 +372,7 @@ fn transfer_with(
     options: JobOptions,
 ) -> Result<Option<TransferReport>> {
     eprintln!(
-        "transfer experiment: test tasks {:?}, {} runs, training on {} tasks x {} episodes, {} test episodes, seed {}, world seed {}{} -> {}",
+        "transfer experiment: test tasks {:?}, {} runs of each method on each (the progress counts these runs), training on {} tasks x {} episodes, {} test episodes, seed {}, world seed {}{} -> {}",
         config.test_tasks,
         config.runs,
         config.training_tasks,
@@ -523,7 +523,7 @@ fn grid_with(config: &GridConfig, out: &Path, options: JobOptions) -> Result<Opt
         bail!("--runs and --episodes must be at least 1");
     }
     eprintln!(
-        "grid experiment: {} runs x {} episodes, irrelevant features {:?}, seeds {}.., world seed {}{} -> {}",
+        "grid experiment: {} runs x {} episodes of each method at each count of irrelevant features {:?} (the progress counts these runs), seeds {}.., world seed {}{} -> {}",
         config.runs,
         config.episodes,
         config.irrelevant_levels,
@@ -591,7 +591,7 @@ fn robot_with(
     options: JobOptions,
 ) -> Result<Option<RobotReport>> {
     eprintln!(
-        "robot experiment: {} runs, {} episodes on Env 3 after {} per earlier arena, seeds {}..{} -> {}",
+        "robot experiment: {} runs of each method (the progress counts these runs), {} episodes on Env 3 after {} per earlier arena, seeds {}..{} -> {}",
         config.runs,
         config.episodes,
         config.train_episodes,
