@@ -127,7 +127,8 @@ pub struct MemberStatus {
     pub state: MemberState,
     /// How long it has run, s (alive processes whose start time is readable).
     pub uptime_s: Option<f64>,
-    /// Episodes finished, from its latest progress report.
+    /// Episodes finished, from its latest progress report (`None` for the bridge, which sees
+    /// commands, not episodes).
     pub episodes: Option<u64>,
     /// Steps done, from its latest progress report (observations published, commands sent or
     /// executed).
@@ -324,7 +325,9 @@ pub fn read_progress(groups: &mut [GroupStatus], wait: Duration) -> Result<(), S
                     .filter(|p| i64::from(p.pid) == i64::from(member.pid));
                 match report {
                     Some(p) => {
-                        member.episodes = Some(p.episodes);
+                        // The bridge sees commands, not episodes: it has no count to give.
+                        member.episodes =
+                            (member.role.role() != Some(Role::Bridge)).then_some(p.episodes);
                         member.steps = Some(p.steps);
                         if member.uptime_s.is_none() {
                             let since =

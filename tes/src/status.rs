@@ -106,6 +106,9 @@ pub(crate) fn render(status: &Status) -> String {
                 (Some(e), Some(s)) => {
                     let _ = write!(line, "  episodes {e}  steps {s}");
                 }
+                (None, Some(s)) => {
+                    let _ = write!(line, "  commands {s}");
+                }
                 _ if p.state == MemberState::Alive && p.role != GroupMember::Launcher => {
                     line.push_str("  no progress report yet");
                 }
@@ -202,8 +205,9 @@ mod tests {
             p.episodes = Some(3);
             p.steps = Some(410);
         }
-        running.processes[2].steps = None;
         running.processes[2].episodes = None;
+        let mut silent = running.clone();
+        silent.processes[2].steps = None;
         let text = render(&Status {
             groups,
             cleaned: None,
@@ -217,13 +221,25 @@ mod tests {
                 "  launcher        pid 41       alive  up 1 min 05 s",
                 "  perception-sim  pid 42       alive  up 1 min 04 s  episodes 3  steps 410",
                 "  controller      pid 43       alive  up 1 min 04 s  episodes 3  steps 410",
-                "  bridge          pid 44       alive  up 1 min 04 s  no progress report yet",
+                "  bridge          pid 44       alive  up 1 min 04 s  commands 410",
                 "",
                 "tes-9-deadbeef/  stale: every process is dead",
                 "  controller      pid 12       dead (stale)",
                 "  hint: dead processes left iceoryx2 resources behind; `tes status --clean` \
                  removes them (so does the next `tes launch`)",
             ]
+        );
+        // A process that has not reported yet says so.
+        let text = render(&Status {
+            groups: vec![silent],
+            cleaned: None,
+            domains_cleaned: None,
+        });
+        assert!(
+            text.contains(
+                "  bridge          pid 44       alive  up 1 min 04 s  no progress report yet"
+            ),
+            "{text}"
         );
     }
 

@@ -121,6 +121,8 @@ fn a_running_group_is_listed_with_its_processes_and_gone_once_stopped() {
         assert_eq!(p["pid"], group.child(role).as_raw(), "{role}: {listed}");
         assert!(p["uptime_s"].as_f64().is_some_and(|s| s >= 0.0), "{listed}");
         assert!(p["steps"].as_u64().is_some_and(|s| s >= 1), "{listed}");
+        // The bridge sees commands, not episodes.
+        assert_eq!(p["episodes"].is_null(), role == "bridge", "{listed}");
     }
 
     // The table, as a user reads it.
@@ -146,7 +148,11 @@ fn a_running_group_is_listed_with_its_processes_and_gone_once_stopped() {
             line.starts_with(&format!("  {role} "))
                 && line.contains(&format!("pid {pid} "))
                 && line.contains(" alive  up ")
-                && line.contains(" steps "),
+                && line.contains(if *role == "bridge" {
+                    " commands "
+                } else {
+                    " steps "
+                }),
             "{role}: {text}"
         );
     }
