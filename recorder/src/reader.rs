@@ -38,6 +38,15 @@ pub enum ReadError {
         /// The topics it has.
         topics: Vec<String>,
     },
+    /// An MCAP file cut short before the run's metadata (the recorder's first record) was
+    /// written whole: it may have been a TES recording, but nothing of the run is readable.
+    #[error("{} was cut short before its run metadata ({why}): nothing of the run is readable", path.display())]
+    CutBeforeRun {
+        /// The file.
+        path: PathBuf,
+        /// Where and how it breaks.
+        why: String,
+    },
     /// A recording of a later format than this build reads.
     #[error("{} is a TES recording of format version {found}; this build reads version {FORMAT_VERSION} (use a newer tes)", path.display())]
     FutureVersion {
@@ -112,6 +121,12 @@ impl Recording {
         let records = Records::read(path, bytes)?;
         let truncated = records.truncation(broken.as_ref());
         if records.run.is_empty() {
+            if let Some(why) = truncated {
+                return Err(ReadError::CutBeforeRun {
+                    path: path.to_owned(),
+                    why,
+                });
+            }
             return Err(ReadError::NotTes {
                 path: path.to_owned(),
                 topics: records.channels.values().map(|c| c.name.clone()).collect(),

@@ -32,9 +32,13 @@ use crate::reader::Recording;
 /// Why a recording cannot be replayed.
 #[derive(Debug, thiserror::Error)]
 pub enum ReplayError {
-    /// It has no world map.
+    /// It has no world map, and it is complete: the run never started.
     #[error("the recording has no world map (the run never started)")]
     NoMap,
+    /// It was cut short before its world map was written whole: nothing of the run can be
+    /// replayed.
+    #[error("the recording was cut short before its world map ({0}); there is nothing to replay")]
+    CutBeforeMap(String),
     /// Its controller settings do not parse.
     #[error("the recording's controller settings: {0}")]
     Config(#[from] ConfigError),
@@ -177,7 +181,11 @@ pub fn replay(recording: &Recording) -> Result<ReplayOutcome, ReplayError> {
 /// The acting loop of the recorded run: its map, settings and starting library, planning on
 /// this thread in pieces, every finished plan held back.
 fn acting_loop(recording: &Recording) -> Result<ActingLoop, ReplayError> {
-    let map = recording.world_map.clone().ok_or(ReplayError::NoMap)?;
+    let map = match (&recording.world_map, &recording.truncated) {
+        (Some(map), _) => map.clone(),
+        (None, Some(why)) => return Err(ReplayError::CutBeforeMap(why.clone())),
+        (None, None) => return Err(ReplayError::NoMap),
+    };
     let config = ControllerConfig::from_toml(recording.run_value("controller_toml"))?;
     let checked = config.check()?;
     let settings = acting_settings(&config, &checked);

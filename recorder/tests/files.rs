@@ -173,3 +173,36 @@ fn a_message_that_does_not_decode_is_named() {
         "{shown}"
     );
 }
+
+/// A recording cut anywhere says it was cut, never that it is another program's file or that
+/// its run never started: cut before its run metadata it is refused as cut short; cut later it
+/// reads as truncated, and a replay of one cut before its world map says so.
+#[test]
+fn a_cut_recording_is_said_to_be_cut_wherever_it_breaks() {
+    use tes_recorder::replay::{ReplayError, replay};
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.mcap");
+    recording(&path, 50);
+    let bytes = std::fs::read(&path).unwrap();
+    let (mut refused, mut read) = (0, 0);
+    for len in (8..bytes.len()).step_by(31) {
+        match Recording::from_bytes(&path, &bytes[..len]) {
+            Err(e @ ReadError::CutBeforeRun { .. }) => {
+                assert!(e.to_string().contains("cut short"), "{e}");
+                refused += 1;
+            }
+            Err(e) => panic!("cut at {len} of {}: {e}", bytes.len()),
+            Ok(r) => {
+                assert!(r.truncated.is_some(), "cut at {len} read as complete");
+                // This run has no world map: cut, it is not "a run that never started".
+                let e = replay(&r).unwrap_err();
+                assert!(matches!(e, ReplayError::CutBeforeMap(_)), "{e}");
+                read += 1;
+            }
+        }
+    }
+    assert!(refused > 0 && read > 0, "{refused} refused, {read} read");
+    // Whole and without a world map, the run did not start.
+    let whole = Recording::open(&path).unwrap();
+    assert!(matches!(replay(&whole).unwrap_err(), ReplayError::NoMap));
+}

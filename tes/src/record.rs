@@ -38,6 +38,12 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
     }
     if args.summary {
         println!("{}", tes_recorder::summary::summarise(&recording));
+        if recording.observations.is_empty() && recording.commands.is_empty() {
+            bail!(
+                "{} holds no observation and no command: there is nothing of the run to summarise",
+                args.file.display()
+            );
+        }
     }
     if args.summary || args.export_csv.is_some() {
         return Ok(());

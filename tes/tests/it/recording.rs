@@ -241,3 +241,27 @@ fn a_run_stopped_by_a_crashed_child_leaves_a_complete_recording() {
         format!("replay: {n} of {n} commands identical")
     );
 }
+
+/// `tes replay --summary` of a recording cut short before any of its run was written says
+/// so and fails, rather than summarising zero episodes as if they were the run.
+#[test]
+fn a_summary_of_a_recording_with_nothing_readable_fails() {
+    use tes_recorder::writer::{RecordCounts, RunInfo, RunWriter};
+    let dir = tempfile::tempdir().expect("temp dir");
+    let whole = dir.path().join("whole.mcap");
+    let writer = RunWriter::create(&whole, &RunInfo::default()).expect("a recording");
+    writer.finish(RecordCounts::default()).expect("finished");
+    let bytes = std::fs::read(&whole).expect("read");
+    // The shortest cut that still reads: its run metadata, and nothing after it.
+    let cut = dir.path().join("cut.mcap");
+    let len = (8..bytes.len())
+        .find(|&n| Recording::from_bytes(&cut, &bytes[..n]).is_ok())
+        .expect("a cut that reads");
+    std::fs::write(&cut, &bytes[..len]).expect("write");
+    let (ok, stdout, stderr) = replay(&cut, &["--summary"]);
+    assert!(!ok, "{stdout}");
+    assert!(
+        stderr.contains("is incomplete") && stderr.contains("nothing of the run to summarise"),
+        "{stderr}"
+    );
+}
