@@ -662,12 +662,38 @@ pub struct Prepared {
     /// This launch's run folder: the children's settings, output and logs, the resolved launch
     /// file, the episode table, the trajectories and, at the end, the pictures.
     pub run_dir: PathBuf,
-    /// Old run folders removed to keep `[launch] keep_runs`.
-    pub pruned: Vec<PathBuf>,
+    /// A new run folder's parent (`runs/`) and `[launch] keep_runs`, until
+    /// [`commit`](Prepared::commit): a launch refused before then removes its run folder and
+    /// leaves `runs/` and `runs/latest` as they were. `None` for a `run_dir` of the file's own.
+    fresh: Option<(PathBuf, u32)>,
     /// The group's service prefix (its own unless the file sets one).
     pub service_prefix: String,
     /// The run directory's lock, held for the group's life.
     pub _lock: Lock,
+}
+
+impl Prepared {
+    /// The group has started: the new run folder becomes `runs/latest` and the oldest are
+    /// pruned to `keep_runs`. Returns the folders removed.
+    pub fn commit(&mut self) -> Vec<PathBuf> {
+        match self.fresh.take() {
+            Some((runs, keep)) => {
+                let pruned = run_folder::prune(&runs, keep, &self.run_dir);
+                run_folder::point_latest_at(&runs, &self.run_dir);
+                pruned
+            }
+            None => Vec::new(),
+        }
+    }
+}
+
+impl Drop for Prepared {
+    /// A launch refused before its group started leaves no run folder behind.
+    fn drop(&mut self) {
+        if self.fresh.is_some() {
+            let _ = std::fs::remove_dir_all(&self.run_dir);
+        }
+    }
 }
 
 /// The order the children start in: the bridge first (the brick is there before any command
@@ -704,12 +730,12 @@ pub fn prepare(file: &LaunchFile) -> Result<Prepared, LaunchFileError> {
         let path = path.to_owned();
         move |error| LaunchFileError::RunDir { path, error }
     };
-    let (run_dir, pruned, lock) = match &file.launch.run_dir {
+    let (run_dir, fresh, lock) = match &file.launch.run_dir {
         Some(dir) => {
             std::fs::create_dir_all(dir).map_err(run_dir_error(dir))?;
             let lock = Lock::acquire(&dir.join("launch.lock"), "run directory")
                 .map_err(LaunchFileError::Busy)?;
-            (dir.clone(), Vec::new(), lock)
+            (dir.clone(), None, lock)
         }
         None => {
             let runs = file
@@ -723,18 +749,24 @@ pub fn prepare(file: &LaunchFile) -> Result<Prepared, LaunchFileError> {
                 .map_err(LaunchFileError::Busy)?;
             let dir = run_folder::create(&runs, std::time::SystemTime::now())
                 .map_err(run_dir_error(&runs))?;
-            let pruned = run_folder::prune(&runs, file.launch.keep_runs, &dir);
-            run_folder::point_latest_at(&runs, &dir);
-            (dir, pruned, lock)
+            (dir, Some((runs, file.launch.keep_runs)), lock)
         }
     };
+    // From here on a refusal removes the new run folder (the guard's drop).
+    let mut prepared = Prepared {
+        specs: Vec::new(),
+        run_dir,
+        fresh,
+        service_prefix: file.launch.service_prefix.clone(),
+        _lock: lock,
+    };
+    let run_dir = prepared.run_dir.clone();
     // As given: a launch without a service prefix of its own gets a new one when rerun.
     let resolved = reference::render_resolved(as_given)
         .map_err(|e| unwritable("cannot write the resolved launch file".into())(e.into()))?;
     let resolved_path = run_dir.join(RESOLVED_LAUNCH_FILE);
     std::fs::write(&resolved_path, resolved).map_err(run_dir_error(&resolved_path))?;
     children.write_into(&run_dir);
-    let mut specs = Vec::new();
     let plays = |role: &Role| file.launch.roles.is_empty() || file.launch.roles.contains(role);
     for role in START_ORDER.iter().filter(|r| plays(r)) {
         let text = match role {
@@ -750,18 +782,12 @@ pub fn prepare(file: &LaunchFile) -> Result<Prepared, LaunchFileError> {
             path: path.clone(),
             error,
         })?;
-        specs.push(ChildSpec {
+        prepared.specs.push(ChildSpec {
             role: *role,
             config: path,
         });
     }
-    Ok(Prepared {
-        specs,
-        run_dir,
-        pruned,
-        service_prefix: file.launch.service_prefix.clone(),
-        _lock: lock,
-    })
+    Ok(prepared)
 }
 
 #[cfg(test)]
@@ -840,13 +866,13 @@ mod tests {
     #[test]
     fn roles_name_the_children_and_bad_roles_or_link_settings_are_refused() {
         let (_, ok) = prepared("roles = [\"controller\"]\n");
-        let specs = ok.expect("prepared").specs;
+        let specs = ok.expect("prepared").specs.clone();
         assert_eq!(
             specs.iter().map(|s| s.role).collect::<Vec<_>>(),
             [Role::Controller]
         );
         let (_, ok) = prepared("roles = [\"bridge\", \"perception-sim\"]\n");
-        let specs = ok.expect("prepared").specs;
+        let specs = ok.expect("prepared").specs.clone();
         assert_eq!(
             specs.iter().map(|s| s.role).collect::<Vec<_>>(),
             [Role::Bridge, Role::Perception]

@@ -78,6 +78,13 @@ pub enum LaunchError {
     /// A child cannot be polled.
     #[error("cannot poll a child")]
     Poll(#[source] std::io::Error),
+    /// The bridge's serial device does not exist.
+    #[error(
+        "[bridge] transport: {} does not exist (is the brick paired and its rfcomm device \
+         bound? `transport = \"sim\"` uses the simulated brick); nothing was started",
+        .0.display()
+    )]
+    NoBrick(PathBuf),
 }
 
 /// How a supervisor starts children and when it stops.
@@ -155,7 +162,10 @@ impl Supervisor {
         options: Options,
         observer: &mut dyn Observer,
     ) -> Result<Self, LaunchError> {
-        let prepared = prepare(file)?;
+        refuse_a_missing_brick(file)?;
+        // A refusal from here until the children run removes the new run folder (`prepared`'s
+        // drop) and leaves `runs/latest` as it was.
+        let mut prepared = prepare(file)?;
         clean_stale_resources(observer);
         let prefix = prepared.service_prefix.clone();
         refuse_a_prefix_in_use(&prefix)?;
@@ -194,6 +204,13 @@ impl Supervisor {
             observer.event(&Event::ProcessStarted {
                 role: c.spec.role,
                 pid: c.process.child.id(),
+            });
+        }
+        let pruned = prepared.commit();
+        if !pruned.is_empty() {
+            observer.event(&Event::RunFoldersPruned {
+                removed: pruned.len(),
+                keep: file.launch.keep_runs,
             });
         }
         let stall_deadline = Instant::now() + options.start_allowance + stall_timeout(file);
@@ -755,7 +772,19 @@ fn refuse_a_prefix_in_use(prefix: &str) -> Result<(), LaunchError> {
     }
 }
 
-/// Tells what the launch runs and the run folders it pruned.
+/// Refuses a launch whose bridge would talk to a serial device that is not there: the link
+/// could never come up, and a run that cannot happen must not start.
+fn refuse_a_missing_brick(file: &LaunchFile) -> Result<(), LaunchError> {
+    let plays_bridge = file.launch.roles.is_empty() || file.launch.roles.contains(&Role::Bridge);
+    if let (true, TransportKind::Serial(path)) = (plays_bridge, &file.bridge.transport)
+        && std::fs::metadata(path).is_err()
+    {
+        return Err(LaunchError::NoBrick(path.clone()));
+    }
+    Ok(())
+}
+
+/// Tells what the launch runs.
 fn say_the_plan(file: &LaunchFile, prepared: &Prepared, observer: &mut dyn Observer) {
     let launch = &file.launch;
     observer.event(&Event::Planned {
@@ -767,12 +796,6 @@ fn say_the_plan(file: &LaunchFile, prepared: &Prepared, observer: &mut dyn Obser
         service_prefix: prepared.service_prefix.clone(),
         run_dir: prepared.run_dir.clone(),
     });
-    if !prepared.pruned.is_empty() {
-        observer.event(&Event::RunFoldersPruned {
-            removed: prepared.pruned.len(),
-            keep: launch.keep_runs,
-        });
-    }
 }
 
 /// The controller's report path, when this launch plays the controller (an old report

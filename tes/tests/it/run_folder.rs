@@ -160,3 +160,93 @@ fn a_launch_leaves_a_run_folder_with_tables_reports_logs_and_pictures() {
         "{again:?}"
     );
 }
+
+/// What a refused launch must leave as it was: the data directory's entries, the run folders
+/// and where `runs/latest` points.
+fn data_dir_state(data: &Path) -> (Vec<String>, Vec<String>, Option<PathBuf>) {
+    let names = |dir: &Path| -> Vec<String> {
+        let mut names: Vec<String> = std::fs::read_dir(dir)
+            .map(|entries| {
+                entries
+                    .filter_map(Result::ok)
+                    .map(|e| e.file_name().to_string_lossy().into_owned())
+                    .collect()
+            })
+            .unwrap_or_default();
+        names.sort();
+        names
+    };
+    let runs = data.join("runs");
+    (
+        names(data),
+        names(&runs),
+        std::fs::read_link(runs.join("latest")).ok(),
+    )
+}
+
+/// Every refusal before the group runs — the live view without a terminal, a bad key, a brick
+/// that is not there, a data directory in use — leaves the data directory, its run folders and
+/// `runs/latest` exactly as they were, and says that nothing was started.
+#[test]
+fn a_refused_launch_leaves_the_data_directory_as_it_was() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let config = dir.path().join("launch.toml");
+    std::fs::write(&config, launch_file_with_runs("")).expect("launch file");
+    launch(dir.path(), &config, 1);
+    let data = dir.path().join("data");
+    let before = data_dir_state(&data);
+    assert_eq!(
+        before.1.len(),
+        3,
+        "one run folder, latest and the lock: {before:?}"
+    );
+
+    let refused = |args: &[&str], file: &str| {
+        let path = dir.path().join("refused.toml");
+        std::fs::write(&path, launch_file_with_runs(file)).expect("launch file");
+        let out = tes_command()
+            .arg("launch")
+            .arg("--config")
+            .arg(&path)
+            .args(args)
+            .env("TES_DATA_DIR", &data)
+            .stdin(std::process::Stdio::null())
+            .output()
+            .expect("tes launch runs");
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(
+            !out.status.success(),
+            "{args:?} {file:?} was not refused: {err}"
+        );
+        assert!(
+            err.contains("nothing was started"),
+            "{args:?} {file:?}: {err}"
+        );
+        assert_eq!(data_dir_state(&data), before, "{args:?} {file:?}: {err}");
+    };
+    refused(&["--tui"], "");
+    refused(&[], "[controller]\nbudget_us = \"soon\"\n");
+    refused(
+        &[],
+        "[bridge]\ntransport = \"serial:/dev/no-such-nxt-brick\"\n",
+    );
+    // In use: a group of this data directory runs meanwhile.
+    let running = Group::start_with(dir.path(), &config, 1000);
+    let started = std::time::Instant::now();
+    while data_dir_state(&data) == before && started.elapsed() < Duration::from_secs(30) {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let during = data_dir_state(&data);
+    let path = dir.path().join("second.toml");
+    std::fs::write(&path, launch_file_with_runs("")).expect("launch file");
+    let out = tes_command()
+        .args(["launch", "--config"])
+        .arg(&path)
+        .env("TES_DATA_DIR", &data)
+        .output()
+        .expect("tes launch runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("in use"), "{err}");
+    assert_eq!(data_dir_state(&data), during, "{err}");
+    drop(running);
+}
