@@ -184,6 +184,15 @@ fn data_dir_state(data: &Path) -> (Vec<String>, Vec<String>, Option<PathBuf>) {
     )
 }
 
+/// A launch file with a service prefix of its own (the other tests of this file run beside
+/// it with theirs), no fixed run folder, and `extra`.
+fn refused_file(extra: &str) -> String {
+    format!(
+        "[launch]\nservice_prefix = \"tes-test/{}/refused/\"\n{extra}",
+        std::process::id()
+    )
+}
+
 /// Every refusal before the group runs — the live view without a terminal, a bad key, a brick
 /// that is not there, a data directory in use — leaves the data directory, its run folders and
 /// `runs/latest` exactly as they were, and says that nothing was started.
@@ -191,7 +200,7 @@ fn data_dir_state(data: &Path) -> (Vec<String>, Vec<String>, Option<PathBuf>) {
 fn a_refused_launch_leaves_the_data_directory_as_it_was() {
     let dir = tempfile::tempdir().expect("temp dir");
     let config = dir.path().join("launch.toml");
-    std::fs::write(&config, launch_file_with_runs("")).expect("launch file");
+    std::fs::write(&config, refused_file("")).expect("launch file");
     launch(dir.path(), &config, 1);
     let data = dir.path().join("data");
     let before = data_dir_state(&data);
@@ -203,7 +212,7 @@ fn a_refused_launch_leaves_the_data_directory_as_it_was() {
 
     let refused = |args: &[&str], file: &str| {
         let path = dir.path().join("refused.toml");
-        std::fs::write(&path, launch_file_with_runs(file)).expect("launch file");
+        std::fs::write(&path, refused_file(file)).expect("launch file");
         let out = tes_command()
             .arg("launch")
             .arg("--config")
@@ -238,7 +247,7 @@ fn a_refused_launch_leaves_the_data_directory_as_it_was() {
     }
     let during = data_dir_state(&data);
     let path = dir.path().join("second.toml");
-    std::fs::write(&path, launch_file_with_runs("")).expect("launch file");
+    std::fs::write(&path, refused_file("")).expect("launch file");
     let out = tes_command()
         .args(["launch", "--config"])
         .arg(&path)
