@@ -299,59 +299,19 @@ fn open_series(svg: &mut String, class: &str, name: &str, colour: &str) {
 impl LineChart {
     /// Renders the chart as a standalone SVG document.
     pub fn to_svg(&self) -> String {
-        let pts = self.series.iter().flat_map(|s| s.points.iter());
-        let (mut x0, mut x1, mut y0, mut y1) = (
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-        );
-        for p in pts {
-            x0 = x0.min(p.x);
-            x1 = x1.max(p.x);
-            y0 = y0.min(p.lo.min(p.y));
-            y1 = y1.max(p.hi.max(p.y));
-        }
-        if !x0.is_finite() || !x1.is_finite() {
-            (x0, x1) = (0.0, 1.0);
-        }
-        if x1 <= x0 {
-            x1 = x0 + 1.0;
-        }
-        let (y0, y1) = padded(y0, y1);
+        let (x0, x1, y0, y1) = self.ranges();
         let frame = Frame {
             width: WIDTH,
             y0,
             y1,
         };
         let pw = frame.plot_width();
-        let ph = frame.plot_height();
         let sx = |x: f64| LEFT + (x - x0) / (x1 - x0) * pw;
         let sy = |y: f64| frame.sy(y);
 
         let mut svg = String::new();
         frame.open(&mut svg, &self.title);
-        // Episodes and tasks are counted: when every x is whole, so is every tick.
-        let whole_x = self
-            .series
-            .iter()
-            .flat_map(|s| &s.points)
-            .all(|p| p.x == p.x.trunc());
-        let x_ticks = if whole_x {
-            whole_ticks(x0, x1)
-        } else {
-            ticks(x0, x1)
-        };
-        for t in x_ticks {
-            let x = sx(t);
-            let _ = writeln!(
-                svg,
-                r##"<line x1="{x:.1}" y1="{TOP}" x2="{x:.1}" y2="{:.1}" stroke="#e5e5e5"/><text x="{x:.1}" y="{:.1}" text-anchor="middle">{}</text>"##,
-                TOP + ph,
-                TOP + ph + 18.0,
-                fmt_tick(t)
-            );
-        }
+        self.x_grid(&mut svg, &frame, (x0, x1), sx);
         frame.y_grid(&mut svg);
         frame.frame_and_labels(&mut svg, &self.x_label, &self.y_label);
         // Bands first, then lines on top.
@@ -405,6 +365,63 @@ impl LineChart {
         }
         svg.push_str("</svg>\n");
         svg
+    }
+
+    /// The x range and the padded y range the points (and their bands) span; a chart with no
+    /// points, or one x value, still gets a range of width 1.
+    fn ranges(&self) -> (f64, f64, f64, f64) {
+        let (mut x0, mut x1, mut y0, mut y1) = (
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        );
+        for p in self.series.iter().flat_map(|s| s.points.iter()) {
+            x0 = x0.min(p.x);
+            x1 = x1.max(p.x);
+            y0 = y0.min(p.lo.min(p.y));
+            y1 = y1.max(p.hi.max(p.y));
+        }
+        if !x0.is_finite() || !x1.is_finite() {
+            (x0, x1) = (0.0, 1.0);
+        }
+        if x1 <= x0 {
+            x1 = x0 + 1.0;
+        }
+        let (y0, y1) = padded(y0, y1);
+        (x0, x1, y0, y1)
+    }
+
+    /// The vertical grid lines and their labels over `x0..x1`, placed by `sx`.
+    fn x_grid(
+        &self,
+        svg: &mut String,
+        frame: &Frame,
+        (x0, x1): (f64, f64),
+        sx: impl Fn(f64) -> f64,
+    ) {
+        let ph = frame.plot_height();
+        // Episodes and tasks are counted: when every x is whole, so is every tick.
+        let whole_x = self
+            .series
+            .iter()
+            .flat_map(|s| &s.points)
+            .all(|p| p.x == p.x.trunc());
+        let x_ticks = if whole_x {
+            whole_ticks(x0, x1)
+        } else {
+            ticks(x0, x1)
+        };
+        for t in x_ticks {
+            let x = sx(t);
+            let _ = writeln!(
+                svg,
+                r##"<line x1="{x:.1}" y1="{TOP}" x2="{x:.1}" y2="{:.1}" stroke="#e5e5e5"/><text x="{x:.1}" y="{:.1}" text-anchor="middle">{}</text>"##,
+                TOP + ph,
+                TOP + ph + 18.0,
+                fmt_tick(t)
+            );
+        }
     }
 }
 
