@@ -292,6 +292,8 @@ struct EpisodeTally {
     reward: f64,
     steps: u32,
     misses: u64,
+    /// The episode ended (its line is made); until the next starts, no step is unfinished.
+    ended: bool,
 }
 
 /// The acting loop of the controller (see the [module docs](self)).
@@ -483,6 +485,7 @@ impl ActingLoop {
     fn end_episode(&mut self, obs: &Observation) -> Result<Step, ActingError> {
         self.planner.offer(self.agent.model_mut())?;
         self.counts.episodes += 1;
+        self.episode.ended = true;
         // Two episode ends in a row (no command between): report the first now.
         let report = self.ended.take().map(|line| self.report(line));
         self.ended = Some(EpisodeLine {
@@ -681,6 +684,16 @@ impl ActingLoop {
             compute: self.compute.report(),
             learn: self.learning.report(),
             learning_overran: self.learning_overran,
+        }
+    }
+
+    /// Commands of the episode under way, which has not ended (0 between episodes): a run
+    /// stopped mid-episode learned from them though no episode line counts them.
+    pub fn unfinished_steps(&self) -> u32 {
+        if self.episode.ended {
+            0
+        } else {
+            self.episode.steps
         }
     }
 
@@ -887,6 +900,11 @@ mod tests {
         acting.command_sent(&clock).unwrap();
         let l = acting.latencies();
         assert_eq!((l.learning_overran, l.learn.count), (1, 3), "{l:?}");
+        assert_eq!(
+            acting.unfinished_steps(),
+            3,
+            "three commands of a running episode"
+        );
         // An episode's last observation has no command: it is learned from at once.
         let end = observation(4, clock.now_ns(), 4, 1.0, TERMINAL);
         assert!(matches!(
@@ -894,6 +912,7 @@ mod tests {
             Step::EpisodeEnded { .. }
         ));
         assert_eq!(acting.counts().learned, 3);
+        assert_eq!(acting.unfinished_steps(), 0, "the episode ended");
     }
 
     /// Learning first, the learning is part of the decision and no learning is timed apart.

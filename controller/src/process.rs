@@ -529,6 +529,7 @@ impl Shell<'_> {
         on_episode: &mut impl FnMut(&EpisodeLine),
     ) -> ControllerSummary {
         let counts = self.acting.counts();
+        let unfinished_steps = u64::from(self.acting.unfinished_steps());
         let latencies = self.acting.latencies();
         let plans = self.acting.plans();
         let (last, agent) = self.acting.finish();
@@ -539,6 +540,7 @@ impl Shell<'_> {
         let mut summary = ControllerSummary {
             episodes: counts.episodes,
             actions: counts.actions,
+            unfinished_steps,
             misses: latencies.decision.misses,
             latency: latencies.decision,
             wake: latencies.wake,

@@ -11,6 +11,10 @@ pub struct ControllerSummary {
     pub episodes: u64,
     /// Commands published.
     pub actions: u64,
+    /// Of `actions`, those of an episode the run stopped before it ended (a stop requested
+    /// mid-episode): learned from, though no episode line counts them.
+    #[serde(default)]
+    pub unfinished_steps: u64,
     /// Decisions over the latency budget (after the warm-up).
     pub misses: u64,
     /// Decision latency (observation stamped → command published), after the warm-up.
@@ -162,10 +166,14 @@ impl std::fmt::Display for ControllerSummary {
         let l = &self.latency;
         write!(
             f,
-            "{} episodes, {} actions, decision latency p50 {} us p99 {} us max {} us, {} over the {} us budget \
+            "{} episodes, {} actions{}, decision latency p50 {} us p99 {} us max {} us, {} over the {} us budget \
              (wake-up p50 {} p99 {} max {} us; compute p50 {} p99 {} max {} us, {} over), ",
             self.episodes,
             self.actions,
+            match self.unfinished_steps {
+                0 => String::new(),
+                n => format!(" ({n} in the unfinished episode)"),
+            },
             l.p50_us,
             l.p99_us,
             l.max_us,

@@ -242,11 +242,39 @@ pub enum ExitConsequence {
 pub struct Verdict {
     /// Episodes the controller reported.
     pub episodes: u32,
+    /// Commands of an episode the group stopped before it ended (a stop requested
+    /// mid-episode), as the controller reported them: the library learned from them.
+    pub unfinished_steps: u64,
     /// What failed, if anything (a process, the link, the recorder).
     pub failures: Vec<String>,
 }
 
 impl Verdict {
+    /// The run's length in words: `20 episodes`, `1 episode`, or with a stop mid-episode
+    /// `0 episodes and 3 actions of an unfinished one` (the library learned from those too).
+    ///
+    /// ```
+    /// let verdict = tes_launch::event::Verdict {
+    ///     episodes: 0,
+    ///     unfinished_steps: 3,
+    ///     failures: Vec::new(),
+    /// };
+    /// assert_eq!(verdict.length(), "0 episodes and 3 actions of an unfinished one");
+    /// ```
+    pub fn length(&self) -> String {
+        let plural = |n: u64| if n == 1 { "" } else { "s" };
+        let episodes = u64::from(self.episodes);
+        let mut said = format!("{episodes} episode{}", plural(episodes));
+        if self.unfinished_steps > 0 {
+            let n = self.unfinished_steps;
+            said.push_str(&format!(
+                " and {n} action{} of an unfinished one",
+                plural(n)
+            ));
+        }
+        said
+    }
+
     /// Whether everything stopped cleanly.
     pub fn success(&self) -> bool {
         self.failures.is_empty()

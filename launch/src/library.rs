@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use tes_controller::config::ControllerConfig;
+use tes_controller::summary::ControllerSummary;
 use tes_runtime::settings::Origin;
 
 use crate::IoError;
@@ -31,6 +32,12 @@ pub fn controller_report(spec: &ChildSpec, run_dir: &Path) -> Result<PathBuf, Io
         .map_err(|e| IoError::other("cannot write the controller's settings".into(), e))?;
     std::fs::write(&spec.config, text).map_err(IoError::with(format!("cannot write {shown}")))?;
     Ok(path)
+}
+
+/// The controller's summary in its report at `report`, if there is one that reads.
+pub fn read_report(report: Option<&Path>) -> Option<ControllerSummary> {
+    let text = std::fs::read_to_string(report?).ok()?;
+    serde_json::from_str(&text).ok()
 }
 
 /// Removes a previous run's controller report at `path` (it would say what that run did).
@@ -92,13 +99,18 @@ impl LibraryOutcome {
     /// Reads the controller's report at `report` (if the launcher knows one), falling back on
     /// comparing the library file at `library` with its fingerprint at the start.
     pub fn read(report: Option<&Path>, library: &Path, at_start: Option<Fingerprint>) -> Self {
-        let summary = report
-            .and_then(|p| std::fs::read_to_string(p).ok())
-            .and_then(|t| {
-                serde_json::from_str::<tes_controller::summary::ControllerSummary>(&t).ok()
-            });
+        Self::of(read_report(report).as_ref(), library, at_start)
+    }
+
+    /// What the controller's `summary` says of the library, else what the file at `library`
+    /// is now against its fingerprint at the start.
+    pub fn of(
+        summary: Option<&ControllerSummary>,
+        library: &Path,
+        at_start: Option<Fingerprint>,
+    ) -> Self {
         match summary {
-            Some(s) => s.library.map_or(Self::NotLoaded, Self::Reported),
+            Some(s) => s.library.clone().map_or(Self::NotLoaded, Self::Reported),
             None => {
                 let now = Fingerprint::of(library);
                 let holds = (now.is_some() && now != at_start).then(|| {
@@ -164,7 +176,7 @@ impl LibraryOutcome {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use tes_controller::summary::{ControllerSummary, LibraryCounts, LibraryEnd, LibraryFacts};
+    use tes_controller::summary::{LibraryCounts, LibraryEnd, LibraryFacts};
     use tes_learning::library::store::{self, StoredLibrary};
     use tes_learning::library::{LibraryParams, ViewLibrary};
 

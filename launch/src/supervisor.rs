@@ -13,6 +13,7 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use tes_bridge::config::TransportKind;
+use tes_controller::summary::ControllerSummary;
 use tes_link::{Link, LinkError, LinkEvent};
 use tes_recorder::live::Recorder;
 use tes_runtime::channel::{self, IpcError};
@@ -300,9 +301,14 @@ impl Supervisor {
             dir: self.prepared.run_dir.clone(),
             drawn: drawn.map_err(|e| error_chain(&e)),
         });
-        self.say_what_became_of_the_library(observer);
+        let summary = self
+            .report
+            .as_deref()
+            .and_then(|report| library::read_report(Some(report)));
+        self.say_what_became_of_the_library(summary.as_ref(), observer);
         let verdict = Verdict {
             episodes: self.relay.episodes,
+            unfinished_steps: summary.map_or(0, |s| s.unfinished_steps),
             failures,
         };
         observer.event(&Event::Verdict(verdict.clone()));
@@ -642,10 +648,13 @@ impl Supervisor {
     }
 
     /// The library is the controller's: a launch without it says nothing of it.
-    fn say_what_became_of_the_library(&self, observer: &mut dyn Observer) {
+    fn say_what_became_of_the_library(
+        &self,
+        summary: Option<&ControllerSummary>,
+        observer: &mut dyn Observer,
+    ) {
         if self.report.is_some() {
-            let outcome =
-                LibraryOutcome::read(self.report.as_deref(), &self.library, self.library_at_start);
+            let outcome = LibraryOutcome::of(summary, &self.library, self.library_at_start);
             observer.event(&Event::LibraryAtEnd {
                 path: self.library.clone(),
                 outcome,

@@ -126,6 +126,7 @@ fn a_clean_run_starts_every_child_relays_its_episodes_and_stops_when_perception_
         verdict,
         Verdict {
             episodes: 2,
+            unfinished_steps: 0,
             failures: Vec::new()
         }
     );

@@ -130,11 +130,11 @@ fn run_line(event: &Event) -> Option<Said> {
         Event::Recorded(recorded) => note(format!("launch: {recorded}")),
         Event::Verdict(v) if v.failures.is_empty() => out(format!(
             "launch: {}; all processes stopped cleanly",
-            count(u64::from(v.episodes), "episode")
+            v.length()
         )),
         Event::Verdict(v) => out(format!(
             "launch: {}; failed: {}",
-            count(u64::from(v.episodes), "episode"),
+            v.length(),
             v.failures.join("; ")
         )),
         _ => None,
@@ -449,6 +449,7 @@ mod tests {
             },
             Event::Verdict(Verdict {
                 episodes: 4,
+                unfinished_steps: 0,
                 failures: vec!["controller was killed by SIGKILL".into()],
             }),
         ];
@@ -495,6 +496,7 @@ mod tests {
         );
         let ended = Event::Verdict(Verdict {
             episodes: 1,
+            unfinished_steps: 0,
             failures: Vec::new(),
         });
         assert_eq!(
@@ -502,6 +504,22 @@ mod tests {
             [(
                 To::Out,
                 "launch: 1 episode; all processes stopped cleanly".into()
+            )]
+        );
+        // Stopped mid-episode: the actions the library learned from beyond the last episode
+        // are said, so the library's new task is accounted for.
+        let interrupted = Event::Verdict(Verdict {
+            episodes: 0,
+            unfinished_steps: 3,
+            failures: Vec::new(),
+        });
+        assert_eq!(
+            lines_of(&interrupted, true),
+            [(
+                To::Out,
+                "launch: 0 episodes and 3 actions of an unfinished one; all processes stopped \
+                 cleanly"
+                    .into()
             )]
         );
     }
@@ -528,6 +546,7 @@ mod tests {
             },
             Event::Verdict(Verdict {
                 episodes: 20,
+                unfinished_steps: 0,
                 failures: Vec::new(),
             }),
         ] {

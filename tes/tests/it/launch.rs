@@ -242,6 +242,40 @@ fn ctrl_c_stops_the_group_cleanly_leaving_no_child_or_service() {
     assert!(left.is_empty(), "services left behind: {left:?}");
     // The controller saved the library on its way out.
     load_library(&dir.path().join("data/library.tesl")).expect("the library loads");
+    the_verdict_counts_what_the_controller_did(&out);
+}
+
+/// The launch's last line counts the episodes the controller's summary counts and, when the
+/// stop came mid-episode, the actions of the unfinished one.
+fn the_verdict_counts_what_the_controller_did(out: &[String]) {
+    let summary = out
+        .iter()
+        .find_map(|l| l.strip_prefix("controller: "))
+        .unwrap_or_else(|| panic!("no controller summary: {out:?}"));
+    let episode_lines = summary
+        .split_once(" episodes, ")
+        .and_then(|(n, _)| n.parse::<u64>().ok())
+        .unwrap_or_else(|| panic!("no episode count: {summary}"));
+    let unfinished = summary
+        .split_once(" actions (")
+        .and_then(|(_, rest)| rest.split_once(" in the unfinished episode)"))
+        .map(|(n, _)| n.parse::<u64>().expect("a count"));
+    let episodes = if episode_lines == 1 {
+        "1 episode".to_owned()
+    } else {
+        format!("{episode_lines} episodes")
+    };
+    let expected = match unfinished {
+        None => format!("launch: {episodes}; all processes stopped cleanly"),
+        Some(1) => format!(
+            "launch: {episodes} and 1 action of an unfinished one; all processes stopped cleanly"
+        ),
+        Some(n) => format!(
+            "launch: {episodes} and {n} actions of an unfinished one; all processes stopped \
+             cleanly"
+        ),
+    };
+    assert_eq!(out.last(), Some(&expected), "{out:?}");
 }
 
 /// Process faults: each of the three processes is SIGKILLed 20 times at seeded
