@@ -111,6 +111,8 @@ pub struct Bridge<T: Transport> {
     stats: BridgeStats,
     /// Whether any exchange with the brick has succeeded since the bridge started.
     link_ever_up: bool,
+    /// The last link failure says no retry can help.
+    link_impossible: bool,
     /// The last link failure, for the error that stops a bridge whose link stays down.
     last_link_error: Option<String>,
     /// A command the link failed to deliver, tried again when the link is back (unless a
@@ -140,6 +142,7 @@ impl<T: Transport> Bridge<T> {
             next_keepalive: cfg.poll.keepalive_period(),
             stats: BridgeStats::default(),
             link_ever_up: false,
+            link_impossible: false,
             last_link_error: None,
             undelivered: None,
             next_retry: Duration::ZERO,
@@ -149,6 +152,12 @@ impl<T: Transport> Bridge<T> {
     /// Whether the link to the brick is down (the last exchange failed).
     pub fn link_down(&self) -> bool {
         self.state.flags & motor_flags::LINK_DOWN != 0
+    }
+
+    /// Whether the link cannot exist on this machine (no Bluetooth, no USB bus): no retry
+    /// will bring it up.
+    pub fn link_impossible(&self) -> bool {
+        self.link_impossible
     }
 
     /// Whether any exchange with the brick has succeeded since the bridge started.
@@ -419,6 +428,7 @@ impl<T: Transport> Bridge<T> {
         if e.is_link_failure() {
             self.state.flags |= motor_flags::LINK_DOWN;
             self.last_link_error = Some(e.to_string());
+            self.link_impossible = e.is_impossible();
         }
     }
 

@@ -1,7 +1,8 @@
 //! The bridge's TOML configuration, validated once.
 //!
 //! Every key is optional; the defaults are the simulated brick and the paper's three actions.
-//! Switching to a real NXT is one line: `transport = "serial:/dev/rfcomm0"`.
+//! Switching to a real NXT is one line: `transport = "usb"`, `"bluetooth:00:16:53:01:02:03"`
+//! or `"serial:/dev/rfcomm0"`.
 //!
 //! The file's keys are [`BridgeSettings`] (read and written with serde, unknown keys refused);
 //! [`BridgeSettings::check`] validates them once into the [`BridgeConfig`] the bridge runs
@@ -17,7 +18,7 @@
 //! "#)?;
 //! assert_eq!(cfg.transport, TransportKind::Serial("/dev/rfcomm0".into()));
 //! assert_eq!(cfg.watchdog_deadline.as_millis(), 800);
-//! assert!(BridgeConfig::from_toml_str("transport = \"usb\"").is_err());
+//! assert!(BridgeConfig::from_toml_str("transport = \"usb:\"").is_err());
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
@@ -30,7 +31,7 @@ use tes_runtime::settings::{MIN_BUDGET_US, Origin, SettingError};
 
 use crate::actions::{ActionConfig, ActionMap, ActionSpec, MotorsConfig, paper_actions};
 use crate::brick::SimBrickConfig;
-use crate::transport::SerialConfig;
+use crate::transport::{BluetoothTarget, LinkTiming, SerialConfig};
 
 /// Which transport carries the telegrams.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -39,7 +40,24 @@ pub enum TransportKind {
     Sim,
     /// A serial device (`transport = "serial:/dev/rfcomm0"`).
     Serial(PathBuf),
+    /// A kernel RFCOMM socket to a paired brick (`transport = "bluetooth:00:16:53:01:02:03"`,
+    /// optionally `@CHANNEL`).
+    Bluetooth(BluetoothTarget),
+    /// The brick's USB bulk endpoints (`transport = "usb"`, or `"usb:SERIAL"` for one of
+    /// several bricks).
+    Usb(Option<String>),
 }
+
+impl TransportKind {
+    /// Whether this is a real brick's link (not the simulated brick).
+    pub fn is_real(&self) -> bool {
+        !matches!(self, TransportKind::Sim)
+    }
+}
+
+/// The forms a `transport` takes, for messages.
+const TRANSPORT_FORMS: &str = "\"sim\", \"serial:PATH\", \"bluetooth:ADDR[@CHANNEL]\", \"usb\" or \
+                               \"usb:SERIAL\"";
 
 impl std::str::FromStr for TransportKind {
     type Err = String;
@@ -47,11 +65,16 @@ impl std::str::FromStr for TransportKind {
     fn from_str(s: &str) -> Result<Self, String> {
         match s.split_once(':') {
             None if s == "sim" => Ok(TransportKind::Sim),
+            None if s == "usb" => Ok(TransportKind::Usb(None)),
             Some(("serial", path)) if !path.is_empty() => {
                 Ok(TransportKind::Serial(PathBuf::from(path)))
             }
+            Some(("bluetooth", target)) => target.parse().map(TransportKind::Bluetooth),
+            Some(("usb", serial)) if !serial.is_empty() => {
+                Ok(TransportKind::Usb(Some(serial.to_owned())))
+            }
             _ => Err(format!(
-                "expected \"sim\" or \"serial:PATH\" (e.g. \"serial:/dev/rfcomm0\"), got {s:?}"
+                "expected {TRANSPORT_FORMS} (e.g. \"bluetooth:00:16:53:01:02:03\"), got {s:?}"
             )),
         }
     }
@@ -62,27 +85,26 @@ impl std::fmt::Display for TransportKind {
         match self {
             TransportKind::Sim => f.write_str("sim"),
             TransportKind::Serial(p) => write!(f, "serial:{}", p.display()),
+            TransportKind::Bluetooth(t) => write!(f, "bluetooth:{t}"),
+            TransportKind::Usb(None) => f.write_str("usb"),
+            TransportKind::Usb(Some(serial)) => write!(f, "usb:{serial}"),
         }
     }
 }
 
-/// Written as its string form: `"sim"` or `"serial:PATH"`.
+/// Written as its string form: `"sim"`, `"serial:PATH"`, `"bluetooth:ADDR@CHANNEL"`, `"usb"`.
 impl Serialize for TransportKind {
     fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
         match self {
-            TransportKind::Sim => serializer.serialize_str("sim"),
-            TransportKind::Serial(p) => match p.to_str() {
-                Some(p) => serializer.serialize_str(&format!("serial:{p}")),
-                None => Err(serde::ser::Error::custom(format!(
-                    "the serial device {} is not UTF-8",
-                    p.display()
-                ))),
-            },
+            TransportKind::Serial(p) if p.to_str().is_none() => Err(serde::ser::Error::custom(
+                format!("the serial device {} is not UTF-8", p.display()),
+            )),
+            other => serializer.serialize_str(&other.to_string()),
         }
     }
 }
 
-/// Read from its string form: `"sim"` or `"serial:PATH"`.
+/// Read from its string form (see [`TransportKind`]).
 impl<'de> Deserialize<'de> for TransportKind {
     fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
         struct Visitor;
@@ -90,7 +112,7 @@ impl<'de> Deserialize<'de> for TransportKind {
             type Value = TransportKind;
 
             fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-                f.write_str("a transport: \"sim\" or \"serial:PATH\"")
+                write!(f, "a transport: {TRANSPORT_FORMS}")
             }
 
             fn visit_str<E: serde::de::Error>(self, s: &str) -> Result<TransportKind, E> {
@@ -209,8 +231,9 @@ impl Default for LinkDelayConfig {
     }
 }
 
-/// Serial settings (the `[serial]` table). Each field's doc is its key's entry in the launch
-/// file's reference, as for [`BridgeSettings`].
+/// A real link's settings (the `[serial]` table: its timing keys apply to the USB and
+/// Bluetooth links too). Each field's doc is its key's entry in the launch file's reference,
+/// as for [`BridgeSettings`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SerialSection {
@@ -218,15 +241,15 @@ pub struct SerialSection {
     ///
     /// Values: bit/s.
     pub baud_rate: u32,
-    /// Time to wait for a whole reply.
+    /// Time to wait for a whole reply (every real link: serial, Bluetooth, USB).
     ///
     /// Values: ms, [`READ_TIMEOUT_MS_RANGE`].
     pub read_timeout_ms: u64,
-    /// Wait between reconnection attempts.
+    /// Wait between reconnection attempts (every real link).
     ///
     /// Values: ms.
     pub reconnect_backoff_ms: u64,
-    /// Consecutive timeouts before the device is reopened.
+    /// Consecutive timeouts before the link is reopened (every real link).
     ///
     /// Values: count, at least 1.
     pub max_timeouts: u32,
@@ -323,7 +346,8 @@ pub struct IpcConfig {
     ///
     /// Values: count.
     pub warmup_commands: u64,
-    /// Where to write the latency report (JSON: percentiles, maximum, misses) at exit.
+    /// Where to write the report at exit (JSON: the latency's percentiles, maximum and misses;
+    /// the link's round trips under `link`).
     /// Unset: nowhere.
     ///
     /// Values: path.
@@ -376,11 +400,14 @@ impl IpcConfig {
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct BridgeSettings {
-    /// What carries the telegrams: the simulated brick, in-process; or a serial device — a
-    /// real NXT over Bluetooth (`serial:/dev/rfcomm0`) or the pseudo-terminal that
-    /// `tes-bridge brick --pty` serves.
+    /// What carries the telegrams: the simulated brick, in-process; a real NXT over USB
+    /// (`usb`, or `usb:<serial>` to pick one of several), over Bluetooth by a kernel RFCOMM
+    /// socket (`bluetooth:<address>`, channel 1 unless `@<channel>` follows), or a serial
+    /// device (`serial:/dev/rfcomm0` bound by `rfcomm bind`, or the pseudo-terminal that
+    /// `tes-bridge brick --pty` serves). `tes-bridge scan` lists the bricks it sees.
     ///
-    /// Values: `"sim"` | `"serial:<path>"`.
+    /// Values: `"sim"` | `"usb"` | `"usb:<serial>"` | `"bluetooth:<address>[@<channel>]"` |
+    /// `"serial:<path>"`.
     pub transport: TransportKind,
     /// Seeds the simulated brick and the simulated link delay.
     ///
@@ -455,7 +482,7 @@ impl Default for WatchdogSection {
 /// The validated bridge configuration.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BridgeConfig {
-    /// `transport`: `"sim"` (default) or `"serial:PATH"`.
+    /// `transport`: `"sim"` (default), `"usb"`, `"bluetooth:ADDR"` or `"serial:PATH"`.
     pub transport: TransportKind,
     /// `seed`: seeds the simulated brick and the simulated link delay (default 0).
     pub seed: u64,
@@ -736,6 +763,15 @@ impl BridgeConfig {
         Ok(self)
     }
 
+    /// The timing of every real link (the `[serial]` table's timing keys).
+    pub fn link_timing(&self) -> LinkTiming {
+        LinkTiming {
+            read_timeout: Duration::from_millis(self.serial.read_timeout_ms),
+            reconnect_backoff: Duration::from_millis(self.serial.reconnect_backoff_ms),
+            max_timeouts: self.serial.max_timeouts,
+        }
+    }
+
     /// The serial settings for `path`.
     pub fn serial_config(&self, path: &Path) -> SerialConfig {
         SerialConfig {
@@ -863,9 +899,19 @@ mod tests {
             ),
             ("[ipc]\nwait = \"nap\"", "ipc.wait", "nap"),
             (
-                "transport = \"usb\"",
+                "transport = \"usb:\"",
                 "transport",
-                "expected \"sim\" or \"serial:PATH\"",
+                "expected \"sim\", \"serial:PATH\", \"bluetooth:ADDR[@CHANNEL]\"",
+            ),
+            (
+                "transport = \"bluetooth:00:16:53\"",
+                "transport",
+                "six hexadecimal bytes",
+            ),
+            (
+                "transport = \"bluetooth:00:16:53:01:02:03@0\"",
+                "transport",
+                "channel after `@` must be 1 to 30",
             ),
             ("[ipc]\nbudget_us = 0", "ipc.budget_us", "at least 1"),
             (
@@ -964,6 +1010,18 @@ mod tests {
                 "serial:/dev/rfcomm0",
                 TransportKind::Serial("/dev/rfcomm0".into()),
             ),
+            (
+                "bluetooth:00:16:53:0A:0B:0C@1",
+                TransportKind::Bluetooth(BluetoothTarget {
+                    address: [0x00, 0x16, 0x53, 0x0A, 0x0B, 0x0C],
+                    channel: 1,
+                }),
+            ),
+            ("usb", TransportKind::Usb(None)),
+            (
+                "usb:0016530A0B0C",
+                TransportKind::Usb(Some("0016530A0B0C".into())),
+            ),
         ] {
             let cfg = BridgeConfig::from_toml_str(&format!("transport = \"{text}\"")).unwrap();
             assert_eq!(cfg.transport, transport);
@@ -975,7 +1033,7 @@ mod tests {
             assert_eq!(cfg.ipc.wait_strategy(), Ok(cfg.ipc.wait));
         }
         for (text, key, line) in [
-            ("seed = 1\ntransport = \"usb\"", "transport", 2),
+            ("seed = 1\ntransport = \"usb:\"", "transport", 2),
             ("transport = \"serial:\"", "transport", 1),
             ("transport = 5", "transport", 1),
             ("[poll]\n[ipc]\nwait = \"nap\"", "ipc.wait", 3),

@@ -40,7 +40,7 @@ use tes_topics::{Command, MotorState, Role, motor_flags, progress_flags};
 
 use crate::bridge::{Bridge, BridgeError};
 use crate::clock::Clock;
-use crate::transport::Transport;
+use crate::transport::{LinkReport, Transport};
 
 pub use tes_topics::ServiceNames;
 
@@ -64,7 +64,7 @@ impl RunOptions {
 }
 
 /// What a finished [`run`] did.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct RunSummary {
     /// Commands received.
     pub commands: u64,
@@ -82,6 +82,8 @@ pub struct RunSummary {
     /// Set when the loop stopped because the link to the brick stayed down (or never came
     /// up) for longer than the link timeout.
     pub link_down: Option<LinkDown>,
+    /// The link's round trips (filled in by [`crate::process::run`]).
+    pub link: LinkReport,
 }
 
 impl std::fmt::Display for RunSummary {
@@ -119,6 +121,9 @@ impl std::fmt::Display for RunSummary {
                 )?;
             }
         }
+        if !self.link.transport.is_empty() {
+            write!(f, "; {}", self.link)?;
+        }
         Ok(())
     }
 }
@@ -130,6 +135,8 @@ pub struct LinkDown {
     pub down_for: Duration,
     /// Whether it never came up at all.
     pub never_up: bool,
+    /// Whether it cannot come up on this machine (no Bluetooth, no USB bus): given up at once.
+    pub impossible: bool,
 }
 
 /// Watches the link to the brick against the link timeout (wall time).
@@ -154,9 +161,11 @@ impl LinkWatch {
         let now = Instant::now();
         if !bridge.link_ever_up() {
             let waited = now.duration_since(self.started);
-            return (waited > self.timeout).then_some(LinkDown {
+            let impossible = bridge.link_impossible();
+            return (waited > self.timeout || impossible).then_some(LinkDown {
                 down_for: waited,
                 never_up: true,
+                impossible,
             });
         }
         if !bridge.link_down() {
@@ -167,6 +176,7 @@ impl LinkWatch {
         (down_for > self.timeout).then_some(LinkDown {
             down_for,
             never_up: false,
+            impossible: false,
         })
     }
 }

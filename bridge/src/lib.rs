@@ -8,15 +8,18 @@
 //!   GETFIRMWAREVERSION, GETDEVICEINFO, replies and status codes. Allocation-free, never panics.
 //! - [`brick`]: a simulated brick that answers telegrams like the firmware, with motor
 //!   dynamics stepped by a clock you pass in; deterministic for a seed.
-//! - [`transport`]: `sim` (the simulated brick in-process), `serial:PATH` (Bluetooth SPP
-//!   `/dev/rfcomm0`, or a pseudo-terminal), and an optional simulated link delay.
+//! - [`transport`]: `sim` (the simulated brick in-process), the real links — `usb` (the
+//!   NXT's bulk endpoints), `bluetooth:ADDR` (a kernel RFCOMM socket), `serial:PATH`
+//!   (`/dev/rfcomm0`, or a pseudo-terminal) — and an optional simulated link delay; every
+//!   exchange's round trip is timed.
+//! - [`scan`]: the bricks this machine can reach over USB and Bluetooth, and why not.
 //! - [`actions`]: the config-driven action → SETOUTPUTSTATE mapping (the paper's three
 //!   actions by default).
 //! - [`watchdog`]: brakes the motors when commands stop arriving while a motor runs.
 //! - [`bridge`]: the logic tying these together, free of IPC; [`ipc`] runs it over iceoryx2;
 //!   [`process`] builds it all from a config (the `tes-bridge run` binary and `tes launch`).
 //! - [`pty`]: serves the simulated brick on a pseudo-terminal for any NXT client.
-//! - [`config`]: the TOML configuration; `transport = "serial:/dev/rfcomm0"` swaps in a real NXT.
+//! - [`config`]: the TOML configuration; `transport = "usb"` swaps in a real NXT.
 //!
 //! ```
 //! use std::time::Duration;
@@ -49,5 +52,6 @@ pub mod ipc;
 pub mod nxt;
 pub mod process;
 pub mod pty;
+pub mod scan;
 pub mod transport;
 pub mod watchdog;

@@ -4,6 +4,7 @@
 //! tes-bridge run [--config FILE] [--time-scale K]      commands in over iceoryx2, NXT telegrams out
 //! tes-bridge brick --pty PATH [--seed N] [--config FILE] [--link-delay]
 //!                                                   serve the simulated brick on a pseudo-terminal
+//! tes-bridge scan [--json]                          the bricks on USB and Bluetooth, or why none
 //! ```
 
 use std::path::{Path, PathBuf};
@@ -58,6 +59,14 @@ enum Cmd {
         #[arg(long)]
         link_delay: bool,
     },
+    /// List the NXTs this machine can reach — on USB, and paired over Bluetooth — with the
+    /// `transport` line for each, or say plainly why there is none (no adapter, adapter off,
+    /// no permission); exits 1 when no brick is found.
+    Scan {
+        /// Print the findings as JSON.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 fn load(config: Option<&Path>) -> anyhow::Result<BridgeConfig> {
@@ -96,7 +105,21 @@ fn main() -> anyhow::Result<()> {
             }
             brick(&pty, &cfg)
         }
+        Cmd::Scan { json } => scan(json),
     }
+}
+
+fn scan(json: bool) -> anyhow::Result<()> {
+    let found = tes_bridge::scan::scan();
+    if json {
+        println!("{}", serde_json::to_string_pretty(&found)?);
+    } else {
+        print!("{found}");
+    }
+    if found.bricks() == 0 {
+        std::process::exit(1);
+    }
+    Ok(())
 }
 
 fn run(cfg: BridgeConfig) -> anyhow::Result<()> {

@@ -25,7 +25,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
-use tes_runtime::latency::LatencyRecorder;
+use tes_runtime::latency::{LatencyRecorder, LatencyReport};
 use thiserror::Error;
 
 use crate::brick::{BrickConfigError, SimBrick};
@@ -33,7 +33,10 @@ use crate::bridge::Bridge;
 use crate::clock::{Clock, ScaledClock};
 use crate::config::{BridgeConfig, TransportKind};
 use crate::ipc::{self, IpcError, RunOptions, RunSummary, ServiceNames};
-use crate::transport::{DelayedTransport, LinkDelay, SerialTransport, SimTransport, Transport};
+use crate::transport::{
+    BluetoothTransport, DelayedTransport, LinkDelay, LinkReport, SerialTransport, SimTransport,
+    TimedTransport, Transport, TransportError, UsbTransport,
+};
 
 /// Why the bridge process could not run.
 #[derive(Debug, Error)]
@@ -51,7 +54,8 @@ pub enum ProcessError {
     /// `link_timeout_ms`.
     #[error(
         "the link to the brick ({transport}) {}: {last_error}",
-        if *never_up { format!("did not come up within {:.1} s", down_for.as_secs_f64()) }
+        if *impossible { "cannot be used on this machine".to_owned() }
+        else if *never_up { format!("did not come up within {:.1} s", down_for.as_secs_f64()) }
         else { format!("has been down for {:.1} s", down_for.as_secs_f64()) }
     )]
     LinkDown {
@@ -59,11 +63,16 @@ pub enum ProcessError {
         transport: String,
         /// Whether it never came up.
         never_up: bool,
+        /// Whether it cannot come up on this machine (given up at once).
+        impossible: bool,
         /// How long it was down.
         down_for: std::time::Duration,
         /// The last failure.
         last_error: String,
     },
+    /// The link to a real brick could not be set up.
+    #[error("the link to the brick: {0}")]
+    Link(#[from] TransportError),
     /// The latency report could not be written.
     #[error("cannot write the latency report {}: {error}", path.display())]
     Report {
@@ -74,32 +83,16 @@ pub enum ProcessError {
     },
 }
 
-/// The exit status of a bridge process stopped by [`ProcessError::LinkDown`]: the launcher
-/// takes it as the end of the launch, never as a crash to respawn.
-pub const LINK_DOWN_EXIT_STATUS: i32 = 3;
-
-/// Runs the bridge with `cfg` until a signal (if `opts` handles them) or `opts.stop`; brakes
-/// the motors on the way out. Fails with [`ProcessError::LinkDown`] when the link to the brick
-/// does not come up, or stays down, for longer than `cfg.link_timeout`.
-///
-/// With `transport = "sim"` the brick runs at `cfg.brick.time_scale`; with a serial transport
-/// the time scale is ignored (with a warning) and everything runs in wall time. Fails if the
-/// simulated brick's settings are invalid (a `time_scale` that is not finite and > 0 set in
-/// code included) or iceoryx2 fails; a serial device that cannot be opened is retried, not
-/// an error.
-pub fn run(cfg: &BridgeConfig, opts: &RunOptions) -> Result<RunSummary, ProcessError> {
-    let sim = matches!(cfg.transport, TransportKind::Sim);
-    let clock = ScaledClock::new(if sim { cfg.brick.time_scale } else { 1.0 });
-    if !sim && cfg.brick.time_scale != 1.0 {
-        tracing::warn!(
-            time_scale = cfg.brick.time_scale,
-            "brick.time_scale is for the simulated brick; ignored with a serial transport"
-        );
+/// The transport `cfg` names: the simulated brick on `clock` (behind its simulated link
+/// delay, if set), or a real brick's link.
+fn transport(cfg: &BridgeConfig, clock: ScaledClock) -> Result<Box<dyn Transport>, ProcessError> {
+    if cfg.transport.is_real() && cfg.link_delay.is_some() {
+        tracing::warn!("link_delay is for the simulated brick; ignored with a real brick's link");
     }
-    let transport: Box<dyn Transport> = match &cfg.transport {
+    let timing = cfg.link_timing();
+    Ok(match &cfg.transport {
         TransportKind::Sim => {
-            let brick = SimBrick::new(cfg.brick.clone(), cfg.seed)?;
-            let sim = SimTransport::new(brick, clock);
+            let sim = SimTransport::new(SimBrick::new(cfg.brick.clone(), cfg.seed)?, clock);
             match cfg.link_delay {
                 // The simulated link belongs to the simulated world: its delay is brick time.
                 Some((mean, jitter)) => Box::new(DelayedTransport::new(
@@ -113,23 +106,100 @@ pub fn run(cfg: &BridgeConfig, opts: &RunOptions) -> Result<RunSummary, ProcessE
                 None => Box::new(sim),
             }
         }
-        TransportKind::Serial(path) => {
-            if cfg.link_delay.is_some() {
-                tracing::warn!(
-                    "link_delay is for the simulated brick; ignored with a serial transport"
-                );
-            }
-            Box::new(SerialTransport::new(cfg.serial_config(path)))
+        TransportKind::Serial(path) => Box::new(SerialTransport::serial(cfg.serial_config(path))),
+        TransportKind::Bluetooth(target) => {
+            Box::new(BluetoothTransport::bluetooth(*target, timing)?)
         }
-    };
+        TransportKind::Usb(serial) => Box::new(UsbTransport::usb(serial.clone(), timing)),
+    })
+}
+
+/// The bridge's report at exit (`[ipc] latency_report`, a launch's `bridge-report.json`):
+/// the observation-to-command latency's percentiles at the top level, and the link's round
+/// trips under `link`.
+#[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct BridgeReport {
+    /// Observation → command latency of the commands received.
+    #[serde(flatten)]
+    pub latency: LatencyReport,
+    /// The link's round trips.
+    #[serde(default)]
+    pub link: LinkReport,
+    /// Commands carried out (keep-alives included).
+    #[serde(default)]
+    pub commands: u64,
+    /// How long the bridge ran (wall time), ms.
+    #[serde(default)]
+    pub run_ms: u64,
+}
+
+impl BridgeReport {
+    /// The report of a run that ended with `summary` after `run_ms`.
+    pub fn of(summary: &RunSummary, run_ms: u64) -> Self {
+        Self {
+            latency: summary.latency,
+            link: summary.link.clone(),
+            commands: summary.commands,
+            run_ms,
+        }
+    }
+
+    /// Each command's share of the run, and of that the link's, µs: `(per command, on the
+    /// link)`; `None` before any command.
+    pub fn per_command_us(&self) -> Option<(u64, u64)> {
+        (self.commands > 0).then(|| {
+            (
+                self.run_ms.saturating_mul(1000) / self.commands,
+                self.link.busy_us / self.commands,
+            )
+        })
+    }
+
+    /// Reads a report [`BridgeReport::save`] wrote.
+    pub fn load(path: &std::path::Path) -> std::io::Result<Self> {
+        let text = std::fs::read_to_string(path)?;
+        serde_json::from_str(&text).map_err(std::io::Error::other)
+    }
+
+    /// Writes the report as one JSON object.
+    pub fn save(&self, path: &std::path::Path) -> std::io::Result<()> {
+        let text = serde_json::to_string_pretty(self).map_err(std::io::Error::other)?;
+        std::fs::write(path, text + "\n")
+    }
+}
+
+/// The exit status of a bridge process stopped by [`ProcessError::LinkDown`]: the launcher
+/// takes it as the end of the launch, never as a crash to respawn.
+pub const LINK_DOWN_EXIT_STATUS: i32 = 3;
+
+/// Runs the bridge with `cfg` until a signal (if `opts` handles them) or `opts.stop`; brakes
+/// the motors on the way out. Fails with [`ProcessError::LinkDown`] when the link to the brick
+/// does not come up, or stays down, for longer than `cfg.link_timeout`.
+///
+/// With `transport = "sim"` the brick runs at `cfg.brick.time_scale`; with a real brick's
+/// link (serial, Bluetooth, USB) the time scale is ignored (with a warning) and everything
+/// runs in wall time. Fails if the simulated brick's settings are invalid (a `time_scale` that
+/// is not finite and > 0 set in code included) or iceoryx2 fails; a link that cannot be
+/// opened is retried until `link_timeout_ms`, not an error at once.
+pub fn run(cfg: &BridgeConfig, opts: &RunOptions) -> Result<RunSummary, ProcessError> {
+    let sim = matches!(cfg.transport, TransportKind::Sim);
+    let clock = ScaledClock::new(if sim { cfg.brick.time_scale } else { 1.0 });
+    if !sim && cfg.brick.time_scale != 1.0 {
+        tracing::warn!(
+            time_scale = cfg.brick.time_scale,
+            "brick.time_scale is for the simulated brick; ignored with a real brick's link"
+        );
+    }
+    let transport = transport(cfg, clock)?;
     tracing::info!(
         transport = %transport.describe(),
         seed = cfg.seed,
         time_scale = clock.scale(),
         "bridge starting"
     );
-    let mut bridge = Bridge::new(transport, cfg);
+    let mut bridge = Bridge::new(TimedTransport::new(transport), cfg);
     let names = ServiceNames::with_prefix(&cfg.ipc.service_prefix);
+    let started = std::time::Instant::now();
     let mut latency = LatencyRecorder::new(cfg.ipc.budget_us, cfg.ipc.warmup_commands);
     if cfg.ipc.latency_windows.is_some() {
         latency = latency.with_windows(cfg.ipc.latency_window);
@@ -143,11 +213,14 @@ pub fn run(cfg: &BridgeConfig, opts: &RunOptions) -> Result<RunSummary, ProcessE
         &mut latency,
         cfg.link_timeout,
     )?;
+    let mut summary = summary;
+    summary.link = bridge.transport_mut().report();
     tracing::info!(%summary, stats = %bridge.stats(), "bridge stopped");
     if let Some(down) = summary.link_down {
         return Err(ProcessError::LinkDown {
             transport: bridge.transport_mut().describe(),
             never_up: down.never_up,
+            impossible: down.impossible,
             down_for: down.down_for,
             last_error: bridge
                 .last_link_error()
@@ -156,13 +229,15 @@ pub fn run(cfg: &BridgeConfig, opts: &RunOptions) -> Result<RunSummary, ProcessE
         });
     }
     if let Some(path) = &cfg.ipc.latency_report {
-        summary
-            .latency
-            .save(path)
-            .map_err(|error| ProcessError::Report {
-                path: path.clone(),
-                error,
-            })?;
+        BridgeReport::of(
+            &summary,
+            u64::try_from(started.elapsed().as_millis()).unwrap_or(u64::MAX),
+        )
+        .save(path)
+        .map_err(|error| ProcessError::Report {
+            path: path.clone(),
+            error,
+        })?;
     }
     if let Some(path) = &cfg.ipc.latency_windows {
         tes_runtime::latency::LatencyReport::save_windows_csv(latency.windows(), path).map_err(

@@ -3,6 +3,8 @@
 
 use std::path::PathBuf;
 use std::time::Duration;
+pub use tes_bridge::process::BridgeReport;
+pub use tes_bridge::transport::in_words;
 
 use tes_controller::summary::EpisodeLine;
 use tes_link::{LinkCounts, Mode, Topic};
@@ -208,6 +210,8 @@ pub enum Event {
         /// Its pictures, or why they could not be drawn.
         drawn: Result<Vec<PathBuf>, String>,
     },
+    /// The bridge's link to the brick: its round trips (from the bridge's report).
+    LinkTimed(BridgeReport),
     /// What became of the view library.
     LibraryAtEnd {
         /// The file.

@@ -668,6 +668,9 @@ pub struct Prepared {
     fresh: Option<(PathBuf, u32)>,
     /// The group's service prefix (its own unless the file sets one).
     pub service_prefix: String,
+    /// Where the bridge writes its report at exit (latency, the link's round trips), when
+    /// this launch plays the bridge.
+    pub bridge_report: Option<PathBuf>,
     /// The run directory's lock, held for the group's life.
     pub _lock: Lock,
 }
@@ -758,6 +761,7 @@ pub fn prepare(file: &LaunchFile) -> Result<Prepared, LaunchFileError> {
         run_dir,
         fresh,
         service_prefix: file.launch.service_prefix.clone(),
+        bridge_report: None,
         _lock: lock,
     };
     let run_dir = prepared.run_dir.clone();
@@ -786,6 +790,11 @@ pub fn prepare(file: &LaunchFile) -> Result<Prepared, LaunchFileError> {
             role: *role,
             config: path,
         });
+    }
+    if plays(&Role::Bridge) {
+        prepared
+            .bridge_report
+            .clone_from(&children.bridge.ipc.latency_report);
     }
     Ok(prepared)
 }
@@ -962,7 +971,7 @@ mod tests {
                 8,
             ),
             ("[bridge]\nwatchdogg = 1\n", "bridge", "watchdogg", 4),
-            ("[bridge]\ntransport = \"usb\"\n", "bridge", "transport", 4),
+            ("[bridge]\ntransport = \"usb:\"\n", "bridge", "transport", 4),
             (
                 "[bridge.ipc]\nservice_prefix = \"x/\"\nwait = \"nap\"\n",
                 "bridge",

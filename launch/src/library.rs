@@ -40,12 +40,13 @@ pub fn read_report(report: Option<&Path>) -> Option<ControllerSummary> {
     serde_json::from_str(&text).ok()
 }
 
-/// Removes a previous run's controller report at `path` (it would say what that run did).
-pub fn remove_stale_report(path: &Path) -> Result<(), IoError> {
+/// Removes a previous run's report at `path` (it would say what that run did); `whose` names
+/// it in the error (`controller`, `bridge`).
+pub fn remove_stale_report(path: &Path, whose: &str) -> Result<(), IoError> {
     match std::fs::remove_file(path) {
         Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(IoError {
             what: format!(
-                "cannot remove the previous controller report {}",
+                "cannot remove the previous {whose} report {}",
                 path.display()
             ),
             source: e,

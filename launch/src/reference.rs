@@ -128,7 +128,7 @@ pub const TABLES: &[Table] = &[
     Table {
         name: "bridge.serial",
         array: false,
-        about: "The serial transport (`transport = \"serial:<path>\"`).",
+        about: "The real links' settings: the timing keys apply to `usb`, `bluetooth:<address>` and `serial:<path>` alike; `baud_rate` and `exclusive` to a serial device only.",
     },
     Table {
         name: "bridge.watchdog",

@@ -184,6 +184,9 @@ impl Supervisor {
         let record = RunRecord::create(&prepared.run_dir, file.controller.budget_us, file.arena())?;
         let library = file.controller.library_path();
         let report = controller_report(&prepared)?;
+        if let Some(path) = &prepared.bridge_report {
+            library::remove_stale_report(path, "bridge")?;
+        }
         if report.is_some() {
             observer.event(&Event::LibraryAtStart {
                 path: library.clone(),
@@ -301,6 +304,7 @@ impl Supervisor {
             dir: self.prepared.run_dir.clone(),
             drawn: drawn.map_err(|e| error_chain(&e)),
         });
+        self.say_how_the_link_went(observer);
         let summary = self
             .report
             .as_deref()
@@ -647,6 +651,19 @@ impl Supervisor {
         }
     }
 
+    /// The bridge's round trips to the brick, from its report (when this launch played the
+    /// bridge and it wrote one).
+    fn say_how_the_link_went(&self, observer: &mut dyn Observer) {
+        let report = self
+            .prepared
+            .bridge_report
+            .as_deref()
+            .and_then(|path| tes_bridge::process::BridgeReport::load(path).ok());
+        if let Some(report) = report.filter(|r| !r.link.transport.is_empty()) {
+            observer.event(&Event::LinkTimed(report));
+        }
+    }
+
     /// The library is the controller's: a launch without it says nothing of it.
     fn say_what_became_of_the_library(
         &self,
@@ -814,7 +831,7 @@ fn controller_report(prepared: &Prepared) -> Result<Option<PathBuf>, LaunchError
         return Ok(None);
     };
     let path = library::controller_report(spec, &prepared.run_dir)?;
-    library::remove_stale_report(&path)?;
+    library::remove_stale_report(&path, "controller")?;
     Ok(Some(path))
 }
 

@@ -2,10 +2,12 @@
 //!
 //! - [`SimTransport`]: the [`SimBrick`](crate::brick::SimBrick) in-process, stepped to a
 //!   [`Clock`](crate::clock::Clock) at each telegram.
-//! - [`SerialTransport`]: a serial device (`/dev/rfcomm0` for a Bluetooth-paired NXT, or the
-//!   pseudo-terminal `tes-bridge brick --pty` serves), with read timeouts and reconnection.
-//! - [`DelayedTransport`]: wraps either and delays each reply like a Bluetooth link
-//!   (≈ 30 ms with jitter), for realistic timing off the robot.
+//! - [`LinkTransport`]: a real link, with read timeouts, junk skipping and reconnection
+//!   ([`link`]): [`SerialTransport`] (a serial device: `/dev/rfcomm0`, or the pseudo-terminal
+//!   `tes-bridge brick --pty` serves), [`BluetoothTransport`] (a kernel RFCOMM socket to a
+//!   paired brick) and [`UsbTransport`] (the NXT's USB bulk endpoints).
+//! - [`DelayedTransport`]: wraps one and delays each reply like a Bluetooth link (≈ 30 ms
+//!   with jitter), for realistic timing off the robot.
 //!
 //! The bridge sees only the [`Transport`] trait, so the transport is one config setting.
 //!
@@ -24,42 +26,56 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+mod bluetooth;
 mod delay;
+pub mod link;
 mod serial;
 mod sim;
+mod timed;
+mod usb;
 
 use std::time::Duration;
 
+pub use bluetooth::{
+    BluetoothTarget, BluetoothTransport, NXT_RFCOMM_CHANNEL, RfcommDevice, StreamConnection,
+};
 pub use delay::{DelayedTransport, LinkDelay, Sleep, ThreadSleep};
-pub use serial::{SerialConfig, SerialStats, SerialTransport};
+pub use link::{LinkStats, LinkTiming, LinkTransport};
+pub use serial::{SerialConfig, SerialDevice, SerialTransport};
 pub use sim::SimTransport;
+pub use timed::{LinkReport, TimedTransport, in_words};
+pub use usb::{
+    LEGO_VENDOR_ID, NXT_PRODUCT_ID, UsbBrick, UsbConnection, UsbDevice, UsbTransport, find_bricks,
+};
 
 use crate::nxt::{DecodeError, FrameError, Opcode, Reply, Request, Status, Telegram};
 
 /// Why a transaction failed.
 #[derive(Debug, thiserror::Error)]
 pub enum TransportError {
-    /// The device could not be opened (the bridge retries after a back-off).
-    #[error("cannot open {path}: {reason}")]
+    /// The link could not be opened (the bridge retries after a back-off).
+    #[error("cannot open {link}: {reason}")]
     Open {
-        /// Device path.
-        path: String,
-        /// The operating system's reason.
+        /// The link, as the config names it.
+        link: String,
+        /// The cause, and what to do about it.
         reason: String,
+        /// The link cannot exist on this machine (no Bluetooth, no USB bus): no retry helps.
+        impossible: bool,
     },
-    /// The device is closed after a failure and the back-off has not elapsed.
-    #[error("link to {path} is down; reconnecting in {wait:?}")]
+    /// The link is closed after a failure and the back-off has not elapsed.
+    #[error("link {link} is down; reconnecting in {wait:?}")]
     Backoff {
-        /// Device path.
-        path: String,
+        /// The link, as the config names it.
+        link: String,
         /// Time until the next attempt.
         wait: Duration,
     },
-    /// Reading or writing the device failed.
-    #[error("I/O error on {path}: {error}")]
+    /// Reading or writing the link failed (the peer closing it included).
+    #[error("I/O error on {link}: {error}")]
     Io {
-        /// Device path.
-        path: String,
+        /// The link, as the config names it.
+        link: String,
         /// The error (part of the message, so not also chained as a source).
         error: std::io::Error,
     },
@@ -94,6 +110,17 @@ pub enum TransportError {
 }
 
 impl TransportError {
+    /// Whether no retry can bring the link up on this machine.
+    pub fn is_impossible(&self) -> bool {
+        matches!(
+            self,
+            TransportError::Open {
+                impossible: true,
+                ..
+            }
+        )
+    }
+
     /// Whether the error means the link itself is unusable (as opposed to a refused request).
     pub fn is_link_failure(&self) -> bool {
         matches!(

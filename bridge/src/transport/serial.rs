@@ -1,14 +1,13 @@
-//! A serial-device transport: Bluetooth SPP (`/dev/rfcomm0`) or a pseudo-terminal.
+//! A serial device as a link: Bluetooth SPP through `/dev/rfcommN`, or a pseudo-terminal.
 
-use std::io::{ErrorKind, Write};
+use std::io::{ErrorKind, Read, Write};
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use serialport::{ClearBuffer, SerialPort};
 
-use crate::nxt::{FrameDecoder, Telegram, telegram_type};
-
-use super::{Transport, TransportError};
+use super::TransportError;
+use super::link::{Connection, Device, Framing, LinkTiming, LinkTransport, OpenFailure};
 
 /// Settings of a [`SerialTransport`] (the `[serial]` table of the bridge config, plus the path
 /// from `transport = "serial:PATH"`).
@@ -33,256 +32,118 @@ impl SerialConfig {
     /// Defaults for `path`: 115200 baud, 500 ms read timeout, 1 s back-off, reopen after 3
     /// timeouts in a row, exclusive.
     pub fn new(path: impl Into<PathBuf>) -> Self {
+        let timing = LinkTiming::default();
         Self {
             path: path.into(),
             baud_rate: 115_200,
-            read_timeout: Duration::from_millis(500),
-            reconnect_backoff: Duration::from_secs(1),
-            max_timeouts: 3,
+            read_timeout: timing.read_timeout,
+            reconnect_backoff: timing.reconnect_backoff,
+            max_timeouts: timing.max_timeouts,
             exclusive: true,
         }
     }
+
+    /// The link's timing keys.
+    pub fn timing(&self) -> LinkTiming {
+        LinkTiming {
+            read_timeout: self.read_timeout,
+            reconnect_backoff: self.reconnect_backoff,
+            max_timeouts: self.max_timeouts,
+        }
+    }
 }
 
-/// Counters of a [`SerialTransport`].
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct SerialStats {
-    /// Successful opens of the device (the first one included).
-    pub connects: u64,
-    /// Read timeouts.
-    pub timeouts: u64,
-    /// Replies dropped because they answered another opcode (an earlier, timed-out request).
-    pub stale_replies: u64,
-    /// Bad frame starts and dropped partial replies skipped while reading replies (junk, a bad
-    /// length, a byte that is no reply type after a length).
-    pub bad_frames: u64,
-}
-
-/// Talks to a brick over a serial device, one frame per write.
-///
-/// Opens the device lazily and reopens it after an I/O error (or `max_timeouts` timeouts in a
-/// row), waiting `reconnect_backoff` between attempts; a transaction attempted while the link
-/// is down fails fast with [`TransportError::Backoff`].
-///
-/// Replies are read with a resynchronising [`FrameDecoder`] (see [`FrameDecoder::replies`]):
-/// junk and bad lengths are skipped a byte at a time, a reply to another opcode (a late reply to
-/// an earlier, timed-out request) is counted and skipped, never taken as the answer, and
-/// whatever is left of a partial reply when a transaction ends is dropped (the next transaction
-/// starts on an emptied input queue with a fresh decoder). A transaction that gets no matching
-/// reply within `read_timeout` fails with [`TransportError::Timeout`].
-pub struct SerialTransport {
+/// A serial device: opened with `serialport`, telegrams length-prefixed.
+#[derive(Debug, Clone)]
+pub struct SerialDevice {
     cfg: SerialConfig,
-    decoder: FrameDecoder,
-    port: Option<Box<dyn SerialPort>>,
-    retry_at: Option<Instant>,
-    consecutive_timeouts: u32,
-    stats: SerialStats,
 }
 
-impl std::fmt::Debug for SerialTransport {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("SerialTransport")
-            .field("cfg", &self.cfg)
-            .field("connected", &self.port.is_some())
-            .field("stats", &self.stats)
-            .finish()
-    }
-}
-
-impl SerialTransport {
-    /// A transport that opens the device at its first transaction.
+impl SerialDevice {
+    /// The device `cfg` names.
     pub fn new(cfg: SerialConfig) -> Self {
-        Self {
-            decoder: FrameDecoder::replies().with_timeout(cfg.read_timeout),
-            cfg,
-            port: None,
-            retry_at: None,
-            consecutive_timeouts: 0,
-            stats: SerialStats::default(),
-        }
-    }
-
-    /// Opens the device now.
-    pub fn connect(cfg: SerialConfig) -> Result<Self, TransportError> {
-        let mut t = Self::new(cfg);
-        t.ensure_open()?;
-        Ok(t)
-    }
-
-    /// Whether the device is open.
-    pub fn is_connected(&self) -> bool {
-        self.port.is_some()
-    }
-
-    /// Counters.
-    pub fn stats(&self) -> SerialStats {
-        self.stats
-    }
-
-    fn path(&self) -> String {
-        self.cfg.path.display().to_string()
-    }
-
-    fn ensure_open(&mut self) -> Result<&mut Box<dyn SerialPort>, TransportError> {
-        if self.port.is_none() {
-            if let Some(at) = self.retry_at {
-                let now = Instant::now();
-                if now < at {
-                    return Err(TransportError::Backoff {
-                        path: self.path(),
-                        wait: at - now,
-                    });
-                }
-            }
-            let path = self.cfg.path.to_string_lossy().into_owned();
-            match serialport::new(path, self.cfg.baud_rate)
-                .timeout(self.cfg.read_timeout)
-                .exclusive(self.cfg.exclusive)
-                .open()
-            {
-                Ok(port) => {
-                    self.port = Some(port);
-                    self.retry_at = None;
-                    self.consecutive_timeouts = 0;
-                    self.stats.connects += 1;
-                    tracing::info!(path = %self.cfg.path.display(), "serial link open");
-                }
-                Err(e) => {
-                    self.retry_at = Some(Instant::now() + self.cfg.reconnect_backoff);
-                    return Err(TransportError::Open {
-                        path: self.path(),
-                        reason: open_failure(&e),
-                    });
-                }
-            }
-        }
-        self.port.as_mut().ok_or_else(|| TransportError::Backoff {
-            path: String::new(),
-            wait: Duration::ZERO,
-        })
-    }
-
-    /// Closes the device; the next transaction reopens it after the back-off.
-    pub fn disconnect(&mut self) {
-        if self.port.take().is_some() {
-            tracing::warn!(path = %self.cfg.path.display(), "serial link closed; will reconnect");
-        }
-        self.retry_at = Some(Instant::now() + self.cfg.reconnect_backoff);
-    }
-
-    fn io_error(&mut self, e: std::io::Error) -> TransportError {
-        if e.kind() == ErrorKind::TimedOut {
-            self.stats.timeouts += 1;
-            self.consecutive_timeouts += 1;
-            if self.consecutive_timeouts >= self.cfg.max_timeouts {
-                self.disconnect();
-            } else if let Some(p) = self.port.as_mut() {
-                // A partial reply may still trickle in: drop it before the next request.
-                let _ = p.clear(ClearBuffer::Input);
-            }
-            return TransportError::Timeout(self.cfg.read_timeout);
-        }
-        self.disconnect();
-        TransportError::Io {
-            path: self.path(),
-            error: e,
-        }
-    }
-
-    /// Reads until the reply to `request` (same opcode, a reply telegram of at least
-    /// `02 <opcode> <status>`), skipping everything else, or until `deadline`.
-    fn read_reply(
-        &mut self,
-        request: &Telegram,
-        deadline: Instant,
-    ) -> Result<Telegram, TransportError> {
-        let mut buf = [0u8; 128];
-        loop {
-            let now = Instant::now();
-            let Some(port) = self.port.as_mut() else {
-                return Err(TransportError::Backoff {
-                    path: self.path(),
-                    wait: self.cfg.reconnect_backoff,
-                });
-            };
-            if now >= deadline {
-                return Err(self.io_error(ErrorKind::TimedOut.into()));
-            }
-            if let Err(e) = port.set_timeout(deadline - now) {
-                return Err(self.io_error(e.into()));
-            }
-            let n = match port.read(&mut buf) {
-                Ok(n) => n,
-                Err(e) if matches!(e.kind(), ErrorKind::TimedOut | ErrorKind::Interrupted) => 0,
-                Err(e) => return Err(self.io_error(e)),
-            };
-            let now = Instant::now();
-            for &b in &buf[..n] {
-                match self.decoder.push_at(b, now) {
-                    None => {}
-                    Some(Err(e)) => {
-                        self.stats.bad_frames += 1;
-                        tracing::debug!(error = %e, "skipping junk from the brick");
-                    }
-                    Some(Ok(reply)) => {
-                        if reply.len() >= 3
-                            && reply.telegram_type() == telegram_type::REPLY
-                            && reply.opcode() == request.opcode()
-                        {
-                            self.consecutive_timeouts = 0;
-                            return Ok(reply);
-                        }
-                        self.stats.stale_replies += 1;
-                    }
-                }
-            }
-        }
+        Self { cfg }
     }
 }
 
-impl Transport for SerialTransport {
-    fn transact(&mut self, telegram: &Telegram) -> Result<Option<Telegram>, TransportError> {
-        let frame = telegram.to_frame();
-        let read_timeout = self.cfg.read_timeout;
-        let port = self.ensure_open()?;
-        // Anything unread belongs to an earlier, abandoned transaction.
-        let _ = port.clear(ClearBuffer::Input);
-        let _ = port.set_timeout(read_timeout);
-        if let Err(e) = port.write_all(frame.as_bytes()).and_then(|()| port.flush()) {
-            return Err(self.io_error(e));
-        }
-        if !telegram.reply_required() {
-            return Ok(None);
-        }
-        self.decoder.reset();
-        let reply = self.read_reply(telegram, Instant::now() + read_timeout);
-        // A partial reply left now is abandoned: the next transaction starts clean.
-        self.decoder.reset();
-        reply.map(Some)
+/// Talks to a brick over a serial device (see [`LinkTransport`] for the link's behaviour).
+pub type SerialTransport = LinkTransport<SerialDevice>;
+
+impl LinkTransport<SerialDevice> {
+    /// A transport that opens the device `cfg` names at its first transaction.
+    pub fn serial(cfg: SerialConfig) -> Self {
+        let timing = cfg.timing();
+        Self::new(SerialDevice::new(cfg), timing)
+    }
+
+    /// Opens the device `cfg` names now.
+    pub fn open_serial(cfg: SerialConfig) -> Result<Self, TransportError> {
+        let timing = cfg.timing();
+        Self::connect(SerialDevice::new(cfg), timing)
+    }
+}
+
+impl Device for SerialDevice {
+    type Connection = SerialConnection;
+
+    fn open(&mut self) -> Result<SerialConnection, OpenFailure> {
+        let path = self.cfg.path.to_string_lossy().into_owned();
+        serialport::new(path, self.cfg.baud_rate)
+            .timeout(self.cfg.read_timeout)
+            .exclusive(self.cfg.exclusive)
+            .open()
+            .map(|port| SerialConnection { port })
+            .map_err(|e| open_failure(&e))
     }
 
     fn describe(&self) -> String {
         format!("serial:{}", self.cfg.path.display())
     }
+
+    fn framing(&self) -> Framing {
+        Framing::LengthPrefixed
+    }
 }
 
-/// Why a serial device did not open, said as its cause.
-fn open_failure(e: &serialport::Error) -> String {
-    let hint = match e.kind() {
-        serialport::ErrorKind::NoDevice => {
-            Some("no such device (is the brick paired and the rfcomm device bound?)")
+/// An open serial device.
+pub struct SerialConnection {
+    port: Box<dyn SerialPort>,
+}
+
+impl Connection for SerialConnection {
+    fn send(&mut self, frame: &[u8]) -> std::io::Result<()> {
+        self.port.write_all(frame)?;
+        self.port.flush()
+    }
+
+    fn receive(&mut self, buf: &mut [u8], timeout: Duration) -> std::io::Result<usize> {
+        self.port.set_timeout(timeout)?;
+        match self.port.read(buf) {
+            // A terminal read of nothing is no end of stream: wait on.
+            Ok(0) => Err(ErrorKind::Interrupted.into()),
+            other => other,
         }
-        serialport::ErrorKind::Io(std::io::ErrorKind::NotFound) => {
-            Some("no such device (is the brick paired and the rfcomm device bound?)")
-        }
-        serialport::ErrorKind::Io(std::io::ErrorKind::PermissionDenied) => {
-            Some("permission denied (is the user in the dialout group?)")
-        }
-        _ => None,
-    };
-    match hint {
-        Some(h) => format!("{e}: {h}"),
-        None => e.to_string(),
+    }
+
+    fn discard_input(&mut self) {
+        let _ = self.port.clear(ClearBuffer::Input);
+    }
+}
+
+/// Why a serial device did not open, said as its cause and fix.
+fn open_failure(e: &serialport::Error) -> OpenFailure {
+    match e.kind() {
+        serialport::ErrorKind::NoDevice
+        | serialport::ErrorKind::Io(std::io::ErrorKind::NotFound) => OpenFailure::new(
+            format!("{e}: no such device"),
+            "is the brick paired and the rfcomm device bound? `transport = \"bluetooth:ADDR\"` \
+             needs no rfcomm device",
+        ),
+        serialport::ErrorKind::Io(std::io::ErrorKind::PermissionDenied) => OpenFailure::new(
+            format!("{e}: permission denied"),
+            "add the user to the dialout group",
+        ),
+        _ => OpenFailure::bare(e.to_string()),
     }
 }
 
@@ -299,7 +160,8 @@ mod tests {
     use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
 
     use super::*;
-    use crate::nxt::{Reply, Request, Status};
+    use crate::nxt::{FrameDecoder, Reply, Request, Status};
+    use crate::transport::Transport;
     use crate::transport::TransportError;
 
     /// What the scripted brick does after receiving a request.
@@ -364,7 +226,7 @@ mod tests {
             let mut cfg = SerialConfig::new(&self.path);
             cfg.read_timeout = Duration::from_millis(300);
             cfg.exclusive = false;
-            SerialTransport::connect(cfg).expect("open the pty")
+            SerialTransport::open_serial(cfg).expect("open the pty")
         }
     }
 

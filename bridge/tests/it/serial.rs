@@ -25,7 +25,8 @@ fn output_state(link: &mut SerialTransport, port: Port) -> tes_bridge::nxt::Outp
 fn serial_transport_drives_the_pty_brick() {
     let dir = tempfile::tempdir().expect("tempdir");
     let brick = BrickProcess::spawn(&dir.path().join("nxt"), 11);
-    let mut link = SerialTransport::connect(SerialConfig::new(&brick.link)).expect("open the pty");
+    let mut link =
+        SerialTransport::open_serial(SerialConfig::new(&brick.link)).expect("open the pty");
 
     match link
         .request(&Request::GetFirmwareVersion)
@@ -106,7 +107,7 @@ fn bridge_runs_over_the_serial_link() {
         BridgeConfig::from_toml_str(&format!("transport = \"serial:{}\"", brick.link.display()))
             .expect("valid");
     let clock = MonotonicClock::new();
-    let link = SerialTransport::new(cfg.serial_config(&brick.link));
+    let link = SerialTransport::serial(cfg.serial_config(&brick.link));
     let mut bridge = Bridge::new(link, &cfg);
     bridge
         .on_command(
@@ -142,7 +143,7 @@ fn serial_transport_reconnects_after_the_brick_restarts() {
     let mut cfg = SerialConfig::new(&path);
     cfg.read_timeout = Duration::from_millis(300);
     cfg.reconnect_backoff = Duration::from_millis(100);
-    let mut link = SerialTransport::connect(cfg).expect("open");
+    let mut link = SerialTransport::open_serial(cfg).expect("open");
     link.request(&Request::KeepAlive)
         .expect("first brick answers");
 

@@ -58,6 +58,7 @@ fn out(line: String) -> Option<Said> {
 pub(crate) fn lines_of(event: &Event, echo: bool) -> Vec<(To, String)> {
     let said = match event {
         Event::RunFolder { dir, drawn } => return run_folder_lines(dir, drawn, echo),
+        Event::LinkTimed(report) => out(brick_link_line(report)),
         Event::LibraryAtEnd { path, outcome } => {
             let default = tes_controller::config::default_library_path();
             return match echo {
@@ -139,6 +140,20 @@ fn run_line(event: &Event) -> Option<Said> {
         )),
         _ => None,
     }
+}
+
+/// The bridge's link: its round trips, and what each command took of the run and of the link.
+fn brick_link_line(report: &tes_launch::event::BridgeReport) -> String {
+    let mut line = format!("launch: {}", report.link);
+    if let Some((each, on_link)) = report.per_command_us() {
+        use tes_launch::event::in_words;
+        line += &format!(
+            "; per command {} of the run, {} of it on the link",
+            in_words(each),
+            in_words(on_link)
+        );
+    }
+    line
 }
 
 /// `n` and `noun`, plural unless `n` is 1: "1 episode", "20 episodes".
@@ -313,7 +328,10 @@ impl Observer for Printer {
                 self.deferred.extend(lines);
                 return;
             }
-            Event::RunFolder { .. } | Event::LibraryAtEnd { .. } | Event::Verdict(_) => {
+            Event::RunFolder { .. }
+            | Event::LinkTimed(_)
+            | Event::LibraryAtEnd { .. }
+            | Event::Verdict(_) => {
                 for (to, line) in std::mem::take(&mut self.deferred) {
                     self.say_line(to, &line);
                 }

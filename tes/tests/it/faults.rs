@@ -7,7 +7,7 @@
 //! resources even when the test fails.
 
 use std::io::BufRead;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -29,30 +29,49 @@ fn republished(lines: &[String]) -> usize {
     lines.iter().filter(|l| l.contains("re-publishing")).count()
 }
 
+/// The library a good two-episode run in `dir` saved: its path and its bytes.
+fn library_from_a_good_run(dir: &Path) -> (PathBuf, Vec<u8>) {
+    let mut first = Group::start(dir, &launch_file(dir, ""), 2);
+    let (ok, out, err) = first.finish(Duration::from_secs(60));
+    assert!(ok, "{out:?}\n{err:?}");
+    let library = dir.join("data/library.tesl");
+    let before = std::fs::read(&library).expect("a library was saved");
+    (library, before)
+}
+
+/// Launches in `dir` with `[bridge]` keys `bridge` over a link that must fail: the launch
+/// fails, runs no episode, leaves the library at `library` as `before` and no child behind.
+/// Returns what it said on stderr.
+fn a_failed_link_launch(dir: &Path, bridge: &str, library: &Path, before: &[u8]) -> String {
+    let extra = format!("[bridge]\n{bridge}link_timeout_ms = 800\n");
+    let mut group = Group::start(dir, &launch_file(dir, &extra), 3);
+    let (ok, out, err) = group.finish(Duration::from_secs(60));
+    assert!(!ok, "{bridge}: the launch must fail: {out:?}");
+    assert!(
+        !out.iter().any(|l| l.starts_with("episode ")),
+        "no episode ran: {out:?}"
+    );
+    assert_eq!(
+        std::fs::read(library).expect("the library is still there"),
+        before,
+        "{bridge}: the library changed"
+    );
+    assert!(!group.children_alive());
+    err.join("\n")
+}
+
 /// A link to the brick that never comes up stops the launch with an error naming the
 /// transport, exits non-zero, and leaves the library byte for byte as it was.
 #[test]
 fn a_dead_link_stops_the_launch_and_leaves_the_library_as_it_was() {
     let dir = tempfile::tempdir().expect("temp dir");
-    // A library from a good run first.
-    let mut first = Group::start(dir.path(), &launch_file(dir.path(), ""), 2);
-    let (ok, out, err) = first.finish(Duration::from_secs(60));
-    assert!(ok, "{out:?}\n{err:?}");
-    let library = dir.path().join("data/library.tesl");
-    let before = std::fs::read(&library).expect("a library was saved");
-
+    let (library, before) = library_from_a_good_run(dir.path());
     // A device that is there but is no brick (a device that is not there at all is refused
     // before anything starts: see `run_folder::a_refused_launch_leaves_…`).
     let device = dir.path().join("not-a-brick");
     std::fs::write(&device, b"").expect("a file where the device should be");
-    let extra = format!(
-        "[bridge]\ntransport = \"serial:{}\"\nlink_timeout_ms = 800\n",
-        device.display()
-    );
-    let mut group = Group::start(dir.path(), &launch_file(dir.path(), &extra), 3);
-    let (ok, out, err) = group.finish(Duration::from_secs(60));
-    assert!(!ok, "a dead link must fail the launch: {out:?}");
-    let said = err.join("\n");
+    let transport = format!("transport = \"serial:{}\"\n", device.display());
+    let said = a_failed_link_launch(dir.path(), &transport, &library, &before);
     assert!(
         said.contains(&format!(
             "the link to the brick (serial:{}) did not come up",
@@ -60,16 +79,42 @@ fn a_dead_link_stops_the_launch_and_leaves_the_library_as_it_was() {
         )),
         "{said}"
     );
-    assert!(
-        !out.iter().any(|l| l.starts_with("episode ")),
-        "no episode ran: {out:?}"
-    );
-    assert_eq!(
-        std::fs::read(&library).expect("the library is still there"),
-        before,
-        "the library changed"
-    );
-    assert!(!group.children_alive());
+}
+
+/// A brick's own links on a machine that lacks them (this build machine has no Bluetooth in
+/// its kernel and no USB bus): each launch stops at once with the cause and the fix, exits
+/// non-zero, runs no episode and leaves the library byte for byte.
+#[test]
+fn bluetooth_and_usb_launches_say_why_they_cannot_run_and_leave_the_library() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (library, before) = library_from_a_good_run(dir.path());
+    for (transport, described, causes) in [
+        (
+            "bluetooth:00:16:53:01:02:03",
+            "bluetooth:00:16:53:01:02:03@1",
+            &[
+                "this machine has no Bluetooth",
+                "no Bluetooth adapter",
+                "did not answer",
+            ][..],
+        ),
+        (
+            "usb",
+            "usb",
+            &["this machine shows no USB bus", "no NXT on USB"][..],
+        ),
+    ] {
+        let keys = format!("transport = \"{transport}\"\n");
+        let said = a_failed_link_launch(dir.path(), &keys, &library, &before);
+        assert!(
+            said.contains(&format!("the link to the brick ({described})")),
+            "{said}"
+        );
+        assert!(
+            causes.iter().any(|c| said.contains(c)),
+            "{transport}: no cause named: {said}"
+        );
+    }
 }
 
 /// Default launches own their services: three at once, each with its own data directory,

@@ -67,8 +67,8 @@ fn a_bad_launch_file_is_refused_naming_the_file_and_key_and_starts_nothing() {
             &[":7:1: [bridge] watchdog.deadline_ms: must be at least 50, got 10"],
         ),
         (
-            Some(b"[bridge]\ntransport = \"usb\"\n"),
-            &[":2:13: [bridge] transport: expected \"sim\" or \"serial:PATH\""],
+            Some(b"[bridge]\ntransport = \"usb:\"\n"),
+            &[":2:13: [bridge] transport: expected \"sim\", \"serial:PATH\", \"bluetooth:"],
         ),
         // A value the launcher sets (the brick's speed-up from the real-time factor).
         (
@@ -212,6 +212,41 @@ fn a_killed_child_is_respawned_and_the_run_goes_on() {
         out.iter()
             .any(|l| l.contains("all processes stopped cleanly")),
         "{out:?}"
+    );
+}
+
+/// At the robot's pace (real-time factor 1) behind a Bluetooth-like link (30 ± 10 ms a
+/// reply), the bridge times every exchange: the launch's last lines and `bridge-report.json`
+/// give the round trip (at least the 20 ms floor of the delay) and each command's time on the
+/// link.
+#[test]
+fn the_links_round_trips_are_measured_and_reported() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let toml = launch_file(
+        dir.path(),
+        "real_time_factor = 1.0\n[bridge.link_delay]\nenabled = true\nmean_ms = 30\njitter_ms = 10\n",
+    );
+    let mut group = Group::start(dir.path(), &toml, 1);
+    let (ok, out, err) = group.finish(Duration::from_secs(120));
+    assert!(ok, "stdout {out:?}\nstderr {err:?}");
+    let line = out
+        .iter()
+        .find(|l| l.starts_with("launch: link sim (seed "))
+        .unwrap_or_else(|| panic!("no link line: {out:?}"));
+    assert!(line.contains("+ link delay 30ms ± 10ms: "), "{line}");
+    assert!(line.contains(" of it on the link"), "{line}");
+    let report =
+        tes_bridge::process::BridgeReport::load(&dir.path().join("run/bridge-report.json"))
+            .expect("the bridge's report");
+    assert!(
+        report.link.exchanges > 0 && report.link.failed == 0,
+        "{report:?}"
+    );
+    assert!(report.link.p50_us >= 20_000, "{report:?}");
+    let (_, on_link) = report.per_command_us().expect("commands were carried out");
+    assert!(
+        on_link >= 20_000,
+        "each command waits for at least one reply: {report:?}"
     );
 }
 
