@@ -16,6 +16,7 @@
 //! * [`library`] — TES's view library: growing, pruning, and its versioned file store.
 //! * [`labelled_csv`] — the labelled-row format `tes fit` reads.
 //! * [`prequential`] — `tes fit` without the command line: mDAGL over a labelled CSV stream.
+//! * [`tuning`] — mDAGL without hand-tuning: a grid of (λ, α) raced on one stream.
 //!
 //! Each module's documentation opens with a runnable example ([`mdagl`]: a view finding the
 //! relevant features of a synthetic stream; [`plan`]: planning on a learned model).
@@ -27,3 +28,4 @@ pub mod library;
 pub mod mdagl;
 pub mod plan;
 pub mod prequential;
+pub mod tuning;

@@ -117,6 +117,9 @@ pub enum MdaglConfigError {
     /// α must be finite and > 0.
     #[error("alpha must be a finite number > 0, got {0}")]
     InvalidAlpha(f64),
+    /// A race ([`MdaglRace`](crate::tuning::MdaglRace)) of no settings.
+    #[error("a race of mDAGL settings needs at least one setting")]
+    EmptyGrid,
 }
 
 /// The most weights (classes × feature columns) a model may have: 2²⁴, 128 MiB of gradient

@@ -30,7 +30,7 @@
 //!
 //! let settings = FitSettings {
 //!     params: MdaglParams { intercept: true, ..MdaglParams::default() },
-//!     classes: None,
+//!     ..FitSettings::default()
 //! };
 //! let result = fit(csv.as_bytes(), name, &shape, &settings, |_| {})?;
 //! assert_eq!(result.classes, 2);
@@ -47,7 +47,8 @@ use std::time::{Duration, Instant};
 use thiserror::Error;
 
 use crate::labelled_csv::{RowError, is_blank, parse_row, row_text};
-use crate::mdagl::{Features, Mdagl, MdaglConfigError, MdaglError, MdaglParams};
+use crate::mdagl::{Features, Mdagl, MdaglConfigError, MdaglError, MdaglParams, Prequential};
+use crate::tuning::{MdaglRace, RaceSchedule, Standing, auto_grid};
 
 /// Rows parsed before each timed batch of updates.
 const CHUNK_ROWS: usize = 4096;
@@ -68,8 +69,13 @@ pub struct Shape {
 /// How to fit: mDAGL's hyper-parameters and the class count.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct FitSettings {
-    /// λ, α and the intercept switch (`--lambda`, `--alpha`, `--intercept`).
+    /// λ, α and the intercept switch (`--lambda`, `--alpha`, `--intercept`); a λ or α chosen
+    /// by `auto` is ignored here.
     pub params: MdaglParams,
+    /// `--lambda auto`: race the λ values of [`AUTO_LAMBDAS`](crate::tuning::AUTO_LAMBDAS).
+    pub auto_lambda: bool,
+    /// `--alpha auto`: race the α values of [`AUTO_ALPHAS`](crate::tuning::AUTO_ALPHAS).
+    pub auto_alpha: bool,
     /// Number of classes K (`--classes`); `None` for the largest label + 1. With `Some(k)`,
     /// [`scan`] refuses a label ≥ `k`.
     pub classes: Option<usize>,
@@ -88,6 +94,11 @@ pub struct FitResult {
     pub accuracy: f64,
     /// The selected features (0-based feature columns, the label not counted), increasing.
     pub selected: Vec<usize>,
+    /// The setting of the model reported: the one asked for, or the race's winner.
+    pub params: MdaglParams,
+    /// With `auto`, every raced setting's standing, best first (the winner, then the
+    /// runner-up, …); empty for a fixed setting.
+    pub standings: Vec<Standing>,
     /// Rows learned per second of the model's work (0 when too quick to measure).
     pub updates_per_sec: f64,
     /// Seconds spent in the model's work (predicting and learning; not reading or parsing).
@@ -384,7 +395,7 @@ impl Chunk {
     }
 
     /// Predicts then learns every row, timing only the model's work.
-    fn learn(&mut self, model: &mut Mdagl, tally: &mut Tally) -> Result<(), FitError> {
+    fn learn(&mut self, model: &mut Learner, tally: &mut Tally) -> Result<(), FitError> {
         let start = Instant::now();
         let mut begin = 0;
         for (i, &label) in self.labels.iter().enumerate() {
@@ -413,25 +424,66 @@ impl Chunk {
     }
 }
 
-/// The model a fit learns: `settings.classes` classes (else the largest label + 1).
-fn build_model(
+/// What a fit learns with: one model, or a race of settings (`auto`).
+enum Learner {
+    /// A fixed setting.
+    Fixed(Mdagl),
+    /// A race of settings; its leader predicts.
+    Race(MdaglRace),
+}
+
+impl Learner {
+    fn update(&mut self, x: Features<'_>, label: usize) -> Result<Prequential, MdaglError> {
+        match self {
+            Learner::Fixed(model) => model.update(x, label),
+            Learner::Race(race) => race.update(x, label),
+        }
+    }
+
+    /// The model reported, and the race's standings (none for a fixed setting).
+    fn finish(self) -> (Mdagl, Vec<Standing>) {
+        match self {
+            Learner::Fixed(model) => (model, Vec::new()),
+            Learner::Race(race) => {
+                let standings = race.standings();
+                (race.into_model(), standings)
+            }
+        }
+    }
+}
+
+/// What a fit learns with: `settings.classes` classes (else the largest label + 1), one model
+/// or, with `auto`, a race of settings.
+fn build_learner(
     name: &Path,
     shape: &Shape,
     settings: &FitSettings,
-) -> Result<(Mdagl, usize), FitError> {
+) -> Result<(Learner, usize), FitError> {
     let classes = settings.classes.unwrap_or(shape.max_label + 1);
     if classes < 2 {
         return Err(FitError::OneClass {
             path: name.to_owned(),
         });
     }
-    let model =
-        Mdagl::new(classes, shape.features, settings.params).map_err(|source| FitError::Model {
-            classes,
-            features: shape.features,
-            source,
-        })?;
-    Ok((model, classes))
+    let model_error = |source| FitError::Model {
+        classes,
+        features: shape.features,
+        source,
+    };
+    let p = settings.params;
+    let learner = if settings.auto_lambda || settings.auto_alpha {
+        let grid = auto_grid(
+            (!settings.auto_lambda).then_some(p.lambda),
+            (!settings.auto_alpha).then_some(p.alpha),
+            p.intercept,
+        );
+        let race = MdaglRace::new(classes, shape.features, &grid, RaceSchedule::default())
+            .map_err(model_error)?;
+        Learner::Race(race)
+    } else {
+        Learner::Fixed(Mdagl::new(classes, shape.features, p).map_err(model_error)?)
+    };
+    Ok((learner, classes))
 }
 
 /// The second pass: runs mDAGL over the rows of `reader` in order, predicting each before
@@ -447,7 +499,7 @@ pub fn fit(
     settings: &FitSettings,
     progress: impl FnMut(u64),
 ) -> Result<FitResult, FitError> {
-    let (mut model, classes) = build_model(name, shape, settings)?;
+    let (mut model, classes) = build_learner(name, shape, settings)?;
     let mut tally = Tally::default();
     let mut chunk = Chunk::new(shape.features, shape.binary);
     for_each_row(reader, name, progress, |_, label, x| {
@@ -467,12 +519,15 @@ pub fn fit(
     }
     let n = tally.rows as f64;
     let seconds = tally.updating.as_secs_f64();
+    let (model, standings) = model.finish();
     Ok(FitResult {
         shape: *shape,
         classes,
         mean_log_loss: tally.log_loss / n,
         accuracy: tally.correct as f64 / n,
         selected: model.selected_features().collect(),
+        params: model.params(),
+        standings,
         updates_per_sec: if seconds > 0.0 { n / seconds } else { 0.0 },
         seconds,
     })
@@ -497,6 +552,7 @@ pub fn fit(
 /// let settings = FitSettings {
 ///     params: MdaglParams { intercept: true, ..MdaglParams::default() },
 ///     classes: Some(2),
+///     ..FitSettings::default()
 /// };
 /// let result = fit_file(file.path(), &settings, |_, n| bytes += n)?;
 /// assert_eq!((result.shape.rows, result.classes), (1000, 2));
@@ -617,6 +673,42 @@ mod tests {
             run("0,1\n0,0\n1,1\n", &settings).unwrap_err(),
             "t.csv: the file changed while it was read (2 rows, then 3)"
         );
+    }
+
+    /// `auto` races the grid and reports the winner's setting and every standing; a fixed
+    /// λ with `--alpha auto` races α alone.
+    #[test]
+    fn auto_reports_the_winning_setting_and_the_standings() {
+        // The class is feature 0, on in one row of 25: the paper's λ keeps nothing.
+        let csv: String = (0..20_000)
+            .map(|i| {
+                let on = i % 25 == 0;
+                format!("{},{},{}\n", u8::from(on), u8::from(on), (i / 2) % 2)
+            })
+            .collect();
+        let shape = scan_str(&csv, None).unwrap();
+        let mut settings = FitSettings {
+            auto_lambda: true,
+            auto_alpha: true,
+            ..FitSettings::default()
+        };
+        settings.params.intercept = true;
+        let raced = fit(csv.as_bytes(), name(), &shape, &settings, |_| {}).unwrap();
+        assert_eq!(raced.standings.len(), 15);
+        assert_eq!(raced.standings[0].params, raced.params);
+        assert!(raced.params.lambda < 0.05, "{:?}", raced.params);
+        assert_eq!(raced.selected, [0]);
+        let paper = FitSettings {
+            params: settings.params,
+            ..FitSettings::default()
+        };
+        let fixed = fit(csv.as_bytes(), name(), &shape, &paper, |_| {}).unwrap();
+        assert!(fixed.standings.is_empty() && fixed.selected.is_empty());
+        assert!(raced.mean_log_loss < fixed.mean_log_loss);
+        settings.auto_lambda = false;
+        let alphas = fit(csv.as_bytes(), name(), &shape, &settings, |_| {}).unwrap();
+        assert_eq!(alphas.standings.len(), 3);
+        assert!(alphas.standings.iter().all(|s| s.params.lambda == 0.05));
     }
 
     #[test]

@@ -22,12 +22,14 @@ const PROGRESS_MIN_BYTES: u64 = 1 << 20;
 pub struct FitArgs {
     /// CSV file: no header; first column the class label 0..K-1, then the features.
     data: PathBuf,
-    /// Group-lasso strength λ (larger keeps fewer features).
-    #[arg(long, default_value_t = 0.05)]
-    lambda: f64,
-    /// Step-size scale α of β_t = α√t (smaller learns faster).
-    #[arg(long, default_value_t = 1.5)]
-    alpha: f64,
+    /// Group-lasso strength λ (larger keeps fewer features), or `auto`: race λ = 0.05 (the
+    /// paper's), 0.015, 0.005, 0.0015 and 0.0005 in one pass and keep the best so far.
+    #[arg(long, default_value = "0.05", value_parser = hyper)]
+    lambda: Hyper,
+    /// Step-size scale α of β_t = α√t (smaller learns faster), or `auto`: race α = 1.5 (the
+    /// paper's), 0.3 and 0.05.
+    #[arg(long, default_value = "1.5", value_parser = hyper)]
+    alpha: Hyper,
     /// Number of classes K [default: largest label + 1].
     #[arg(long)]
     classes: Option<usize>,
@@ -37,6 +39,42 @@ pub struct FitArgs {
     /// Print one JSON object instead of the text report.
     #[arg(long)]
     json: bool,
+}
+
+/// A hyper-parameter on the command line: a number, or `auto`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Hyper {
+    /// Race the grid's values.
+    Auto,
+    /// This value.
+    Value(f64),
+}
+
+impl Hyper {
+    fn value(self) -> Option<f64> {
+        match self {
+            Hyper::Auto => None,
+            Hyper::Value(v) => Some(v),
+        }
+    }
+}
+
+impl std::fmt::Display for Hyper {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Hyper::Auto => f.write_str("auto"),
+            Hyper::Value(v) => write!(f, "{v}"),
+        }
+    }
+}
+
+fn hyper(text: &str) -> Result<Hyper, String> {
+    if text == "auto" {
+        return Ok(Hyper::Auto);
+    }
+    text.parse()
+        .map(Hyper::Value)
+        .map_err(|_| format!("expected a number or `auto`, got {text:?}"))
 }
 
 fn progress_bar(path: &Path) -> ProgressBar {
@@ -53,17 +91,28 @@ fn progress_bar(path: &Path) -> ProgressBar {
     bar
 }
 
+/// `auto (chose 0.005)` or the value given.
+fn chosen(asked: Hyper, used: f64) -> String {
+    match asked {
+        Hyper::Auto => format!("auto (chose {used})"),
+        Hyper::Value(v) => v.to_string(),
+    }
+}
+
 /// Runs `tes fit`: the file checked, mDAGL run over it once, the report printed.
 pub fn run(args: &FitArgs) -> Result<()> {
     let path = args.data.as_path();
     let progress = progress_bar(path);
     progress.set_message("checking");
+    let defaults = MdaglParams::default();
     let settings = FitSettings {
         params: MdaglParams {
-            lambda: args.lambda,
-            alpha: args.alpha,
+            lambda: args.lambda.value().unwrap_or(defaults.lambda),
+            alpha: args.alpha.value().unwrap_or(defaults.alpha),
             intercept: args.intercept,
         },
+        auto_lambda: args.lambda == Hyper::Auto,
+        auto_alpha: args.alpha == Hyper::Auto,
         classes: args.classes,
     };
     let mut fitting = false;
@@ -94,11 +143,37 @@ fn print_json(args: &FitArgs, fit: &FitResult) {
         "classes": fit.classes,
         "features": fit.shape.features,
         "binary": fit.shape.binary,
-        "lambda": args.lambda,
-        "alpha": args.alpha,
+        "lambda": fit.params.lambda,
+        "alpha": fit.params.alpha,
         "intercept": args.intercept,
+        "auto": auto_json(args, fit),
     });
     println!("{report}");
+}
+
+/// With `auto`: what was raced and how each setting stood; `null` for a fixed setting.
+fn auto_json(args: &FitArgs, fit: &FitResult) -> serde_json::Value {
+    if fit.standings.is_empty() {
+        return serde_json::Value::Null;
+    }
+    let standings: Vec<serde_json::Value> = fit
+        .standings
+        .iter()
+        .map(|s| {
+            serde_json::json!({
+                "lambda": s.params.lambda,
+                "alpha": s.params.alpha,
+                "mean_logloss": s.mean_log_loss,
+                "rows": s.rows,
+                "racing": s.racing,
+            })
+        })
+        .collect();
+    serde_json::json!({
+        "lambda": args.lambda.to_string(),
+        "alpha": args.alpha.to_string(),
+        "standings": standings,
+    })
 }
 
 /// The fit as a table for people.
@@ -117,14 +192,25 @@ fn print_report(args: &FitArgs, fit: &FitResult) {
     );
     println!(
         "mDAGL  lambda = {}  alpha = {}  {}",
-        args.lambda,
-        args.alpha,
+        chosen(args.lambda, fit.params.lambda),
+        chosen(args.alpha, fit.params.alpha),
         if args.intercept {
             "with intercept"
         } else {
             "no intercept"
         }
     );
+    if let [_, runner_up, ..] = fit.standings.as_slice() {
+        println!(
+            "  raced {} settings in one pass; the runner-up, lambda = {} alpha = {}, scored {:.4} \
+             nats ({} rows)",
+            fit.standings.len(),
+            runner_up.params.lambda,
+            runner_up.params.alpha,
+            runner_up.mean_log_loss,
+            runner_up.rows
+        );
+    }
     println!(
         "  prequential mean log-loss  {:.4} nats   (uniform guess: {:.4})",
         fit.mean_log_loss,
@@ -136,6 +222,12 @@ fn print_report(args: &FitArgs, fit: &FitResult) {
         fit.selected.len(),
         fit.shape.features
     );
+    if fit.selected.is_empty() && fit.standings.is_empty() {
+        println!(
+            "    none: no column's average gradient reached lambda x sqrt(K); \
+             `--lambda auto --alpha auto` races smaller settings"
+        );
+    }
     for line in fit.selected.chunks(16) {
         let cols: Vec<String> = line.iter().map(usize::to_string).collect();
         println!("    {}", cols.join(" "));

@@ -48,6 +48,42 @@ fn fit_json_on_the_demo_stream_finds_its_relevant_columns() {
     assert!(report["updates_per_sec"].as_f64().expect("number") > 0.0);
 }
 
+/// `--lambda auto --alpha auto` races the grid on the demo stream: the text names the
+/// choice and the runner-up, the JSON every setting's standing, and the winner keeps the
+/// demo's relevant columns; a bad value is refused naming both forms.
+#[test]
+fn fit_auto_races_the_grid_and_says_what_won() {
+    let demo = demo_csv();
+    let demo = demo.to_str().expect("utf-8 path");
+    let out = tes(&["fit", demo, "--lambda", "auto", "--alpha", "auto"]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains("lambda = auto (chose "), "{text}");
+    assert!(text.contains("alpha = auto (chose "), "{text}");
+    assert!(
+        text.contains("raced 15 settings in one pass; the runner-up, lambda = "),
+        "{text}"
+    );
+    let out = tes(&["fit", demo, "--lambda", "auto", "--json"]);
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("one JSON object");
+    let standings = report["auto"]["standings"].as_array().expect("standings");
+    assert_eq!(standings.len(), 5, "λ alone is raced: {report}");
+    assert_eq!(report["auto"]["alpha"], "1.5");
+    assert_eq!(report["lambda"], standings[0]["lambda"]);
+    let selected = report["selected"].as_array().expect("selected");
+    for column in [125, 174, 175] {
+        assert!(selected.contains(&serde_json::json!(column)), "{report}");
+    }
+    let out = tes(&["fit", demo, "--lambda", "small"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("expected a number or `auto`"), "{err}");
+}
+
 #[test]
 fn fit_text_report_names_what_it_found() {
     let dir = tempfile::tempdir().expect("temp dir");
