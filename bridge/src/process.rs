@@ -204,7 +204,7 @@ pub fn run(cfg: &BridgeConfig, opts: &RunOptions) -> Result<RunSummary, ProcessE
     if cfg.ipc.latency_windows.is_some() {
         latency = latency.with_windows(cfg.ipc.latency_window);
     }
-    let summary = ipc::run_with(
+    let mut summary = ipc::run_with(
         &mut bridge,
         &clock,
         &names,
@@ -213,7 +213,6 @@ pub fn run(cfg: &BridgeConfig, opts: &RunOptions) -> Result<RunSummary, ProcessE
         &mut latency,
         cfg.link_timeout,
     )?;
-    let mut summary = summary;
     summary.link = bridge.transport_mut().report();
     tracing::info!(%summary, stats = %bridge.stats(), "bridge stopped");
     if let Some(down) = summary.link_down {

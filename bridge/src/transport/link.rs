@@ -208,11 +208,6 @@ impl<D: Device> LinkTransport<D> {
         self.stats
     }
 
-    /// The device.
-    pub fn device(&self) -> &D {
-        &self.device
-    }
-
     /// Closes the link; the next transaction reopens it after the back-off.
     pub fn disconnect(&mut self) {
         if self.connection.take().is_some() {

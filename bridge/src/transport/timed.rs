@@ -93,11 +93,6 @@ impl<T: Transport> TimedTransport<T> {
             busy_us: self.busy_ns / 1000,
         }
     }
-
-    /// The timed transport.
-    pub fn inner_mut(&mut self) -> &mut T {
-        &mut self.inner
-    }
 }
 
 impl<T: Transport> Transport for TimedTransport<T> {
