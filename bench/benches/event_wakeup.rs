@@ -23,9 +23,12 @@
 //! state.
 //!
 //! ```sh
-//! cargo run --release -p tes-bench --example event_wakeup -- --round-trips 10000 --gap-us 2000
-//! cargo run --release -p tes-bench --example event_wakeup -- --hop-cpu 1   # hop pinned, as the controller's acting thread
+//! cargo bench -p tes-bench --bench event_wakeup -- --round-trips 10000 --gap-us 2000
+//! cargo bench -p tes-bench --bench event_wakeup -- --hop-cpu 1   # hop pinned, as the controller's acting thread
 //! ```
+//!
+//! A measuring program rather than a criterion benchmark (`harness = false`): a bench target,
+//! so that `cargo test` does not build it.
 
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
@@ -148,6 +151,9 @@ struct Args {
     wait: Option<Wait>,
     #[arg(long, hide = true)]
     prefix: Option<String>,
+    /// Passed by `cargo bench`; nothing to do with it.
+    #[arg(long, hide = true)]
+    bench: bool,
 }
 
 /// What travels each hop.

@@ -5,8 +5,11 @@
 //! slices; every slice is timed, and every plan from hand-over to adoption.
 //!
 //! ```sh
-//! cargo run --release -p tes-bench --example slice_times -- 32   # states per slice
+//! cargo bench -p tes-bench --bench slice_times -- 32   # states per slice
 //! ```
+//!
+//! A measuring program rather than a criterion benchmark (`harness = false`): a bench target,
+//! so that `cargo test` does not build it.
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -17,7 +20,8 @@ use tes_learning::mdagl::Features;
 use tes_learning::plan::{PlannedModel, PlannerParams};
 
 fn main() -> anyhow::Result<()> {
-    let slice: usize = match std::env::args().nth(1) {
+    // `cargo bench` adds `--bench`: the states per slice is the first other argument.
+    let slice: usize = match std::env::args().skip(1).find(|a| !a.starts_with("--")) {
         Some(s) => s.parse()?,
         None => 32,
     };
