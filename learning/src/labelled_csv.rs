@@ -57,6 +57,41 @@ pub enum RowError {
         /// The field's text (shortened).
         text: String,
     },
+    /// A sparse row's feature is not `column:value` or `column`
+    /// ([`labelled_sparse`](crate::labelled_sparse)).
+    #[error("feature {text:?} is not `column:value` or `column` (a whole number column)")]
+    BadFeature {
+        /// The field's text (shortened).
+        text: String,
+    },
+    /// A sparse row's feature value is NaN or infinite.
+    #[error("feature {text:?} has a value that is not finite")]
+    NonFiniteFeature {
+        /// The field's text (shortened).
+        text: String,
+    },
+    /// A sparse row's column is above
+    /// [`MAX_COLUMN`](crate::labelled_sparse::MAX_COLUMN).
+    #[error(
+        "feature {text:?} has a column above {}, the largest supported",
+        crate::labelled_sparse::MAX_COLUMN
+    )]
+    ColumnTooLarge {
+        /// The field's text (shortened).
+        text: String,
+    },
+    /// A sparse row gives a column twice.
+    #[error("column {column} is given twice")]
+    RepeatedColumn {
+        /// The column.
+        column: u32,
+    },
+    /// A Vowpal Wabbit namespace with a name (`|words`): its features are names, not columns.
+    #[error("{text:?} names a namespace; only a bare `|` is read (columns are numbers)")]
+    NamedNamespace {
+        /// The field's text (shortened).
+        text: String,
+    },
     /// The line is not UTF-8 text (a binary file, or text in another encoding).
     #[error("byte 0x{byte:02X} at position {position} is not UTF-8 text (is this a CSV file?)")]
     NotText {
@@ -67,7 +102,8 @@ pub enum RowError {
     },
 }
 
-fn quote(text: &str) -> String {
+/// `text` as quoted back in an error: at most [`QUOTE_LIMIT`] characters.
+pub(crate) fn quote(text: &str) -> String {
     match text.char_indices().nth(QUOTE_LIMIT) {
         Some((cut, _)) => format!("{}…", &text[..cut]),
         None => text.to_owned(),
@@ -98,21 +134,7 @@ pub fn is_blank(line: &str) -> bool {
 pub fn parse_row(line: &str, features: &mut Vec<f64>) -> Result<usize, RowError> {
     features.clear();
     let mut fields = line.split(',');
-    let label_text = fields.next().unwrap_or("").trim();
-    let label = match label_text.parse::<usize>() {
-        Ok(label) if label <= MAX_LABEL => label,
-        Err(e) if *e.kind() != IntErrorKind::PosOverflow => {
-            return Err(RowError::BadLabel {
-                text: quote(label_text),
-            });
-        }
-        // All digits, but above the limit (or even beyond `usize`).
-        _ => {
-            return Err(RowError::LabelTooLarge {
-                text: quote(label_text),
-            });
-        }
-    };
+    let label = parse_label(fields.next().unwrap_or("").trim())?;
     for (i, field) in fields.enumerate() {
         let text = field.trim();
         let column = i + 2;
@@ -129,6 +151,34 @@ pub fn parse_row(line: &str, features: &mut Vec<f64>) -> Result<usize, RowError>
         features.push(value);
     }
     Ok(label)
+}
+
+/// A row's first field as a class label: a whole number `0..=`[`MAX_LABEL`].
+pub(crate) fn parse_label(text: &str) -> Result<usize, RowError> {
+    match text.parse::<usize>() {
+        Ok(label) if label <= MAX_LABEL => Ok(label),
+        Err(e) if *e.kind() != IntErrorKind::PosOverflow => {
+            Err(RowError::BadLabel { text: quote(text) })
+        }
+        // All digits, but above the limit (or even beyond `usize`).
+        _ => Err(RowError::LabelTooLarge { text: quote(text) }),
+    }
+}
+
+/// The column names, when `line` is a header: a line in which no field is a number (`label,
+/// speed, colour`). A line with a number in it is a row, and is parsed (and refused, if it is
+/// not one) as such.
+///
+/// ```
+/// use tes_learning::labelled_csv::header_names;
+///
+/// assert_eq!(header_names("effect, x, y").unwrap(), ["effect", "x", "y"]);
+/// assert_eq!(header_names("1,0,1"), None);
+/// ```
+pub fn header_names(line: &str) -> Option<Vec<String>> {
+    let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+    let is_header = fields.iter().all(|f| f.parse::<f64>().is_err());
+    is_header.then(|| fields.into_iter().map(str::to_owned).collect())
 }
 
 #[cfg(test)]

@@ -14,8 +14,10 @@
 //!   2–3), bloreRL, the count-based baselines Rmax, factored Rmax and factored ε-greedy, and
 //!   the structure learners RL-DT (decision trees) and LSE-Rmax.
 //! * [`library`] — TES's view library: growing, pruning, and its versioned file store.
-//! * [`labelled_csv`] — the labelled-row format `tes fit` reads.
-//! * [`prequential`] — `tes fit` without the command line: mDAGL over a labelled CSV stream.
+//! * [`labelled_csv`] and [`labelled_sparse`] — the labelled-row formats `tes fit` reads:
+//!   CSV (`label,x1,…`, with or without a header) and libsvm / Vowpal Wabbit rows
+//!   (`label column:value …`).
+//! * [`prequential`] — `tes fit` without the command line: mDAGL over a labelled stream.
 //! * [`tuning`] — mDAGL without hand-tuning: a grid of (λ, α) raced on one stream.
 //!
 //! Each module's documentation opens with a runnable example ([`mdagl`]: a view finding the
@@ -24,6 +26,7 @@
 pub mod agents;
 pub mod cmdp;
 pub mod labelled_csv;
+pub mod labelled_sparse;
 pub mod library;
 pub mod mdagl;
 pub mod plan;

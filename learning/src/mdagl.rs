@@ -162,6 +162,14 @@ pub enum MdaglError {
         /// The offending index.
         index: u32,
     },
+    /// A sparse input with a different number of values than indices.
+    #[error("sparse input has {indices} indices but {values} values")]
+    WrongValueCount {
+        /// The number of indices.
+        indices: usize,
+        /// The number of values.
+        values: usize,
+    },
     /// A class label at or beyond the class count.
     #[error("label {label} is out of range for {classes} classes")]
     LabelOutOfRange {
@@ -190,6 +198,14 @@ pub enum Features<'a> {
     Dense(&'a [f64]),
     /// The indices of the features that are 1 (all others 0), strictly increasing.
     SparseBinary(&'a [u32]),
+    /// The features that are not 0: their indices, strictly increasing, and their values, one
+    /// per index (all others 0). For wide real-valued data such as libsvm rows.
+    Sparse {
+        /// Strictly increasing feature indices.
+        indices: &'a [u32],
+        /// The value of each indexed feature.
+        values: &'a [f64],
+    },
 }
 
 impl Features<'_> {
@@ -211,23 +227,22 @@ impl Features<'_> {
                     None => Ok(()),
                 }
             }
-            Features::SparseBinary(idx) => {
-                let mut previous: Option<u32> = None;
-                for &index in idx {
-                    if index as usize >= n_features {
-                        return Err(MdaglError::IndexOutOfRange {
-                            index,
-                            features: n_features,
-                        });
-                    }
-                    if let Some(previous) = previous
-                        && index <= previous
-                    {
-                        return Err(MdaglError::UnsortedIndices { previous, index });
-                    }
-                    previous = Some(index);
+            Features::SparseBinary(indices) => validate_indices(indices, n_features),
+            Features::Sparse { indices, values } => {
+                if values.len() != indices.len() {
+                    return Err(MdaglError::WrongValueCount {
+                        indices: indices.len(),
+                        values: values.len(),
+                    });
                 }
-                Ok(())
+                validate_indices(indices, n_features)?;
+                match values.iter().position(|v| !v.is_finite()) {
+                    Some(at) => Err(MdaglError::NonFinite {
+                        index: indices[at] as usize,
+                        value: values[at],
+                    }),
+                    None => Ok(()),
+                }
             }
         }
     }
@@ -248,8 +263,35 @@ impl Features<'_> {
                     f(i as usize, 1.0);
                 }
             }
+            Features::Sparse { indices, values } => {
+                for (&i, &v) in indices.iter().zip(values) {
+                    if v != 0.0 {
+                        f(i as usize, v);
+                    }
+                }
+            }
         }
     }
+}
+
+/// Sparse indices are below the feature count and strictly increasing.
+fn validate_indices(indices: &[u32], n_features: usize) -> Result<(), MdaglError> {
+    let mut previous: Option<u32> = None;
+    for &index in indices {
+        if index as usize >= n_features {
+            return Err(MdaglError::IndexOutOfRange {
+                index,
+                features: n_features,
+            });
+        }
+        if let Some(previous) = previous
+            && index <= previous
+        {
+            return Err(MdaglError::UnsortedIndices { previous, index });
+        }
+        previous = Some(index);
+    }
+    Ok(())
 }
 
 /// What the model predicted for a row *before* it learned from it (a prequential record).

@@ -1,14 +1,18 @@
-//! Prequential fitting of mDAGL over a labelled CSV stream: the engine of `tes fit`, usable
+//! Prequential fitting of mDAGL over a labelled stream: the engine of `tes fit`, usable
 //! without the command line.
 //!
-//! The rows ([`labelled_csv`](crate::labelled_csv) format) are read twice. The first pass,
-//! [`scan`], checks every row — so a bad row stops the run before anything is learned — and
-//! learns the stream's [`Shape`]: row count, feature count, largest label, and whether every
-//! feature is 0/1 (then mDAGL's fast sparse-binary input is used). The second pass, [`fit`],
-//! feeds the rows in order, each predicted before it is learned from, and returns a
-//! [`FitResult`]: the prequential mean log-loss and accuracy, the features kept, and the
-//! update throughput. Rows are parsed in chunks and only the model's work is timed.
-//! [`fit_file`] runs both passes over a file.
+//! The rows are CSV ([`labelled_csv`](crate::labelled_csv), with or without a header line
+//! naming the columns) or sparse, libsvm or Vowpal Wabbit style
+//! ([`labelled_sparse`](crate::labelled_sparse)); the first row tells which
+//! ([`RowFormat::detect`]), and a file that starts as a gzip file does is decompressed. They
+//! are read twice. The first pass, [`scan`], checks every row — so a bad row stops the run
+//! before anything is learned — and learns the stream's [`Shape`]: row count, feature count,
+//! largest label, and whether every feature is 0/1 (then mDAGL's fast sparse-binary input is
+//! used). The second pass, [`fit`], feeds the rows in order, each predicted before it is
+//! learned from, and returns a [`FitResult`]: the prequential mean log-loss and accuracy, the
+//! features kept, and the update throughput. Rows are parsed in chunks and only the model's
+//! work is timed. [`fit_file`] runs both passes over a file, [`fit_stream`] over a stream
+//! that can be read only once (standard input).
 //!
 //! Errors ([`FitError`]) name the file and line, with the same text `tes fit` prints. Progress
 //! is reported through a callback given the bytes of each line read, so a caller can draw a
@@ -25,13 +29,13 @@
 //!     .map(|i| format!("{},{},{},{}\n", i % 2, i % 2, (i / 2) % 2, (i / 4) % 2))
 //!     .collect();
 //! let name = Path::new("in-memory.csv");
-//! let shape = scan(csv.as_bytes(), name, None, |_| {})?;
-//! assert_eq!((shape.rows, shape.features, shape.max_label, shape.binary), (2000, 3, 1, true));
-//!
 //! let settings = FitSettings {
 //!     params: MdaglParams { intercept: true, ..MdaglParams::default() },
 //!     ..FitSettings::default()
 //! };
+//! let shape = scan(csv.as_bytes(), name, &settings, |_| {})?;
+//! assert_eq!((shape.rows, shape.features, shape.max_label, shape.binary), (2000, 3, 1, true));
+//!
 //! let result = fit(csv.as_bytes(), name, &shape, &settings, |_| {})?;
 //! assert_eq!(result.classes, 2);
 //! assert!(result.accuracy > 0.95, "{}", result.accuracy);
@@ -40,30 +44,72 @@
 //! ```
 
 use std::fs::File;
-use std::io::{self, BufRead, BufReader};
+use std::io::{self, BufRead, BufReader, Read, Seek, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+use flate2::read::MultiGzDecoder;
 use thiserror::Error;
 
-use crate::labelled_csv::{RowError, is_blank, parse_row, row_text};
+use crate::labelled_csv::{RowError, header_names, is_blank, parse_row, row_text};
+use crate::labelled_sparse::parse_sparse_row;
 use crate::mdagl::{Features, Mdagl, MdaglConfigError, MdaglError, MdaglParams, Prequential};
 use crate::tuning::{MdaglRace, RaceSchedule, Standing, auto_grid};
 
 /// Rows parsed before each timed batch of updates.
 const CHUNK_ROWS: usize = 4096;
 
-/// What the first pass ([`scan`]) learns about a stream.
+/// How a stream's rows are written.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RowFormat {
+    /// `label,x1,…,xd` ([`labelled_csv`](crate::labelled_csv)), optionally under a header line
+    /// that names the columns.
+    Csv,
+    /// `label column:value …`, libsvm or Vowpal Wabbit style
+    /// ([`labelled_sparse`](crate::labelled_sparse)).
+    Sparse,
+}
+
+impl RowFormat {
+    /// The format a line is written in: sparse when it has a `column:value` feature or a `|`,
+    /// CSV when it has a comma, and `None` when it could be either (a label alone).
+    pub fn detect(line: &str) -> Option<Self> {
+        if line.contains([':', '|']) {
+            Some(RowFormat::Sparse)
+        } else if line.contains(',') {
+            Some(RowFormat::Csv)
+        } else {
+            None
+        }
+    }
+}
+
+/// What the first pass ([`scan`]) learns about a stream.
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Shape {
-    /// Rows (non-blank lines).
+    /// Rows (non-blank lines, the header not counted).
     pub rows: u64,
-    /// Features per row (columns after the label).
+    /// Features per row: the columns after the label, or for sparse rows the largest column
+    /// used + 1.
     pub features: usize,
     /// The largest label seen.
     pub max_label: usize,
     /// Whether every feature value is 0 or 1 (then the sparse-binary input is used).
     pub binary: bool,
+    /// How the rows are written.
+    pub format: RowFormat,
+    /// The header's names for the features, in column order; empty without a header.
+    pub names: Vec<String>,
+}
+
+impl Shape {
+    /// Feature `column`'s name from the header, or its number.
+    pub fn feature_name(&self, column: usize) -> String {
+        self.names
+            .get(column)
+            .cloned()
+            .unwrap_or_else(|| column.to_string())
+    }
 }
 
 /// How to fit: mDAGL's hyper-parameters and the class count.
@@ -79,6 +125,9 @@ pub struct FitSettings {
     /// Number of classes K (`--classes`); `None` for the largest label + 1. With `Some(k)`,
     /// [`scan`] refuses a label ≥ `k`.
     pub classes: Option<usize>,
+    /// How the rows are written (`--format`); `None` to tell from the first row
+    /// ([`RowFormat::detect`]).
+    pub format: Option<RowFormat>,
 }
 
 /// What a fit found: the prequential figures and the features kept.
@@ -118,6 +167,16 @@ pub enum Pass {
 /// after `": "`).
 #[derive(Debug, Error)]
 pub enum FitError {
+    /// A stream that can be read only once (standard input) could not be kept for the
+    /// second pass.
+    #[error("cannot keep a copy of {} for the second pass", path.display())]
+    Spool {
+        /// The stream's name.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: io::Error,
+    },
     /// The file could not be opened.
     #[error("cannot open {}", path.display())]
     Open {
@@ -182,6 +241,23 @@ pub enum FitError {
         /// This row's feature count.
         found: usize,
     },
+    /// The first row has a different number of features than the header names.
+    #[error(
+        "{}:{line}: the header names {} columns (label + {names} features) but the first row has {}",
+        path.display(),
+        names + 1,
+        found + 1
+    )]
+    HeaderWidth {
+        /// The file (or stream name).
+        path: PathBuf,
+        /// 1-based line number of the first row.
+        line: u64,
+        /// Feature names in the header.
+        names: usize,
+        /// The first row's feature count.
+        found: usize,
+    },
     /// Only blank lines.
     #[error("{}: no rows to learn from", path.display())]
     NoRows {
@@ -240,108 +316,258 @@ fn label_range(classes: usize) -> String {
     }
 }
 
-/// Opens a file for [`scan`] or [`fit`], buffered.
-pub fn open(path: &Path) -> Result<BufReader<File>, FitError> {
-    let file = File::open(path).map_err(|source| FitError::Open {
-        path: path.to_owned(),
-        source,
-    })?;
-    Ok(BufReader::with_capacity(1 << 16, file))
+/// A decoded stream: `reader`'s bytes, decompressed when they start as a gzip file does.
+fn decoded<'a>(reader: impl Read + 'a) -> io::Result<Box<dyn BufRead + 'a>> {
+    let mut buffered = BufReader::with_capacity(1 << 16, reader);
+    let gzip = buffered.fill_buf()?.starts_with(&GZIP_MAGIC);
+    Ok(if gzip {
+        Box::new(BufReader::with_capacity(
+            1 << 16,
+            MultiGzDecoder::new(buffered),
+        ))
+    } else {
+        Box::new(buffered)
+    })
 }
 
-/// Calls `row(line_number, label, features)` for every non-blank line of `reader`, stopping at
-/// the first malformed one with an error naming it (`name` is the file named in errors), or
-/// at the first error `row` returns. `progress` is given the length in bytes of each line read.
-pub fn for_each_row<E: From<FitError>>(
-    mut reader: impl BufRead,
-    name: &Path,
-    mut progress: impl FnMut(u64),
-    mut row: impl FnMut(u64, usize, &[f64]) -> Result<(), E>,
-) -> Result<(), E> {
-    // Lines are read as bytes, so that one that is not UTF-8 text is a malformed row naming
-    // the byte, not an I/O error.
-    let mut bytes = Vec::new();
-    let mut features = Vec::new();
-    let mut number = 0u64;
-    loop {
-        bytes.clear();
-        let read = reader
-            .read_until(b'\n', &mut bytes)
-            .map_err(|source| FitError::Read {
-                path: name.to_owned(),
-                line: number + 1,
+/// The first two bytes of every gzip file.
+const GZIP_MAGIC: [u8; 2] = [0x1f, 0x8b];
+
+/// Opens a file for [`scan`] or [`fit`], buffered, and decompressed if it is gzip-compressed
+/// (told by its first bytes, not its name).
+pub fn open(path: &Path) -> Result<Box<dyn BufRead>, FitError> {
+    let open_error = |source| FitError::Open {
+        path: path.to_owned(),
+        source,
+    };
+    let file = File::open(path).map_err(open_error)?;
+    decoded(file).map_err(open_error)
+}
+
+/// Whether the file at `path` is gzip-compressed (then its size says little of its rows).
+pub fn is_gzip(path: &Path) -> bool {
+    let mut magic = [0u8; 2];
+    File::open(path)
+        .and_then(|mut file| file.read_exact(&mut magic))
+        .is_ok_and(|()| magic == GZIP_MAGIC)
+}
+
+/// One row as read: its label and features, borrowed from the reader.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Row<'a> {
+    /// 1-based line number.
+    pub line: u64,
+    /// The class label.
+    pub label: usize,
+    /// The features.
+    pub values: RowValues<'a>,
+}
+
+/// A row's features, as written.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum RowValues<'a> {
+    /// A CSV row: one value per column.
+    Dense(&'a [f64]),
+    /// A sparse row: the non-zero `(column, value)` pairs, columns increasing.
+    Sparse(&'a [(u32, f64)]),
+}
+
+impl RowValues<'_> {
+    /// Whether every value is 0 or 1.
+    fn is_binary(&self) -> bool {
+        match *self {
+            RowValues::Dense(x) => x.iter().all(|&v| v == 0.0 || v == 1.0),
+            RowValues::Sparse(x) => x.iter().all(|&(_, v)| v == 1.0),
+        }
+    }
+
+    /// The feature count this row implies: its width, or its largest column + 1.
+    fn width(&self) -> usize {
+        match *self {
+            RowValues::Dense(x) => x.len(),
+            RowValues::Sparse(x) => x.last().map_or(0, |&(c, _)| c as usize + 1),
+        }
+    }
+}
+
+/// Reads the rows of a labelled stream one at a time: lines as bytes (so a line that is not
+/// UTF-8 text is a malformed row naming the byte, not an I/O error), blank lines skipped, the
+/// format told by the first row that tells ([`RowFormat::detect`]) unless given, and a CSV
+/// header line kept as the column names.
+pub struct RowReader<R> {
+    reader: R,
+    name: PathBuf,
+    format: Option<RowFormat>,
+    line: u64,
+    bytes: Vec<u8>,
+    dense: Vec<f64>,
+    sparse: Vec<(u32, f64)>,
+    names: Vec<String>,
+    seen_row: bool,
+}
+
+impl<R: BufRead> RowReader<R> {
+    /// A reader of `reader`'s rows; `name` is the file named in errors, `format` the rows'
+    /// format, or `None` to tell it from the first row.
+    pub fn new(reader: R, name: &Path, format: Option<RowFormat>) -> Self {
+        Self {
+            reader,
+            name: name.to_owned(),
+            format,
+            line: 0,
+            bytes: Vec::new(),
+            dense: Vec::new(),
+            sparse: Vec::new(),
+            names: Vec::new(),
+            seen_row: false,
+        }
+    }
+
+    /// The next row, `None` at the end of the stream, or the first malformed line's error.
+    /// `progress` is given the length in bytes of each line read.
+    pub fn next_row(&mut self, mut progress: impl FnMut(u64)) -> Result<Option<Row<'_>>, FitError> {
+        loop {
+            self.bytes.clear();
+            let read = self
+                .reader
+                .read_until(b'\n', &mut self.bytes)
+                .map_err(|source| FitError::Read {
+                    path: self.name.clone(),
+                    line: self.line + 1,
+                    source,
+                })?;
+            if read == 0 {
+                return Ok(None);
+            }
+            self.line += 1;
+            progress(read as u64);
+            let malformed = |source| FitError::Malformed {
+                path: self.name.clone(),
+                line: self.line,
                 source,
-            })?;
-        if read == 0 {
-            return Ok(());
+            };
+            let text = row_text(&self.bytes).map_err(malformed)?;
+            if is_blank(text) {
+                continue;
+            }
+            if self.format.is_none() {
+                self.format = RowFormat::detect(text);
+            }
+            // A label alone reads the same in either format.
+            let format = self.format.unwrap_or(RowFormat::Csv);
+            if format == RowFormat::Csv
+                && !self.seen_row
+                && let Some(names) = header_names(text)
+            {
+                // The label's name is not a feature's.
+                self.names = names.into_iter().skip(1).collect();
+                self.seen_row = true;
+                continue;
+            }
+            self.seen_row = true;
+            let (label, values) = match format {
+                RowFormat::Csv => (
+                    parse_row(text, &mut self.dense).map_err(malformed)?,
+                    RowValues::Dense(&self.dense),
+                ),
+                RowFormat::Sparse => (
+                    parse_sparse_row(text, &mut self.sparse).map_err(malformed)?,
+                    RowValues::Sparse(&self.sparse),
+                ),
+            };
+            return Ok(Some(Row {
+                line: self.line,
+                label,
+                values,
+            }));
         }
-        number += 1;
-        progress(read as u64);
-        let malformed = |source| FitError::Malformed {
-            path: name.to_owned(),
-            line: number,
-            source,
-        };
-        let line = row_text(&bytes).map_err(malformed)?;
-        if is_blank(line) {
-            continue;
-        }
-        let label = parse_row(line, &mut features).map_err(malformed)?;
-        row(number, label, &features)?;
+    }
+
+    /// The rows' format: as given, or as told by the first row that tells (`None` before
+    /// one: no row yet, or only labels without features).
+    pub fn format(&self) -> Option<RowFormat> {
+        self.format
+    }
+
+    /// The header's feature names, once the header is read; empty without one.
+    pub fn names(&self) -> &[String] {
+        &self.names
     }
 }
 
 /// The first pass: checks every row of `reader` and learns the stream's [`Shape`].
 ///
-/// With `classes` given, a label ≥ `classes` is an error. `name` is the file named in errors;
-/// `progress` is given the length in bytes of each line read.
+/// With `settings.classes` given, a label ≥ it is an error. `name` is the file named in
+/// errors; `progress` is given the length in bytes of each line read.
 pub fn scan(
     reader: impl BufRead,
     name: &Path,
-    classes: Option<usize>,
-    progress: impl FnMut(u64),
+    settings: &FitSettings,
+    mut progress: impl FnMut(u64),
 ) -> Result<Shape, FitError> {
+    let mut rows = RowReader::new(reader, name, settings.format);
     let mut shape: Option<Shape> = None;
-    for_each_row(reader, name, progress, |line, label, x| {
-        if let Some(k) = classes
-            && label >= k
-        {
-            return Err(FitError::LabelOutOfRange {
-                path: name.to_owned(),
-                line,
-                label,
-                classes: k,
-            });
-        }
-        let binary = x.iter().all(|&v| v == 0.0 || v == 1.0);
+    while let Some(row) = rows.next_row(&mut progress)? {
+        check_label(name, &row, settings.classes)?;
+        let width = row.values.width();
+        let binary = row.values.is_binary();
+        let (line, label) = (row.line, row.label);
+        // Labels alone read as CSV until a row tells the format.
+        let dense = rows.format() != Some(RowFormat::Sparse);
         match &mut shape {
             None => {
+                let names = rows.names().to_vec();
+                if !names.is_empty() && names.len() != width {
+                    return Err(FitError::HeaderWidth {
+                        path: name.to_owned(),
+                        line,
+                        names: names.len(),
+                        found: width,
+                    });
+                }
                 shape = Some(Shape {
                     rows: 1,
-                    features: x.len(),
+                    features: width,
                     max_label: label,
                     binary,
+                    format: RowFormat::Csv,
+                    names,
                 })
             }
             Some(s) => {
-                if x.len() != s.features {
+                if dense && width != s.features {
                     return Err(FitError::WrongWidth {
                         path: name.to_owned(),
                         line,
                         expected: s.features,
-                        found: x.len(),
+                        found: width,
                     });
                 }
                 s.rows += 1;
+                s.features = s.features.max(width);
                 s.max_label = s.max_label.max(label);
                 s.binary &= binary;
             }
         }
-        Ok(())
-    })?;
-    shape.ok_or_else(|| FitError::NoRows {
+    }
+    let mut shape = shape.ok_or_else(|| FitError::NoRows {
         path: name.to_owned(),
-    })
+    })?;
+    shape.format = rows.format().unwrap_or(RowFormat::Csv);
+    Ok(shape)
+}
+
+/// A label ≥ the class count asked for is an error naming its line.
+fn check_label(name: &Path, row: &Row<'_>, classes: Option<usize>) -> Result<(), FitError> {
+    match classes {
+        Some(k) if row.label >= k => Err(FitError::LabelOutOfRange {
+            path: name.to_owned(),
+            line: row.line,
+            label: row.label,
+            classes: k,
+        }),
+        _ => Ok(()),
+    }
 }
 
 /// The prequential record of one pass.
@@ -353,45 +579,86 @@ struct Tally {
     updating: Duration,
 }
 
-/// Rows parsed ahead of a timed batch of updates, in either input form.
+/// How a chunk hands its rows to the model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Input {
+    /// One value per feature: real-valued CSV.
+    Dense,
+    /// The indices of the features that are 1: any stream whose values are all 0 or 1.
+    SparseBinary,
+    /// The non-zero `(column, value)` pairs: real-valued sparse rows.
+    Sparse,
+}
+
+/// Rows parsed ahead of a timed batch of updates, in the model's input form.
 struct Chunk {
     labels: Vec<usize>,
     dense: Vec<f64>,
-    sparse: Vec<u32>,
-    sparse_ends: Vec<usize>,
+    indices: Vec<u32>,
+    values: Vec<f64>,
+    ends: Vec<usize>,
     width: usize,
-    binary: bool,
+    input: Input,
 }
 
 impl Chunk {
-    fn new(width: usize, binary: bool) -> Self {
+    fn new(shape: &Shape) -> Self {
+        let input = match (shape.binary, shape.format) {
+            (true, _) => Input::SparseBinary,
+            (false, RowFormat::Csv) => Input::Dense,
+            (false, RowFormat::Sparse) => Input::Sparse,
+        };
+        let dense = if input == Input::Dense {
+            CHUNK_ROWS * shape.features
+        } else {
+            0
+        };
         Self {
             labels: Vec::with_capacity(CHUNK_ROWS),
-            dense: Vec::with_capacity(if binary { 0 } else { CHUNK_ROWS * width }),
-            sparse: Vec::new(),
-            sparse_ends: Vec::with_capacity(CHUNK_ROWS),
-            width,
-            binary,
+            dense: Vec::with_capacity(dense),
+            indices: Vec::new(),
+            values: Vec::new(),
+            ends: Vec::with_capacity(CHUNK_ROWS),
+            width: shape.features,
+            input,
         }
     }
 
-    fn push(&mut self, label: usize, x: &[f64]) {
+    fn push(&mut self, label: usize, x: RowValues<'_>) {
         self.labels.push(label);
-        if self.binary {
-            self.sparse.extend(
-                x.iter()
-                    .enumerate()
-                    .filter(|(_, v)| **v != 0.0)
-                    .map(|(i, _)| i as u32),
-            );
-            self.sparse_ends.push(self.sparse.len());
-        } else {
-            self.dense.extend_from_slice(x);
+        match (self.input, x) {
+            (Input::Dense, RowValues::Dense(x)) => self.dense.extend_from_slice(x),
+            (_, RowValues::Dense(x)) => {
+                for (i, &v) in x.iter().enumerate().filter(|(_, v)| **v != 0.0) {
+                    self.indices.push(i as u32);
+                    self.values.push(v);
+                }
+            }
+            (_, RowValues::Sparse(x)) => {
+                for &(i, v) in x {
+                    self.indices.push(i);
+                    self.values.push(v);
+                }
+            }
         }
+        self.ends.push(self.indices.len());
     }
 
     fn is_full(&self) -> bool {
         self.labels.len() >= CHUNK_ROWS
+    }
+
+    /// Row `i`'s features, its sparse entries starting at `begin`.
+    fn features(&self, i: usize, begin: usize) -> Features<'_> {
+        let end = self.ends[i];
+        match self.input {
+            Input::Dense => Features::Dense(&self.dense[i * self.width..(i + 1) * self.width]),
+            Input::SparseBinary => Features::SparseBinary(&self.indices[begin..end]),
+            Input::Sparse => Features::Sparse {
+                indices: &self.indices[begin..end],
+                values: &self.values[begin..end],
+            },
+        }
     }
 
     /// Predicts then learns every row, timing only the model's work.
@@ -399,18 +666,13 @@ impl Chunk {
         let start = Instant::now();
         let mut begin = 0;
         for (i, &label) in self.labels.iter().enumerate() {
-            let x = if self.binary {
-                let end = self.sparse_ends[i];
-                let x = Features::SparseBinary(&self.sparse[begin..end]);
-                begin = end;
-                x
-            } else {
-                Features::Dense(&self.dense[i * self.width..(i + 1) * self.width])
-            };
-            let pre = model.update(x, label).map_err(|source| FitError::Update {
-                row: tally.rows + 1,
-                source,
-            })?;
+            let pre = model
+                .update(self.features(i, begin), label)
+                .map_err(|source| FitError::Update {
+                    row: tally.rows + 1,
+                    source,
+                })?;
+            begin = self.ends[i];
             tally.rows += 1;
             tally.log_loss -= pre.log_prob;
             tally.correct += u64::from(pre.predicted == label);
@@ -418,8 +680,9 @@ impl Chunk {
         tally.updating += start.elapsed();
         self.labels.clear();
         self.dense.clear();
-        self.sparse.clear();
-        self.sparse_ends.clear();
+        self.indices.clear();
+        self.values.clear();
+        self.ends.clear();
         Ok(())
     }
 }
@@ -497,18 +760,18 @@ pub fn fit(
     name: &Path,
     shape: &Shape,
     settings: &FitSettings,
-    progress: impl FnMut(u64),
+    mut progress: impl FnMut(u64),
 ) -> Result<FitResult, FitError> {
     let (mut model, classes) = build_learner(name, shape, settings)?;
     let mut tally = Tally::default();
-    let mut chunk = Chunk::new(shape.features, shape.binary);
-    for_each_row(reader, name, progress, |_, label, x| {
-        chunk.push(label, x);
+    let mut chunk = Chunk::new(shape);
+    let mut rows = RowReader::new(reader, name, Some(shape.format));
+    while let Some(row) = rows.next_row(&mut progress)? {
+        chunk.push(row.label, row.values);
         if chunk.is_full() {
             chunk.learn(&mut model, &mut tally)?;
         }
-        Ok::<_, FitError>(())
-    })?;
+    }
     chunk.learn(&mut model, &mut tally)?;
     if tally.rows != shape.rows {
         return Err(FitError::Changed {
@@ -521,7 +784,7 @@ pub fn fit(
     let seconds = tally.updating.as_secs_f64();
     let (model, standings) = model.finish();
     Ok(FitResult {
-        shape: *shape,
+        shape: shape.clone(),
         classes,
         mean_log_loss: tally.log_loss / n,
         accuracy: tally.correct as f64 / n,
@@ -565,12 +828,82 @@ pub fn fit_file(
     settings: &FitSettings,
     mut progress: impl FnMut(Pass, u64),
 ) -> Result<FitResult, FitError> {
-    let shape = scan(open(path)?, path, settings.classes, |n| {
-        progress(Pass::Checking, n)
-    })?;
+    let shape = scan(open(path)?, path, settings, |n| progress(Pass::Checking, n))?;
     fit(open(path)?, path, &shape, settings, |n| {
         progress(Pass::Fitting, n)
     })
+}
+
+/// Both passes over a stream that can be read only once, such as standard input: the first
+/// pass keeps a copy of its bytes in an anonymous temporary file (removed when done), which
+/// the second pass reads. `name` is the stream named in errors; the stream may be
+/// gzip-compressed.
+///
+/// ```
+/// use std::path::Path;
+/// use tes_learning::mdagl::MdaglParams;
+/// use tes_learning::prequential::{FitSettings, fit_stream};
+///
+/// // Sparse rows: the label is column 3; column 8 is noise.
+/// let rows: String = (0..1000)
+///     .map(|i| format!("{} 3:{} 8:{}\n", i % 2, i % 2, (i / 2) % 2))
+///     .collect();
+/// let settings = FitSettings {
+///     params: MdaglParams { intercept: true, ..MdaglParams::default() },
+///     ..FitSettings::default()
+/// };
+/// let result = fit_stream(rows.as_bytes(), Path::new("piped rows"), &settings, |_, _| {})?;
+/// assert_eq!((result.shape.rows, result.shape.features), (1000, 9));
+/// assert_eq!(result.selected, [3]);
+/// # Ok::<(), tes_learning::prequential::FitError>(())
+/// ```
+pub fn fit_stream(
+    stream: impl Read,
+    name: &Path,
+    settings: &FitSettings,
+    mut progress: impl FnMut(Pass, u64),
+) -> Result<FitResult, FitError> {
+    let spool_error = |source| FitError::Spool {
+        path: name.to_owned(),
+        source,
+    };
+    let copy = tempfile::tempfile().map_err(spool_error)?;
+    let tee = Tee {
+        stream,
+        copy: io::BufWriter::new(copy.try_clone().map_err(spool_error)?),
+    };
+    let shape = {
+        let mut tee = tee;
+        let reader = decoded(&mut tee).map_err(spool_error)?;
+        let shape = scan(reader, name, settings, |n| progress(Pass::Checking, n))?;
+        // The scan stops at the end of the rows; anything after (a gzip trailer) is kept too.
+        io::copy(&mut tee, &mut io::sink()).map_err(spool_error)?;
+        tee.copy.flush().map_err(spool_error)?;
+        shape
+    };
+    let mut copy = copy;
+    copy.rewind().map_err(spool_error)?;
+    fit(
+        decoded(copy).map_err(spool_error)?,
+        name,
+        &shape,
+        settings,
+        |n| progress(Pass::Fitting, n),
+    )
+}
+
+/// A reader that writes a copy of every byte it reads.
+struct Tee<R, W: Write> {
+    stream: R,
+    copy: W,
+}
+
+impl<R: Read, W: Write> Read for Tee<R, W> {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        let n = self.stream.read(buf)?;
+        self.copy.write_all(&buf[..n])?;
+        Ok(n)
+    }
 }
 
 #[cfg(test)]
@@ -582,7 +915,11 @@ mod tests {
     }
 
     fn scan_str(csv: &str, classes: Option<usize>) -> Result<Shape, FitError> {
-        scan(csv.as_bytes(), name(), classes, |_| {})
+        let settings = FitSettings {
+            classes,
+            ..FitSettings::default()
+        };
+        scan(csv.as_bytes(), name(), &settings, |_| {})
     }
 
     /// The error's message with its sources, as `tes fit` prints it.
@@ -605,7 +942,9 @@ mod tests {
                 rows: 3,
                 features: 2,
                 max_label: 2,
-                binary: true
+                binary: true,
+                format: RowFormat::Csv,
+                names: Vec::new(),
             }
         );
         assert!(!scan_str("0,1,0\n1,0.5,1\n", None).unwrap().binary);
@@ -632,7 +971,12 @@ mod tests {
             ),
             (scan_str("\n \n", None), "t.csv: no rows to learn from"),
             (
-                scan(&b"0,1\n1,\xff\n"[..], name(), None, |_| {}),
+                scan(
+                    &b"0,1\n1,\xff\n"[..],
+                    name(),
+                    &FitSettings::default(),
+                    |_| {},
+                ),
                 "t.csv:2: malformed row: byte 0xFF at position 3 is not UTF-8 text (is this a CSV file?)",
             ),
         ];
@@ -726,7 +1070,7 @@ mod tests {
         let mut results = Vec::new();
         for csv in [&binary, &dense] {
             let mut read = 0;
-            let shape = scan(csv.as_bytes(), name(), None, |n| read += n).unwrap();
+            let shape = scan(csv.as_bytes(), name(), &settings, |n| read += n).unwrap();
             let result = fit(csv.as_bytes(), name(), &shape, &settings, |n| read += n).unwrap();
             assert_eq!(read, 2 * csv.len() as u64);
             assert_eq!((result.shape.rows, result.classes), (rows as u64, 2));
@@ -738,5 +1082,135 @@ mod tests {
         assert!(results[0].shape.binary && !results[1].shape.binary);
         assert_eq!(results[0].selected, [0]);
         assert!(results[1].selected.starts_with(&[0]), "{:?}", results[1]);
+    }
+
+    /// The same stream, as CSV under a header, as sparse rows, and gzip-compressed, fits to
+    /// the same figures; the header names the columns.
+    #[test]
+    fn every_format_of_one_stream_fits_alike() {
+        let rows = 3000;
+        let csv: String = (0..rows)
+            .map(|i| format!("{},{},{},{}\n", i % 3, (i / 3) % 2, i % 3 % 2, i % 3 / 2))
+            .collect();
+        let header = format!("effect, noise, odd, two\n{csv}");
+        let sparse: String = (0..rows)
+            .map(|i| {
+                let on: Vec<String> = [(i / 3) % 2, i % 3 % 2, i % 3 / 2]
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, v)| **v == 1)
+                    .map(|(c, _)| format!("{c}:1"))
+                    .collect();
+                format!("{} {}\n", i % 3, on.join(" "))
+            })
+            .collect();
+        let mut gzip = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        gzip.write_all(sparse.as_bytes()).unwrap();
+        let gzip = gzip.finish().unwrap();
+        let settings = FitSettings {
+            params: MdaglParams {
+                intercept: true,
+                ..MdaglParams::default()
+            },
+            ..FitSettings::default()
+        };
+        let fit_bytes =
+            |bytes: &[u8]| fit_stream(bytes, name(), &settings, |_, _| {}).map_err(|e| chain(&e));
+        let plain = fit_bytes(csv.as_bytes()).unwrap();
+        let named = fit_bytes(header.as_bytes()).unwrap();
+        let libsvm = fit_bytes(sparse.as_bytes()).unwrap();
+        let packed = fit_bytes(&gzip).unwrap();
+        assert_eq!(plain.selected, [1, 2]);
+        assert_eq!(named.shape.names, ["noise", "odd", "two"]);
+        assert_eq!(named.shape.feature_name(2), "two");
+        assert_eq!(libsvm.shape.format, RowFormat::Sparse);
+        for other in [&named, &libsvm, &packed] {
+            assert_eq!(other.shape.rows, rows);
+            assert_eq!(other.selected, plain.selected);
+            assert!((other.mean_log_loss - plain.mean_log_loss).abs() < 1e-12);
+        }
+    }
+
+    /// Real-valued sparse rows take the sparse path and learn as their dense CSV does.
+    #[test]
+    fn real_valued_sparse_rows_learn_as_their_dense_twins() {
+        let rows = 2000;
+        let value = |i: u64| 0.5 + (i % 7) as f64 / 4.0;
+        let csv: String = (0..rows)
+            .map(|i| format!("{},{},0,{}\n", i % 2, value(i) * (i % 2) as f64, value(i)))
+            .collect();
+        let sparse: String = (0..rows)
+            .map(|i| match i % 2 {
+                0 => format!("0 2:{}\n", value(i)),
+                _ => format!("1 0:{} 2:{}\n", value(i), value(i)),
+            })
+            .collect();
+        let settings = FitSettings::default();
+        let dense = fit_stream(csv.as_bytes(), name(), &settings, |_, _| {}).unwrap();
+        let sparse = fit_stream(sparse.as_bytes(), name(), &settings, |_, _| {}).unwrap();
+        assert!(!sparse.shape.binary && sparse.shape.format == RowFormat::Sparse);
+        assert_eq!(sparse.shape.features, 3);
+        assert!(sparse.selected.starts_with(&[0]), "{:?}", sparse.selected);
+        assert_eq!(dense.selected, sparse.selected);
+        assert!((dense.mean_log_loss - sparse.mean_log_loss).abs() < 1e-9);
+    }
+
+    #[test]
+    fn malformed_headers_and_sparse_rows_name_their_line() {
+        let fails = |text: &str| {
+            let err = fit_stream(text.as_bytes(), name(), &FitSettings::default(), |_, _| {})
+                .unwrap_err();
+            chain(&err)
+        };
+        assert_eq!(
+            fails("label,a,b\n1,0\n"),
+            "t.csv:2: the header names 3 columns (label + 2 features) but the first row has 2"
+        );
+        // Only the first line may be a header.
+        assert_eq!(
+            fails("1,0\nlabel,a\n"),
+            r#"t.csv:2: malformed row: the label "label" is not a whole number >= 0"#
+        );
+        assert_eq!(
+            fails("1 3:1\n\n0 4:1 4:0.5\n"),
+            "t.csv:3: malformed row: column 4 is given twice"
+        );
+        assert_eq!(
+            fails("1 | 2\n0 |f 4\n"),
+            r#"t.csv:2: malformed row: "|f" names a namespace; only a bare `|` is read (columns are numbers)"#
+        );
+        let mut cut = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        cut.write_all("1,0\n0,1\n".repeat(500).as_bytes()).unwrap();
+        let mut cut = cut.finish().unwrap();
+        cut.truncate(cut.len() / 2);
+        let err = fit_stream(&cut[..], name(), &FitSettings::default(), |_, _| {}).unwrap_err();
+        assert!(
+            matches!(err, FitError::Read { .. }),
+            "a cut gzip stream is a read error naming its line: {}",
+            chain(&err)
+        );
+    }
+
+    /// A file and the same bytes as a stream give the same fit, and gzip is told by content.
+    #[test]
+    fn files_and_streams_fit_alike() {
+        let csv: String = (0..500).map(|i| format!("{},{}\n", i % 2, i % 2)).collect();
+        let mut file = tempfile::NamedTempFile::new().unwrap();
+        file.write_all(csv.as_bytes()).unwrap();
+        assert!(!is_gzip(file.path()));
+        let settings = FitSettings::default();
+        let from_file = fit_file(file.path(), &settings, |_, _| {}).unwrap();
+        let from_stream = fit_stream(csv.as_bytes(), name(), &settings, |_, _| {}).unwrap();
+        assert_eq!(from_file.shape, from_stream.shape);
+        assert_eq!(from_file.selected, from_stream.selected);
+        assert_eq!(from_file.mean_log_loss, from_stream.mean_log_loss);
+        let mut packed = tempfile::NamedTempFile::new().unwrap();
+        let mut gzip = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        gzip.write_all(csv.as_bytes()).unwrap();
+        packed.write_all(&gzip.finish().unwrap()).unwrap();
+        assert!(is_gzip(packed.path()));
+        let from_gzip = fit_file(packed.path(), &settings, |_, _| {}).unwrap();
+        assert_eq!(from_gzip.selected, from_file.selected);
+        assert_eq!(from_gzip.mean_log_loss, from_file.mean_log_loss);
     }
 }

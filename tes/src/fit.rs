@@ -1,4 +1,5 @@
-//! `tes fit`: mDAGL over a labelled CSV stream, prequentially.
+//! `tes fit`: mDAGL over a labelled stream (CSV or libsvm rows, a file or standard input,
+//! plain or gzip-compressed), prequentially.
 //!
 //! The work — checking the file, then feeding its rows in order, each predicted before it is
 //! learned from — is [`tes_learning::prequential`]; this is its command line: the arguments,
@@ -8,10 +9,12 @@ use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use clap::Args;
+use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use tes_learning::mdagl::MdaglParams;
-use tes_learning::prequential::{FitResult, FitSettings, Pass, fit_file};
+use tes_learning::prequential::{
+    FitResult, FitSettings, Pass, RowFormat, fit_file, fit_stream, is_gzip,
+};
 
 /// Files at least this large get a progress bar (when stderr is a terminal).
 const PROGRESS_MIN_BYTES: u64 = 1 << 20;
@@ -20,8 +23,15 @@ const PROGRESS_MIN_BYTES: u64 = 1 << 20;
 #[derive(Debug, Args)]
 #[command(allow_negative_numbers = true)]
 pub struct FitArgs {
-    /// CSV file: no header; first column the class label 0..K-1, then the features.
+    /// The rows, or `-` for standard input; gzip-compressed or not. CSV: the class label
+    /// 0..K-1, then the features, under an optional header line naming the columns. Sparse
+    /// (libsvm or Vowpal Wabbit style): the label, then `column:value` for each non-zero
+    /// feature.
     data: PathBuf,
+    /// How the rows are written [default: told from the first row: sparse if it has a `:` or
+    /// `|`].
+    #[arg(long, value_enum)]
+    format: Option<Format>,
     /// Group-lasso strength λ (larger keeps fewer features), or `auto`: race λ = 0.05 (the
     /// paper's), 0.015, 0.005, 0.0015 and 0.0005 in one pass and keep the best so far.
     #[arg(long, default_value = "0.05", value_parser = hyper)]
@@ -40,6 +50,27 @@ pub struct FitArgs {
     #[arg(long)]
     json: bool,
 }
+
+/// `--format`: how the rows are written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum Format {
+    /// `label,x1,…,xd`, with or without a header line.
+    Csv,
+    /// `label column:value …` (libsvm; Vowpal Wabbit's bare `|` and value-less columns too).
+    Sparse,
+}
+
+impl From<Format> for RowFormat {
+    fn from(format: Format) -> Self {
+        match format {
+            Format::Csv => RowFormat::Csv,
+            Format::Sparse => RowFormat::Sparse,
+        }
+    }
+}
+
+/// The name `-` gives standard input in reports and errors.
+const STDIN_NAME: &str = "standard input";
 
 /// A hyper-parameter on the command line: a number, or `auto`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -77,18 +108,44 @@ fn hyper(text: &str) -> Result<Hyper, String> {
         .map_err(|_| format!("expected a number or `auto`, got {text:?}"))
 }
 
-fn progress_bar(path: &Path) -> ProgressBar {
-    let bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
-    if bytes < PROGRESS_MIN_BYTES || !std::io::stderr().is_terminal() {
+/// A bar over both passes for a large plain file; a counter of the rows' bytes for standard
+/// input or a compressed file, whose size does not say how much text it holds; nothing when
+/// stderr is not a terminal or the file is small.
+fn progress_bar(input: Option<&Path>) -> ProgressBar {
+    if !std::io::stderr().is_terminal() {
         return ProgressBar::hidden();
     }
-    let bar = ProgressBar::with_draw_target(Some(2 * bytes), ProgressDrawTarget::stderr());
-    if let Ok(style) = ProgressStyle::with_template(
-        "{msg:>10} [{bar:40}] {bytes}/{total_bytes} ({bytes_per_sec}, {eta} left)",
-    ) {
+    let plain_size = input
+        .filter(|path| !is_gzip(path))
+        .map(|path| std::fs::metadata(path).map(|m| m.len()).unwrap_or(0));
+    let (bar, template) = match plain_size {
+        Some(bytes) if bytes < PROGRESS_MIN_BYTES => return ProgressBar::hidden(),
+        Some(bytes) => (
+            ProgressBar::with_draw_target(Some(2 * bytes), ProgressDrawTarget::stderr()),
+            "{msg:>10} [{bar:40}] {bytes}/{total_bytes} ({bytes_per_sec}, {eta} left)",
+        ),
+        None => (
+            ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr()),
+            "{msg:>10} {spinner} {bytes} of rows read ({bytes_per_sec})",
+        ),
+    };
+    if let Ok(style) = ProgressStyle::with_template(template) {
         bar.set_style(style.progress_chars("=> "));
     }
     bar
+}
+
+/// The input's name in reports: its path, or [`STDIN_NAME`].
+fn input_name(args: &FitArgs) -> PathBuf {
+    if reads_stdin(args) {
+        PathBuf::from(STDIN_NAME)
+    } else {
+        args.data.clone()
+    }
+}
+
+fn reads_stdin(args: &FitArgs) -> bool {
+    args.data.as_os_str() == "-"
 }
 
 /// `auto (chose 0.005)` or the value given.
@@ -101,8 +158,8 @@ fn chosen(asked: Hyper, used: f64) -> String {
 
 /// Runs `tes fit`: the file checked, mDAGL run over it once, the report printed.
 pub fn run(args: &FitArgs) -> Result<()> {
-    let path = args.data.as_path();
-    let progress = progress_bar(path);
+    let stdin = reads_stdin(args);
+    let progress = progress_bar((!stdin).then_some(args.data.as_path()));
     progress.set_message("checking");
     let defaults = MdaglParams::default();
     let settings = FitSettings {
@@ -114,15 +171,26 @@ pub fn run(args: &FitArgs) -> Result<()> {
         auto_lambda: args.lambda == Hyper::Auto,
         auto_alpha: args.alpha == Hyper::Auto,
         classes: args.classes,
+        format: args.format.map(RowFormat::from),
     };
     let mut fitting = false;
-    let fit = fit_file(path, &settings, |pass, bytes| {
+    let report = |pass, bytes| {
         if pass == Pass::Fitting && !fitting {
             fitting = true;
             progress.set_message("fitting");
         }
         progress.inc(bytes);
-    })?;
+    };
+    let fit = if stdin {
+        fit_stream(
+            std::io::stdin().lock(),
+            Path::new(STDIN_NAME),
+            &settings,
+            report,
+        )?
+    } else {
+        fit_file(&args.data, &settings, report)?
+    };
     progress.finish_and_clear();
     if args.json {
         print_json(args, &fit);
@@ -143,12 +211,28 @@ fn print_json(args: &FitArgs, fit: &FitResult) {
         "classes": fit.classes,
         "features": fit.shape.features,
         "binary": fit.shape.binary,
+        "format": match fit.shape.format {
+            RowFormat::Csv => "csv",
+            RowFormat::Sparse => "sparse",
+        },
+        "selected_names": selected_names(fit),
         "lambda": fit.params.lambda,
         "alpha": fit.params.alpha,
         "intercept": args.intercept,
         "auto": auto_json(args, fit),
     });
     println!("{report}");
+}
+
+/// The selected features' header names, or `null` without a header.
+fn selected_names(fit: &FitResult) -> serde_json::Value {
+    if fit.shape.names.is_empty() {
+        return serde_json::Value::Null;
+    }
+    fit.selected
+        .iter()
+        .map(|&column| fit.shape.feature_name(column))
+        .collect()
 }
 
 /// With `auto`: what was raced and how each setting stood; `null` for a fixed setting.
@@ -178,14 +262,15 @@ fn auto_json(args: &FitArgs, fit: &FitResult) -> serde_json::Value {
 
 /// The fit as a table for people.
 fn print_report(args: &FitArgs, fit: &FitResult) {
-    let input = if fit.shape.binary {
-        "binary features, sparse path"
-    } else {
-        "real-valued features, dense path"
+    let input = match (fit.shape.binary, fit.shape.format) {
+        (true, RowFormat::Csv) => "binary CSV features, sparse path",
+        (true, RowFormat::Sparse) => "binary sparse-row features, sparse path",
+        (false, RowFormat::Csv) => "real-valued CSV features, dense path",
+        (false, RowFormat::Sparse) => "real-valued sparse-row features, sparse path",
     };
     println!(
         "{}: {} rows, {} {input}, {} classes",
-        args.data.display(),
+        input_name(args).display(),
         fit.shape.rows,
         fit.shape.features,
         fit.classes
@@ -217,8 +302,13 @@ fn print_report(args: &FitArgs, fit: &FitResult) {
         (fit.classes as f64).ln()
     );
     println!("  prequential accuracy       {:.2} %", 100.0 * fit.accuracy);
+    let columns = match (fit.shape.names.is_empty(), fit.shape.format) {
+        (false, _) => "named by the header",
+        (true, RowFormat::Csv) => "0-based feature columns",
+        (true, RowFormat::Sparse) => "columns as numbered in the rows",
+    };
     println!(
-        "  selected features          {} of {} (0-based feature columns)",
+        "  selected features          {} of {} ({columns})",
         fit.selected.len(),
         fit.shape.features
     );
@@ -228,8 +318,9 @@ fn print_report(args: &FitArgs, fit: &FitResult) {
              `--lambda auto --alpha auto` races smaller settings"
         );
     }
-    for line in fit.selected.chunks(16) {
-        let cols: Vec<String> = line.iter().map(usize::to_string).collect();
+    let per_line = if fit.shape.names.is_empty() { 16 } else { 6 };
+    for line in fit.selected.chunks(per_line) {
+        let cols: Vec<String> = line.iter().map(|&c| fit.shape.feature_name(c)).collect();
         println!("    {}", cols.join(" "));
     }
     println!(
