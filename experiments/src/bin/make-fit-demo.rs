@@ -1,6 +1,7 @@
-//! Writes the demo stream `tes fit` runs on in the README: `data/fit-demo.csv`.
+//! Writes the demo stream `tes fit` runs on in the README (`data/fit-demo.csv`), or the
+//! robot-shaped stream `bench/peers/run` compares mDAGL and Vowpal Wabbit on.
 //!
-//! `cargo run -p tes-experiments --bin make-fit-demo -- [--seed 2017] [--rows 4000] [--out PATH]`
+//! `cargo run -p tes-experiments --bin make-fit-demo -- [--shape demo|robot] [--seed 2017] [--rows 4000] [--out PATH]`
 
 use std::fs::File;
 use std::io::BufWriter;
@@ -8,13 +9,51 @@ use std::io::Write;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use clap::Parser;
+use clap::{Parser, ValueEnum};
 use tes_experiments::write_labelled_csv;
 use tes_learning::mdagl::synthetic::SyntheticSpec;
 
-/// Generate the seeded labelled-CSV demo stream for `tes fit`.
+/// The streams this writes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum StreamShape {
+    /// 5 effects; an always-on bias (column 0) and 3 relevant features among 204 irrelevant
+    /// ones, each on half the time: `data/fit-demo.csv`.
+    Demo,
+    /// The arena's shape: 312 binary features each on with probability 15/312, 20 effects
+    /// drawn from a multinomial logistic model over 12 of them (weights in ±4), no bias
+    /// column.
+    Robot,
+}
+
+impl StreamShape {
+    fn spec(self) -> SyntheticSpec {
+        match self {
+            StreamShape::Demo => SyntheticSpec {
+                classes: 5,
+                features: 208,
+                relevant: 3,
+                density: 0.5,
+                bias: true,
+                weight_scale: 4.0,
+            },
+            StreamShape::Robot => SyntheticSpec {
+                classes: 20,
+                features: 312,
+                relevant: 12,
+                density: 15.0 / 312.0,
+                bias: false,
+                weight_scale: 4.0,
+            },
+        }
+    }
+}
+
+/// Generate a seeded labelled-CSV stream for `tes fit`.
 #[derive(Debug, Parser)]
 struct Args {
+    /// Which stream.
+    #[arg(long, value_enum, default_value = "demo")]
+    shape: StreamShape,
     /// Seed of the ground-truth model and of every row.
     #[arg(long, default_value_t = 2017)]
     seed: u64,
@@ -28,15 +67,7 @@ struct Args {
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    // 5 effects; an always-on bias (column 0), 3 relevant features among 204 irrelevant ones.
-    let spec = SyntheticSpec {
-        classes: 5,
-        features: 208,
-        relevant: 3,
-        density: 0.5,
-        bias: true,
-        weight_scale: 4.0,
-    };
+    let spec = args.shape.spec();
     let file =
         File::create(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
     let mut out = BufWriter::new(file);
@@ -45,10 +76,11 @@ fn main() -> Result<()> {
     out.flush()
         .with_context(|| format!("cannot write {}", args.out.display()))?;
     println!(
-        "wrote {} rows to {} (seed {}; bias column 0; relevant feature columns {:?})",
+        "wrote {} rows to {} (seed {}; {}relevant feature columns {:?})",
         args.rows,
         args.out.display(),
         args.seed,
+        if spec.bias { "bias column 0; " } else { "" },
         relevant
     );
     Ok(())
