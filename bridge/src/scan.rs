@@ -11,6 +11,7 @@ use std::path::Path;
 use serde::Serialize;
 use zbus::zvariant::{OwnedObjectPath, OwnedValue};
 
+use crate::transport::kernel_refusal;
 use crate::transport::link::OpenFailure;
 use crate::transport::{UsbBrick, find_bricks};
 
@@ -211,19 +212,10 @@ fn kernel_support() -> Result<(), OpenFailure> {
     runtime
         .block_on(async { bluer::rfcomm::Socket::new() })
         .map(drop)
-        .map_err(|e| match e.raw_os_error() {
-            Some(libc::EAFNOSUPPORT) | Some(libc::EPROTONOSUPPORT) => OpenFailure::new(
-                format!(
-                    "no Bluetooth on this machine ({e}: the kernel offers no Bluetooth sockets)"
-                ),
-                "use a machine with a Bluetooth adapter and the kernel's bluetooth and rfcomm \
-                 modules, or reach the brick by USB",
-            ),
-            Some(libc::EACCES) | Some(libc::EPERM) => OpenFailure::new(
-                format!("not allowed to open Bluetooth sockets ({e})"),
-                "run as a user allowed to use Bluetooth",
-            ),
-            _ => OpenFailure::bare(format!("cannot open a Bluetooth socket: {e}")),
+        .map_err(|e| {
+            kernel_refusal(&e).unwrap_or_else(|| {
+                OpenFailure::bare(format!("cannot open a Bluetooth socket: {e}"))
+            })
         })
 }
 
@@ -319,7 +311,7 @@ mod tests {
         let scan = scan_bluetooth(Path::new("/nonexistent/class/bluetooth"));
         let problem = scan.problem.expect("no Bluetooth here, one way or another");
         assert!(
-            problem.contains("no Bluetooth on this machine")
+            problem.contains("this machine has no Bluetooth")
                 || problem.contains("no Bluetooth adapter"),
             "{problem}"
         );

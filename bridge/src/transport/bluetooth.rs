@@ -174,18 +174,39 @@ fn brick_unreachable_fix(target: &BluetoothTarget) -> String {
     )
 }
 
+/// Why this machine's kernel will not give this program a Bluetooth socket at all, when that
+/// is why `e` happened: no Bluetooth in the kernel (for good), or no permission. `None` for
+/// every other error. Shared by a connection's [`diagnose`] and `tes-bridge scan`.
+pub(crate) fn kernel_refusal(e: &std::io::Error) -> Option<OpenFailure> {
+    let cause = e.to_string();
+    match e.raw_os_error()? {
+        libc::EAFNOSUPPORT | libc::EPROTONOSUPPORT => Some(
+            OpenFailure::new(
+                format!(
+                    "{cause}: this machine has no Bluetooth (its kernel offers no Bluetooth \
+                     sockets)"
+                ),
+                "use a machine with a Bluetooth adapter and the kernel's bluetooth and rfcomm \
+                 modules (`modprobe rfcomm`), or reach the brick by USB: `transport = \"usb\"`",
+            )
+            .for_good(),
+        ),
+        libc::EACCES | libc::EPERM => Some(OpenFailure::new(
+            format!("{cause}: not allowed to open Bluetooth sockets"),
+            "run as a user allowed to use Bluetooth (on most systems, any logged-in user; \
+             in a container, grant it the host's network and NET_RAW)",
+        )),
+        _ => None,
+    }
+}
+
 /// A failed connection, said as its cause and what to do.
 fn diagnose(e: &std::io::Error, target: &BluetoothTarget) -> OpenFailure {
+    if let Some(refusal) = kernel_refusal(e) {
+        return refusal;
+    }
     let cause = e.to_string();
     match e.raw_os_error() {
-        Some(libc::EAFNOSUPPORT) | Some(libc::EPROTONOSUPPORT) => OpenFailure::new(
-            format!(
-                "{cause}: this machine has no Bluetooth (its kernel offers no Bluetooth sockets)"
-            ),
-            "use a machine with a Bluetooth adapter and the kernel's bluetooth and rfcomm \
-             modules (`modprobe rfcomm`), or reach the brick by USB: `transport = \"usb\"`",
-        )
-        .for_good(),
         Some(libc::ENODEV) | Some(libc::EADDRNOTAVAIL) => OpenFailure::new(
             format!("{cause}: no Bluetooth adapter"),
             "plug in an adapter and check `bluetoothctl list`, or use `transport = \"usb\"`",
@@ -193,11 +214,6 @@ fn diagnose(e: &std::io::Error, target: &BluetoothTarget) -> OpenFailure {
         Some(libc::ENETDOWN) | Some(libc::ERFKILL) => OpenFailure::new(
             format!("{cause}: the Bluetooth adapter is off"),
             "switch it on: `bluetoothctl power on` (and `rfkill unblock bluetooth` if it is blocked)",
-        ),
-        Some(libc::EACCES) | Some(libc::EPERM) => OpenFailure::new(
-            format!("{cause}: not allowed to open Bluetooth sockets"),
-            "run as a user allowed to use Bluetooth (on most systems, any logged-in user; \
-             in a container, grant it the host's network and NET_RAW)",
         ),
         Some(libc::EBUSY) | Some(libc::EISCONN) => OpenFailure::new(
             format!("{cause}: the brick's link is in use"),

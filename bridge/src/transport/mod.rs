@@ -36,6 +36,7 @@ mod usb;
 
 use std::time::Duration;
 
+pub(crate) use bluetooth::kernel_refusal;
 pub use bluetooth::{
     BluetoothTarget, BluetoothTransport, NXT_RFCOMM_CHANNEL, RfcommDevice, StreamConnection,
 };
