@@ -617,12 +617,24 @@ fn an_experiment_stopped_with_ctrl_c_resumes_from_its_records_to_the_same_summar
         .chain([out.to_string_lossy().into_owned()])
         .collect()
     };
-    let mut child = tes_command()
+    let mut command = tes_command();
+    command
         .args(args(&cut))
         .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .expect("the tes binary runs");
+        .stderr(std::process::Stdio::null());
+    // A child inherits an ignored SIGINT (std resets only SIGPIPE and the signal mask).
+    // Twice in the full suite, never alone, the run went on to success under Ctrl-C, as it
+    // does when its SIGINT is ignored; the child gets SIGINT's default, as a terminal's
+    // foreground job has it.
+    // SAFETY: between fork and exec only `sigaction` runs, which is async-signal-safe.
+    unsafe {
+        std::os::unix::process::CommandExt::pre_exec(&mut command, || {
+            nix::sys::signal::signal(Signal::SIGINT, nix::sys::signal::SigHandler::SigDfl)
+                .map(drop)
+                .map_err(std::io::Error::from)
+        });
+    }
+    let mut child = command.spawn().expect("the tes binary runs");
     // Ctrl-C once the first of the six jobs is recorded, while the second runs. Six, not
     // three: on a loaded machine this thread can sleep through a short job or two, and the
     // run must still be going when the signal comes.
