@@ -630,18 +630,25 @@ impl Chunk {
             (Input::Dense, RowValues::Dense(x)) => self.dense.extend_from_slice(x),
             (_, RowValues::Dense(x)) => {
                 for (i, &v) in x.iter().enumerate().filter(|(_, v)| **v != 0.0) {
-                    self.indices.push(i as u32);
-                    self.values.push(v);
+                    self.push_entry(i as u32, v);
                 }
             }
             (_, RowValues::Sparse(x)) => {
                 for &(i, v) in x {
-                    self.indices.push(i);
-                    self.values.push(v);
+                    self.push_entry(i, v);
                 }
             }
         }
         self.ends.push(self.indices.len());
+    }
+
+    /// One non-zero feature; its value is kept only where the model reads it (the
+    /// sparse-binary input knows every value is 1).
+    fn push_entry(&mut self, index: u32, value: f64) {
+        self.indices.push(index);
+        if self.input == Input::Sparse {
+            self.values.push(value);
+        }
     }
 
     fn is_full(&self) -> bool {
