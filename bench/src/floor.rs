@@ -26,20 +26,34 @@ use tes_topics::{Command, Observation, Role, ServiceNames, StateAttributes, Worl
 
 use crate::error::{BenchError, Result};
 use crate::group::{free_port, remove_domain_of, wait_or_kill};
-use crate::latency::LatencySettings;
+use crate::latency::{Floor, LatencySettings};
 use crate::relay::{self, RelayConfig};
 
+/// The scheduling help the floor gets because the group got it: the acting thread's CPU
+/// for the hop, and a helper thread in the planner thread's place, polling as long after
+/// each message as the planner polls after each plan.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Helps {
+    /// The hop's CPU (the controller's acting thread's).
+    pub hop_cpu: Option<usize>,
+    /// The helper's CPU (the planner thread's).
+    pub helper_cpu: Option<usize>,
+    /// How long the helper polls after each message, µs (0: no helper).
+    pub helper_idle_spin_us: u64,
+}
+
 /// Runs the three relay processes (`relay`, to which each role and `--config FILE` are
-/// added) with the loop's services under `prefix`, one round trip every `cycle_us`, the hop
-/// on `hop_cpu`; returns the sink's reports: the round trip, and its first hop alone.
+/// added) with the loop's services under `prefix`, one round trip every `cycle_us`, with
+/// `helps`; returns the sink's reports (the round trip, and its first hop alone) and each
+/// role's CPU.
 pub fn relay_floor(
     dir: &Path,
     prefix: &str,
     cycle_us: u64,
     settings: &LatencySettings,
-    hop_cpu: Option<usize>,
+    helps: Helps,
     relay: &ChildCommand,
-) -> Result<(LatencyReport, LatencyReport)> {
+) -> Result<Floor> {
     let report = dir.join("floor.json");
     let hop_report = dir.join("floor-first-hop.json");
     let cfg = RelayConfig {
@@ -52,7 +66,10 @@ pub fn relay_floor(
         hop_report: Some(hop_report.clone()),
         // The source's own round trip is part of the cycle.
         gap_us: cycle_us.saturating_sub(50),
-        hop_cpu,
+        hop_cpu: helps.hop_cpu,
+        helper_cpu: helps.helper_cpu,
+        helper_idle_spin_us: helps.helper_idle_spin_us,
+        cpu_dir: Some(dir.to_owned()),
         ..RelayConfig::default()
     };
     cfg.check()?;
@@ -69,7 +86,21 @@ pub fn relay_floor(
         + Duration::from_micros(cfg.gap_us + 500)
             .saturating_mul(u32::try_from(cfg.messages).unwrap_or(u32::MAX));
     await_relays(&mut processes, limit)?;
-    Ok((load(&report)?, load(&hop_report)?))
+    let mut cpu = std::collections::BTreeMap::new();
+    for role in relay::ROLES {
+        let path = relay::cpu_file(dir, role);
+        let text = std::fs::read_to_string(&path).map_err(BenchError::io(format!(
+            "no floor CPU report at {}",
+            path.display()
+        )))?;
+        let used = serde_json::from_str(&text).map_err(BenchError::Malformed)?;
+        cpu.insert(role.trim_start_matches("relay-").to_owned(), used);
+    }
+    Ok(Floor {
+        round_trip: load(&report)?,
+        first_hop: load(&hop_report)?,
+        cpu,
+    })
 }
 
 /// Waits up to `limit` for the relay's processes, stops those still running, and checks they

@@ -16,7 +16,13 @@ use tes_runtime::latency::LatencyReport;
 use tes_topics::Role;
 
 use crate::error::{BenchError, GroupFailure, Result};
-use crate::latency::{CheckedLatency, Harness};
+use crate::latency::{CheckedLatency, Harness, Pace, REAL_LINK_DELAY_MS};
+use std::collections::BTreeMap;
+use tes_bridge::config::LinkDelayConfig;
+use tes_bridge::process::BridgeReport;
+use tes_perception_sim::process::PerceptionSummary;
+use tes_runtime::channel::Catches;
+use tes_runtime::cpu::CpuUse;
 
 /// The files of one latency run, in its directory.
 #[derive(Debug, Clone)]
@@ -27,6 +33,8 @@ pub(crate) struct RunFiles {
     pub(crate) controller_report: PathBuf,
     /// The bridge's latency report (observation → command at the bridge).
     pub(crate) bridge_report: PathBuf,
+    /// Perception's summary (its CPU).
+    pub(crate) perception_report: PathBuf,
 }
 
 impl RunFiles {
@@ -35,6 +43,7 @@ impl RunFiles {
             library: dir.join("library.tesl"),
             controller_report: dir.join("controller.json"),
             bridge_report: dir.join("bridge.json"),
+            perception_report: dir.join("perception.json"),
         }
     }
 }
@@ -127,6 +136,40 @@ impl Group {
     }
 }
 
+impl Group {
+    /// Each process's CPU over the measured actions, from the reports of the last run and the
+    /// controller's `summary`; and the anticipating receivers' catches.
+    pub(crate) fn cpu_and_catches(
+        &self,
+        summary: &ControllerSummary,
+    ) -> Result<(BTreeMap<String, CpuUse>, BTreeMap<String, Catches>)> {
+        let bridge = BridgeReport::load(&self.files.bridge_report).map_err(BenchError::io(
+            format!("no bridge report at {}", self.files.bridge_report.display()),
+        ))?;
+        let path = &self.files.perception_report;
+        let text = std::fs::read_to_string(path).map_err(BenchError::io(format!(
+            "no perception report at {}",
+            path.display()
+        )))?;
+        let perception: PerceptionSummary =
+            serde_json::from_str(&text).map_err(BenchError::Malformed)?;
+        let cpu = [
+            ("perception-sim", perception.cpu),
+            ("controller", summary.cpu),
+            ("controller/acting", summary.acting_thread_cpu),
+            ("bridge", bridge.cpu),
+        ]
+        .into_iter()
+        .filter_map(|(name, used)| used.map(|u| (name.to_owned(), u)))
+        .collect();
+        let catches = [("controller", summary.catches), ("bridge", bridge.catches)]
+            .into_iter()
+            .filter_map(|(name, c)| c.map(|c| (name.to_owned(), c)))
+            .collect();
+        Ok((cpu, catches))
+    }
+}
+
 /// Runs the group `file` describes until it stops, its events told to the harness's
 /// observer; a failed verdict is an error, said as `what` with what failed.
 fn launch(file: &LaunchFile, what: &'static str, harness: &mut Harness<'_>) -> Result<()> {
@@ -178,6 +221,19 @@ fn group_file(dir: &Path, prefix: &str, latency: &CheckedLatency, files: &RunFil
         ..LaunchFile::default()
     };
     file.perception.actions = latency.total();
+    file.perception.report = Some(files.perception_report.clone());
+    file.perception.warmup_actions = s.warmup;
+    if s.pace == Pace::Real {
+        // The robot's pace: the paper's settle time, the brick in real time, and every
+        // reply of the brick as late as over Bluetooth.
+        file.launch.real_time_factor = 1.0;
+        let (mean_ms, jitter_ms) = REAL_LINK_DELAY_MS;
+        file.bridge.link_delay = LinkDelayConfig {
+            enabled: true,
+            mean_ms,
+            jitter_ms,
+        };
+    }
     // The return path (robot motion) is not measured: block, as the floor's source does.
     file.perception.wait = WaitStrategy::Block;
     file.keep("perception", "wait");
@@ -193,7 +249,7 @@ fn group_file(dir: &Path, prefix: &str, latency: &CheckedLatency, files: &RunFil
     c.planning = s.planning;
     c.order = s.order;
     if let Some(us) = s.planner_idle_spin_us {
-        c.planner_idle_spin_us = us;
+        c.planner_idle_spin_us = Some(us);
     }
     // The bridge's [ipc] table as the bench writes it: the launch-wide prefix and wait go in.
     let ipc = &mut file.bridge.ipc;

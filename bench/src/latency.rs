@@ -36,7 +36,9 @@ use tes_launch::ChildCommand;
 use tes_launch::event::Observer;
 use tes_learning::library::store::StoredLibrary;
 use tes_runtime::affinity::Placement;
+use tes_runtime::channel::Catches;
 use tes_runtime::channel::WaitStrategy;
+use tes_runtime::cpu::CpuUse;
 use tes_runtime::latency::LatencyReport;
 
 use crate::error::{BenchError, Result};
@@ -56,6 +58,50 @@ pub enum Via {
     /// TCP; the floor the same two hops over a Zenoh link with no work.
     Zenoh,
 }
+
+/// The pace the group runs at.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Pace {
+    /// Actions back to back: real-time factor 0, the simulated brick 200× faster than a
+    /// real one, no settle time.
+    #[default]
+    Fastest,
+    /// The robot's own: real-time factor 1 (the paper's 200 ms settle after each motion, the
+    /// simulated brick in real time) and a Bluetooth link's delay on every reply (30 ± 10
+    /// ms), about a third of a second per action, in which every CPU goes idle.
+    Real,
+}
+
+impl Pace {
+    /// Actions measured by default: at the robot's pace ~5 minutes a side.
+    pub fn default_actions(self) -> u64 {
+        match self {
+            Self::Fastest => 10_000,
+            Self::Real => 1_000,
+        }
+    }
+
+    /// Actions run first and left out, by default.
+    pub fn default_warmup(self) -> u64 {
+        match self {
+            Self::Fastest => 1_000,
+            Self::Real => 50,
+        }
+    }
+}
+
+impl fmt::Display for Pace {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::Fastest => "fastest",
+            Self::Real => "real",
+        })
+    }
+}
+
+/// The link delay of the robot's pace: a real NXT's Bluetooth, per reply.
+pub const REAL_LINK_DELAY_MS: (u64, u64) = (30, 10);
 
 /// The settings of a latency run (`tes bench latency`'s flags).
 #[derive(Debug, Clone, PartialEq)]
@@ -91,6 +137,8 @@ pub struct LatencySettings {
     pub record_blocks: u64,
     /// How the processes reach each other.
     pub via: Via,
+    /// The pace the group runs at.
+    pub pace: Pace,
 }
 
 impl Default for LatencySettings {
@@ -112,6 +160,7 @@ impl Default for LatencySettings {
             record: false,
             record_blocks: 4,
             via: Via::Shm,
+            pace: Pace::Fastest,
         }
     }
 }
@@ -174,6 +223,17 @@ impl CheckedLatency {
     pub fn total(&self) -> u64 {
         self.settings.actions + self.settings.warmup
     }
+
+    /// How long the controller's planner thread polls after a plan, µs: the floor's helper
+    /// polls as long.
+    pub fn planner_idle_spin_us(&self) -> u64 {
+        let s = &self.settings;
+        let config = ControllerConfig {
+            planner_idle_spin_us: s.planner_idle_spin_us,
+            ..ControllerConfig::default()
+        };
+        config.planner_idle_spin(s.wait).as_micros() as u64
+    }
 }
 
 /// The programs the harness starts: the command line's own executable in each role.
@@ -215,6 +275,8 @@ pub enum Note {
     Ours {
         /// Actions, warm-up included.
         total: u64,
+        /// At which pace.
+        pace: Pace,
     },
     /// The floor runs.
     Floor {
@@ -247,9 +309,22 @@ impl fmt::Display for Note {
                 f,
                 "bench: training a {views}-view library in Env 1 and Env 2"
             ),
-            Self::Ours { total } => write!(
+            Self::Ours {
+                total,
+                pace: Pace::Fastest,
+            } => write!(
                 f,
                 "bench: ours — perception-sim → controller → bridge on Env 3, {total} actions"
+            ),
+            Self::Ours {
+                total,
+                pace: Pace::Real,
+            } => write!(
+                f,
+                "bench: ours — perception-sim → controller → bridge on Env 3, {total} actions \
+                 at the robot's pace (200 ms settle, Bluetooth-like link delay): about {} \
+                 minutes, and as long again for the floor",
+                (total * 330).div_ceil(60_000)
             ),
             Self::Floor {
                 via,
@@ -346,6 +421,22 @@ pub struct LatencyResult {
     pub ratio_p50: f64,
     /// Ours over the floor's, at the 99th percentile.
     pub ratio_p99: f64,
+    /// Whether the floor can be compared with: a ratio below [`COMPARABLE_RATIO`] means the
+    /// group had a help the floor lacked, not that it beat its transport.
+    pub floor_comparable: bool,
+    /// The pace the group ran at: `fastest` or `real`.
+    pub pace: Pace,
+    /// Each process's CPU over the measured actions, by name (`perception-sim`,
+    /// `controller`, `bridge`), and the controller's acting thread alone
+    /// (`controller/acting`).
+    pub cpu: std::collections::BTreeMap<String, CpuUse>,
+    /// The floor's processes' (`source`, `hop`, `sink`; empty over Zenoh).
+    pub floor_cpu: std::collections::BTreeMap<String, CpuUse>,
+    /// Waiting by `anticipate`: how observations came against the controller's poll
+    /// windows, and commands against the bridge's.
+    pub catches: std::collections::BTreeMap<String, Catches>,
+    /// How long the planner thread polled after each plan, µs.
+    pub planner_idle_spin_us: u64,
     /// Mean time between actions in our run, which the floor's source kept too, µs.
     pub cycle_us: u64,
     /// The seed.
@@ -392,12 +483,29 @@ impl LatencyResult {
     }
 }
 
-/// Our group's run: the bridge's report, the controller's summary, and the mean time between
-/// actions.
+/// Ours over the floor's below this, at the median or the 99th percentile, and the floor is
+/// not comparable.
+pub const COMPARABLE_RATIO: f64 = 0.9;
+
+/// Our group's run: the bridge's report, the controller's summary, the processes' CPU, and
+/// the mean time between actions.
 struct Ours {
     report: LatencyReport,
     controller: ControllerSummary,
+    cpu: std::collections::BTreeMap<String, CpuUse>,
+    catches: std::collections::BTreeMap<String, Catches>,
     cycle_us: u64,
+}
+
+/// What a floor measured: its round trip, its first hop, and its processes' CPU.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Floor {
+    /// Observation stamped → command at the sink.
+    pub round_trip: LatencyReport,
+    /// Observation stamped → the hop's command published.
+    pub first_hop: LatencyReport,
+    /// Each role's CPU (`source`, `hop`, `sink`; empty where not measured).
+    pub cpu: std::collections::BTreeMap<String, CpuUse>,
 }
 
 /// Runs the group, then the floor, then (with `record`) the recorder's comparison; keeps the
@@ -428,13 +536,13 @@ pub fn run(latency: &CheckedLatency, harness: &mut Harness<'_>) -> Result<Latenc
     };
     let group = Group::new(dir, &prefix, latency, stored);
     let ours = measure_ours(latency, &group, harness)?;
-    let (floor, floor_decision) = measure_floor(latency, dir, &prefix, ours.cycle_us, harness)?;
+    let floor = measure_floor(latency, dir, &prefix, ours.cycle_us, harness)?;
     let recorder = if s.record {
         Some(recorder_cost::compare(&group, s, harness)?)
     } else {
         None
     };
-    Ok(result(latency, ours, &floor, floor_decision, recorder))
+    Ok(result(latency, ours, floor, recorder))
 }
 
 /// Runs our group (shared memory or split) and checks it measured what was asked.
@@ -445,12 +553,16 @@ fn measure_ours(
 ) -> Result<Ours> {
     let s = &latency.settings;
     let total = latency.total();
-    (harness.notes)(&Note::Ours { total });
+    (harness.notes)(&Note::Ours {
+        total,
+        pace: s.pace,
+    });
     let started = Instant::now();
     let (report, controller) = match s.via {
         Via::Shm => group.run(&group.file, harness)?,
         Via::Zenoh => group.run_split(harness)?,
     };
+    let (cpu, catches) = group.cpu_and_catches(&controller)?;
     let elapsed = started.elapsed();
     if report.count < s.actions {
         return Err(BenchError::Run(format!(
@@ -468,6 +580,8 @@ fn measure_ours(
     Ok(Ours {
         report,
         controller,
+        cpu,
+        catches,
         cycle_us,
     })
 }
@@ -479,7 +593,7 @@ fn measure_floor(
     prefix: &str,
     cycle_us: u64,
     harness: &mut Harness<'_>,
-) -> Result<(LatencyReport, LatencyReport)> {
+) -> Result<Floor> {
     let s = &latency.settings;
     (harness.notes)(&Note::Floor {
         via: s.via,
@@ -489,8 +603,23 @@ fn measure_floor(
     });
     let hop_cpu = latency.placement.acting;
     match s.via {
-        Via::Shm => floor::relay_floor(dir, prefix, cycle_us, s, hop_cpu, &harness.programs.relay),
-        Via::Zenoh => floor::zenoh_floor(dir, cycle_us, s, hop_cpu, &harness.programs.floor_hop),
+        Via::Shm => {
+            let helps = floor::Helps {
+                hop_cpu,
+                helper_cpu: latency.placement.planner,
+                helper_idle_spin_us: latency.planner_idle_spin_us(),
+            };
+            floor::relay_floor(dir, prefix, cycle_us, s, helps, &harness.programs.relay)
+        }
+        Via::Zenoh => {
+            let (round_trip, first_hop) =
+                floor::zenoh_floor(dir, cycle_us, s, hop_cpu, &harness.programs.floor_hop)?;
+            Ok(Floor {
+                round_trip,
+                first_hop,
+                cpu: Default::default(),
+            })
+        }
     }
 }
 
@@ -503,16 +632,26 @@ fn ratio(ours: u64, floor: u64) -> f64 {
 fn result(
     latency: &CheckedLatency,
     ours: Ours,
-    floor: &LatencyReport,
-    floor_decision: LatencyReport,
+    floor: Floor,
     recorder: Option<RecorderComparison>,
 ) -> LatencyResult {
     let s = &latency.settings;
     let Ours {
         report,
         controller,
+        cpu,
+        catches,
         cycle_us,
     } = ours;
+    let Floor {
+        round_trip: floor,
+        first_hop: floor_decision,
+        cpu: floor_cpu,
+    } = floor;
+    let (ratio_p50, ratio_p99) = (
+        ratio(report.p50_us, floor.p50_us),
+        ratio(report.p99_us, floor.p99_us),
+    );
     LatencyResult {
         via: s.via,
         wait: s.wait.to_string(),
@@ -540,8 +679,14 @@ fn result(
         floor_max_us: floor.max_us,
         floor_misses: floor.misses,
         floor_decision,
-        ratio_p50: ratio(report.p50_us, floor.p50_us),
-        ratio_p99: ratio(report.p99_us, floor.p99_us),
+        ratio_p50,
+        ratio_p99,
+        floor_comparable: ratio_p50 >= COMPARABLE_RATIO && ratio_p99 >= COMPARABLE_RATIO,
+        pace: s.pace,
+        cpu,
+        floor_cpu,
+        catches,
+        planner_idle_spin_us: latency.planner_idle_spin_us(),
         cycle_us,
         seed: s.seed,
         acting_cpu: latency.placement.acting,

@@ -22,4 +22,6 @@ pub mod relay;
 pub mod scaling;
 
 pub use error::{BenchError, GroupFailure};
-pub use latency::{CheckedLatency, Harness, LatencyResult, LatencySettings, Note, Programs, Via};
+pub use latency::{
+    CheckedLatency, Harness, LatencyResult, LatencySettings, Note, Pace, Programs, Via,
+};

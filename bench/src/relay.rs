@@ -28,9 +28,12 @@ use tes_runtime::channel::{
     self, Idle, Inbox, IpcError, LatestInbox, LatestOutbox, Outbox, WaitStrategy,
 };
 use tes_runtime::clock::monotonic_ns;
+use tes_runtime::cpu::CpuMeter;
 use tes_runtime::latency::{LatencyRecorder, LatencyReport};
 use tes_runtime::settings::{self, SettingError};
-use tes_topics::{Command, FeatureBits, MotorState, Observation, ServiceNames, observation_flags};
+use tes_topics::{
+    Command, FeatureBits, HeadsUp, MotorState, Observation, ServiceNames, observation_flags,
+};
 
 /// The roles, as `tes child` names them.
 pub const ROLES: [&str; 3] = ["relay-source", "relay-hop", "relay-sink"];
@@ -61,6 +64,15 @@ pub struct RelayConfig {
     /// Pin the hop to this CPU, as the controller's `acting_cpu` pins its acting thread
     /// (default: unpinned).
     pub hop_cpu: Option<usize>,
+    /// The controller planner thread's counterpart: after each observation the hop wakes a
+    /// helper thread that polls for the next one this long, under SCHED_IDLE, as the
+    /// planner thread polls for its next job after a plan (0: no helper).
+    pub helper_idle_spin_us: u64,
+    /// The helper's CPU, as the planner thread's (default: unpinned).
+    pub helper_cpu: Option<usize>,
+    /// Each role writes its CPU over the round trips after the warm-up here, as
+    /// `<role>-cpu.json` (default: nowhere).
+    pub cpu_dir: Option<PathBuf>,
 }
 
 impl Default for RelayConfig {
@@ -76,6 +88,9 @@ impl Default for RelayConfig {
             idle_timeout_ms: 10_000,
             gap_us: 0,
             hop_cpu: None,
+            helper_idle_spin_us: 0,
+            helper_cpu: None,
+            cpu_dir: None,
         }
     }
 }
@@ -130,6 +145,7 @@ impl RelayConfig {
             ));
         }
         settings::cpu(PROCESS, "hop_cpu", self.hop_cpu)?;
+        settings::cpu(PROCESS, "helper_cpu", self.helper_cpu)?;
         Ok(CheckedRelay {
             config: self.clone(),
         })
@@ -137,6 +153,25 @@ impl RelayConfig {
 
     fn names(&self) -> ServiceNames {
         ServiceNames::with_prefix(&self.service_prefix)
+    }
+
+    /// Marks `meter` after round trip `seq` once the warm-up is over.
+    fn mark(&self, meter: &mut CpuMeter, seq: u64) {
+        if seq >= self.warmup {
+            meter.mark();
+        }
+    }
+
+    /// Writes `role`'s CPU to `cpu_dir`, if set.
+    fn save_cpu(&self, role: &str, meter: &CpuMeter) -> Result<(), RelayError> {
+        let (Some(dir), Some(used)) = (&self.cpu_dir, meter.report()) else {
+            return Ok(());
+        };
+        let path = cpu_file(dir, role);
+        serde_json::to_string_pretty(&used)
+            .map_err(std::io::Error::other)
+            .and_then(|text| std::fs::write(&path, text))
+            .map_err(|error| RelayError::Report { path, error })
     }
 }
 
@@ -166,6 +201,11 @@ pub enum RelayError {
     /// The hop could not be pinned to `hop_cpu`.
     #[error("relay-hop: {0}")]
     Affinity(#[from] tes_runtime::affinity::AffinityError),
+}
+
+/// Where `role` writes its CPU in `dir`.
+pub fn cpu_file(dir: &std::path::Path, role: &str) -> PathBuf {
+    dir.join(format!("{role}-cpu.json"))
 }
 
 /// Runs one relay role until its messages are done or `stop` is raised. The sink returns its
@@ -204,6 +244,13 @@ fn source(
         0,
         WaitStrategy::Block,
     )?;
+    let heads_up: Outbox<HeadsUp> = Outbox::open(
+        node,
+        &names.observation_due,
+        &names.observation_due_event,
+        0,
+    )?;
+    let mut cpu = CpuMeter::process();
     let gap = Duration::from_micros(cfg.gap_us);
     // The arena's payload: a full feature vector's worth of bits.
     let mut features = FeatureBits::EMPTY;
@@ -212,7 +259,11 @@ fn source(
     }
     for seq in 1..=cfg.messages {
         if !gap.is_zero() && seq > 1 {
-            std::thread::sleep(gap);
+            // As perception says when its observation is due, as the robot starts to settle,
+            // and keeps its word.
+            let due_ns = monotonic_ns() + gap.as_nanos() as u64;
+            heads_up.send(HeadsUp { seq, due_ns })?;
+            tes_runtime::anticipate::sleep_until(due_ns);
         }
         let last = seq == cfg.messages;
         let started = Instant::now();
@@ -229,9 +280,12 @@ fn source(
             })?;
             loop {
                 match acks.next(Duration::from_millis(100), stop)? {
-                    Ok(ack) if ack.after_command == seq => break 'resend,
+                    Ok(ack) if ack.after_command == seq => {
+                        cfg.mark(&mut cpu, seq);
+                        break 'resend;
+                    }
                     Ok(_) => continue, // a late answer to a resent observation
-                    Err(Idle::Stopped) => return Ok(()),
+                    Err(Idle::Stopped) => return cfg.save_cpu("relay-source", &cpu),
                     Err(Idle::Timeout) if started.elapsed() > idle => {
                         return Err(RelayError::Silent(idle, "relay-source"));
                     }
@@ -240,7 +294,7 @@ fn source(
             }
         }
     }
-    Ok(())
+    cfg.save_cpu("relay-source", &cpu)
 }
 
 fn hop(
@@ -252,16 +306,22 @@ fn hop(
 ) -> Result<(), RelayError> {
     let names = cfg.names();
     let observations: Inbox<Observation> =
-        Inbox::open(node, &names.observation, &names.observation_event, 0, wait)?;
+        Inbox::open(node, &names.observation, &names.observation_event, 0, wait)?.with_heads_up(
+            node,
+            &names.observation_due,
+            &names.observation_due_event,
+        )?;
     let out: LatestOutbox<Command> =
         LatestOutbox::open(node, &names.command, &names.command_event)?;
     if let Some(cpu) = cfg.hop_cpu {
         tes_runtime::affinity::pin_this_thread(cpu)?;
     }
+    let helper = Helper::spawn(cfg);
+    let mut cpu = CpuMeter::process();
     loop {
         let obs = match observations.next(idle, stop)? {
             Ok(o) => o,
-            Err(Idle::Stopped) => return Ok(()),
+            Err(Idle::Stopped) => return cfg.save_cpu("relay-hop", &cpu),
             Err(Idle::Timeout) => return Err(RelayError::Silent(idle, "relay-hop")),
         };
         out.send(Command {
@@ -271,8 +331,59 @@ fn hop(
             observed_ns: obs.stamp_ns,
             ..Command::default()
         })?;
+        helper.wake();
+        cfg.mark(&mut cpu, obs.seq);
         if obs.flags & observation_flags::TERMINAL != 0 {
-            return Ok(());
+            return cfg.save_cpu("relay-hop", &cpu);
+        }
+    }
+}
+
+/// The hop's counterpart of the controller's planner thread: woken after each observation,
+/// it polls for the next wake-up for `helper_idle_spin_us` under SCHED_IDLE, then sleeps —
+/// so whatever the planner's idle poll does for the controller's CPUs, it does for the
+/// floor's. Ends with the hop.
+struct Helper {
+    wakes: Option<std::sync::mpsc::SyncSender<()>>,
+}
+
+impl Helper {
+    fn spawn(cfg: &RelayConfig) -> Self {
+        if cfg.helper_idle_spin_us == 0 {
+            return Self { wakes: None };
+        }
+        let (wakes, jobs) = std::sync::mpsc::sync_channel::<()>(1);
+        let spin = Duration::from_micros(cfg.helper_idle_spin_us);
+        let cpu = cfg.helper_cpu;
+        let _ = std::thread::Builder::new()
+            .name("floor-helper".into())
+            .spawn(move || {
+                if let Some(cpu) = cpu {
+                    let _ = tes_runtime::affinity::pin_this_thread(cpu);
+                }
+                let spin = if tes_runtime::affinity::lower_this_threads_priority() {
+                    spin
+                } else {
+                    Duration::ZERO
+                };
+                while jobs.recv().is_ok() {
+                    let start = Instant::now();
+                    while start.elapsed() < spin {
+                        match jobs.try_recv() {
+                            Ok(()) => continue,
+                            Err(std::sync::mpsc::TryRecvError::Empty) => std::hint::spin_loop(),
+                            Err(std::sync::mpsc::TryRecvError::Disconnected) => return,
+                        }
+                    }
+                }
+            });
+        Self { wakes: Some(wakes) }
+    }
+
+    /// Hands the helper a job, as the acting loop hands the planner the model.
+    fn wake(&self) {
+        if let Some(w) = &self.wakes {
+            let _ = w.try_send(());
         }
     }
 }
@@ -286,9 +397,14 @@ fn sink(
 ) -> Result<LatencyReport, RelayError> {
     let names = cfg.names();
     let commands: LatestInbox<Command> =
-        LatestInbox::open(node, &names.command, &names.command_event, wait)?;
+        LatestInbox::open(node, &names.command, &names.command_event, wait)?.with_heads_up(
+            node,
+            &names.observation_due,
+            &names.observation_due_event,
+        )?;
     let acks: Outbox<MotorState> =
         Outbox::open(node, &names.motor_state, &names.motor_state_event, 0)?;
+    let mut cpu = CpuMeter::process();
     let mut latency = LatencyRecorder::new(cfg.budget_us, cfg.warmup);
     let mut first_hop = LatencyRecorder::new(cfg.budget_us, cfg.warmup);
     let mut last_seq = 0;
@@ -311,10 +427,12 @@ fn sink(
             stamp_ns: monotonic_ns(),
             ..MotorState::default()
         })?;
+        cfg.mark(&mut cpu, cmd.seq);
         if cmd.seq == cfg.messages {
             break;
         }
     }
+    cfg.save_cpu("relay-sink", &cpu)?;
     let report = latency.report();
     for (path, report) in [
         (&cfg.report, &report),

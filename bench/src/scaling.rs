@@ -72,7 +72,7 @@ pub fn measure(
         },
         PlannerThreadOptions {
             cpu: None,
-            idle_spin: std::time::Duration::from_micros(defaults.planner_idle_spin_us),
+            idle_spin: defaults.planner_idle_spin(defaults.wait),
         },
     )?;
     planner.offer(agent.model_mut())?;

@@ -335,7 +335,7 @@ pub struct IpcConfig {
     pub service_prefix: String,
     /// How the bridge waits for commands.
     ///
-    /// Values: `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>`.
+    /// Values: `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>` | `anticipate`.
     pub wait: WaitStrategy,
     /// The per-action budget the observation-to-command latency is held to; overruns are
     /// counted in the latency report.

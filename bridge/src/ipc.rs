@@ -30,6 +30,8 @@
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
+use tes_runtime::channel::Catches;
+use tes_runtime::cpu::{CpuMeter, CpuUse};
 
 use iceoryx2::prelude::*;
 use tes_runtime::channel::{Idle, LatestInbox, Outbox, WaitStrategy};
@@ -64,7 +66,7 @@ impl RunOptions {
 }
 
 /// What a finished [`run`] did.
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct RunSummary {
     /// Commands received.
     pub commands: u64,
@@ -84,6 +86,10 @@ pub struct RunSummary {
     pub link_down: Option<LinkDown>,
     /// The link's round trips (filled in by [`crate::process::run`]).
     pub link: LinkReport,
+    /// The process's CPU over the commands after the warm-up.
+    pub cpu: Option<CpuUse>,
+    /// Waiting by `anticipate`: how commands came against their poll windows.
+    pub catches: Option<Catches>,
 }
 
 impl std::fmt::Display for RunSummary {
@@ -227,7 +233,11 @@ pub fn run_with<T: Transport, C: Clock>(
     }
     let node = tes_runtime::channel::group_node(names, Role::Bridge, false)?;
     let mut commands: LatestInbox<Command> =
-        LatestInbox::open(&node, &names.command, &names.command_event, wait)?;
+        LatestInbox::open(&node, &names.command, &names.command_event, wait)?
+            // Waiting by `anticipate`: a command follows perception's observation by the
+            // controller's decision, so perception's word of when it is due serves here too.
+            .with_heads_up(&node, &names.observation_due, &names.observation_due_event)?;
+    let mut cpu = CpuMeter::process();
     let states: Outbox<MotorState> =
         Outbox::open(&node, &names.motor_state, &names.motor_state_event, 0)?;
     let mut progress = ProgressOutbox::open(&node, names, Role::Bridge)?;
@@ -240,7 +250,7 @@ pub fn run_with<T: Transport, C: Clock>(
             seq = cmd.seq,
             "taking over the command in flight (its motion was never reported)"
         );
-        on_command(bridge, clock, latency, cmd, &mut summary);
+        on_command(bridge, clock, latency, cmd, &mut summary, &mut cpu);
     }
     let mut link = LinkWatch::new(link_timeout);
     let mut was_down = false;
@@ -252,10 +262,10 @@ pub fn run_with<T: Transport, C: Clock>(
             .clamp(Duration::from_micros(20), IDLE_TICK);
         match commands.next(timeout, &stop)? {
             Ok(cmd) => {
-                on_command(bridge, clock, latency, cmd, &mut summary);
+                on_command(bridge, clock, latency, cmd, &mut summary, &mut cpu);
                 // Take every other pending command too.
                 while let Some(cmd) = commands.try_next()? {
-                    on_command(bridge, clock, latency, cmd, &mut summary);
+                    on_command(bridge, clock, latency, cmd, &mut summary, &mut cpu);
                 }
             }
             Err(Idle::Timeout) => {
@@ -303,20 +313,27 @@ pub fn run_with<T: Transport, C: Clock>(
     }
     bridge.stop();
     summary.latency = latency.report();
+    summary.cpu = cpu.report();
+    summary.catches = commands.catches();
     tracing::info!(%summary, "bridge loop stopped");
     Ok(summary)
 }
 
-/// One received command: its latency recorded first, then handed to the brick.
+/// One received command: its latency recorded first, then handed to the brick; the CPU
+/// meter is marked once the warm-up is over.
 fn on_command<T: Transport, C: Clock>(
     bridge: &mut Bridge<T>,
     clock: &C,
     latency: &mut LatencyRecorder,
     cmd: Command,
     summary: &mut RunSummary,
+    cpu: &mut CpuMeter,
 ) {
     if cmd.observed_ns != 0 {
         latency.record_ns(monotonic_ns().saturating_sub(cmd.observed_ns));
+        if latency.warmed_up() {
+            cpu.mark();
+        }
     }
     summary.commands += 1;
     if cmd.action != tes_topics::KEEP_ALIVE_ACTION {

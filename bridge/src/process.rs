@@ -117,7 +117,7 @@ fn transport(cfg: &BridgeConfig, clock: ScaledClock) -> Result<Box<dyn Transport
 /// The bridge's report at exit (`[ipc] latency_report`, a launch's `bridge-report.json`):
 /// the observation-to-command latency's percentiles at the top level, and the link's round
 /// trips under `link`.
-#[derive(Debug, Clone, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct BridgeReport {
     /// Observation → command latency of the commands received.
     #[serde(flatten)]
@@ -131,6 +131,12 @@ pub struct BridgeReport {
     /// How long the bridge ran (wall time), ms.
     #[serde(default)]
     pub run_ms: u64,
+    /// The process's CPU over the commands after the warm-up.
+    #[serde(default)]
+    pub cpu: Option<tes_runtime::cpu::CpuUse>,
+    /// Waiting by `anticipate`: how commands came against their poll windows.
+    #[serde(default)]
+    pub catches: Option<tes_runtime::channel::Catches>,
 }
 
 impl BridgeReport {
@@ -141,6 +147,8 @@ impl BridgeReport {
             link: summary.link.clone(),
             commands: summary.commands,
             run_ms,
+            cpu: summary.cpu,
+            catches: summary.catches,
         }
     }
 

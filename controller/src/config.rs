@@ -47,7 +47,7 @@ pub struct ControllerConfig {
     pub budget_us: u64,
     /// How the acting loop waits for observations.
     ///
-    /// Values: `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>`.
+    /// Values: `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>` | `anticipate`.
     pub wait: WaitStrategy,
     /// Seed of the exploration.
     ///
@@ -108,8 +108,8 @@ pub struct ControllerConfig {
     ///
     /// Values: ms; 0 = never; at most half the bridge's watchdog deadline in wall time.
     pub keepalive_ms: u64,
-    /// The CPU the acting loop's thread runs on. `auto`: with `wait = "block"` on two or
-    /// more CPUs, the last CPU this process may run on, else unpinned; `none`: unpinned.
+    /// The CPU the acting loop's thread runs on. `auto`: with `wait = "block"` or `"anticipate"`
+    /// on two or more CPUs, the last CPU this process may run on, else unpinned; `none`: unpinned.
     /// Pinned, a blocking thread wakes where its memory is warm instead of wherever the
     /// scheduler finds room, which shortens both its wake-up and its compute
     /// (docs/performance.md). A spinning thread never sleeps, so `auto` leaves it unpinned.
@@ -152,11 +152,13 @@ pub struct ControllerConfig {
     /// all if the system refuses SCHED_IDLE). Polling keeps its CPU out of the idle halt: a
     /// bridge that sleeps on events, woken by a command, is put on that CPU and runs at
     /// once, where a halted virtual CPU takes tens of µs to come back; and the next
-    /// hand-over wakes no sleeping thread. 5 ms covers an action at the simulator's fastest
-    /// pace (about 2 ms); at the physical pace it is a few percent of a CPU's idle time.
+    /// hand-over wakes no sleeping thread. But at the simulator's fastest pace, where the
+    /// next job comes within the spin, it never stops: a core kept busy. Unset, it follows
+    /// `wait`: 5000 µs with `spin` and `spin-then-block` (which trade CPU for latency
+    /// anyway), 0 with `block` and `anticipate`.
     ///
-    /// Values: µs; 0 = sleep at once.
-    pub planner_idle_spin_us: u64,
+    /// Values: µs; 0 = sleep at once; unset = by `wait`.
+    pub planner_idle_spin_us: Option<u64>,
 }
 
 /// Where the controller's threads run: CPUs, or `None` for unpinned
@@ -260,7 +262,7 @@ impl Default for ControllerConfig {
             planning: PlanningMode::Auto,
             plan_slice: 32,
             order: Order::DecideFirst,
-            planner_idle_spin_us: 5000,
+            planner_idle_spin_us: None,
         }
     }
 }
@@ -271,6 +273,10 @@ pub type ConfigError = tes_runtime::settings::SettingError;
 
 /// The process name [`ConfigError`]s of these settings carry.
 pub const PROCESS: &str = "controller";
+
+/// The planner thread's poll after a plan when `planner_idle_spin_us` is unset and the acting
+/// loop spins, µs.
+pub const DEFAULT_PLANNER_IDLE_SPIN_US: u64 = 5000;
 
 /// A [`ControllerConfig`] that passed [`ControllerConfig::check`], with what its keys resolve
 /// to on this machine: the wait strategy, who plans, where the threads run, the durations.
@@ -390,6 +396,17 @@ impl ControllerConfig {
         })
     }
 
+    /// How long the planner thread polls after a plan: `planner_idle_spin_us`, or by
+    /// `strategy` when unset (see the key).
+    pub fn planner_idle_spin(&self, strategy: WaitStrategy) -> Duration {
+        let us = self.planner_idle_spin_us.unwrap_or(if strategy.spins() {
+            DEFAULT_PLANNER_IDLE_SPIN_US
+        } else {
+            0
+        });
+        Duration::from_micros(us)
+    }
+
     /// Where the acting and planner threads run, `auto` resolved (see
     /// [`ControllerConfig::acting_cpu`]); a CPU this process may not run on is refused,
     /// naming its key.
@@ -402,7 +419,7 @@ impl ControllerConfig {
         let acting = match self.acting_cpu {
             Placement::Cpu(c) => Some(c),
             Placement::Unpinned => None,
-            Placement::Auto if strategy == WaitStrategy::Block => pair.map(|(rt, _)| rt),
+            Placement::Auto if !strategy.spins() => pair.map(|(rt, _)| rt),
             Placement::Auto => None,
         };
         let planner = match (planning, self.planner_cpu) {
@@ -662,7 +679,7 @@ mod tests {
                 planning: PlanningMode::BetweenPolls,
                 plan_slice: 5,
                 order: Order::LearnFirst,
-                planner_idle_spin_us: 0,
+                planner_idle_spin_us: Some(0),
             },
             ControllerConfig {
                 wait: WaitStrategy::Spin,

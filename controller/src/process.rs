@@ -13,6 +13,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
+use tes_runtime::cpu::CpuMeter;
 
 use tes_learning::agents::Tes;
 use tes_learning::cmdp::CmdpStructure;
@@ -193,7 +194,9 @@ pub fn run(
             &names.observation_event,
             0,
             checked.wait(),
-        )?,
+        )?
+        // Waiting by `anticipate`, perception's word of when the next observation is due.
+        .with_heads_up(&node, &names.observation_due, &names.observation_due_event)?,
         // A blackboard, not a publisher: sending a command allocates nothing (see LatestOutbox).
         commands: LatestOutbox::open(&node, &names.command, &names.command_event)?,
         // Every command again, by its number, for a recorder (written once the command is
@@ -230,6 +233,8 @@ pub fn run(
         idle_timeout: settings.keepalive.map_or(IDLE_TICK, |k| k.min(IDLE_TICK)),
         ipc_allocations: 0,
         warmup_allocations: None,
+        cpu: CpuMeter::process(),
+        acting_thread_cpu: CpuMeter::this_thread(),
     };
     shell.serve(stop, &mut on_episode)?;
     Ok(shell.finish(config, &checked, &mut on_episode))
@@ -347,6 +352,7 @@ fn planner_for<'c>(
     checked: &CheckedController,
 ) -> impl FnOnce(Arc<CmdpStructure>) -> Result<Planner, PlannerThreadError> + 'c {
     let (planning, placement) = (checked.planning(), checked.placement());
+    let idle_spin = config.planner_idle_spin(checked.wait());
     let planner_params = PlannerParams {
         max_sweeps: config.plan_sweeps,
         ..PlannerParams::default()
@@ -358,7 +364,7 @@ fn planner_for<'c>(
                 planner_params,
                 PlannerThreadOptions {
                     cpu: placement.planner,
-                    idle_spin: Duration::from_micros(config.planner_idle_spin_us),
+                    idle_spin,
                 },
             )?),
             Planning::BetweenPolls => Planner::BetweenPolls(Box::new(SlicedPlanner::new(
@@ -407,6 +413,10 @@ struct Shell<'p> {
     ipc_allocations: u64,
     /// Allocations on the acting path before the warm-up ended, to subtract.
     warmup_allocations: Option<u64>,
+    /// The process's CPU after the warm-up, marked after each command.
+    cpu: CpuMeter,
+    /// The acting thread's alone (this thread's).
+    acting_thread_cpu: CpuMeter,
 }
 
 impl Shell<'_> {
@@ -517,6 +527,10 @@ impl Shell<'_> {
         if sent.save_due {
             self.saver.offer(self.acting.agent());
         }
+        if self.acting.warmed_up() {
+            self.cpu.mark();
+            self.acting_thread_cpu.mark();
+        }
         Ok(())
     }
 
@@ -558,6 +572,9 @@ impl Shell<'_> {
             planning: checked.planning().to_string(),
             keepalives: counts.keepalives,
             placement: checked.placement(),
+            cpu: self.cpu.report(),
+            acting_thread_cpu: self.acting_thread_cpu.report(),
+            catches: self.ports.observations.catches(),
             library: None,
         };
         let facts = self

@@ -1,5 +1,7 @@
 //! What a controller run reports: a line per episode and a summary at the end.
 
+use tes_runtime::channel::Catches;
+use tes_runtime::cpu::CpuUse;
 use tes_runtime::latency::LatencyReport;
 
 use crate::config::ThreadPlacement;
@@ -63,6 +65,15 @@ pub struct ControllerSummary {
     /// Where the acting and planner threads ran ([`ControllerConfig::placement`](crate::config::ControllerConfig::placement)).
     #[serde(default)]
     pub placement: ThreadPlacement,
+    /// The process's CPU after the warm-up (every thread: acting, planner, saver).
+    #[serde(default)]
+    pub cpu: Option<CpuUse>,
+    /// Of `cpu`, the acting thread's.
+    #[serde(default)]
+    pub acting_thread_cpu: Option<CpuUse>,
+    /// Waiting by `anticipate`: how observations came against their poll windows.
+    #[serde(default)]
+    pub catches: Option<Catches>,
     /// The view library the run loaded and what became of it; `None` if the run stopped
     /// before it loaded one (before the world map came).
     #[serde(default)]

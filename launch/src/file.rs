@@ -59,9 +59,13 @@ pub struct LaunchSection {
     pub real_time_factor: f64,
     /// How every process waits for its next input: `block` sleeps until notified (no CPU
     /// while idle); `spin` busy-polls (lowest latency, a core per process);
-    /// `spin-then-block` busy-polls for 200 µs (or the µs given), then sleeps.
+    /// `spin-then-block` busy-polls for 200 µs (or the µs given), then sleeps; `anticipate`
+    /// sleeps until shortly before the next message is due (perception announces each
+    /// observation as the robot starts to settle; otherwise the gap between messages is
+    /// learned), polls for at most 2 ms then, and blocks if it is late: at the robot's pace,
+    /// about `spin`'s latency at about `block`'s CPU (docs/performance.md).
     ///
-    /// Values: `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>`.
+    /// Values: `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>` | `anticipate`.
     pub wait: WaitStrategy,
     /// What to do when a child dies: `never` stops the others and exits non-zero;
     /// `on-failure` respawns it, at most `max_restarts` times.

@@ -30,10 +30,11 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use tes_runtime::channel::{self, Idle, Inbox, IpcError, Outbox};
 use tes_runtime::clock::monotonic_ns;
+use tes_runtime::cpu::{CpuMeter, CpuUse};
 use tes_runtime::progress::{ProgressOutbox, ProgressWatch};
 use tes_runtime::wait::IDLE_TICK;
 use tes_topics::{
-    FeatureBits, MAX_STATES, MotorState, NO_ACTION, Observation, Role, ServiceNames,
+    FeatureBits, HeadsUp, MAX_STATES, MotorState, NO_ACTION, Observation, Role, ServiceNames,
     StateAttributes, WorldMap, motor_flags, observation_flags, progress_flags,
 };
 use thiserror::Error;
@@ -60,6 +61,14 @@ pub enum PerceptionError {
     /// The arena does not fit a world map.
     #[error("the arena has {0} states, more than a world map holds ({MAX_STATES})")]
     TooBig(usize),
+    /// The report cannot be written.
+    #[error("cannot write the report {}: {error}", path.display())]
+    Report {
+        /// The file.
+        path: std::path::PathBuf,
+        /// Why.
+        error: std::io::Error,
+    },
     /// The trajectory file cannot be written.
     #[error("cannot write the trajectory {}: {error}", path.display())]
     Trajectory {
@@ -70,8 +79,8 @@ pub enum PerceptionError {
     },
 }
 
-/// What a perception run did.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+/// What a perception run did (written as JSON to `report`, if set).
+#[derive(Debug, Clone, Copy, PartialEq, Default, serde::Serialize, serde::Deserialize)]
 pub struct PerceptionSummary {
     /// Episodes finished.
     pub episodes: u32,
@@ -81,6 +90,9 @@ pub struct PerceptionSummary {
     pub resyncs: u64,
     /// Total reward over all episodes.
     pub reward: f64,
+    /// The process's CPU over the actions after `warmup_actions` (`None` if there were too
+    /// few).
+    pub cpu: Option<CpuUse>,
 }
 
 /// The arena's structure as a [`WorldMap`].
@@ -137,6 +149,12 @@ pub fn run(
     let maps: Outbox<WorldMap> = Outbox::open(&node, &names.world_map, &names.world_map_event, 1)?;
     let observations: Outbox<Observation> =
         Outbox::open(&node, &names.observation, &names.observation_event, 0)?;
+    let heads_up: Outbox<HeadsUp> = Outbox::open(
+        &node,
+        &names.observation_due,
+        &names.observation_due_event,
+        0,
+    )?;
     let motors: Inbox<MotorState> = Inbox::open(
         &node,
         &names.motor_state,
@@ -160,6 +178,7 @@ pub fn run(
         config,
         maps: &maps,
         observations: &observations,
+        heads_up: &heads_up,
         motors: &motors,
         progress,
         settle: Duration::from_millis(config.settle_ms).mul_f64(config.real_time_factor),
@@ -176,10 +195,11 @@ pub fn run(
         actions: 0,
         trajectory: open_trajectory(config)?,
         maps_updated: std::time::Instant::now(),
+        cpu: CpuMeter::process(),
     };
     for episode in 0..config.episodes {
         if camera.run_episode(episode, stop)? == Flow::Stopped {
-            return Ok(camera.summary);
+            return camera.stopped();
         }
         if camera.out_of_actions() {
             tracing::info!(actions = camera.actions, "action limit reached");
@@ -187,6 +207,22 @@ pub fn run(
         }
     }
     camera.finish()
+}
+
+/// Writes `summary` as JSON to the config's `report`, if set.
+fn write_report(
+    config: &PerceptionConfig,
+    summary: &PerceptionSummary,
+) -> Result<(), PerceptionError> {
+    let Some(path) = &config.report else {
+        return Ok(());
+    };
+    let text = serde_json::to_string_pretty(summary).map_err(std::io::Error::other);
+    text.and_then(|t| std::fs::write(path, t))
+        .map_err(|error| PerceptionError::Report {
+            path: path.clone(),
+            error,
+        })
 }
 
 /// The trajectory file, if one is asked for.
@@ -245,6 +281,8 @@ struct Camera<'a> {
     config: &'a PerceptionConfig,
     maps: &'a Outbox<WorldMap>,
     observations: &'a Outbox<Observation>,
+    /// Where perception says, as the robot starts to settle, when the observation is due.
+    heads_up: &'a Outbox<HeadsUp>,
     motors: &'a Inbox<MotorState>,
     progress: ProgressOutbox,
     /// How long the robot settles after a motion (scaled by the real-time factor).
@@ -264,6 +302,8 @@ struct Camera<'a> {
     actions: u64,
     /// When the world map's connections were last updated (and progress reported).
     maps_updated: std::time::Instant,
+    /// The process's CPU over the measured observations.
+    cpu: CpuMeter,
 }
 
 /// The episode in progress: where the robot is and what its next observation says.
@@ -286,12 +326,23 @@ impl Camera<'_> {
         let Self {
             mut progress,
             trajectory,
-            summary,
+            mut summary,
+            cpu,
+            config,
             ..
         } = self;
         progress.publish(monotonic_ns())?;
         drop(trajectory);
+        summary.cpu = cpu.report();
+        write_report(config, &summary)?;
         Ok(summary)
+    }
+
+    /// The summary of a run `stop` ended, its report written.
+    fn stopped(mut self) -> Result<PerceptionSummary, PerceptionError> {
+        self.summary.cpu = self.cpu.report();
+        write_report(self.config, &self.summary)?;
+        Ok(self.summary)
     }
 
     /// Whether the configured number of actions (if any) has been taken.
@@ -446,7 +497,14 @@ impl Camera<'_> {
             &mut self.rng,
         );
         if !self.settle.is_zero() {
-            std::thread::sleep(self.settle);
+            // Said first, so that a receiver waiting by `anticipate` sleeps until just
+            // before the observation; and kept: the settle ends on time.
+            let due_ns = monotonic_ns() + self.settle.as_nanos() as u64;
+            self.heads_up.send(HeadsUp {
+                seq: self.seq + 1,
+                due_ns,
+            })?;
+            tes_runtime::anticipate::sleep_until(due_ns);
         }
         run.state = self.arena.discretise(run.pose);
         let outcome = run.tracker.observe(self.arena, run.state)?;
@@ -454,6 +512,9 @@ impl Camera<'_> {
         self.summary.reward += run.reward;
         run.step += 1;
         self.actions += 1;
+        if self.actions >= self.config.warmup_actions.max(1) {
+            self.cpu.mark();
+        }
         run.after_command = motion.command;
         let out_of_actions = self.out_of_actions();
         let step_cap = run.step >= self.config.step_cap;

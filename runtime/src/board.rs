@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 use iceoryx2::prelude::*;
 use iceoryx2::service::Service;
 
+use crate::anticipate::Anticipation;
 use crate::channel::{Idle, Listener, wait_next};
 use crate::ipc::{IpcError, ipc_err, listener, notifier, service_name};
 use crate::wait::WaitStrategy;
@@ -120,6 +121,8 @@ pub struct LatestInbox<T: ZeroCopySend + Copy + PartialEq + fmt::Debug + 'static
     last: std::cell::Cell<Option<iceoryx2::port::reader::BlackboardValue<T>>>,
     listener: Listener,
     strategy: WaitStrategy,
+    /// With `anticipate`: what it learned of the writer's timing.
+    anticipation: Option<Box<Anticipation>>,
     name: String,
     /// Whether a writer has been seen on the current board.
     had_writer: bool,
@@ -173,6 +176,8 @@ impl<T: ZeroCopySend + Copy + Default + PartialEq + fmt::Debug + 'static> Latest
             last,
             listener,
             strategy,
+            anticipation: (strategy == WaitStrategy::Anticipate)
+                .then(|| Box::new(Anticipation::new())),
             name: name.to_owned(),
             had_writer: false,
             writerless_since: None,
@@ -214,6 +219,29 @@ impl<T: ZeroCopySend + Copy + Default + PartialEq + fmt::Debug + 'static> Latest
         self.strategy
     }
 
+    /// Waiting by `anticipate`, also takes [`HeadsUp`](tes_topics::HeadsUp)s from the
+    /// service `name` and its event `event`: the bridge takes perception's, as a command
+    /// follows its observation by the controller's decision (with any other strategy,
+    /// nothing).
+    pub fn with_heads_up(
+        mut self,
+        node: &Node<ipc::Service>,
+        name: &str,
+        event: &str,
+    ) -> Result<Self, IpcError> {
+        if let Some(a) = &mut self.anticipation {
+            a.listen(node, name, event)?;
+        }
+        Ok(self)
+    }
+
+    /// Waiting by `anticipate`, how its values came against their poll windows.
+    pub fn catches(&self) -> Option<crate::anticipate::Catches> {
+        self.anticipation
+            .as_ref()
+            .map(|a| a.model.borrow().catches())
+    }
+
     /// What the board holds now, read or not (for a receiver deciding, at its start, what to
     /// make of the value it found there).
     pub fn current(&self) -> Result<Option<T>, IpcError> {
@@ -246,6 +274,7 @@ impl<T: ZeroCopySend + Copy + Default + PartialEq + fmt::Debug + 'static> Latest
         wait_next(
             &self.listener,
             self.strategy,
+            self.anticipation.as_deref(),
             timeout,
             stop,
             || self.try_next(),

@@ -25,7 +25,10 @@ use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 use iceoryx2::service::Service;
 
+pub use crate::anticipate::Catches;
+use crate::anticipate::{Anticipation, Step};
 pub use crate::board::{LatestInbox, LatestOutbox};
+use crate::clock::monotonic_ns;
 pub use crate::ipc::{
     DOMAIN_VAR, IpcError, Member, NODE_NAME_MAX, NodeEntry, NodeLiveness, clean_stale_domains,
     clean_stale_resources, config, group_node, group_node_name, ipc_err, list_nodes, node,
@@ -98,6 +101,8 @@ pub struct Inbox<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service = ipc
     subscriber: iceoryx2::port::subscriber::Subscriber<S, T, ()>,
     listener: Listener<S>,
     strategy: WaitStrategy,
+    /// With `anticipate`: what it learned of the sender's timing.
+    anticipation: Option<Box<Anticipation<S>>>,
 }
 
 /// Samples a subscriber can hold before the oldest is dropped. The control loop has one sample
@@ -131,12 +136,35 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service> Inbox<T, S> {
             subscriber,
             listener,
             strategy,
+            anticipation: (strategy == WaitStrategy::Anticipate)
+                .then(|| Box::new(Anticipation::new())),
         })
     }
 
     /// The strategy it waits by.
     pub fn strategy(&self) -> WaitStrategy {
         self.strategy
+    }
+
+    /// Waiting by `anticipate`, also takes its sender's [`HeadsUp`](tes_topics::HeadsUp)s
+    /// from the service `name` and its event `event` (with any other strategy, nothing).
+    pub fn with_heads_up(
+        mut self,
+        node: &Node<S>,
+        name: &str,
+        event: &str,
+    ) -> Result<Self, IpcError> {
+        if let Some(a) = &mut self.anticipation {
+            a.listen(node, name, event)?;
+        }
+        Ok(self)
+    }
+
+    /// Waiting by `anticipate`, how its messages came against their poll windows.
+    pub fn catches(&self) -> Option<Catches> {
+        self.anticipation
+            .as_ref()
+            .map(|a| a.model.borrow().catches())
     }
 
     /// The next payload if one is waiting, without waiting.
@@ -180,6 +208,7 @@ where
         wait_next(
             &self.listener,
             self.strategy,
+            self.anticipation.as_deref(),
             timeout,
             stop,
             || self.try_next(),
@@ -191,10 +220,13 @@ where
 pub(crate) type Listener<S = ipc::Service> = iceoryx2::port::listener::Listener<S>;
 
 /// Polls `try_next` and waits between polls by `strategy` on `listener`, at most `timeout`,
-/// calling `work` between polls while spinning; returns early when `stop` is raised. Allocation-free in `spin`; `block` sleeps in the kernel.
+/// calling `work` between polls while spinning; returns early when `stop` is raised.
+/// Allocation-free in `spin`; `block` sleeps in the kernel; `anticipate` (with its
+/// `anticipation`) sleeps until shortly before the next message is due.
 pub(crate) fn wait_next<T, S: Service>(
     listener: &Listener<S>,
     strategy: WaitStrategy,
+    anticipation: Option<&Anticipation<S>>,
     timeout: Duration,
     stop: &AtomicBool,
     mut try_next: impl FnMut() -> Result<Option<T>, IpcError>,
@@ -203,9 +235,12 @@ pub(crate) fn wait_next<T, S: Service>(
 where
     Listener<S>: FileDescriptorBased,
 {
+    if let Some(a) = anticipation {
+        return wait_anticipating(listener, a, timeout, stop, try_next, work);
+    }
     let start = Instant::now();
     let spin_for = match strategy {
-        WaitStrategy::Block => Duration::ZERO,
+        WaitStrategy::Block | WaitStrategy::Anticipate => Duration::ZERO,
         WaitStrategy::Spin => timeout,
         WaitStrategy::SpinThenBlock(d) => d.min(timeout),
     };
@@ -247,6 +282,90 @@ where
     }
 }
 
+/// How close to its poll window an anticipating receiver stops watching for messages and
+/// sleeps by the timer alone: a message early by more than this still wakes it at once.
+const FINAL_APPROACH: Duration = Duration::from_millis(2);
+
+/// The `anticipate` wait ([`crate::anticipate`]): sleeps until the model's poll window (a
+/// message or a heads-up wakes it earlier), polls through the window calling `work`, and
+/// blocks once the window has passed.
+fn wait_anticipating<T, S: Service>(
+    listener: &Listener<S>,
+    anticipation: &Anticipation<S>,
+    timeout: Duration,
+    stop: &AtomicBool,
+    mut try_next: impl FnMut() -> Result<Option<T>, IpcError>,
+    mut work: impl FnMut() -> bool,
+) -> Result<Result<T, Idle>, IpcError>
+where
+    Listener<S>: FileDescriptorBased,
+{
+    let start = Instant::now();
+    let heads_up = anticipation.heads_up_listener();
+    let model = &anticipation.model;
+    loop {
+        if let Some(v) = try_next()? {
+            model.borrow_mut().arrived(monotonic_ns(), false);
+            return Ok(Ok(v));
+        }
+        if stop.load(Ordering::Relaxed) {
+            return Ok(Err(Idle::Stopped));
+        }
+        let left = timeout.saturating_sub(start.elapsed());
+        if left.is_zero() {
+            return Ok(Err(Idle::Timeout));
+        }
+        anticipation.take_heads_ups()?;
+        let now = monotonic_ns();
+        let step = model.borrow_mut().step(now);
+        match step {
+            Step::SleepUntil(until) => {
+                let nap = Duration::from_nanos(until - now);
+                if nap <= FINAL_APPROACH && nap <= left {
+                    // The last stretch by the timer alone: a wait on the listeners comes back
+                    // hundreds of µs late here, when the message itself wakes it.
+                    std::thread::sleep(nap);
+                    model.borrow_mut().woke(until, monotonic_ns());
+                } else {
+                    let nap = nap.saturating_sub(FINAL_APPROACH);
+                    wait_readable_any(listener, heads_up, nap.min(left).min(STOP_POLL))?;
+                    drain(listener)?;
+                }
+            }
+            Step::PollUntil(until) => {
+                let mut polls: u32 = 0;
+                loop {
+                    if let Some(v) = try_next()? {
+                        model.borrow_mut().arrived(monotonic_ns(), true);
+                        return Ok(Ok(v));
+                    }
+                    polls = polls.wrapping_add(1);
+                    if polls.is_multiple_of(64)
+                        && (monotonic_ns() >= until || stop.load(Ordering::Relaxed))
+                    {
+                        break;
+                    }
+                    if !work() {
+                        std::hint::spin_loop();
+                    }
+                }
+            }
+            Step::Block => {
+                wait_readable_any(listener, heads_up, left.min(STOP_POLL))?;
+                drain(listener)?;
+            }
+        }
+    }
+}
+
+/// Takes every pending notification of `listener`.
+fn drain<S: Service>(listener: &Listener<S>) -> Result<(), IpcError> {
+    listener
+        .try_wait(|_| {})
+        .map(|_| ())
+        .map_err(ipc_err("drain the listener"))
+}
+
 /// Blocks until the listener's socket is readable or `timeout` passes, by `ppoll(2)`:
 /// timer-precise, unlike iceoryx2 0.10's `Listener::timed_wait` (a socket receive
 /// timeout, which the kernel rounds up to its scheduler tick, milliseconds for any shorter
@@ -258,17 +377,36 @@ pub(crate) fn wait_readable<S: Service>(
 where
     Listener<S>: FileDescriptorBased,
 {
+    wait_readable_any(listener, None, timeout).map(|_| ())
+}
+
+/// [`wait_readable`] on `listener` and, if given, a second listener (an anticipating
+/// receiver's heads-up); returns whether either became readable.
+fn wait_readable_any<S: Service>(
+    listener: &Listener<S>,
+    other: Option<&Listener<S>>,
+    timeout: Duration,
+) -> Result<bool, IpcError>
+where
+    Listener<S>: FileDescriptorBased,
+{
     use nix::poll::{PollFd, PollFlags, ppoll};
     use std::os::fd::BorrowedFd;
-    // SAFETY: the descriptor belongs to `listener`, which outlives this call.
-    let fd = unsafe { BorrowedFd::borrow_raw(listener.file_descriptor().native_handle()) };
-    let mut fds = [PollFd::new(fd, PollFlags::POLLIN)];
+    // SAFETY: the descriptors belong to the listeners, which outlive this call.
+    let fd =
+        |l: &Listener<S>| unsafe { BorrowedFd::borrow_raw(l.file_descriptor().native_handle()) };
+    let mut fds = [
+        PollFd::new(fd(listener), PollFlags::POLLIN),
+        PollFd::new(fd(other.unwrap_or(listener)), PollFlags::POLLIN),
+    ];
+    let n = if other.is_some() { 2 } else { 1 };
     match ppoll(
-        &mut fds,
+        &mut fds[..n],
         Some(nix::sys::time::TimeSpec::from_duration(timeout)),
         None,
     ) {
-        Ok(_) | Err(nix::errno::Errno::EINTR) => Ok(()),
+        Ok(ready) => Ok(ready > 0),
+        Err(nix::errno::Errno::EINTR) => Ok(true),
         Err(e) => Err(ipc_err("wait on the listener")(e)),
     }
 }

@@ -5,7 +5,9 @@
 //!   receiver ([`channel::Outbox`], [`channel::Inbox`]); [`board`] — latest-value channels over
 //!   a blackboard, which allocate nothing per message ([`board::LatestOutbox`],
 //!   [`board::LatestInbox`]);
-//! * [`wait`] — how a receiver waits: block, spin, or spin then block;
+//! * [`wait`] — how a receiver waits: block, spin, spin then block, or anticipate the next
+//!   message ([`anticipate`]);
+//! * [`cpu`] — a process's or thread's CPU time per action and share of a core;
 //! * [`ipc`] — the node, the service settings every opener must share, stale-resource clean-up;
 //! * [`affinity`] — CPU placement of threads;
 //! * [`latency`] — latency histograms against a budget;
@@ -21,10 +23,12 @@
 
 pub mod affinity;
 pub mod alloc_count;
+pub mod anticipate;
 pub mod board;
 pub mod cause;
 pub mod channel;
 pub mod clock;
+pub mod cpu;
 pub mod ipc;
 pub mod latency;
 pub mod lock;

@@ -3,7 +3,11 @@
 //!
 //! * `block` (default) — sleep on the event listener until notified: no CPU burnt while idle;
 //! * `spin` — busy-poll the subscriber: lowest latency, one core fully used;
-//! * `spin-then-block` — busy-poll for a bounded time, then sleep.
+//! * `spin-then-block` — busy-poll for a bounded time, then sleep;
+//! * `anticipate` — sleep until shortly before the next message is due (announced by its
+//!   sender, or learned from the gaps between messages), poll for a bounded window then, and
+//!   block if it is late ([`crate::anticipate`]): the robot's pace at almost `spin`'s
+//!   latency and almost `block`'s CPU.
 //!
 //! In a settings file a strategy is its string form (serde reads and writes it as the
 //! [`FromStr`] and [`Display`](fmt::Display) forms below):
@@ -41,11 +45,20 @@ pub enum WaitStrategy {
     Spin,
     /// Busy-poll for up to the given time, then sleep on the event.
     SpinThenBlock(Duration),
+    /// Sleep until shortly before the next message is due, poll for a bounded window, then
+    /// block.
+    Anticipate,
 }
 
 impl WaitStrategy {
     /// The spin time of `spin-then-block` when none is given: 200 µs.
     pub const DEFAULT_SPIN: Duration = Duration::from_micros(200);
+
+    /// Whether it busy-polls while idle (`spin`, and `spin-then-block`'s first part): the
+    /// strategies that trade CPU for latency whatever the pace.
+    pub fn spins(self) -> bool {
+        matches!(self, Self::Spin | Self::SpinThenBlock(_))
+    }
 }
 
 impl fmt::Display for WaitStrategy {
@@ -53,6 +66,7 @@ impl fmt::Display for WaitStrategy {
         match self {
             WaitStrategy::Block => f.write_str("block"),
             WaitStrategy::Spin => f.write_str("spin"),
+            WaitStrategy::Anticipate => f.write_str("anticipate"),
             WaitStrategy::SpinThenBlock(d) if *d == Self::DEFAULT_SPIN => {
                 f.write_str("spin-then-block")
             }
@@ -64,7 +78,7 @@ impl fmt::Display for WaitStrategy {
 /// A wait strategy that is not `block`, `spin`, `spin-then-block` or `spin-then-block:<µs>`.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error(
-    "unknown wait strategy {0:?}: expected block, spin, spin-then-block or spin-then-block:<microseconds>"
+    "unknown wait strategy {0:?}: expected block, spin, spin-then-block, spin-then-block:<microseconds> or anticipate"
 )]
 pub struct BadWaitStrategy(pub String);
 
@@ -75,6 +89,7 @@ impl FromStr for WaitStrategy {
         match s {
             "block" => Ok(Self::Block),
             "spin" => Ok(Self::Spin),
+            "anticipate" => Ok(Self::Anticipate),
             "spin-then-block" => Ok(Self::SpinThenBlock(Self::DEFAULT_SPIN)),
             other => other
                 .strip_prefix("spin-then-block:")
@@ -100,7 +115,7 @@ impl<'de> serde::Deserialize<'de> for WaitStrategy {
 
             fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
                 f.write_str(
-                    "a wait strategy: block, spin, spin-then-block or spin-then-block:<microseconds>",
+                    "a wait strategy: block, spin, spin-then-block, spin-then-block:<microseconds> or anticipate",
                 )
             }
 
@@ -121,6 +136,7 @@ mod tests {
         for (text, strategy) in [
             ("block", WaitStrategy::Block),
             ("spin", WaitStrategy::Spin),
+            ("anticipate", WaitStrategy::Anticipate),
             (
                 "spin-then-block",
                 WaitStrategy::SpinThenBlock(WaitStrategy::DEFAULT_SPIN),
@@ -152,7 +168,13 @@ mod tests {
 
     #[test]
     fn wait_strategies_are_read_and_written_as_their_string_form() {
-        for text in ["block", "spin", "spin-then-block", "spin-then-block:50"] {
+        for text in [
+            "block",
+            "spin",
+            "spin-then-block",
+            "spin-then-block:50",
+            "anticipate",
+        ] {
             let doc = format!("wait = \"{text}\"\n");
             let s: Settings = toml::from_str(&doc).expect(text);
             assert_eq!(s.wait, text.parse().expect(text));

@@ -4,7 +4,8 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use tes_runtime::channel::{self, Idle, Inbox, Outbox, WaitStrategy};
-use tes_topics::Command;
+use tes_runtime::clock::monotonic_ns;
+use tes_topics::{Command, HeadsUp};
 
 fn names(tag: &str) -> (String, String) {
     let base = format!("tes-test/{}/{tag}", std::process::id());
@@ -74,6 +75,61 @@ fn spin_then_block_round_trip() {
         WaitStrategy::SpinThenBlock(Duration::from_micros(100)),
         "spin-then-block",
     );
+}
+
+#[test]
+fn anticipate_round_trip() {
+    round_trip(WaitStrategy::Anticipate, "anticipate");
+}
+
+/// A sender that announces each message 20 ms ahead: the anticipating receiver sleeps, then
+/// polls, and catches most messages polling (a loaded machine may make a few late, which it
+/// still receives by blocking).
+#[test]
+fn announced_messages_are_caught_polling() {
+    let base = format!("tes-test/{}/heads-up", std::process::id());
+    let (payload, event, due, due_event) = (
+        format!("{base}/payload"),
+        format!("{base}/event"),
+        format!("{base}/due"),
+        format!("{base}/due/event"),
+    );
+    let node = channel::node(false).unwrap();
+    let inbox: Inbox<Command> = Inbox::open(&node, &payload, &event, 0, WaitStrategy::Anticipate)
+        .unwrap()
+        .with_heads_up(&node, &due, &due_event)
+        .unwrap();
+    let stop = AtomicBool::new(false);
+    const MESSAGES: u64 = 30;
+    let sender = std::thread::spawn(move || {
+        let node = channel::node(false).unwrap();
+        let outbox: Outbox<Command> = Outbox::open(&node, &payload, &event, 0).unwrap();
+        let heads_up: Outbox<HeadsUp> = Outbox::open(&node, &due, &due_event, 0).unwrap();
+        for seq in 1..=MESSAGES {
+            let due_ns = monotonic_ns() + 20_000_000;
+            heads_up.send(HeadsUp { seq, due_ns }).unwrap();
+            tes_runtime::anticipate::sleep_until(due_ns);
+            outbox
+                .send(Command {
+                    seq,
+                    ..Command::default()
+                })
+                .unwrap();
+        }
+    });
+    let mut seen = Vec::new();
+    while seen.len() < MESSAGES as usize {
+        match inbox.next(Duration::from_secs(5), &stop).unwrap() {
+            Ok(cmd) => seen.push(cmd.seq),
+            Err(idle) => panic!("no command within 5 s ({idle:?}) after {seen:?}"),
+        }
+    }
+    sender.join().unwrap();
+    assert_eq!(seen, (1..=MESSAGES).collect::<Vec<_>>());
+    let catches = inbox.catches().expect("an anticipating inbox keeps score");
+    assert_eq!(catches.polled + catches.woken, MESSAGES);
+    // The first few teach it the lateness; most of the rest are caught polling.
+    assert!(catches.polled >= MESSAGES / 2, "{catches:?}");
 }
 
 /// `next_or_work` does the caller's work between polls while it spins, never while it

@@ -12,7 +12,7 @@ use clap::{Args, Subcommand};
 use tes_bench::floor::{self, HopSettings};
 use tes_bench::recorder_cost::RecorderComparison;
 use tes_bench::relay::{self, RelayConfig};
-use tes_bench::{Harness, LatencyResult, LatencySettings, Note, Programs, Via, scaling};
+use tes_bench::{Harness, LatencyResult, LatencySettings, Note, Pace, Programs, Via, scaling};
 use tes_controller::config::{Order, PlanningMode};
 use tes_runtime::affinity::Placement;
 use tes_runtime::channel::WaitStrategy;
@@ -84,21 +84,30 @@ pub struct FloorHopArgs {
 /// Arguments of `tes bench latency`.
 #[derive(Debug, Args)]
 pub struct LatencyArgs {
-    /// Actions measured (after the warm-up).
-    #[arg(long, default_value_t = 10_000)]
-    actions: u64,
+    /// Actions measured (after the warm-up) [default: 10000 at the fastest pace, 1000 at the
+    /// robot's].
+    #[arg(long)]
+    actions: Option<u64>,
     /// The per-action budget, µs.
     #[arg(long, default_value_t = tes_runtime::settings::DEFAULT_BUDGET_US)]
     budget_us: u64,
-    /// How every process waits: block, spin, spin-then-block or spin-then-block:<µs>.
+    /// How every process waits: block, spin, spin-then-block, spin-then-block:<µs> or
+    /// anticipate.
     #[arg(long, default_value = "block")]
     wait: String,
+    /// The pace the group runs at: fastest (actions back to back) or real (the robot's own:
+    /// the paper's 200 ms settle after each motion, the simulated brick in real time, and a
+    /// Bluetooth-like 30 ± 10 ms delay on each of its replies — about a third of a second
+    /// per action). The floor runs at the group's measured cadence either way.
+    #[arg(long, value_enum, default_value = "fastest")]
+    pace: PaceArg,
     /// Views in the controller's library (trained in Env 1 and Env 2).
     #[arg(long, default_value_t = 9)]
     views: usize,
-    /// Actions run first and left out of every figure.
-    #[arg(long, default_value_t = 1000)]
-    warmup: u64,
+    /// Actions run first and left out of every figure [default: 1000 at the fastest pace, 50
+    /// at the robot's].
+    #[arg(long)]
+    warmup: Option<u64>,
     /// Seed of the library's training, the world and the controller.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -128,7 +137,8 @@ pub struct LatencyArgs {
     #[arg(long, default_value = "decide-first")]
     order: Order,
     /// How long the controller's planner thread polls for its next job after a plan, µs
-    /// [default: the controller's, 5000; 0 = sleeps at once].
+    /// (the floor's helper thread polls as long) [default: the controller's, 5000 with a
+    /// spinning wait, else 0].
     #[arg(long)]
     planner_idle_spin_us: Option<u64>,
     /// Also compare the group with and without the recorder (`tes launch --record`): after
@@ -146,6 +156,15 @@ pub struct LatencyArgs {
     /// Zenoh over loopback TCP; the floor the same two hops over a Zenoh link with no work).
     #[arg(long, value_enum, default_value = "shm")]
     via: ViaArg,
+}
+
+/// `tes bench latency --pace`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum PaceArg {
+    /// Actions back to back.
+    Fastest,
+    /// The robot's own.
+    Real,
 }
 
 /// `tes bench latency --via`.
@@ -230,12 +249,17 @@ fn latency_settings(args: &LatencyArgs) -> Result<LatencySettings> {
         None => PlanningMode::Auto,
         Some(p) => p.parse().map_err(|e| anyhow::anyhow!("--planning: {e}"))?,
     };
+    let pace = match args.pace {
+        PaceArg::Fastest => Pace::Fastest,
+        PaceArg::Real => Pace::Real,
+    };
     Ok(LatencySettings {
-        actions: args.actions,
+        actions: args.actions.unwrap_or(pace.default_actions()),
         budget_us: args.budget_us,
         wait: parse_wait(&args.wait)?,
         views: args.views,
-        warmup: args.warmup,
+        warmup: args.warmup.unwrap_or(pace.default_warmup()),
+        pace,
         seed: args.seed,
         out: args.out.clone(),
         acting_cpu: args.acting_cpu,
@@ -288,7 +312,7 @@ fn latency(args: &LatencyArgs) -> Result<()> {
     if args.json {
         println!("{}", serde_json::to_string(&result)?);
     } else {
-        print_latency(&result, args.warmup);
+        print_latency(&result, checked.settings().warmup);
     }
     Ok(())
 }
@@ -298,8 +322,9 @@ fn latency(args: &LatencyArgs) -> Result<()> {
 fn print_latency(result: &LatencyResult, warmup: u64) {
     let cpu = |c: Option<usize>| c.map_or("unpinned".to_owned(), |c| format!("CPU {c}"));
     println!(
-        "tes bench latency: wait {}, {}, {} actions measured (+{warmup} warm-up), {} views, budget {} us, one action every {} us; \
-         acting thread and floor hop {}, planner {}",
+        "tes bench latency: pace {}, wait {}, {}, {} actions measured (+{warmup} warm-up), {} views, budget {} us, one action every {} us; \
+         acting thread and floor hop {}, planner (and the floor's helper) {}, polling {} us after each plan",
+        result.pace,
         result.wait,
         result.order,
         result.actions,
@@ -307,7 +332,8 @@ fn print_latency(result: &LatencyResult, warmup: u64) {
         result.budget_us,
         result.cycle_us,
         cpu(result.acting_cpu),
-        cpu(result.planner_cpu)
+        cpu(result.planner_cpu),
+        result.planner_idle_spin_us
     );
     println!(
         "{:<34} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
@@ -335,14 +361,20 @@ fn print_latency(result: &LatencyResult, warmup: u64) {
         row("learning after the command", &result.learn);
     }
     println!(
-        "ratio ours/floor: p50 {:.2}, p99 {:.2}; allocations on the acting path: {}",
+        "ratio ours/floor: p50 {:.2}, p99 {:.2}{}; allocations on the acting path: {}",
         result.ratio_p50,
         result.ratio_p99,
+        if result.floor_comparable {
+            ""
+        } else {
+            " — floor not comparable (a ratio below 0.9: the group had a help the floor lacked)"
+        },
         match (result.allocations, result.ipc_allocations) {
             (Some(n), Some(ipc)) => format!("{n} ({ipc} inside iceoryx2's send)"),
             _ => "not counted".to_owned(),
         }
     );
+    print_cpu(result);
     if let Some(r) = &result.recorder {
         print_recorder(r);
     }
@@ -361,6 +393,38 @@ fn print_latency(result: &LatencyResult, warmup: u64) {
         result.plans,
         (result.actions + warmup) as f64 / result.plans.max(1) as f64
     );
+}
+
+/// Each process's CPU, the group's then the floor's, and the anticipating receivers' catches.
+fn print_cpu(result: &LatencyResult) {
+    println!(
+        "{:<34} {:>12} {:>12}",
+        "CPU over the measured actions", "core share", "us/action"
+    );
+    let rows = result
+        .cpu
+        .iter()
+        .map(|(name, used)| (format!("ours: {name}"), used))
+        .chain(
+            result
+                .floor_cpu
+                .iter()
+                .map(|(role, used)| (format!("floor: {role}"), used)),
+        );
+    for (name, used) in rows {
+        println!(
+            "{:<34} {:>11.2}% {:>12.1}",
+            name,
+            100.0 * used.core_share,
+            used.us_per_action
+        );
+    }
+    for (who, c) in &result.catches {
+        println!(
+            "anticipation ({who}): {} caught polling, {} woken (early, late or unannounced), {} windows passed empty",
+            c.polled, c.woken, c.missed_windows
+        );
+    }
 }
 
 /// The recorder comparison's blocks and medians, as a table.

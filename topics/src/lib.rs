@@ -97,6 +97,12 @@ pub mod service {
     pub const MOTOR_STATE: &str = "tes/motor-state";
     /// Event service the bridge notifies after publishing a motor state.
     pub const MOTOR_STATE_EVENT: &str = "tes/motor-state/event";
+    /// Publish–subscribe service carrying [`crate::HeadsUp`]s: perception's word, as the robot
+    /// starts to settle, of when its next observation is due, so a receiver that waits by
+    /// `anticipate` sleeps until shortly before it.
+    pub const OBSERVATION_DUE: &str = "tes/observation/due";
+    /// Event service perception notifies after publishing a heads-up.
+    pub const OBSERVATION_DUE_EVENT: &str = "tes/observation/due/event";
     /// Publish–subscribe service (with history) carrying the [`crate::WorldMap`] from
     /// perception to the controller.
     pub const WORLD_MAP: &str = "tes/world-map";
@@ -134,6 +140,10 @@ pub struct ServiceNames {
     pub motor_state: String,
     /// [`service::MOTOR_STATE_EVENT`].
     pub motor_state_event: String,
+    /// [`service::OBSERVATION_DUE`].
+    pub observation_due: String,
+    /// [`service::OBSERVATION_DUE_EVENT`].
+    pub observation_due_event: String,
     /// [`service::WORLD_MAP`].
     pub world_map: String,
     /// [`service::WORLD_MAP_EVENT`].
@@ -160,6 +170,8 @@ impl ServiceNames {
             command_log: name(service::COMMAND_LOG),
             motor_state: name(service::MOTOR_STATE),
             motor_state_event: name(service::MOTOR_STATE_EVENT),
+            observation_due: name(service::OBSERVATION_DUE),
+            observation_due_event: name(service::OBSERVATION_DUE_EVENT),
             world_map: name(service::WORLD_MAP),
             world_map_event: name(service::WORLD_MAP_EVENT),
             progress: Role::ALL.map(|r| name(&format!("{}/{}", service::PROGRESS, r.name()))),
@@ -613,6 +625,20 @@ pub mod motor_flags {
     pub const WATCHDOG_BRAKED: u32 = 1 << 1;
     /// The transport to the brick failed; the counts are the last known ones.
     pub const LINK_DOWN: u32 = 1 << 2;
+}
+
+/// A publisher's word of when its next message is due: perception sends one as the robot
+/// starts to settle (the observation follows the settle time later), the latency floor's
+/// source as it starts its pause. A receiver waiting by `anticipate` sleeps until shortly
+/// before `due_ns` and polls only then.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("tes::HeadsUp"))]
+#[repr(C)]
+pub struct HeadsUp {
+    /// The `seq` the announced message will carry.
+    pub seq: u64,
+    /// Monotonic clock (ns) at which it is due.
+    pub due_ns: u64,
 }
 
 /// What the bridge reports from the brick: wheel rotation counts and motor states.

@@ -47,7 +47,7 @@ pub struct PerceptionConfig {
     pub step_cap: u32,
     /// How perception waits for motion reports.
     ///
-    /// Values: `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>`.
+    /// Values: `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>` | `anticipate`.
     pub wait: WaitStrategy,
     /// Prefixed to every iceoryx2 service name (to run groups side by side).
     ///
@@ -77,6 +77,16 @@ pub struct PerceptionConfig {
     ///
     /// Example: `"/path/to/trajectory.csv"`.
     pub trajectory: Option<std::path::PathBuf>,
+    /// Where to write the run's summary as JSON at its end: observations, resyncs, reward,
+    /// and the process's CPU over the actions after `warmup_actions` (`tes bench latency`
+    /// reads it). Unset: none.
+    ///
+    /// Values: path.
+    pub report: Option<std::path::PathBuf>,
+    /// Actions left out of the report's CPU figure (the run's start).
+    ///
+    /// Values: count.
+    pub warmup_actions: u64,
 }
 
 impl Default for PerceptionConfig {
@@ -95,6 +105,8 @@ impl Default for PerceptionConfig {
             left_port: 1,
             right_port: 2,
             trajectory: None,
+            report: None,
+            warmup_actions: 0,
         }
     }
 }
@@ -306,6 +318,8 @@ mod tests {
                 left_port: 0,
                 right_port: 2,
                 trajectory: Some("/tmp/run/trajectory.csv".into()),
+                report: Some("/tmp/run/perception.json".into()),
+                warmup_actions: 30,
             },
         ];
         for cfg in cfgs {

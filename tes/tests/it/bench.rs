@@ -47,6 +47,52 @@ fn assert_floor_consistent(v: &serde_json::Value) {
     assert!((ratio - p50 / floor_p50 as f64).abs() < 1e-9, "{v}");
 }
 
+/// Each process of the group, and of the floor, reports its CPU over the measured actions: a
+/// share of a core and µs per action, consistent with its CPU and wall times.
+fn assert_cpu_reported(v: &serde_json::Value) {
+    let measured = v["actions"].as_u64().expect("actions");
+    let processes = [
+        "perception-sim",
+        "controller",
+        "controller/acting",
+        "bridge",
+    ];
+    let floor = ["source", "hop", "sink"];
+    let all = processes
+        .iter()
+        .map(|p| (p, &v["cpu"][p]))
+        .chain(floor.iter().map(|r| (r, &v["floor_cpu"][r])));
+    for (who, used) in all {
+        let share = used["core_share"].as_f64().expect("core_share");
+        let per_action = used["us_per_action"].as_f64().expect("us_per_action");
+        let (cpu_us, wall_us, actions) = (
+            used["cpu_us"].as_f64().unwrap(),
+            used["wall_us"].as_f64().unwrap(),
+            used["actions"].as_u64().unwrap(),
+        );
+        // Counted from the end of the warm-up to the last action.
+        assert!(
+            actions + 2 >= measured && actions <= measured + 2,
+            "{who}: {v}"
+        );
+        assert!(wall_us > 0.0 && share >= 0.0, "{who}: {v}");
+        assert!(
+            (per_action * actions as f64 - cpu_us).abs() <= 1.0 + 0.01 * cpu_us,
+            "{who}: {v}"
+        );
+        assert!(
+            (share * wall_us - cpu_us).abs() <= 1.0 + 0.01 * cpu_us,
+            "{who}: {v}"
+        );
+    }
+    // The acting thread is part of the controller.
+    assert!(
+        v["cpu"]["controller/acting"]["cpu_us"].as_u64()
+            <= v["cpu"]["controller"]["cpu_us"].as_u64(),
+        "{v}"
+    );
+}
+
 /// Every one of `files` was kept in the `--out` folder.
 fn assert_kept(out: &std::path::Path, files: &[&str]) {
     for file in files {
@@ -105,9 +151,21 @@ fn latency_runs_both_paths_and_reports_every_key() {
         "order",
         "learn",
         "learning_overran",
+        "floor_comparable",
+        "pace",
+        "cpu",
+        "floor_cpu",
+        "planner_idle_spin_us",
     ] {
         assert!(v.get(key).is_some(), "missing {key} in {v}");
     }
+    assert_eq!(v["pace"], "fastest", "{v}");
+    // Blocking, the planner thread sleeps at once after a plan (no core kept busy).
+    assert_eq!(v["planner_idle_spin_us"], 0, "{v}");
+    let comparable =
+        v["ratio_p50"].as_f64().unwrap() >= 0.9 && v["ratio_p99"].as_f64().unwrap() >= 0.9;
+    assert_eq!(v["floor_comparable"], comparable, "{v}");
+    assert_cpu_reported(&v);
     assert_eq!(v["acting_cpu"], acting, "{v}");
     assert_eq!(v["planner_cpu"], planner, "{v}");
     // The decision splits into its wake-up and its compute; deciding first (the default),
@@ -147,6 +205,56 @@ fn latency_runs_both_paths_and_reports_every_key() {
             "library.tesl",
         ],
     );
+}
+
+/// At the robot's pace (the settle time, the brick in real time, a Bluetooth-like link
+/// delay), anticipating receivers catch the observations and commands that perception
+/// announces, the floor runs at the same cadence with the same help, and the CPU is
+/// reported for both.
+#[test]
+fn latency_at_the_robots_pace_anticipates_and_reports_cpu() {
+    let dir = tempfile::tempdir().unwrap();
+    let (ok, stdout, stderr) = run(
+        &[
+            "bench",
+            "latency",
+            "--pace",
+            "real",
+            "--wait",
+            "anticipate",
+            "--actions",
+            "20",
+            "--warmup",
+            "5",
+            "--views",
+            "3",
+            "--json",
+        ],
+        &dir.path().join("data"),
+        Duration::from_secs(300),
+    );
+    assert!(ok, "bench failed:\n{stderr}");
+    assert!(stderr.contains("at the robot's pace"), "{stderr}");
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
+    assert_eq!(
+        (v["pace"].as_str(), v["wait"].as_str()),
+        (Some("real"), Some("anticipate")),
+        "{v}"
+    );
+    // The settle time alone is 200 ms an action.
+    assert!(v["cycle_us"].as_u64().unwrap() >= 200_000, "{v}");
+    for part in ["decision", "floor_decision"] {
+        assert_eq!(v[part]["count"], 20, "{part}: {v}");
+    }
+    assert_floor_consistent(&v);
+    assert_cpu_reported(&v);
+    // Both anticipating receivers kept score of every message they took.
+    for who in ["controller", "bridge"] {
+        let c = &v["catches"][who];
+        let taken = c["polled"].as_u64().unwrap() + c["woken"].as_u64().unwrap();
+        assert!(taken >= 25, "{who}: {v}");
+    }
+    assert_eq!(v["allocations"], 0, "{v}");
 }
 
 #[test]
