@@ -70,6 +70,7 @@ pub fn relay_floor(
         helper_cpu: helps.helper_cpu,
         helper_idle_spin_us: helps.helper_idle_spin_us,
         cpu_dir: Some(dir.to_owned()),
+        announce: settings.pace == crate::latency::Pace::Real,
         ..RelayConfig::default()
     };
     cfg.check()?;

@@ -69,12 +69,12 @@ pub enum Pace {
     Fastest,
     /// The robot's own: real-time factor 1 (the paper's 200 ms settle after each motion, the
     /// simulated brick in real time) and a Bluetooth link's delay on every reply (30 ± 10
-    /// ms), about a third of a second per action, in which every CPU goes idle.
+    /// ms), about 0.8 s per action, in which every CPU goes idle.
     Real,
 }
 
 impl Pace {
-    /// Actions measured by default: at the robot's pace ~5 minutes a side.
+    /// Actions measured by default: at the robot's pace ~13 minutes a side.
     pub fn default_actions(self) -> u64 {
         match self {
             Self::Fastest => 10_000,
@@ -324,7 +324,7 @@ impl fmt::Display for Note {
                 "bench: ours — perception-sim → controller → bridge on Env 3, {total} actions \
                  at the robot's pace (200 ms settle, Bluetooth-like link delay): about {} \
                  minutes, and as long again for the floor",
-                (total * 330).div_ceil(60_000)
+                (total * 800).div_ceil(60_000)
             ),
             Self::Floor {
                 via,

@@ -73,6 +73,10 @@ pub struct RelayConfig {
     /// Each role writes its CPU over the round trips after the warm-up here, as
     /// `<role>-cpu.json` (default: nowhere).
     pub cpu_dir: Option<PathBuf>,
+    /// The source announces each observation before its pause, keeps the time and lets the
+    /// receivers run after sending, as perception does at the robot's pace (default: a plain
+    /// pause, as perception's at the fastest pace, where it announces nothing).
+    pub announce: bool,
 }
 
 impl Default for RelayConfig {
@@ -91,6 +95,7 @@ impl Default for RelayConfig {
             helper_idle_spin_us: 0,
             helper_cpu: None,
             cpu_dir: None,
+            announce: false,
         }
     }
 }
@@ -259,11 +264,7 @@ fn source(
     }
     for seq in 1..=cfg.messages {
         if !gap.is_zero() && seq > 1 {
-            // As perception says when its observation is due, as the robot starts to settle,
-            // and keeps its word.
-            let due_ns = monotonic_ns() + gap.as_nanos() as u64;
-            heads_up.send(HeadsUp { seq, due_ns })?;
-            tes_runtime::anticipate::sleep_until(due_ns);
+            pause(cfg, &heads_up, seq, gap)?;
         }
         let last = seq == cfg.messages;
         let started = Instant::now();
@@ -278,6 +279,10 @@ fn source(
                 flags: if last { observation_flags::TERMINAL } else { 0 },
                 ..Observation::default()
             })?;
+            // As perception does at the robot's pace: the receivers run first.
+            if cfg.announce {
+                std::thread::yield_now();
+            }
             loop {
                 match acks.next(Duration::from_millis(100), stop)? {
                     Ok(ack) if ack.after_command == seq => {
@@ -295,6 +300,24 @@ fn source(
         }
     }
     cfg.save_cpu("relay-source", &cpu)
+}
+
+/// The source's pause before observation `seq`, as perception's settle: announced and kept
+/// with `announce`, a plain sleep without.
+fn pause(
+    cfg: &RelayConfig,
+    heads_up: &Outbox<HeadsUp>,
+    seq: u64,
+    gap: Duration,
+) -> Result<(), RelayError> {
+    if !cfg.announce {
+        std::thread::sleep(gap);
+        return Ok(());
+    }
+    let due_ns = monotonic_ns() + gap.as_nanos() as u64;
+    heads_up.send(HeadsUp { seq, due_ns })?;
+    tes_runtime::anticipate::sleep_until(due_ns);
+    Ok(())
 }
 
 fn hop(

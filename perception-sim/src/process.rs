@@ -414,6 +414,11 @@ impl Camera<'_> {
             reward: run.reward as f32,
             flags: run.flags,
         })?;
+        // The receivers may be polling on this very CPU (two CPUs, three processes around
+        // the observation's time): let them run before the rest of this step's work.
+        if !self.settle.is_zero() {
+            std::thread::yield_now();
+        }
         self.summary.observations += 1;
         if let (Some(log), Some(row)) = (self.trajectory.as_mut(), run.pending.take()) {
             log.push(self.arena, &row)

@@ -335,7 +335,7 @@ pub fn sleep_until(due_ns: u64) {
         std::thread::sleep(std::time::Duration::from_nanos(early - now));
     }
     while monotonic_ns() < due_ns {
-        std::hint::spin_loop();
+        std::thread::yield_now();
     }
 }
 

@@ -346,7 +346,10 @@ where
                         break;
                     }
                     if !work() {
-                        std::hint::spin_loop();
+                        // The window is shared with the sender, which must run to send: on
+                        // a machine with fewer CPUs than busy threads, a poll that keeps
+                        // its CPU would hold the message up.
+                        std::thread::yield_now();
                     }
                 }
             }
