@@ -255,6 +255,10 @@ fn source(
         &names.observation_due_event,
         0,
     )?;
+    // Where perception runs when its receivers anticipate: off the hop's CPU.
+    if cfg.announce && cfg.wait == WaitStrategy::Anticipate {
+        tes_runtime::affinity::pin_off_the_acting_cpu()?;
+    }
     let mut cpu = CpuMeter::process();
     let gap = Duration::from_micros(cfg.gap_us);
     // The arena's payload: a full feature vector's worth of bits.
@@ -427,6 +431,10 @@ fn sink(
         )?;
     let acks: Outbox<MotorState> =
         Outbox::open(node, &names.motor_state, &names.motor_state_event, 0)?;
+    // Where the bridge runs when it anticipates: off the hop's CPU.
+    if wait == WaitStrategy::Anticipate {
+        tes_runtime::affinity::pin_off_the_acting_cpu()?;
+    }
     let mut cpu = CpuMeter::process();
     let mut latency = LatencyRecorder::new(cfg.budget_us, cfg.warmup);
     let mut first_hop = LatencyRecorder::new(cfg.budget_us, cfg.warmup);

@@ -238,6 +238,13 @@ pub fn run_with<T: Transport, C: Clock>(
             // controller's decision, so perception's word of when it is due serves here too.
             .with_heads_up(&node, &names.observation_due, &names.observation_due_event)?;
     let mut cpu = CpuMeter::process();
+    // Anticipating, it polls beside the controller's acting thread around each observation:
+    // off that thread's CPU, so the acting thread polls alone.
+    if wait == WaitStrategy::Anticipate
+        && let Err(e) = tes_runtime::affinity::pin_off_the_acting_cpu()
+    {
+        tracing::warn!(error = %e, "the bridge runs unpinned");
+    }
     let states: Outbox<MotorState> =
         Outbox::open(&node, &names.motor_state, &names.motor_state_event, 0)?;
     let mut progress = ProgressOutbox::open(&node, names, Role::Bridge)?;

@@ -105,6 +105,17 @@ pub fn auto_pair() -> Option<(usize, usize)> {
     }
 }
 
+/// For a process whose receivers anticipate its messages, or that anticipates them beside
+/// the controller: pins the calling thread to the helper's CPU of [`auto_pair`] (the one the
+/// controller's acting thread does not take by default), so that on two CPUs the acting
+/// thread polls alone on its own. Returns the CPU, or `None` with fewer than two CPUs.
+pub fn pin_off_the_acting_cpu() -> Result<Option<usize>, AffinityError> {
+    let Some((_, other)) = auto_pair() else {
+        return Ok(None);
+    };
+    pin_this_thread(other).map(|()| Some(other))
+}
+
 /// Why a thread could not be pinned.
 #[derive(Debug, Clone, PartialEq, Eq, Error)]
 pub enum AffinityError {
