@@ -240,11 +240,7 @@ pub fn run_with<T: Transport, C: Clock>(
     let mut cpu = CpuMeter::process();
     // Anticipating, it polls beside the controller's acting thread around each observation:
     // off that thread's CPU, so the acting thread polls alone.
-    if wait == WaitStrategy::Anticipate
-        && let Err(e) = tes_runtime::affinity::pin_off_the_acting_cpu()
-    {
-        tracing::warn!(error = %e, "the bridge runs unpinned");
-    }
+    tes_runtime::affinity::keep_off_the_acting_cpu(wait, "the bridge");
     let states: Outbox<MotorState> =
         Outbox::open(&node, &names.motor_state, &names.motor_state_event, 0)?;
     let mut progress = ProgressOutbox::open(&node, names, Role::Bridge)?;
@@ -296,23 +292,7 @@ pub fn run_with<T: Transport, C: Clock>(
                 progress.report_mut().out_seq = state.after_command;
             }
         }
-        let down = bridge.link_down() || !bridge.link_ever_up();
-        let report = progress.report_mut();
-        report.in_seq = bridge.executed();
-        report.steps = summary.commands;
-        report.flags = 0;
-        if bridge.link_down() {
-            report.flags |= progress_flags::LINK_DOWN;
-        }
-        if !bridge.link_ever_up() {
-            report.flags |= progress_flags::LINK_NEVER_UP;
-        }
-        if down != was_down {
-            was_down = down;
-            progress.publish(monotonic_ns())?;
-        } else {
-            progress.publish_due(monotonic_ns())?;
-        }
+        report_progress(&mut progress, bridge, &summary, &mut was_down)?;
         if let Some(verdict) = link.check(bridge) {
             summary.link_down = Some(verdict);
             break;
@@ -324,6 +304,33 @@ pub fn run_with<T: Transport, C: Clock>(
     summary.catches = commands.catches();
     tracing::info!(%summary, "bridge loop stopped");
     Ok(summary)
+}
+
+/// Tells the launcher how far the bridge got and whether its link is down: at once when the
+/// link's state changed, else when a report is due.
+fn report_progress<T: Transport>(
+    progress: &mut ProgressOutbox,
+    bridge: &Bridge<T>,
+    summary: &RunSummary,
+    was_down: &mut bool,
+) -> Result<(), IpcError> {
+    let down = bridge.link_down() || !bridge.link_ever_up();
+    let report = progress.report_mut();
+    report.in_seq = bridge.executed();
+    report.steps = summary.commands;
+    report.flags = 0;
+    if bridge.link_down() {
+        report.flags |= progress_flags::LINK_DOWN;
+    }
+    if !bridge.link_ever_up() {
+        report.flags |= progress_flags::LINK_NEVER_UP;
+    }
+    if down != *was_down {
+        *was_down = down;
+        progress.publish(monotonic_ns())
+    } else {
+        progress.publish_due(monotonic_ns()).map(|_| ())
+    }
 }
 
 /// One received command: its latency recorded first, then handed to the brick; the CPU

@@ -173,7 +173,9 @@ pub fn run(
     else {
         return Ok(PerceptionSummary::default());
     };
-    keep_off_the_acting_cpu(config);
+    // Announcing its observations to receivers that anticipate them, perception publishes
+    // while they poll: off the acting thread's CPU, that thread polls alone.
+    tes_runtime::affinity::keep_off_the_acting_cpu(config.wait, "perception");
     let mut camera = Camera {
         arena: &arena,
         config,
@@ -208,18 +210,6 @@ pub fn run(
         }
     }
     camera.finish()
-}
-
-/// Announcing its observations to receivers that anticipate them, perception publishes while
-/// they poll: it moves off the controller's acting CPU (to its planner's), so that on two CPUs
-/// the acting thread polls alone and takes the observation at once.
-fn keep_off_the_acting_cpu(config: &PerceptionConfig) {
-    if config.wait != tes_runtime::channel::WaitStrategy::Anticipate {
-        return;
-    }
-    if let Err(e) = tes_runtime::affinity::pin_off_the_acting_cpu() {
-        tracing::warn!(error = %e, "perception runs unpinned");
-    }
 }
 
 /// Writes `summary` as JSON to the config's `report`, if set.

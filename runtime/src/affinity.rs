@@ -116,6 +116,17 @@ pub fn pin_off_the_acting_cpu() -> Result<Option<usize>, AffinityError> {
     pin_this_thread(other).map(|()| Some(other))
 }
 
+/// [`pin_off_the_acting_cpu`] for a process `who` that waits by `wait`, if that is
+/// `anticipate`; a refusal is logged (the process runs unpinned), not an error.
+pub fn keep_off_the_acting_cpu(wait: crate::wait::WaitStrategy, who: &str) {
+    if wait != crate::wait::WaitStrategy::Anticipate {
+        return;
+    }
+    if let Err(e) = pin_off_the_acting_cpu() {
+        tracing::warn!(error = %e, "{who} runs unpinned");
+    }
+}
+
 /// Why a thread could not be pinned.
 #[derive(Debug, Clone, PartialEq, Eq, Error)]
 pub enum AffinityError {

@@ -16,7 +16,7 @@
 //!   gap.
 //!
 //! Either way it also learns how late its own timed wake-ups are, and wakes twice that much
-//! earlier (at least 300 µs, at most 1 ms). The poll window is bounded ([`MAX_WINDOW`], and a twentieth of the gap when
+//! earlier (at least 300 µs, at most 1 ms). The poll window is bounded ([`MAX_WINDOW_NS`], and a twentieth of the gap when
 //! learned), so a jittery sender costs little CPU; a message outside the window is waited for
 //! by blocking, exactly as `block` would, so a late or lost message costs nothing extra.
 //!
@@ -36,9 +36,6 @@ use crate::ipc::{IpcError, ipc_err, listener, pubsub};
 
 /// The longest an anticipating receiver polls for one message, ns: beyond it, it blocks.
 pub const MAX_WINDOW_NS: u64 = 2_000_000;
-
-/// [`MAX_WINDOW_NS`] as a duration, for docs and reports.
-pub const MAX_WINDOW: std::time::Duration = std::time::Duration::from_nanos(MAX_WINDOW_NS);
 
 /// The least a receiver wakes before the earliest recent arrival, ns. Waking a halted
 /// virtual CPU by a timer takes 30-150 µs here, and the timer's own wake-up is not all of
@@ -267,8 +264,14 @@ impl<S: Service> fmt::Debug for Anticipation<S> {
 }
 
 impl<S: Service> Anticipation<S> {
+    /// What a receiver waiting by `strategy` keeps: an anticipation with `anticipate`,
+    /// nothing with any other.
+    pub(crate) fn for_strategy(strategy: crate::wait::WaitStrategy) -> Option<Box<Self>> {
+        (strategy == crate::wait::WaitStrategy::Anticipate).then(|| Box::new(Self::new()))
+    }
+
     /// Learned timing only, until [`listen`](Self::listen) adds a heads-up channel.
-    pub(crate) fn new() -> Self {
+    fn new() -> Self {
         set_fine_timer_slack();
         Self {
             model: RefCell::new(ArrivalModel::default()),

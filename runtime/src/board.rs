@@ -176,8 +176,7 @@ impl<T: ZeroCopySend + Copy + Default + PartialEq + fmt::Debug + 'static> Latest
             last,
             listener,
             strategy,
-            anticipation: (strategy == WaitStrategy::Anticipate)
-                .then(|| Box::new(Anticipation::new())),
+            anticipation: Anticipation::for_strategy(strategy),
             name: name.to_owned(),
             had_writer: false,
             writerless_since: None,

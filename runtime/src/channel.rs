@@ -136,8 +136,7 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service> Inbox<T, S> {
             subscriber,
             listener,
             strategy,
-            anticipation: (strategy == WaitStrategy::Anticipate)
-                .then(|| Box::new(Anticipation::new())),
+            anticipation: Anticipation::for_strategy(strategy),
         })
     }
 
@@ -273,9 +272,7 @@ where
         // every pending notification and look again: a value sent between the last look
         // and the wait still wakes us, because its notification is pending.
         wait_readable(listener, left.min(STOP_POLL))?;
-        listener
-            .try_wait(|_| {})
-            .map_err(ipc_err("drain the listener"))?;
+        drain(listener)?;
         if let Some(v) = try_next()? {
             return Ok(Ok(v));
         }
@@ -333,16 +330,13 @@ where
                 }
             }
             Step::PollUntil(until) => {
-                let mut polls: u32 = 0;
                 loop {
                     if let Some(v) = try_next()? {
                         model.borrow_mut().arrived(monotonic_ns(), true);
                         return Ok(Ok(v));
                     }
-                    polls = polls.wrapping_add(1);
-                    if polls.is_multiple_of(64)
-                        && (monotonic_ns() >= until || stop.load(Ordering::Relaxed))
-                    {
+                    // Every look: a yield may give the CPU away for a while.
+                    if monotonic_ns() >= until || stop.load(Ordering::Relaxed) {
                         break;
                     }
                     if !work() {
