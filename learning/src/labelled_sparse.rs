@@ -2,7 +2,7 @@
 //!
 //! The format `tes fit` reads for wide data (thousands of columns, few of them non-zero per
 //! row). A row is its class label (a whole number `0..K`, at most
-//! [`MAX_LABEL`](crate::labelled_csv::MAX_LABEL)) and then, separated by white space, its
+//! [`MAX_LABEL`](crate::labelled_csv::MAX_LABEL)) and then, separated by spaces or tabs, its
 //! non-zero features as `column:value`, where a column is a whole number `0..=`[`MAX_COLUMN`].
 //! Columns are numbered as written: a file numbered from 1, as libsvm's tools write it, simply
 //! never uses column 0. Two Vowpal Wabbit habits are read too: a `|` before the features (a
@@ -36,14 +36,18 @@ pub const MAX_COLUMN: u32 = 1 << 24;
 /// Zero values are dropped, so `features` holds exactly the row's non-zero entries.
 pub fn parse_sparse_row(line: &str, features: &mut Vec<(u32, f64)>) -> Result<usize, RowError> {
     features.clear();
-    let content = line.split_once('#').map_or(line, |(before, _)| before);
-    let mut fields = content.split_whitespace();
+    let content = line
+        .as_bytes()
+        .iter()
+        .position(|&b| b == b'#')
+        .map_or(line, |at| &line[..at]);
+    let mut fields = content.split_ascii_whitespace();
     let label = parse_label(fields.next().unwrap_or(""))?;
     for field in fields {
-        if field == "|" {
-            continue;
-        }
-        if field.starts_with('|') {
+        if field.as_bytes()[0] == b'|' {
+            if field.len() == 1 {
+                continue;
+            }
             return Err(RowError::NamedNamespace { text: quote(field) });
         }
         let (column, value) = parse_feature(field)?;
@@ -51,7 +55,10 @@ pub fn parse_sparse_row(line: &str, features: &mut Vec<(u32, f64)>) -> Result<us
             features.push((column, value));
         }
     }
-    features.sort_unstable_by_key(|&(column, _)| column);
+    // Rows written by a program come sorted: check before sorting.
+    if !features.is_sorted_by_key(|&(column, _)| column) {
+        features.sort_unstable_by_key(|&(column, _)| column);
+    }
     if let Some(pair) = features.windows(2).find(|pair| pair[0].0 == pair[1].0) {
         return Err(RowError::RepeatedColumn { column: pair[0].0 });
     }
@@ -60,7 +67,10 @@ pub fn parse_sparse_row(line: &str, features: &mut Vec<(u32, f64)>) -> Result<us
 
 /// One `column:value` (or bare `column`, value 1) field.
 fn parse_feature(field: &str) -> Result<(u32, f64), RowError> {
-    let (column_text, value_text) = field.split_once(':').unwrap_or((field, "1"));
+    let (column_text, value_text) = match field.as_bytes().iter().position(|&b| b == b':') {
+        Some(at) => (&field[..at], &field[at + 1..]),
+        None => (field, "1"),
+    };
     let column = match column_text.parse::<u64>() {
         Ok(column) if column <= u64::from(MAX_COLUMN) => column as u32,
         Ok(_) => return Err(RowError::ColumnTooLarge { text: quote(field) }),
@@ -69,9 +79,14 @@ fn parse_feature(field: &str) -> Result<(u32, f64), RowError> {
         }
         Err(_) => return Err(RowError::BadFeature { text: quote(field) }),
     };
-    let value = value_text
-        .parse::<f64>()
-        .map_err(|_| RowError::BadFeature { text: quote(field) })?;
+    // Binary data writes `1` in nearly every field: skip the float parser for it.
+    let value = if value_text == "1" {
+        1.0
+    } else {
+        value_text
+            .parse::<f64>()
+            .map_err(|_| RowError::BadFeature { text: quote(field) })?
+    };
     if !value.is_finite() {
         return Err(RowError::NonFiniteFeature { text: quote(field) });
     }

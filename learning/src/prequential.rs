@@ -128,6 +128,9 @@ pub struct FitSettings {
     /// How the rows are written (`--format`); `None` to tell from the first row
     /// ([`RowFormat::detect`]).
     pub format: Option<RowFormat>,
+    /// Threads a race's settings learn on (`--threads`); 0 for one per core the machine
+    /// gives this process. The fit is the same to the bit on any number.
+    pub threads: usize,
 }
 
 /// What a fit found: the prequential figures and the features kept.
@@ -579,6 +582,15 @@ struct Tally {
     updating: Duration,
 }
 
+impl Tally {
+    /// One more row, predicted as `pre`, whose label was `label`.
+    fn count(&mut self, pre: Prequential, label: usize) {
+        self.rows += 1;
+        self.log_loss -= pre.log_prob;
+        self.correct += u64::from(pre.predicted == label);
+    }
+}
+
 /// How a chunk hands its rows to the model.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Input {
@@ -655,8 +667,9 @@ impl Chunk {
         self.labels.len() >= CHUNK_ROWS
     }
 
-    /// Row `i`'s features, its sparse entries starting at `begin`.
-    fn features(&self, i: usize, begin: usize) -> Features<'_> {
+    /// Row `i`'s features.
+    fn features(&self, i: usize) -> Features<'_> {
+        let begin = i.checked_sub(1).map_or(0, |before| self.ends[before]);
         let end = self.ends[i];
         match self.input {
             Input::Dense => Features::Dense(&self.dense[i * self.width..(i + 1) * self.width]),
@@ -671,26 +684,50 @@ impl Chunk {
     /// Predicts then learns every row, timing only the model's work.
     fn learn(&mut self, model: &mut Learner, tally: &mut Tally) -> Result<(), FitError> {
         let start = Instant::now();
-        let mut begin = 0;
-        for (i, &label) in self.labels.iter().enumerate() {
-            let pre = model
-                .update(self.features(i, begin), label)
-                .map_err(|source| FitError::Update {
-                    row: tally.rows + 1,
-                    source,
-                })?;
-            begin = self.ends[i];
-            tally.rows += 1;
-            tally.log_loss -= pre.log_prob;
-            tally.correct += u64::from(pre.predicted == label);
-        }
+        let learned = match model {
+            Learner::Fixed(model) => self.learn_fixed(model, tally),
+            Learner::Race(race) => self.learn_raced(race, tally),
+        };
         tally.updating += start.elapsed();
+        learned?;
         self.labels.clear();
         self.dense.clear();
         self.indices.clear();
         self.values.clear();
         self.ends.clear();
         Ok(())
+    }
+}
+
+impl Chunk {
+    /// One model learns the rows one by one.
+    fn learn_fixed(&self, model: &mut Mdagl, tally: &mut Tally) -> Result<(), FitError> {
+        for (i, &label) in self.labels.iter().enumerate() {
+            let pre = model
+                .update(self.features(i), label)
+                .map_err(|source| FitError::Update {
+                    row: tally.rows + 1,
+                    source,
+                })?;
+            tally.count(pre, label);
+        }
+        Ok(())
+    }
+
+    /// A race learns the rows as one block (each setting a run of rows at a time).
+    fn learn_raced(&self, race: &mut MdaglRace, tally: &mut Tally) -> Result<(), FitError> {
+        let rows: Vec<(Features<'_>, usize)> = (0..self.labels.len())
+            .map(|i| (self.features(i), self.labels[i]))
+            .collect();
+        let mut records = Vec::with_capacity(rows.len());
+        let learned = race.update_block(&rows, &mut records);
+        for (pre, &(_, label)) in records.iter().zip(&rows) {
+            tally.count(*pre, label);
+        }
+        learned.map_err(|refused| FitError::Update {
+            row: tally.rows + 1,
+            source: refused.source,
+        })
     }
 }
 
@@ -703,13 +740,6 @@ enum Learner {
 }
 
 impl Learner {
-    fn update(&mut self, x: Features<'_>, label: usize) -> Result<Prequential, MdaglError> {
-        match self {
-            Learner::Fixed(model) => model.update(x, label),
-            Learner::Race(race) => race.update(x, label),
-        }
-    }
-
     /// The model reported, and the race's standings (none for a fixed setting).
     fn finish(self) -> (Mdagl, Vec<Standing>) {
         match self {
@@ -747,8 +777,12 @@ fn build_learner(
             (!settings.auto_alpha).then_some(p.alpha),
             p.intercept,
         );
-        let race = MdaglRace::new(classes, shape.features, &grid, RaceSchedule::default())
+        let mut race = MdaglRace::new(classes, shape.features, &grid, RaceSchedule::default())
             .map_err(model_error)?;
+        race.set_threads(match settings.threads {
+            0 => std::thread::available_parallelism().map_or(1, usize::from),
+            n => n,
+        });
         Learner::Race(race)
     } else {
         Learner::Fixed(Mdagl::new(classes, shape.features, p).map_err(model_error)?)

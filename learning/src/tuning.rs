@@ -96,6 +96,29 @@ impl Default for RaceSchedule {
     }
 }
 
+/// A row of a block the race refused or could not learn (see [`MdaglRace::update_block`]).
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+#[error("row {row} of the block: {source}")]
+pub struct BlockError {
+    /// The row's index in the block.
+    pub row: usize,
+    /// Why.
+    #[source]
+    pub source: MdaglError,
+}
+
+/// One entrant learns `run` in order, keeping each row's prequential record.
+fn learn_entrant(
+    entrant: &mut Entrant,
+    run: &[(Features<'_>, usize)],
+    records: &mut [Prequential],
+) -> Result<(), (usize, MdaglError)> {
+    for (row, (&(x, label), record)) in run.iter().zip(records).enumerate() {
+        *record = entrant.model.update(x, label).map_err(|e| (row, e))?;
+    }
+    Ok(())
+}
+
 /// One setting's record in a race.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Standing {
@@ -110,7 +133,11 @@ pub struct Standing {
 }
 
 /// An entrant: a setting, its model, its summed log-loss.
+///
+/// Aligned to its own cache lines: a model writes its own fields on every update, and
+/// neighbours in the field may learn on different threads.
 #[derive(Debug)]
+#[repr(align(128))]
 struct Entrant {
     model: Mdagl,
     loss: f64,
@@ -130,6 +157,11 @@ pub struct MdaglRace {
     rows: u64,
     next_cut: u64,
     leader: usize,
+    /// Threads a block's entrants learn on ([`MdaglRace::set_threads`]).
+    threads: usize,
+    /// Each entrant's prequential records for the block being learned, entrant-major
+    /// (reused between blocks).
+    block: Vec<Prequential>,
 }
 
 impl MdaglRace {
@@ -165,7 +197,150 @@ impl MdaglRace {
             rows: 0,
             next_cut: schedule.first_cut.max(1),
             leader: 0,
+            threads: 1,
+            block: Vec::new(),
         })
+    }
+
+    /// Lets [`update_block`](Self::update_block) spread the entrants over up to `threads`
+    /// threads (at least 1; 1 by default). The entrants never read each other, so the result
+    /// is the same to the bit on any number of threads.
+    pub fn set_threads(&mut self, threads: usize) {
+        self.threads = threads.max(1);
+    }
+
+    /// Learns `rows` in order, exactly as that many calls of [`update`](Self::update) would,
+    /// writing the race's prediction of each row into `out` (cleared first).
+    ///
+    /// Each entrant learns a run of rows on its own before the race weighs them row by row:
+    /// one model stays in cache for the whole run, and with [`set_threads`](Self::set_threads)
+    /// the entrants learn on several threads. A run ends at each cut, so no entrant learns a
+    /// row after it retires. A row refused for its shape or label is checked before any
+    /// learning: the rows before it are learned, it and those after are not, and its index
+    /// comes with the error.
+    pub fn update_block(
+        &mut self,
+        rows: &[(Features<'_>, usize)],
+        out: &mut Vec<Prequential>,
+    ) -> Result<(), BlockError> {
+        out.clear();
+        let (valid, refused) = self.checked_prefix(rows);
+        let mut done = 0;
+        while done < valid {
+            let until_cut = usize::try_from(self.next_cut - self.rows).unwrap_or(usize::MAX);
+            let run = &rows[done..valid.min(done.saturating_add(until_cut))];
+            self.learn_run(run).map_err(|(row, source)| BlockError {
+                row: done + row,
+                source,
+            })?;
+            self.weigh_run(run.len(), out);
+            done += run.len();
+        }
+        refused.map_or(Ok(()), Err)
+    }
+
+    /// How many leading rows every entrant accepts, and the first refused row's error.
+    fn checked_prefix(&self, rows: &[(Features<'_>, usize)]) -> (usize, Option<BlockError>) {
+        let first = &self.entrants[0].model;
+        for (row, &(x, label)) in rows.iter().enumerate() {
+            let check = x.validate(first.n_features()).and_then(|()| {
+                if label < first.n_classes() {
+                    Ok(())
+                } else {
+                    Err(MdaglError::LabelOutOfRange {
+                        label,
+                        classes: first.n_classes(),
+                    })
+                }
+            });
+            if let Err(source) = check {
+                return (row, Some(BlockError { row, source }));
+            }
+        }
+        (rows.len(), None)
+    }
+
+    /// Every entrant learns `run`, keeping its prequential records in `self.block`.
+    fn learn_run(&mut self, run: &[(Features<'_>, usize)]) -> Result<(), (usize, MdaglError)> {
+        let n = run.len();
+        self.block.clear();
+        self.block.resize(
+            self.entrants.len() * n,
+            Prequential {
+                log_prob: 0.0,
+                predicted: 0,
+            },
+        );
+        let mut work: Vec<(&mut Entrant, &mut [Prequential])> = self
+            .entrants
+            .iter_mut()
+            .zip(self.block.chunks_mut(n))
+            .collect();
+        let threads = self.threads.min(work.len());
+        if threads <= 1 {
+            return work
+                .iter_mut()
+                .try_for_each(|(e, records)| learn_entrant(e, run, records));
+        }
+        // In contiguous shares: a model's buffers were allocated beside its neighbours', and
+        // neighbours learning on different threads would write to shared cache lines.
+        let share = work.len().div_ceil(threads);
+        let mut hands: Vec<Vec<(&mut Entrant, &mut [Prequential])>> = Vec::new();
+        while !work.is_empty() {
+            let rest = work.split_off(share.min(work.len()));
+            hands.push(std::mem::replace(&mut work, rest));
+        }
+        std::thread::scope(|scope| {
+            let workers: Vec<_> = hands
+                .into_iter()
+                .map(|mut hand| {
+                    scope.spawn(move || {
+                        hand.iter_mut()
+                            .try_for_each(|(e, records)| learn_entrant(e, run, records))
+                    })
+                })
+                .collect();
+            workers
+                .into_iter()
+                .map(|worker| {
+                    worker
+                        .join()
+                        .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+                })
+                .collect::<Result<Vec<()>, _>>()
+                .map(|_| ())
+        })
+    }
+
+    /// The race's bookkeeping for the `n` rows just learned, row by row as
+    /// [`update`](Self::update) does it, from the records in `self.block`.
+    fn weigh_run(&mut self, n: usize, out: &mut Vec<Prequential>) {
+        for row in 0..n {
+            self.log_probs.clear();
+            self.log_probs
+                .extend((0..self.entrants.len()).map(|e| self.block[e * n + row].log_prob));
+            let predicted = self.block[self.leader * n + row].predicted;
+            out.push(self.settle_row(predicted));
+        }
+    }
+
+    /// Scores the row whose entrants' log-probabilities are in `log_probs`: the mixture's
+    /// prediction, then the losses, the leader, and a cut when one is due.
+    fn settle_row(&mut self, predicted: usize) -> Prequential {
+        let log_prob = self.mixture_log_prob();
+        for (entrant, lp) in self.entrants.iter_mut().zip(&self.log_probs) {
+            entrant.loss -= lp;
+            entrant.recent -= lp;
+        }
+        self.rows += 1;
+        self.leader = self.best_entrant();
+        if self.rows >= self.next_cut {
+            self.cut();
+        }
+        Prequential {
+            log_prob,
+            predicted,
+        }
     }
 
     /// Has every entrant learn `(x, label)` and returns the race's prediction of it, made
@@ -191,22 +366,8 @@ impl MdaglRace {
                 predicted = Some(pre.predicted);
             }
         }
-        let log_prob = self.mixture_log_prob();
-        for (entrant, lp) in self.entrants.iter_mut().zip(&self.log_probs) {
-            entrant.loss -= lp;
-            entrant.recent -= lp;
-        }
-        self.rows += 1;
-        self.leader = self.best_entrant();
-        if self.rows >= self.next_cut {
-            self.cut();
-        }
-        predicted
-            .map(|predicted| Prequential {
-                log_prob,
-                predicted,
-            })
-            .ok_or(MdaglError::Overflow)
+        let predicted = predicted.ok_or(MdaglError::Overflow)?;
+        Ok(self.settle_row(predicted))
     }
 
     /// `ln Σ_j w_j p_j(label)` with `w_j ∝ exp(−loss_j)` (the losses before this row), in

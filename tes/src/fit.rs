@@ -46,6 +46,10 @@ pub struct FitArgs {
     /// Add an unregularised intercept column.
     #[arg(long)]
     intercept: bool,
+    /// Threads `auto`'s settings learn on [default: one per core]. The fit is the same on
+    /// any number.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u16).range(1..))]
+    threads: Option<u16>,
     /// Print one JSON object instead of the text report.
     #[arg(long)]
     json: bool,
@@ -172,6 +176,7 @@ pub fn run(args: &FitArgs) -> Result<()> {
         auto_alpha: args.alpha == Hyper::Auto,
         classes: args.classes,
         format: args.format.map(RowFormat::from),
+        threads: args.threads.map_or(0, usize::from),
     };
     let mut fitting = false;
     let report = |pass, bytes| {

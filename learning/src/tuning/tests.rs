@@ -289,3 +289,85 @@ proptest::proptest! {
         });
     }
 }
+
+/// A block learned by one thread or by several is the same, to the bit, as the rows learned
+/// one by one: every prediction, every standing, the leader's model — across cuts that fall
+/// inside blocks.
+#[test]
+fn blocks_on_any_number_of_threads_learn_as_rows_one_by_one() {
+    let shape = StreamShape {
+        classes: 5,
+        features: 60,
+        relevant: 4,
+        relevant_on: 0.2,
+        noise_on: 0.05,
+        rows: 3000,
+        seed: 11,
+    };
+    let (rows, _) = stream(shape);
+    let grid = auto_grid(None, None, true);
+    let schedule = RaceSchedule {
+        first_cut: 300,
+        finalists: 2,
+    };
+    let new_race = || MdaglRace::new(shape.classes, shape.features, &grid, schedule).expect("race");
+    let mut one_by_one = new_race();
+    let expected: Vec<Prequential> = rows
+        .iter()
+        .map(|(x, y)| {
+            one_by_one
+                .update(Features::SparseBinary(x), *y)
+                .expect("row")
+        })
+        .collect();
+    for (threads, block) in [(1, 1000), (2, 257), (3, 3000), (16, 64)] {
+        let mut race = new_race();
+        race.set_threads(threads);
+        let mut got = Vec::new();
+        let mut out = Vec::new();
+        for chunk in rows.chunks(block) {
+            let batch: Vec<(Features<'_>, usize)> = chunk
+                .iter()
+                .map(|(x, y)| (Features::SparseBinary(x), *y))
+                .collect();
+            race.update_block(&batch, &mut out).expect("block");
+            got.extend_from_slice(&out);
+        }
+        assert_eq!(got, expected, "{threads} threads, blocks of {block}");
+        assert_eq!(race.standings(), one_by_one.standings());
+        assert_eq!(race.model(), one_by_one.model());
+    }
+}
+
+/// A block with a refused row learns the rows before it and names it; nothing after it is
+/// learned.
+#[test]
+fn a_block_stops_at_its_first_refused_row() {
+    let grid = auto_grid(None, Some(1.5), false);
+    let mut race = MdaglRace::new(2, 3, &grid, RaceSchedule::default()).expect("race");
+    race.set_threads(2);
+    let rows = [
+        (Features::SparseBinary(&[0]), 0),
+        (Features::SparseBinary(&[1, 2]), 1),
+        (Features::SparseBinary(&[2, 1]), 0),
+        (Features::SparseBinary(&[0]), 1),
+    ];
+    let mut out = Vec::new();
+    let refused = race
+        .update_block(&rows, &mut out)
+        .expect_err("unsorted row");
+    assert_eq!(refused.row, 2);
+    assert!(matches!(
+        refused.source,
+        MdaglError::UnsortedIndices {
+            previous: 2,
+            index: 1
+        }
+    ));
+    assert_eq!((out.len(), race.rows()), (2, 2));
+    let label_out_of_range = [(Features::SparseBinary(&[0]), 2)];
+    let refused = race
+        .update_block(&label_out_of_range, &mut out)
+        .expect_err("label");
+    assert_eq!((refused.row, out.len(), race.rows()), (0, 0, 2));
+}

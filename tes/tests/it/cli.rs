@@ -78,10 +78,29 @@ fn fit_auto_races_the_grid_and_says_what_won() {
     for column in [125, 174, 175] {
         assert!(selected.contains(&serde_json::json!(column)), "{report}");
     }
+    // One thread or three: the same fit.
+    let json = |threads: &str| {
+        let out = tes(&[
+            "fit",
+            demo,
+            "--lambda",
+            "auto",
+            "--json",
+            "--threads",
+            threads,
+        ]);
+        let mut report: serde_json::Value =
+            serde_json::from_slice(&out.stdout).expect("one JSON object");
+        report["updates_per_sec"] = serde_json::Value::Null;
+        report
+    };
+    assert_eq!(json("1"), json("3"));
     let out = tes(&["fit", demo, "--lambda", "small"]);
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("expected a number or `auto`"), "{err}");
+    let out = tes(&["fit", demo, "--lambda", "auto", "--threads", "0"]);
+    assert!(!out.status.success(), "no threads is refused");
 }
 
 #[test]
