@@ -66,6 +66,8 @@ pub enum Event {
         listen: Vec<String>,
         /// Endpoints connected to.
         connect: Vec<String>,
+        /// How the link is protected.
+        security: tes_link::Security,
     },
     /// The launch waits for the launches playing `missing` (said every few seconds).
     LinkWaiting {
@@ -92,6 +94,9 @@ pub enum Event {
         /// Samples of this service refused so far.
         count: u64,
     },
+    /// Zenoh refused a connection (it failed the group's TLS) or a peer's message (its
+    /// certificate does not allow it).
+    LinkDenied(tes_link::refusals::Denial),
     /// The launch playing `role` left the group (its host stopped, was killed or cannot be
     /// reached): the group stops.
     LinkDown {

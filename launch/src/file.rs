@@ -555,7 +555,7 @@ pub fn check_launch(l: &LaunchSection) -> Result<(), SettingError> {
         }
     }
     if !l.roles.is_empty() {
-        l.link.check()?;
+        l.link.check_for(&l.roles)?;
     }
     Ok(())
 }

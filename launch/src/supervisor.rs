@@ -344,8 +344,8 @@ impl Supervisor {
         }
     }
 
-    /// Acts on what the link saw: a peer back, a refused sample, a peer gone or twice, a
-    /// peer's stop.
+    /// Acts on what the link saw: a peer back, a refused sample, connection or message, a
+    /// peer gone or twice, a peer's stop.
     fn follow_link(&mut self, observer: &mut dyn Observer) {
         let Some(link) = &self.link else { return };
         for event in link.events() {
@@ -357,6 +357,7 @@ impl Supervisor {
                 LinkEvent::Refused { topic, why, count } => {
                     observer.event(&Event::LinkRefused { topic, why, count })
                 }
+                LinkEvent::Denied(denial) => observer.event(&Event::LinkDenied(denial)),
                 LinkEvent::Left(role) => self.peer_left(role, observer),
                 LinkEvent::Twice(role) => {
                     let group = self.file.launch.link.group.clone();
@@ -931,6 +932,7 @@ fn open_link(
         zid: link.zid().to_owned(),
         listen: settings.listen.clone(),
         connect: settings.connect.clone(),
+        security: settings.security(),
     });
     wait_for_peers(&link, file, stop, observer)?;
     Ok(link)
@@ -1004,6 +1006,7 @@ fn take_events_while_waiting(
                 )));
             }
             LinkEvent::Joined(role) => observer.event(&Event::LinkUp { role, again: false }),
+            LinkEvent::Denied(denial) => observer.event(&Event::LinkDenied(denial)),
             _ => {}
         }
     }

@@ -79,12 +79,17 @@ link.close();
 
 mod error;
 mod inbound;
+pub mod keys;
 mod link;
 mod outbound;
+pub mod refusals;
 mod settings;
 mod topic;
 
 pub use error::LinkError;
 pub use link::{Link, LinkCounts, LinkEvent};
-pub use settings::{GROUP_NAME_MAX, LinkSection, MIN_PEER_TIMEOUT_MS, Mode};
+pub use settings::{
+    DEFAULT_LEASE_MS, GROUP_NAME_MAX, LinkSection, MIN_LEASE_MS, MIN_PEER_TIMEOUT_MS, Mode,
+    Security, access_control,
+};
 pub use topic::Topic;

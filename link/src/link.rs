@@ -49,6 +49,9 @@ pub enum LinkEvent {
         /// What it said.
         reason: String,
     },
+    /// Zenoh refused a connection or a peer's message ([`refusals`](crate::refusals)):
+    /// seen only where the launcher installed [`refusals::layer`](crate::refusals::layer).
+    Denied(crate::refusals::Denial),
     /// A payload from a peer was refused (the first of its kind, then every 100th).
     Refused {
         /// The service.
@@ -307,11 +310,14 @@ impl Link {
 
     /// The events since the last call.
     pub fn events(&self) -> Vec<LinkEvent> {
-        self.shared
+        let mut events: Vec<LinkEvent> = self
+            .shared
             .events
             .lock()
             .map(|mut e| e.drain(..).collect())
-            .unwrap_or_default()
+            .unwrap_or_default();
+        events.extend(crate::refusals::take().into_iter().map(LinkEvent::Denied));
+        events
     }
 
     /// Tells the peers the group stops, and why (`GROUP/stop`: `ZID clean|failed REASON`).

@@ -75,6 +75,9 @@ pub fn run(args: &LaunchArgs) -> Result<()> {
         return print_reference(format);
     }
     let file = launch_file(args)?;
+    // Zenoh tells refused connections and messages only in its log: the link's layer picks
+    // them out. Log lines themselves only with RUST_LOG (the launcher says what it does).
+    tes_runtime::logging::init_with("off", tes_link::refusals::layer());
     let stop = stop_on_signals()?;
     let options = Options::new(this_executable()?, stop);
     let verdict = if args.tui {
@@ -112,9 +115,13 @@ fn launch_file(args: &LaunchArgs) -> Result<LaunchFile> {
             Ok(roles) => roles,
             Err(e) => bail!("--roles: {e}; nothing was started"),
         };
-        // Said by the user, so placed as theirs: a bad role is named with the flag.
+        // Said by the user, so placed as theirs: a bad role is named with the flag; what the
+        // roles bring in (the link's keys) with its key.
         if let Err(e) = tes_launch::file::check_launch(&file.launch) {
-            bail!("--roles: {}; nothing was started", e.reason);
+            if e.key == "roles" {
+                bail!("--roles: {}; nothing was started", e.reason);
+            }
+            bail!("[launch] {}: {}; nothing was started", e.key, e.reason);
         }
     }
     Ok(file)

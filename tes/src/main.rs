@@ -11,6 +11,7 @@ mod experiment;
 mod fit;
 mod launch;
 mod library;
+mod link;
 mod record;
 mod status;
 
@@ -40,6 +41,8 @@ enum Command {
     Replay(record::ReplayArgs),
     /// Latency benchmarks: the real loop against the raw iceoryx2 floor, and scaling sweeps.
     Bench(bench::BenchArgs),
+    /// The link between hosts: `keygen` makes the keys of a TLS group.
+    Link(link::LinkArgs),
     /// Run one process of the group (used by `tes launch`).
     #[command(hide = true)]
     Child {
@@ -87,6 +90,7 @@ fn main() -> ExitCode {
         Command::Status(args) => status::run(&args),
         Command::Replay(args) => record::run(&args),
         Command::Bench(args) => bench::run(&args),
+        Command::Link(args) => link::run(&args),
         Command::Child { role, config } => {
             init_child_logging();
             return match tes_launch::run_role(role, &config) {

@@ -8,6 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use tes_launch::event::{Event, ExitConsequence, Observer};
 use tes_launch::supervisor::role_list;
+use tes_link::Security;
 
 /// Which of the launcher's outputs a line goes to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -74,6 +75,7 @@ pub(crate) fn lines_of(event: &Event, echo: bool) -> Vec<(To, String)> {
         | Event::LinkWaiting { .. }
         | Event::LinkUp { .. }
         | Event::LinkRefused { .. }
+        | Event::LinkDenied(_)
         | Event::LinkDown { .. }
         | Event::LinkTwice { .. }
         | Event::PeerStopped { .. }
@@ -219,6 +221,17 @@ fn exit_line(
     }
 }
 
+/// How the link is protected, in a few words.
+fn security_words(security: &Security) -> String {
+    match security {
+        Security::Loopback => "plain TCP on loopback".into(),
+        Security::Tls { common_name } => {
+            format!("mutual TLS, this host's certificate {common_name:?}")
+        }
+        Security::Insecure { .. } => "plain TCP, INSECURE".into(),
+    }
+}
+
 /// The lines of the link's events.
 fn link_line(event: &Event) -> Option<Said> {
     match event {
@@ -229,11 +242,24 @@ fn link_line(event: &Event) -> Option<Said> {
             zid,
             listen,
             connect,
-        } => note(format!(
-            "launch: link: this launch plays {} in group {group:?} (Zenoh {mode:?}, id {zid}, \
-             listen {listen:?}, connect {connect:?})",
-            role_list(local)
-        )),
+            security,
+        } => {
+            let opened = format!(
+                "launch: link: this launch plays {} in group {group:?} (Zenoh {mode:?}, id {zid}, \
+                 listen {listen:?}, connect {connect:?}, {})",
+                role_list(local),
+                security_words(security)
+            );
+            match security {
+                Security::Insecure { exposed } => warn(format!(
+                    "{opened}\nlaunch: link: INSECURE: plain TCP beyond loopback ({}): anyone \
+                     who reaches it can join the group, read its observations and drive the \
+                     robot ([launch.link] insecure = true; `tes link keygen DIR` makes TLS keys)",
+                    exposed.join(", ")
+                )),
+                _ => note(opened),
+            }
+        }
         Event::LinkWaiting {
             missing,
             group,
@@ -247,6 +273,7 @@ fn link_line(event: &Event) -> Option<Said> {
         Event::LinkUp { role, again: true } => {
             note(format!("launch: link: the {role} joined again"))
         }
+        Event::LinkDenied(denial) => warn(format!("launch: link: {denial}")),
         Event::LinkRefused { topic, why, count } => warn(format!(
             "launch: link: warning: refused a {topic} sample from a peer: {why} ({count} \
              refused so far)"

@@ -742,3 +742,58 @@ fn read_toml(path: &Path) -> toml::Table {
     text.parse()
         .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
+
+/// `tes link keygen DIR` makes the authority and a key pair per host, readable only by their
+/// owner, prints each host's `[launch.link]` lines (which a launch accepts), and never
+/// overwrites keys.
+#[test]
+fn link_keygen_makes_private_keys_and_prints_the_launch_lines() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().expect("temp dir");
+    let keys = dir.path().join("keys");
+    let keys_arg = keys.to_str().expect("utf-8 path");
+    let out = tes(&[
+        "link",
+        "keygen",
+        keys_arg,
+        "--host",
+        "robot=perception-sim,bridge@192.168.1.20",
+        "--host",
+        "learner=controller",
+    ]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for file in [
+        "ca.pem",
+        "ca.key",
+        "robot.pem",
+        "robot.key",
+        "learner.pem",
+        "learner.key",
+    ] {
+        let mode = std::fs::metadata(keys.join(file))
+            .expect(file)
+            .permissions()
+            .mode();
+        assert_eq!(mode & 0o777, 0o600, "{file}");
+    }
+    assert!(
+        text.contains("connect = [\"quic/192.168.1.20:7447\"]"),
+        "{text}"
+    );
+    assert!(text.contains("listen = [\"quic/0.0.0.0:7447\"]"), "{text}");
+    // The learner's lines, as printed, make a launch file that passes its checks.
+    let learner = &text[text.find("# on learner").expect("the learner's lines")..];
+    let launch = dir.path().join("learner.toml");
+    std::fs::write(&launch, learner).expect("write");
+    let file = tes_launch::file::read_launch_file(&launch).expect("the printed lines read");
+    tes_launch::file::check_launch(&file.launch).expect("and pass the launch's checks");
+    assert_eq!(file.launch.roles, [tes_topics::Role::Controller]);
+    let again = tes(&["link", "keygen", keys_arg]);
+    assert!(!again.status.success());
+    assert!(String::from_utf8_lossy(&again.stderr).contains("never overwritten"));
+}
