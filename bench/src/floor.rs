@@ -25,7 +25,7 @@ use tes_runtime::latency::{LatencyRecorder, LatencyReport};
 use tes_topics::{Command, Observation, Role, ServiceNames, StateAttributes, WorldMap};
 
 use crate::error::{BenchError, Result};
-use crate::group::{free_port, remove_domain_of, wait_or_kill};
+use crate::group::{Carrier, remove_domain_of, wait_or_kill};
 use crate::latency::{Floor, LatencySettings};
 use crate::relay::{self, RelayConfig};
 
@@ -209,6 +209,8 @@ pub struct HopSettings {
     pub budget_us: u64,
     /// Where the first hop's report goes.
     pub report: PathBuf,
+    /// The group's authority, this side's certificate and key, over QUIC.
+    pub tls: Option<[PathBuf; 3]>,
 }
 
 impl HopSettings {
@@ -232,12 +234,21 @@ impl HopSettings {
             args.push("--hop-cpu".into());
             args.push(cpu.to_string().into());
         }
+        if let Some(files) = &self.tls {
+            for (flag, file) in ["--tls-ca", "--tls-cert", "--tls-key"]
+                .into_iter()
+                .zip(files)
+            {
+                args.push(flag.into());
+                args.push(file.clone().into_os_string());
+            }
+        }
         args
     }
 }
 
-/// The floor of a split run: the loop's two hops through a [`Link`] on loopback TCP with no
-/// work at either end. The robot's side runs here, the controller's in a child process
+/// The floor of a split run: the loop's two hops through a [`Link`] on loopback (by
+/// `carrier`: plain TCP, or QUIC with the run's keys) with no work at either end. The robot's side runs here, the controller's in a child process
 /// (`floor_hop`, to which [`HopSettings::args`] are added) with an iceoryx2 domain of its
 /// own: an observation published here is forwarded, checked and republished there, answered
 /// at once with a command that comes back the same way. One round trip every `cycle_us`; the
@@ -248,21 +259,24 @@ pub fn zenoh_floor(
     settings: &LatencySettings,
     hop_cpu: Option<usize>,
     floor_hop: &ChildCommand,
+    carrier: &Carrier,
 ) -> Result<(LatencyReport, LatencyReport)> {
-    let port = free_port()?;
+    let port = carrier.free_port()?;
     let pid = std::process::id();
     let group = format!("tes-bench-floor/{pid}");
-    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let endpoint = carrier.endpoint(port);
     let names = ServiceNames::with_prefix(&format!("tes-bench-{pid}/floor-robot/"));
-    let robot = Link::open(
-        &floor_link_settings(&group, vec![endpoint.clone()], Vec::new()),
-        &[Role::Perception, Role::Bridge],
-        &names,
-    )
-    .map_err(|cause| BenchError::Link {
-        side: "robot",
-        cause,
-    })?;
+    let mut robot_link = floor_link_settings(&group, vec![endpoint.clone()], Vec::new());
+    carrier.keys_into(&mut robot_link, Carrier::ROBOT);
+    let mut hop_link = LinkSection::default();
+    carrier.keys_into(&mut hop_link, Carrier::CONTROLLER);
+    let robot =
+        Link::open(&robot_link, &[Role::Perception, Role::Bridge], &names).map_err(|cause| {
+            BenchError::Link {
+                side: "robot",
+                cause,
+            }
+        })?;
     let total = settings.actions + settings.warmup;
     let hop = HopSettings {
         connect: endpoint,
@@ -274,6 +288,11 @@ pub fn zenoh_floor(
         warmup: settings.warmup,
         budget_us: settings.budget_us,
         report: dir.join("floor-first-hop.json"),
+        tls: hop_link
+            .tls_ca
+            .zip(hop_link.tls_cert)
+            .zip(hop_link.tls_key)
+            .map(|((ca, cert), key)| [ca, cert, key]),
     };
     let log = dir.join("floor-hop.log");
     let mut child = spawn_hop(floor_hop, &hop, &log)?;
@@ -454,21 +473,27 @@ fn round_trips(
 /// The Zenoh floor's controller side (`tes bench zenoh-floor-hop`): answers each observation
 /// that crosses at once, the first `answer` of them, then saves the first hop's latencies.
 pub fn zenoh_hop(settings: &HopSettings) -> Result<()> {
+    let names = ServiceNames::with_prefix(&settings.prefix);
+    let wheels = floor_map()?.action_wheels[0];
+    let mut hop_link =
+        floor_link_settings(&settings.group, Vec::new(), vec![settings.connect.clone()]);
+    if let Some([ca, cert, key]) = &settings.tls {
+        hop_link.tls_ca = Some(ca.clone());
+        hop_link.tls_cert = Some(cert.clone());
+        hop_link.tls_key = Some(key.clone());
+    }
+    let link =
+        Link::open(&hop_link, &[Role::Controller], &names).map_err(|cause| BenchError::Link {
+            side: "controller",
+            cause,
+        })?;
+    wait_for_peer(&link, "controller's")?;
+    // Pinned only now, once Zenoh's threads exist: they follow the affinity of the thread
+    // that starts them, and in the measured group the link runs in the launcher, off the
+    // acting CPU.
     if let Some(cpu) = settings.hop_cpu {
         tes_runtime::affinity::pin_this_thread(cpu)?;
     }
-    let names = ServiceNames::with_prefix(&settings.prefix);
-    let wheels = floor_map()?.action_wheels[0];
-    let link = Link::open(
-        &floor_link_settings(&settings.group, Vec::new(), vec![settings.connect.clone()]),
-        &[Role::Controller],
-        &names,
-    )
-    .map_err(|cause| BenchError::Link {
-        side: "controller",
-        cause,
-    })?;
-    wait_for_peer(&link, "controller's")?;
     let first_hop = answer(settings, &names, wheels)?;
     first_hop
         .save(&settings.report)

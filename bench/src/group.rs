@@ -16,10 +16,12 @@ use tes_runtime::latency::LatencyReport;
 use tes_topics::Role;
 
 use crate::error::{BenchError, GroupFailure, Result};
-use crate::latency::{CheckedLatency, Harness, Pace, REAL_LINK_DELAY_MS};
+use crate::latency::{CheckedLatency, Harness, Pace, REAL_LINK_DELAY_MS, Via};
 use std::collections::BTreeMap;
 use tes_bridge::config::LinkDelayConfig;
 use tes_bridge::process::BridgeReport;
+use tes_link::LinkSection;
+use tes_link::keys::{self, KeySet};
 use tes_perception_sim::process::PerceptionSummary;
 use tes_runtime::channel::Catches;
 use tes_runtime::cpu::CpuUse;
@@ -96,11 +98,12 @@ impl Group {
     /// link connects them).
     pub(crate) fn run_split(
         &self,
+        carrier: &Carrier,
         harness: &mut Harness<'_>,
     ) -> Result<(LatencyReport, ControllerSummary)> {
         store::save(&self.files.library, &self.stored)?;
-        let port = free_port()?;
-        let (robot, workstation) = split(&self.file, port, &self.dir);
+        let port = carrier.free_port()?;
+        let (robot, workstation) = split(&self.file, port, &self.dir, carrier);
         let text = tes_launch::reference::render_resolved(&workstation)?;
         let path = self.dir.join("controller-launch.toml");
         std::fs::write(&path, text)
@@ -260,25 +263,89 @@ fn group_file(dir: &Path, prefix: &str, latency: &CheckedLatency, files: &RunFil
 }
 
 /// The group split in two: the robot's launch (perception-sim and the bridge, listening on
-/// `port`) and the workstation's (the controller, connecting to it, its run folder apart).
-fn split(file: &LaunchFile, port: u16, dir: &Path) -> (LaunchFile, LaunchFile) {
+/// `port`) and the workstation's (the controller, connecting to it, its run folder apart),
+/// linked by `carrier`.
+fn split(file: &LaunchFile, port: u16, dir: &Path, carrier: &Carrier) -> (LaunchFile, LaunchFile) {
     let group = format!("tes-bench/{}", std::process::id());
     let mut robot = file.clone();
     robot.launch.roles = vec![Role::Perception, Role::Bridge];
     let link = &mut robot.launch.link;
     link.group.clone_from(&group);
-    link.listen = vec![format!("tcp/127.0.0.1:{port}")];
+    link.listen = vec![carrier.endpoint(port)];
     link.connect = Vec::new();
     link.multicast_scouting = Some(false);
     // One machine, one clock: the latency is measured across the link.
     link.restamp = false;
+    carrier.keys_into(link, Carrier::ROBOT);
     let mut workstation = robot.clone();
     workstation.launch.roles = vec![Role::Controller];
     workstation.launch.run_dir = Some(dir.join("run-controller"));
     let link = &mut workstation.launch.link;
     link.listen = Vec::new();
-    link.connect = vec![format!("tcp/127.0.0.1:{port}")];
+    link.connect = vec![carrier.endpoint(port)];
+    carrier.keys_into(link, Carrier::CONTROLLER);
     (robot, workstation)
+}
+
+/// How a split run's two launches (or the floor's two sides) are linked: plain TCP on
+/// loopback, or QUIC with keys of the run's own authority (`tes link keygen`'s).
+#[derive(Debug, Clone)]
+pub enum Carrier {
+    /// Plain TCP on loopback.
+    Tcp,
+    /// QUIC: TLS 1.3, both sides' certificates checked, access control by role.
+    Quic(KeySet),
+}
+
+impl Carrier {
+    /// The robot's host in the key set.
+    pub const ROBOT: usize = 0;
+    /// The controller's host in the key set.
+    pub const CONTROLLER: usize = 1;
+
+    /// The carrier `via` asks for; a QUIC run's keys are made in `dir/keys`.
+    pub fn for_via(via: Via, dir: &Path) -> Result<Self> {
+        if via != Via::ZenohTls {
+            return Ok(Carrier::Tcp);
+        }
+        let keys = keys::keygen(
+            &dir.join("keys"),
+            &keys::default_hosts(),
+            keys::DEFAULT_PORT,
+        )
+        .map_err(|e| BenchError::Run(format!("cannot make the run's keys: {e}")))?;
+        Ok(Carrier::Quic(keys))
+    }
+
+    /// A port free a moment ago on loopback: TCP, or UDP for QUIC.
+    pub fn free_port(&self) -> Result<u16> {
+        match self {
+            Carrier::Tcp => free_port(),
+            Carrier::Quic(_) => std::net::UdpSocket::bind("127.0.0.1:0")
+                .and_then(|s| s.local_addr())
+                .map(|a| a.port())
+                .map_err(BenchError::io("no free UDP port on loopback".into())),
+        }
+    }
+
+    /// The loopback endpoint on `port`.
+    pub fn endpoint(&self, port: u16) -> String {
+        match self {
+            Carrier::Tcp => format!("tcp/127.0.0.1:{port}"),
+            Carrier::Quic(_) => format!("quic/127.0.0.1:{port}"),
+        }
+    }
+
+    /// Gives `link` host `host`'s files ([`Carrier::ROBOT`] or [`Carrier::CONTROLLER`]).
+    pub fn keys_into(&self, link: &mut LinkSection, host: usize) {
+        if let Carrier::Quic(keys) = self
+            && let Some(files) = keys.hosts.get(host)
+        {
+            link.tls_ca = Some(keys.authority.clone());
+            link.tls_cert = Some(files.cert.clone());
+            link.tls_key = Some(files.key.clone());
+        }
+    }
 }
 
 /// Starts `launch --config CONFIG` in an iceoryx2 domain of its own, its output in `log`.

@@ -44,7 +44,7 @@ use tes_runtime::latency::LatencyReport;
 use crate::error::{BenchError, Result};
 use crate::fixtures;
 use crate::floor;
-use crate::group::Group;
+use crate::group::{Carrier, Group};
 use crate::recorder_cost::{self, RecorderComparison};
 
 /// How the group's processes reach each other.
@@ -57,6 +57,18 @@ pub enum Via {
     /// Two launches, each in an iceoryx2 domain of its own, linked by Zenoh over loopback
     /// TCP; the floor the same two hops over a Zenoh link with no work.
     Zenoh,
+    /// As [`Via::Zenoh`], over QUIC with keys of the run's own authority (TLS 1.3, both
+    /// sides' certificates checked, access control by role): what a split group across hosts
+    /// runs on. The floor the same, with no work.
+    #[serde(rename = "zenoh-tls")]
+    ZenohTls,
+}
+
+impl Via {
+    /// Whether the group is split in two launches linked by Zenoh.
+    pub fn is_split(self) -> bool {
+        matches!(self, Via::Zenoh | Via::ZenohTls)
+    }
 }
 
 /// The pace the group runs at.
@@ -338,6 +350,10 @@ impl fmt::Display for Note {
                         "the same two hops through the split launch's own Zenoh link on \
                          loopback TCP, with no work"
                     }
+                    Via::ZenohTls => {
+                        "the same two hops through the split launch's own Zenoh link over \
+                         QUIC with the run's keys, on loopback, with no work"
+                    }
                 };
                 write!(
                     f,
@@ -560,7 +576,9 @@ fn measure_ours(
     let started = Instant::now();
     let (report, controller) = match s.via {
         Via::Shm => group.run(&group.file, harness)?,
-        Via::Zenoh => group.run_split(harness)?,
+        Via::Zenoh | Via::ZenohTls => {
+            group.run_split(&Carrier::for_via(s.via, &group.dir)?, harness)?
+        }
     };
     let (cpu, catches) = group.cpu_and_catches(&controller)?;
     let elapsed = started.elapsed();
@@ -611,9 +629,16 @@ fn measure_floor(
             };
             floor::relay_floor(dir, prefix, cycle_us, s, helps, &harness.programs.relay)
         }
-        Via::Zenoh => {
-            let (round_trip, first_hop) =
-                floor::zenoh_floor(dir, cycle_us, s, hop_cpu, &harness.programs.floor_hop)?;
+        Via::Zenoh | Via::ZenohTls => {
+            let carrier = Carrier::for_via(s.via, &dir.join("floor"))?;
+            let (round_trip, first_hop) = floor::zenoh_floor(
+                dir,
+                cycle_us,
+                s,
+                hop_cpu,
+                &harness.programs.floor_hop,
+                &carrier,
+            )?;
             Ok(Floor {
                 round_trip,
                 first_hop,

@@ -34,6 +34,12 @@ Which services cross, by who writes and who reads them (each a [`Topic`]):
   [`Link::send_stop`] tells the peers this launch stops; [`Link::counts`] says what crossed.
 - [`Topic`] names the services that cross, their keys, writers and readers.
 - [`LinkError`] says why the link could not be opened.
+- [`keys`] makes the group's own authority and host certificates (`tes link keygen`); with
+  them the link runs over QUIC with mutual TLS 1.3, and [`access_control`] lets a peer
+  publish only what the roles in its certificate write ([`LinkSection::security`] says how a
+  launch's link is protected).
+- [`refusals`] picks the connections and messages Zenoh refused out of its log, for
+  [`LinkEvent::Denied`].
 
 Which topics a robot host (perception and the bridge) and a learning host (the controller)
 exchange:

@@ -79,6 +79,15 @@ pub struct FloorHopArgs {
     /// Where the first hop's report goes.
     #[arg(long)]
     report: PathBuf,
+    /// The group's authority (with --tls-cert and --tls-key: over QUIC).
+    #[arg(long, requires_all = ["tls_cert", "tls_key"])]
+    tls_ca: Option<PathBuf>,
+    /// This side's certificate.
+    #[arg(long)]
+    tls_cert: Option<PathBuf>,
+    /// This side's key.
+    #[arg(long)]
+    tls_key: Option<PathBuf>,
 }
 
 /// Arguments of `tes bench latency`.
@@ -173,8 +182,11 @@ enum PaceArg {
 enum ViaArg {
     /// One host, shared memory.
     Shm,
-    /// Two launches linked by Zenoh.
+    /// Two launches linked by Zenoh over loopback TCP.
     Zenoh,
+    /// Two launches linked by Zenoh over QUIC with the run's own keys (TLS 1.3, both sides
+    /// authenticated), as hosts are linked.
+    ZenohTls,
 }
 
 /// Arguments of `tes bench scaling`.
@@ -235,6 +247,12 @@ fn zenoh_floor_hop(args: &FloorHopArgs) -> Result<()> {
         warmup: args.warmup,
         budget_us: args.budget_us,
         report: args.report.clone(),
+        tls: args
+            .tls_ca
+            .clone()
+            .zip(args.tls_cert.clone())
+            .zip(args.tls_key.clone())
+            .map(|((ca, cert), key)| [ca, cert, key]),
     };
     Ok(floor::zenoh_hop(&settings)?)
 }
@@ -273,6 +291,7 @@ fn latency_settings(args: &LatencyArgs) -> Result<LatencySettings> {
         via: match args.via {
             ViaArg::Shm => Via::Shm,
             ViaArg::Zenoh => Via::Zenoh,
+            ViaArg::ZenohTls => Via::ZenohTls,
         },
     })
 }
@@ -350,6 +369,7 @@ fn print_latency(result: &LatencyResult, warmup: u64) {
         match result.via {
             Via::Shm => "floor (raw two-hop relay)",
             Via::Zenoh => "floor (two hops over Zenoh)",
+            Via::ZenohTls => "floor (two hops over Zenoh, QUIC with TLS)",
         },
         &result.floor(),
     );

@@ -259,6 +259,19 @@ fn latency_at_the_robots_pace_anticipates_and_reports_cpu() {
 
 #[test]
 fn latency_via_zenoh_runs_the_split_group_and_its_floor_in_one_invocation() {
+    split_group_and_its_floor("zenoh", &[]);
+}
+
+/// The same over QUIC with the run's own keys (made in the run directory), group and floor
+/// alike.
+#[test]
+fn latency_via_zenoh_tls_runs_both_over_quic_with_the_runs_keys() {
+    split_group_and_its_floor("zenoh-tls", &["keys/ca.pem", "floor/keys/ca.pem"]);
+}
+
+/// `tes bench latency --via VIA` measures the split group and its floor in one invocation;
+/// `kept` are files the run leaves in its directory besides the usual ones.
+fn split_group_and_its_floor(via: &str, kept: &[&str]) {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
     let (ok, stdout, stderr) = run(
@@ -266,7 +279,7 @@ fn latency_via_zenoh_runs_the_split_group_and_its_floor_in_one_invocation() {
             "bench",
             "latency",
             "--via",
-            "zenoh",
+            via,
             "--actions",
             "100",
             "--warmup",
@@ -282,7 +295,7 @@ fn latency_via_zenoh_runs_the_split_group_and_its_floor_in_one_invocation() {
     );
     assert!(ok, "bench failed:\n{stderr}");
     let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
-    assert_eq!(v["via"], "zenoh", "{v}");
+    assert_eq!(v["via"], via, "{v}");
     assert_eq!(v["actions"], 100, "{v}");
     // The split run and its floor both measured every action, the floor's first hop timed
     // in the floor's controller process.
@@ -302,6 +315,7 @@ fn latency_via_zenoh_runs_the_split_group_and_its_floor_in_one_invocation() {
             "controller-launch.log",
         ],
     );
+    assert_kept(&out, kept);
 }
 
 #[test]
