@@ -235,13 +235,8 @@ impl HopSettings {
             args.push(cpu.to_string().into());
         }
         if let Some(files) = &self.tls {
-            for (flag, file) in ["--tls-ca", "--tls-cert", "--tls-key"]
-                .into_iter()
-                .zip(files)
-            {
-                args.push(flag.into());
-                args.push(file.clone().into_os_string());
-            }
+            args.push("--tls".into());
+            args.extend(files.iter().map(|f| f.clone().into_os_string()));
         }
         args
     }
@@ -268,8 +263,6 @@ pub fn zenoh_floor(
     let names = ServiceNames::with_prefix(&format!("tes-bench-{pid}/floor-robot/"));
     let mut robot_link = floor_link_settings(&group, vec![endpoint.clone()], Vec::new());
     carrier.keys_into(&mut robot_link, Carrier::ROBOT);
-    let mut hop_link = LinkSection::default();
-    carrier.keys_into(&mut hop_link, Carrier::CONTROLLER);
     let robot =
         Link::open(&robot_link, &[Role::Perception, Role::Bridge], &names).map_err(|cause| {
             BenchError::Link {
@@ -288,11 +281,7 @@ pub fn zenoh_floor(
         warmup: settings.warmup,
         budget_us: settings.budget_us,
         report: dir.join("floor-first-hop.json"),
-        tls: hop_link
-            .tls_ca
-            .zip(hop_link.tls_cert)
-            .zip(hop_link.tls_key)
-            .map(|((ca, cert), key)| [ca, cert, key]),
+        tls: carrier.files(Carrier::CONTROLLER),
     };
     let log = dir.join("floor-hop.log");
     let mut child = spawn_hop(floor_hop, &hop, &log)?;
@@ -477,10 +466,8 @@ pub fn zenoh_hop(settings: &HopSettings) -> Result<()> {
     let wheels = floor_map()?.action_wheels[0];
     let mut hop_link =
         floor_link_settings(&settings.group, Vec::new(), vec![settings.connect.clone()]);
-    if let Some([ca, cert, key]) = &settings.tls {
-        hop_link.tls_ca = Some(ca.clone());
-        hop_link.tls_cert = Some(cert.clone());
-        hop_link.tls_key = Some(key.clone());
+    if let Some(files) = &settings.tls {
+        hop_link.set_keys(files.clone());
     }
     let link =
         Link::open(&hop_link, &[Role::Controller], &names).map_err(|cause| BenchError::Link {

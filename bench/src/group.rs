@@ -336,14 +336,24 @@ impl Carrier {
         }
     }
 
-    /// Gives `link` host `host`'s files ([`Carrier::ROBOT`] or [`Carrier::CONTROLLER`]).
+    /// Host `host`'s files ([`Carrier::ROBOT`] or [`Carrier::CONTROLLER`]): the authority,
+    /// its certificate and its key; none over TCP.
+    pub fn files(&self, host: usize) -> Option<[PathBuf; 3]> {
+        let Carrier::Quic(keys) = self else {
+            return None;
+        };
+        let files = keys.hosts.get(host)?;
+        Some([
+            keys.authority.clone(),
+            files.cert.clone(),
+            files.key.clone(),
+        ])
+    }
+
+    /// Gives `link` host `host`'s files, if any.
     pub fn keys_into(&self, link: &mut LinkSection, host: usize) {
-        if let Carrier::Quic(keys) = self
-            && let Some(files) = keys.hosts.get(host)
-        {
-            link.tls_ca = Some(keys.authority.clone());
-            link.tls_cert = Some(files.cert.clone());
-            link.tls_key = Some(files.key.clone());
+        if let Some(files) = self.files(host) {
+            link.set_keys(files);
         }
     }
 }

@@ -241,74 +241,63 @@ impl MdaglRace {
 
     /// How many leading rows every entrant accepts, and the first refused row's error.
     fn checked_prefix(&self, rows: &[(Features<'_>, usize)]) -> (usize, Option<BlockError>) {
-        let first = &self.entrants[0].model;
         for (row, &(x, label)) in rows.iter().enumerate() {
-            let check = x.validate(first.n_features()).and_then(|()| {
-                if label < first.n_classes() {
-                    Ok(())
-                } else {
-                    Err(MdaglError::LabelOutOfRange {
-                        label,
-                        classes: first.n_classes(),
-                    })
-                }
-            });
-            if let Err(source) = check {
+            if let Err(source) = self.check_row(x, label) {
                 return (row, Some(BlockError { row, source }));
             }
         }
         (rows.len(), None)
     }
 
+    /// Whether every entrant would accept the row: its shape and its label (the entrants
+    /// share both).
+    fn check_row(&self, x: Features<'_>, label: usize) -> Result<(), MdaglError> {
+        let first = &self.entrants[0].model;
+        x.validate(first.n_features())?;
+        if label >= first.n_classes() {
+            return Err(MdaglError::LabelOutOfRange {
+                label,
+                classes: first.n_classes(),
+            });
+        }
+        Ok(())
+    }
+
     /// Every entrant learns `run`, keeping its prequential records in `self.block`.
     fn learn_run(&mut self, run: &[(Features<'_>, usize)]) -> Result<(), (usize, MdaglError)> {
         let n = run.len();
+        let empty = Prequential {
+            log_prob: 0.0,
+            predicted: 0,
+        };
         self.block.clear();
-        self.block.resize(
-            self.entrants.len() * n,
-            Prequential {
-                log_prob: 0.0,
-                predicted: 0,
-            },
-        );
-        let mut work: Vec<(&mut Entrant, &mut [Prequential])> = self
-            .entrants
-            .iter_mut()
-            .zip(self.block.chunks_mut(n))
-            .collect();
-        let threads = self.threads.min(work.len());
-        if threads <= 1 {
-            return work
+        self.block.resize(self.entrants.len() * n, empty);
+        let learn = |entrants: &mut [Entrant], records: &mut [Prequential]| {
+            entrants
                 .iter_mut()
-                .try_for_each(|(e, records)| learn_entrant(e, run, records));
+                .zip(records.chunks_mut(n))
+                .try_for_each(|(e, records)| learn_entrant(e, run, records))
+        };
+        let threads = self.threads.min(self.entrants.len());
+        if threads <= 1 {
+            return learn(&mut self.entrants, &mut self.block);
         }
         // In contiguous shares: a model's buffers were allocated beside its neighbours', and
         // neighbours learning on different threads would write to shared cache lines.
-        let share = work.len().div_ceil(threads);
-        let mut hands: Vec<Vec<(&mut Entrant, &mut [Prequential])>> = Vec::new();
-        while !work.is_empty() {
-            let rest = work.split_off(share.min(work.len()));
-            hands.push(std::mem::replace(&mut work, rest));
-        }
+        let share = self.entrants.len().div_ceil(threads);
+        let shares = self
+            .entrants
+            .chunks_mut(share)
+            .zip(self.block.chunks_mut(share * n));
         std::thread::scope(|scope| {
-            let workers: Vec<_> = hands
-                .into_iter()
-                .map(|mut hand| {
-                    scope.spawn(move || {
-                        hand.iter_mut()
-                            .try_for_each(|(e, records)| learn_entrant(e, run, records))
-                    })
-                })
+            let workers: Vec<_> = shares
+                .map(|(entrants, records)| scope.spawn(move || learn(entrants, records)))
                 .collect();
-            workers
-                .into_iter()
-                .map(|worker| {
-                    worker
-                        .join()
-                        .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
-                })
-                .collect::<Result<Vec<()>, _>>()
-                .map(|_| ())
+            workers.into_iter().try_for_each(|worker| {
+                worker
+                    .join()
+                    .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+            })
         })
     }
 
@@ -349,14 +338,7 @@ impl MdaglRace {
     /// nothing.
     pub fn update(&mut self, x: Features<'_>, label: usize) -> Result<Prequential, MdaglError> {
         // Checked once up front, so no entrant learns a row another refuses.
-        let first = &self.entrants[0].model;
-        x.validate(first.n_features())?;
-        if label >= first.n_classes() {
-            return Err(MdaglError::LabelOutOfRange {
-                label,
-                classes: first.n_classes(),
-            });
-        }
+        self.check_row(x, label)?;
         let mut predicted = None;
         self.log_probs.clear();
         for (i, entrant) in self.entrants.iter_mut().enumerate() {

@@ -23,7 +23,7 @@ use std::io::Write as _;
 use std::os::unix::fs::{DirBuilderExt, OpenOptionsExt};
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
-use std::time::{SystemTime, UNIX_EPOCH};
+use std::time::SystemTime;
 
 use rcgen::{
     BasicConstraints, CertificateParams, DnType, ExtendedKeyUsagePurpose, IsCa, Issuer, KeyPair,
@@ -441,20 +441,14 @@ fn host_params(host: &Host, year: i32) -> Result<CertificateParams, KeyError> {
     Ok(params)
 }
 
-/// The current year (UTC), from the system clock.
+/// The current year (UTC), from the system clock (read off its RFC 3339 form, as the run
+/// folders' names are made).
 fn this_year() -> i32 {
-    let days = SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs() / 86_400);
-    // Days to a civil year (Howard Hinnant's algorithm, year part only).
-    let z = days as i64 + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let year = yoe + era * 400 + i64::from(mp >= 10);
-    i32::try_from(year).unwrap_or(2026)
+    humantime::format_rfc3339_seconds(SystemTime::now())
+        .to_string()
+        .get(..4)
+        .and_then(|year| year.parse().ok())
+        .unwrap_or(2026)
 }
 
 /// Writes `text` to a new file readable and writable only by its owner.

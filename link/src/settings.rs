@@ -193,6 +193,11 @@ fn carrier(endpoint: &str) -> Option<Carrier> {
     }
 }
 
+/// Whether an endpoint is plain TCP that other hosts could reach.
+fn exposes_plain_tcp(endpoint: &str) -> bool {
+    carrier(endpoint) == Some(Carrier::Tcp) && !is_loopback(endpoint)
+}
+
 /// Whether an endpoint's address is loopback (`127.0.0.0/8`, `::1`, `localhost`): only this
 /// host can reach it.
 fn is_loopback(endpoint: &str) -> bool {
@@ -233,45 +238,7 @@ impl LinkSection {
             ("link.connect", &self.connect),
         ] {
             for endpoint in endpoints {
-                match carrier(endpoint) {
-                    None => {
-                        return bad(
-                            key,
-                            format!(
-                                "{endpoint:?} is not a QUIC or TCP endpoint such as \
-                                 \"quic/192.168.1.20:7447\""
-                            ),
-                        );
-                    }
-                    Some(Carrier::TlsOverTcp) => {
-                        return bad(key, format!("{endpoint:?}: {TLS_OVER_TCP_REFUSED}"));
-                    }
-                    Some(Carrier::Tcp) if !self.insecure && !is_loopback(endpoint) => {
-                        return bad(
-                            key,
-                            format!(
-                                "{endpoint:?} is plain TCP on an address other hosts can reach: \
-                                 anyone who reaches it could join the group, read its \
-                                 observations and drive the robot. Use QUIC with the group's \
-                                 keys: `tes link keygen DIR` makes them and prints the `quic/` \
-                                 endpoints and the link.tls_ca, link.tls_cert and link.tls_key \
-                                 lines for each host (or set link.insecure = true to take that \
-                                 risk)"
-                            ),
-                        );
-                    }
-                    Some(Carrier::Quic) if !self.has_tls() => {
-                        return bad(
-                            key,
-                            format!(
-                                "{endpoint:?} is a QUIC endpoint, but link.tls_ca, \
-                                 link.tls_cert and link.tls_key are not all set (`tes link \
-                                 keygen DIR` makes them)"
-                            ),
-                        );
-                    }
-                    Some(_) => {}
-                }
+                self.check_endpoint(key, endpoint)?;
             }
         }
         if self.listen.is_empty()
@@ -301,6 +268,30 @@ impl LinkSection {
             );
         }
         Ok(())
+    }
+
+    /// One endpoint of `key`: a carrier the link takes, QUIC only with the keys, plain TCP
+    /// only on loopback (unless `insecure`).
+    fn check_endpoint(&self, key: &str, endpoint: &str) -> Result<(), SettingError> {
+        let refused = match carrier(endpoint) {
+            None => format!(
+                "{endpoint:?} is not a QUIC or TCP endpoint such as \"quic/192.168.1.20:7447\""
+            ),
+            Some(Carrier::TlsOverTcp) => format!("{endpoint:?}: {TLS_OVER_TCP_REFUSED}"),
+            Some(Carrier::Tcp) if !self.insecure && exposes_plain_tcp(endpoint) => format!(
+                "{endpoint:?} is plain TCP on an address other hosts can reach: anyone who \
+                 reaches it could join the group, read its observations and drive the robot. \
+                 Use QUIC with the group's keys: `tes link keygen DIR` makes them and prints \
+                 the `quic/` endpoints and the link.tls_ca, link.tls_cert and link.tls_key \
+                 lines for each host (or set link.insecure = true to take that risk)"
+            ),
+            Some(Carrier::Quic) if !self.has_tls() => format!(
+                "{endpoint:?} is a QUIC endpoint, but link.tls_ca, link.tls_cert and \
+                 link.tls_key are not all set (`tes link keygen DIR` makes them)"
+            ),
+            Some(_) => return Ok(()),
+        };
+        Err(SettingError::new(PROCESS, key, refused))
     }
 
     /// [`check`](Self::check), and for a launch playing `roles` with TLS, that this host's
@@ -348,7 +339,7 @@ impl LinkSection {
             .listen
             .iter()
             .chain(&self.connect)
-            .filter(|e| carrier(e) == Some(Carrier::Tcp) && !is_loopback(e))
+            .filter(|e| exposes_plain_tcp(e))
             .cloned()
             .collect();
         if exposed.is_empty() {
@@ -356,6 +347,13 @@ impl LinkSection {
         } else {
             Security::Insecure { exposed }
         }
+    }
+
+    /// Links with the group's keys: `[authority, this host's certificate, its key]`.
+    pub fn set_keys(&mut self, [ca, cert, key]: [PathBuf; 3]) {
+        self.tls_ca = Some(ca);
+        self.tls_cert = Some(cert);
+        self.tls_key = Some(key);
     }
 
     /// Whether the three TLS files are given.

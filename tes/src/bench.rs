@@ -79,15 +79,9 @@ pub struct FloorHopArgs {
     /// Where the first hop's report goes.
     #[arg(long)]
     report: PathBuf,
-    /// The group's authority (with --tls-cert and --tls-key: over QUIC).
-    #[arg(long, requires_all = ["tls_cert", "tls_key"])]
-    tls_ca: Option<PathBuf>,
-    /// This side's certificate.
-    #[arg(long)]
-    tls_cert: Option<PathBuf>,
-    /// This side's key.
-    #[arg(long)]
-    tls_key: Option<PathBuf>,
+    /// Over QUIC with the group's authority, this side's certificate and its key.
+    #[arg(long, num_args = 3, value_names = ["CA", "CERT", "KEY"])]
+    tls: Option<Vec<PathBuf>>,
 }
 
 /// Arguments of `tes bench latency`.
@@ -247,12 +241,7 @@ fn zenoh_floor_hop(args: &FloorHopArgs) -> Result<()> {
         warmup: args.warmup,
         budget_us: args.budget_us,
         report: args.report.clone(),
-        tls: args
-            .tls_ca
-            .clone()
-            .zip(args.tls_cert.clone())
-            .zip(args.tls_key.clone())
-            .map(|((ca, cert), key)| [ca, cert, key]),
+        tls: args.tls.clone().and_then(|files| files.try_into().ok()),
     };
     Ok(floor::zenoh_hop(&settings)?)
 }
