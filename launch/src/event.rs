@@ -129,6 +129,13 @@ pub enum Event {
         /// The MCAP file.
         path: PathBuf,
     },
+    /// The run is served live to Foxglove at `addr`.
+    Foxglove {
+        /// Where the server listens.
+        addr: std::net::SocketAddr,
+        /// Whether that is beyond loopback: anyone who reaches it sees the run.
+        exposed: bool,
+    },
     /// A child started.
     ProcessStarted {
         /// Its role.

@@ -131,6 +131,16 @@ pub struct LaunchSection {
     ///
     /// Example: `"run.mcap"`.
     pub record: Option<PathBuf>,
+    /// Serve the run live over Foxglove's WebSocket protocol on this address (`tes launch
+    /// --foxglove` sets it): the arena, the robot moving on it, its decisions, episode rewards
+    /// and the processes' logs, the same channels a recording holds (docs/recording.md).
+    /// Loopback unless another address is given, which is then said at start. Unset: not
+    /// served.
+    ///
+    /// Values: HOST:PORT; port 0 picks a free one.
+    ///
+    /// Example: `"127.0.0.1:8765"`.
+    pub foxglove: Option<String>,
     /// The processes this launch starts (`tes launch --roles` overrides it); the others run
     /// on other hosts, reached through the link (`[launch.link]`, docs/multi-host.md).
     /// Empty: all three on this host, over shared memory only, and no link.
@@ -139,6 +149,30 @@ pub struct LaunchSection {
     pub roles: Vec<Role>,
     /// How a launch with roles reaches the other hosts (the `[launch.link]` table).
     pub link: tes_link::LinkSection,
+}
+
+impl LaunchSection {
+    /// The address of `foxglove`, resolved (`localhost:8765` as well as `127.0.0.1:8765`).
+    pub fn foxglove_addr(&self) -> Result<Option<std::net::SocketAddr>, SettingError> {
+        use std::net::ToSocketAddrs;
+        let Some(text) = &self.foxglove else {
+            return Ok(None);
+        };
+        let bad = |why: String| {
+            SettingError::new(
+                LAUNCH,
+                "foxglove",
+                format!(
+                    "{text:?} is not an address to serve on ({why}); write HOST:PORT, e.g. \"127.0.0.1:8765\""
+                ),
+            )
+        };
+        let mut addrs = text.to_socket_addrs().map_err(|e| bad(e.to_string()))?;
+        addrs
+            .next()
+            .map(Some)
+            .ok_or_else(|| bad("it resolves to no address".into()))
+    }
 }
 
 /// The least `[launch] stall_timeout_ms`: a stall is longer than any healthy pause.
@@ -161,6 +195,7 @@ impl Default for LaunchSection {
             seed: 1,
             stall_timeout_ms: 10_000,
             record: None,
+            foxglove: None,
             roles: Vec::new(),
             link: tes_link::LinkSection::default(),
         }
@@ -548,6 +583,7 @@ pub fn check_launch(l: &LaunchSection) -> Result<(), SettingError> {
         );
     }
     settings::service_prefix(LAUNCH, "service_prefix", &l.service_prefix)?;
+    l.foxglove_addr()?;
     let mut seen = BTreeSet::new();
     for role in &l.roles {
         if !seen.insert(*role) {

@@ -4,10 +4,11 @@
 
 use std::path::{Path, PathBuf};
 
-use tes_recorder::live::{RecordError, Recorder};
+use tes_recorder::live::{Outputs, RecordError, Recorder};
 use tes_recorder::writer::RecordCounts;
 use tes_recorder::writer::RunInfo;
 use tes_topics::Role;
+use tes_viewer::scene::SceneSettings;
 
 use crate::children::ChildSpec;
 use crate::file::LaunchFile;
@@ -26,20 +27,23 @@ pub enum RecordingError {
         #[source]
         source: std::io::Error,
     },
+    /// `[launch] foxglove` is not an address.
+    #[error(transparent)]
+    Setting(tes_runtime::settings::SettingError),
     /// The recorder cannot start.
-    #[error("cannot record to {}; nothing was started", path.display())]
+    #[error("cannot record to {target}; nothing was started")]
     Start {
-        /// The recording.
-        path: PathBuf,
+        /// The recording's file, or the live server's address.
+        target: String,
         /// Why.
         #[source]
         source: RecordError,
     },
     /// The recorder failed on the way.
-    #[error("the recording {} is incomplete", path.display())]
+    #[error("the recording {target} is incomplete")]
     Incomplete {
-        /// The recording.
-        path: PathBuf,
+        /// The recording's file (or the live view).
+        target: String,
         /// Why.
         #[source]
         source: RecordError,
@@ -85,9 +89,13 @@ pub fn start(
     prefix: &str,
     library: &Path,
 ) -> Result<Option<Recorder>, RecordingError> {
-    let Some(path) = &file.launch.record else {
+    let foxglove = file
+        .launch
+        .foxglove_addr()
+        .map_err(RecordingError::Setting)?;
+    if file.launch.record.is_none() && foxglove.is_none() {
         return Ok(None);
-    };
+    }
     let controller_toml = match specs.iter().find(|s| s.role == Role::Controller) {
         Some(spec) => {
             std::fs::read_to_string(&spec.config).map_err(|source| RecordingError::Read {
@@ -110,12 +118,23 @@ pub fn start(
         }
     };
     let info = run_info(file, prefix, controller_toml, library, library_bytes);
-    Recorder::start(path, prefix, info)
+    let scene = SceneSettings {
+        wall_offset_ns: info.wall_offset_ns,
+        wheel_ports: [file.perception.left_port, file.perception.right_port],
+    };
+    let outputs = Outputs {
+        file: file.launch.record.clone().map(|path| (path, info)),
+        foxglove,
+        scene,
+    };
+    let target = match (&file.launch.record, foxglove) {
+        (Some(path), _) => path.display().to_string(),
+        (None, Some(addr)) => format!("Foxglove on {addr}"),
+        (None, None) => String::new(),
+    };
+    Recorder::start_with(prefix, outputs)
         .map(Some)
-        .map_err(|source| RecordingError::Start {
-            path: path.clone(),
-            source,
-        })
+        .map_err(|source| RecordingError::Start { target, source })
 }
 
 /// The recording's metadata: what a replay needs to run the controller again.
@@ -142,10 +161,14 @@ fn run_info(
 }
 
 /// Finishes a launch's recording (the group has stopped).
-pub fn finish(recorder: Recorder) -> Result<Recorded, RecordingError> {
-    let path = recorder.path().to_owned();
-    match recorder.stop() {
-        Ok(counts) => Ok(Recorded { path, counts }),
-        Err(source) => Err(RecordingError::Incomplete { path, source }),
+pub fn finish(recorder: Recorder) -> Result<Option<Recorded>, RecordingError> {
+    let path = recorder.path().map(Path::to_owned);
+    match (recorder.stop(), path) {
+        (Ok(counts), Some(path)) => Ok(Some(Recorded { path, counts })),
+        (Ok(_), None) => Ok(None),
+        (Err(source), path) => Err(RecordingError::Incomplete {
+            target: path.map_or_else(|| "the live view".into(), |p| p.display().to_string()),
+            source,
+        }),
     }
 }

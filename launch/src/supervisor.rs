@@ -196,11 +196,18 @@ impl Supervisor {
         let library_at_start = Fingerprint::of(&library);
         // Subscribed before any child starts, so it misses nothing.
         let recorder = recording::start(file, &prepared.specs, &prefix, &library)?;
-        if let Some(r) = &recorder {
+        if let Some(path) = recorder.as_ref().and_then(Recorder::path) {
             observer.event(&Event::Recording {
-                path: r.path().to_owned(),
+                path: path.to_owned(),
             });
         }
+        if let Some(addr) = recorder.as_ref().and_then(Recorder::foxglove_addr) {
+            observer.event(&Event::Foxglove {
+                addr,
+                exposed: !addr.ip().is_loopback(),
+            });
+        }
+        let log_to = recorder.as_ref().map(Recorder::log_lines);
         let (lines_tx, lines) = mpsc::channel::<ChildLine>();
         let following = Arc::new(AtomicBool::new(false));
         let children = start_children(&options.command, &prepared, &lines_tx, &following)?;
@@ -229,7 +236,10 @@ impl Supervisor {
             children,
             lines,
             following,
-            relay: Relay::default(),
+            relay: Relay {
+                log_to,
+                ..Relay::default()
+            },
             library,
             library_at_start,
             report,
@@ -631,7 +641,8 @@ impl Supervisor {
     fn finish_recording(&mut self, failures: &mut Vec<String>, observer: &mut dyn Observer) {
         if let Some(r) = self.recorder.take() {
             match recording::finish(r) {
-                Ok(recorded) => observer.event(&Event::Recorded(recorded)),
+                Ok(Some(recorded)) => observer.event(&Event::Recorded(recorded)),
+                Ok(None) => {}
                 Err(e) => failures.push(format!("recorder: {}", error_chain(&e))),
             }
         }
@@ -715,6 +726,8 @@ struct Relay {
     rows_told: usize,
     /// Where the robot was last told to be.
     robot_told: Option<RobotAt>,
+    /// The recorder's `/log`, when a recording or a live view draws the run.
+    log_to: Option<tes_recorder::live::LogLines>,
 }
 
 impl Relay {
@@ -740,6 +753,9 @@ impl Relay {
                     kept.pop_front();
                 }
                 kept.push_back(text.clone());
+                if let Some(log) = &self.log_to {
+                    log.send(role.name(), &text);
+                }
                 observer.event(&Event::Log { role, text });
             }
         }

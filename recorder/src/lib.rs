@@ -4,7 +4,9 @@
 //!   never the controller's acting thread), writing one MCAP file per run: a channel per
 //!   service (the world map, every observation, command, keep-alive and motor state), each
 //!   message as JSON with a JSON Schema and its publish time, the run's settings, seed and
-//!   version as metadata and its starting view library as an attachment ([`writer`]);
+//!   version as metadata and its starting view library as an attachment ([`writer`]); beside
+//!   them, the run drawn in Foxglove's Protobuf schemas for Foxglove and Rerun, and the same
+//!   drawings served live when asked ([`live::Outputs`]);
 //! * [`reader::Recording`] — the file read back (a truncated one up to its last complete
 //!   record), with a clear error for anything that is not a TES recording this build reads;
 //! * [`replay::replay`] — the recorded observations fed to the acting loop with the recorded

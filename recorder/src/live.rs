@@ -1,5 +1,7 @@
 //! The recorder: a thread of its own (in the launcher, never in the controller) reading the
-//! group's services and writing what it finds to a [`RunWriter`].
+//! group's services and writing what it finds to a [`RunWriter`], and drawing the run's scene
+//! ([`tes_viewer::scene::Scene`]) into the same file and to a live Foxglove server
+//! ([`Outputs`]); the processes' log lines reach it from the launcher ([`LogLines`]).
 //!
 //! It is woken by nothing, so no process of the group notifies it, and it never waits on the
 //! loop: every half millisecond it reads one entry of the command log, and when a new
@@ -22,9 +24,11 @@
 //! take in time (a machine that kept it from running for a whole buffer's worth of actions)
 //! is counted from the gaps in the sequence numbers and written in the file's end record.
 
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use iceoryx2::port::update_connections::UpdateConnections;
@@ -33,6 +37,9 @@ use tes_runtime::channel::{self, IpcError};
 use tes_runtime::ipc::RECORDER_BUFFER;
 use tes_runtime::ring::RingReader;
 use tes_topics::{Command, MotorState, Observation, ServiceNames, WorldMap};
+use tes_viewer::canvas::{Canvas, Drawing};
+use tes_viewer::live::{LiveError, LiveServer};
+use tes_viewer::scene::{Scene, SceneSettings};
 
 use crate::writer::{RecordCounts, RunInfo, RunWriter, WriteError};
 
@@ -45,9 +52,48 @@ pub enum RecordError {
     /// An iceoryx2 failure.
     #[error("recorder: {0}")]
     Ipc(#[from] IpcError),
+    /// The live Foxglove server cannot start.
+    #[error(transparent)]
+    Live(#[from] LiveError),
     /// The recorder thread could not start or died.
     #[error("the recorder thread {0}")]
     Thread(&'static str),
+}
+
+/// Where the recorder's thread puts what it reads of the group.
+#[derive(Debug, Clone, Default)]
+pub struct Outputs {
+    /// The recording: its file and what it says of the run (`None`: no file).
+    pub file: Option<(PathBuf, RunInfo)>,
+    /// Serve the run live over Foxglove's WebSocket protocol on this address.
+    pub foxglove: Option<SocketAddr>,
+    /// How the run's scene is drawn (in the file beside the `tes.*` channels, and live).
+    pub scene: SceneSettings,
+}
+
+/// Hands the processes' log lines to a recorder, for the scene's `/log`.
+#[derive(Debug, Clone)]
+pub struct LogLines(mpsc::Sender<LogLine>);
+
+impl LogLines {
+    /// Hands over a log line of the process `role`.
+    pub fn send(&self, role: &'static str, text: &str) {
+        let line = LogLine {
+            role,
+            text: text.to_owned(),
+            stamp_ns: tes_runtime::clock::monotonic_ns(),
+        };
+        // A recorder that already stopped needs no more lines.
+        let _ = self.0.send(line);
+    }
+}
+
+/// A process's log line, for the scene's `/log`.
+#[derive(Debug)]
+struct LogLine {
+    role: &'static str,
+    text: String,
+    stamp_ns: u64,
 }
 
 /// How often the file is flushed (the open chunk closed and written out).
@@ -62,12 +108,15 @@ const LOOK_EVERY: Duration = Duration::from_micros(500);
 /// fastest real-time factor (`RECORDER_BUFFER` samples; about 17 motor states per action).
 const DRAIN_AT_LEAST: Duration = Duration::from_millis(20);
 
-/// A running recorder; [`stop`](Self::stop) finishes the file.
+/// A running recorder (a file, a live Foxglove server, or both); [`stop`](Self::stop)
+/// finishes the file.
 #[derive(Debug)]
 pub struct Recorder {
     stop: Arc<AtomicBool>,
     handle: Option<std::thread::JoinHandle<Result<RecordCounts, RecordError>>>,
-    path: PathBuf,
+    path: Option<PathBuf>,
+    foxglove: Option<SocketAddr>,
+    lines: mpsc::Sender<LogLine>,
 }
 
 /// Counts gaps in a sequence of numbers.
@@ -129,18 +178,37 @@ impl Recorder {
     /// Creates the recording at `path` and starts recording the group of `service_prefix`;
     /// returns once the recorder is subscribed to every service (start the group after).
     pub fn start(path: &Path, service_prefix: &str, info: RunInfo) -> Result<Self, RecordError> {
+        let scene = SceneSettings {
+            wall_offset_ns: info.wall_offset_ns,
+            ..SceneSettings::default()
+        };
+        let outputs = Outputs {
+            file: Some((path.to_owned(), info)),
+            foxglove: None,
+            scene,
+        };
+        Self::start_with(service_prefix, outputs)
+    }
+
+    /// Starts reading the group of `service_prefix` into `outputs`; returns once the
+    /// recorder is subscribed to every service and the live server (if any) listens.
+    pub fn start_with(service_prefix: &str, outputs: Outputs) -> Result<Self, RecordError> {
         let stop = Arc::new(AtomicBool::new(false));
-        let (ready_tx, ready) = std::sync::mpsc::channel::<Result<(), RecordError>>();
-        let (file, prefix, flag) = (path.to_owned(), service_prefix.to_owned(), stop.clone());
+        let (ready_tx, ready) = mpsc::channel::<Result<Option<SocketAddr>, RecordError>>();
+        let (lines, line_rx) = mpsc::channel();
+        let path = outputs.file.as_ref().map(|(p, _)| p.clone());
+        let (prefix, flag) = (service_prefix.to_owned(), stop.clone());
         let handle = std::thread::Builder::new()
             .name("recorder".into())
-            .spawn(move || record(&file, &prefix, &info, &flag, ready_tx))
+            .spawn(move || record(&prefix, outputs, &flag, &line_rx, ready_tx))
             .map_err(|_| RecordError::Thread("could not start"))?;
         match ready.recv() {
-            Ok(Ok(())) => Ok(Self {
+            Ok(Ok(foxglove)) => Ok(Self {
                 stop,
                 handle: Some(handle),
-                path: path.to_owned(),
+                path,
+                foxglove,
+                lines,
             }),
             Ok(Err(e)) => {
                 let _ = handle.join();
@@ -153,9 +221,19 @@ impl Recorder {
         }
     }
 
-    /// The file it writes.
-    pub fn path(&self) -> &Path {
-        &self.path
+    /// The file it writes, if any.
+    pub fn path(&self) -> Option<&Path> {
+        self.path.as_deref()
+    }
+
+    /// The address the live Foxglove server listens on, if it serves.
+    pub fn foxglove_addr(&self) -> Option<SocketAddr> {
+        self.foxglove
+    }
+
+    /// Where the processes' log lines go for the scene's `/log`.
+    pub fn log_lines(&self) -> LogLines {
+        LogLines(self.lines.clone())
     }
 
     /// Takes what is still queued, finishes the file and returns what was written and missed.
@@ -177,14 +255,134 @@ impl Drop for Recorder {
     }
 }
 
-/// The recorder thread.
-fn record(
-    path: &Path,
-    prefix: &str,
-    info: &RunInfo,
-    stop: &AtomicBool,
-    ready: std::sync::mpsc::Sender<Result<(), RecordError>>,
-) -> Result<RecordCounts, RecordError> {
+/// The recorder's outputs as one canvas: the live server (never failing, never blocking) and
+/// the file.
+struct Fanout<'a> {
+    file: Option<&'a mut RunWriter>,
+    live: Option<&'a mut LiveServer>,
+}
+
+impl Canvas for Fanout<'_> {
+    type Error = WriteError;
+    fn draw(&mut self, d: Drawing<'_>) -> Result<(), WriteError> {
+        if let Some(live) = self.live.as_deref_mut() {
+            let Ok(()) = live.draw(d);
+        }
+        match self.file.as_deref_mut() {
+            Some(file) => file.draw(d),
+            None => Ok(()),
+        }
+    }
+}
+
+/// The group's services, subscribed.
+struct Ports {
+    _node: Node<ipc::Service>,
+    maps: Sub<WorldMap>,
+    observations: Sub<Observation>,
+    motor_states: Sub<MotorState>,
+    commands: RingReader<Command>,
+}
+
+fn open_ports(prefix: &str) -> Result<Ports, RecordError> {
+    let names = ServiceNames::with_prefix(prefix);
+    let node = channel::node(false)?;
+    Ok(Ports {
+        maps: subscriber::<WorldMap>(&node, &names.world_map, 1, 1)?,
+        observations: subscriber::<Observation>(&node, &names.observation, 0, RECORDER_BUFFER)?,
+        motor_states: subscriber::<MotorState>(&node, &names.motor_state, 0, RECORDER_BUFFER)?,
+        commands: RingReader::<Command>::open(&node, &names.command_log)?,
+        _node: node,
+    })
+}
+
+/// The recorder's state between two drains.
+struct Tap {
+    file: Option<RunWriter>,
+    live: Option<LiveServer>,
+    scene: Scene,
+    seen: [Gaps; 3],
+    have_map: bool,
+}
+
+impl Tap {
+    fn canvas(&mut self) -> (&mut Scene, Fanout<'_>) {
+        (
+            &mut self.scene,
+            Fanout {
+                file: self.file.as_mut(),
+                live: self.live.as_mut(),
+            },
+        )
+    }
+
+    /// Takes everything queued: in the order of the loop, observations, the commands
+    /// answering them, the motion; then the log lines.
+    fn drain(
+        &mut self,
+        ports: &mut Ports,
+        lines: &mpsc::Receiver<LogLine>,
+        stopping: bool,
+    ) -> Result<(), RecordError> {
+        if !self.have_map {
+            drain(&ports.maps, |m| self.world_map(&m))?;
+        }
+        if self.live.as_ref().is_some_and(LiveServer::take_joined) {
+            let (scene, mut canvas) = self.canvas();
+            scene.redraw(tes_runtime::clock::monotonic_ns(), &mut canvas)?;
+        }
+        drain(&ports.observations, |o| {
+            self.seen[0].see(o.seq);
+            if let Some(file) = &mut self.file {
+                file.observation(&o)?;
+            }
+            let (scene, mut canvas) = self.canvas();
+            Ok(scene.observation(&o, &mut canvas)?)
+        })?;
+        let new_commands = if stopping {
+            ports.commands.take_new_scanning()
+        } else {
+            ports.commands.take_new()
+        };
+        for c in new_commands {
+            self.seen[1].see(c.seq);
+            if let Some(file) = &mut self.file {
+                file.command(c)?;
+            }
+            let (scene, mut canvas) = self.canvas();
+            scene.command(c, &mut canvas)?;
+        }
+        drain(&ports.motor_states, |m| {
+            self.seen[2].see(m.seq);
+            if let Some(file) = &mut self.file {
+                file.motor_state(&m)?;
+            }
+            let (scene, mut canvas) = self.canvas();
+            Ok(scene.motor_state(&m, &mut canvas)?)
+        })?;
+        while let Ok(line) = lines.try_recv() {
+            let (scene, mut canvas) = self.canvas();
+            scene.log_line(line.role, &line.text, line.stamp_ns, &mut canvas)?;
+        }
+        Ok(())
+    }
+
+    fn world_map(&mut self, map: &WorldMap) -> Result<(), RecordError> {
+        if self.have_map {
+            return Ok(());
+        }
+        self.have_map = true;
+        let now = tes_runtime::clock::monotonic_ns();
+        if let Some(file) = &mut self.file {
+            file.world_map(map, now)?;
+        }
+        let (scene, mut canvas) = self.canvas();
+        Ok(scene.world_map(map, now, &mut canvas)?)
+    }
+}
+
+/// Puts the recorder thread out of the acting thread's way.
+fn step_aside() {
     // Best effort: recording works at any priority, at some cost to the group's latency.
     if !tes_runtime::affinity::lower_this_threads_priority() {
         tracing::warn!("the recorder runs at nice +19 or normal priority, not SCHED_IDLE");
@@ -196,83 +394,80 @@ fn record(
     {
         tracing::debug!("the recorder thread stays unpinned: {e}");
     }
+}
+
+/// The recorder thread.
+fn record(
+    prefix: &str,
+    outputs: Outputs,
+    stop: &AtomicBool,
+    lines: &mpsc::Receiver<LogLine>,
+    ready: mpsc::Sender<Result<Option<SocketAddr>, RecordError>>,
+) -> Result<RecordCounts, RecordError> {
+    step_aside();
+    let scene = Scene::new(outputs.scene);
     let opened = (|| -> Result<_, RecordError> {
-        let names = ServiceNames::with_prefix(prefix);
-        let node = channel::node(false)?;
-        let maps = subscriber::<WorldMap>(&node, &names.world_map, 1, 1)?;
-        let observations =
-            subscriber::<Observation>(&node, &names.observation, 0, RECORDER_BUFFER)?;
-        let motor_states = subscriber::<MotorState>(&node, &names.motor_state, 0, RECORDER_BUFFER)?;
-        let commands = RingReader::<Command>::open(&node, &names.command_log)?;
-        let writer = RunWriter::create(path, info)?;
-        Ok((node, maps, observations, motor_states, commands, writer))
+        let ports = open_ports(prefix)?;
+        let file = match &outputs.file {
+            Some((path, info)) => Some(RunWriter::create(path, info)?),
+            None => None,
+        };
+        let live = match outputs.foxglove {
+            Some(addr) => Some(LiveServer::start(addr, scene.channels())?),
+            None => None,
+        };
+        Ok((ports, file, live))
     })();
-    let (_node, maps, observations, motor_states, mut commands, mut writer) = match opened {
-        Ok(ports) => {
-            let _ = ready.send(Ok(()));
-            ports
-        }
+    let (mut ports, file, live) = match opened {
+        Ok(opened) => opened,
         Err(e) => {
             let _ = ready.send(Err(e));
             return Err(RecordError::Thread("could not start"));
         }
     };
-    let (mut seen_obs, mut seen_cmd, mut seen_motor) =
-        (Gaps::default(), Gaps::default(), Gaps::default());
-    let mut have_map = false;
+    let _ = ready.send(Ok(live.as_ref().map(LiveServer::addr)));
+    let mut tap = Tap {
+        file,
+        live,
+        scene,
+        seen: [Gaps::default(); 3],
+        have_map: false,
+    };
     let (mut last_flush, mut last_drain) = (Instant::now(), Instant::now());
     loop {
         // Read after the stop too: what the group sent last is still queued.
         let stopping = stop.load(Ordering::SeqCst);
         // The work waits for a command: then the observation has been answered and the robot
         // moves, so the formatting and writing fall between decisions, not across one.
-        if !(stopping || commands.has_new() || last_drain.elapsed() >= DRAIN_AT_LEAST) {
+        if !(stopping || ports.commands.has_new() || last_drain.elapsed() >= DRAIN_AT_LEAST) {
             std::thread::sleep(LOOK_EVERY);
             continue;
         }
         last_drain = Instant::now();
-        if !have_map {
-            drain(&maps, |m| {
-                if !have_map {
-                    have_map = true;
-                    writer.world_map(&m, tes_runtime::clock::monotonic_ns())?;
-                }
-                Ok(())
-            })?;
-        }
-        // In the order of the loop: observations, the commands answering them, the motion.
-        drain(&observations, |o| {
-            seen_obs.see(o.seq);
-            Ok(writer.observation(&o)?)
-        })?;
-        let new_commands = if stopping {
-            commands.take_new_scanning()
-        } else {
-            commands.take_new()
-        };
-        for c in new_commands {
-            seen_cmd.see(c.seq);
-            writer.command(c)?;
-        }
-        drain(&motor_states, |m| {
-            seen_motor.see(m.seq);
-            Ok(writer.motor_state(&m)?)
-        })?;
+        tap.drain(&mut ports, lines, stopping)?;
         if stopping {
             break;
         }
-        if last_flush.elapsed() >= FLUSH_EVERY {
-            writer.flush()?;
+        if last_flush.elapsed() >= FLUSH_EVERY
+            && let Some(file) = &mut tap.file
+        {
+            file.flush()?;
             last_flush = Instant::now();
         }
     }
+    if let Some(live) = tap.live.take() {
+        live.stop();
+    }
     let missed = RecordCounts {
-        missed_observations: seen_obs.missed,
-        missed_commands: seen_cmd.missed,
-        missed_motor_states: seen_motor.missed,
+        missed_observations: tap.seen[0].missed,
+        missed_commands: tap.seen[1].missed,
+        missed_motor_states: tap.seen[2].missed,
         ..RecordCounts::default()
     };
-    Ok(writer.finish(missed)?)
+    match tap.file {
+        Some(file) => Ok(file.finish(missed)?),
+        None => Ok(missed),
+    }
 }
 
 #[cfg(test)]

@@ -75,6 +75,8 @@ pub struct RecordCounts {
     pub missed_commands: u64,
     /// Motor states missed (gaps in their sequence numbers).
     pub missed_motor_states: u64,
+    /// Messages written in Foxglove's schemas for viewers (the scene of the run).
+    pub drawings: u64,
 }
 
 /// An open recording.
@@ -82,6 +84,8 @@ pub struct RunWriter {
     path: PathBuf,
     mcap: mcap::Writer<BufWriter<File>>,
     channels: BTreeMap<Topic, u16>,
+    /// The viewers' channels, added as the scene first draws on each.
+    drawn_channels: BTreeMap<&'static str, u16>,
     sequence: u32,
     wall_offset_ns: i128,
     counts: RecordCounts,
@@ -167,6 +171,7 @@ impl RunWriter {
             path: path.to_owned(),
             mcap,
             channels,
+            drawn_channels: BTreeMap::new(),
             sequence: 0,
             wall_offset_ns: info.wall_offset_ns,
             counts: RecordCounts::default(),
@@ -183,21 +188,53 @@ impl RunWriter {
     }
 
     fn write(&mut self, topic: Topic, stamp_ns: u64, data: &[u8]) -> Result<(), WriteError> {
-        let channel_id = self.channels[&topic];
-        self.sequence = self.sequence.wrapping_add(1);
         let log_time = (i128::from(stamp_ns) + self.wall_offset_ns).clamp(0, i128::from(u64::MAX));
-        let header = mcap::records::MessageHeader {
-            channel_id,
-            sequence: self.sequence,
-            log_time: log_time as u64,
-            publish_time: stamp_ns,
-        };
-        let written = self.mcap.write_to_known_channel(&header, data);
-        written.map_err(self.err())?;
+        self.write_to(self.channels[&topic], log_time as u64, stamp_ns, data)?;
         if let Some(i) = Topic::ALL.iter().position(|t| *t == topic) {
             self.counts.written[i] += 1;
         }
         Ok(())
+    }
+
+    fn write_to(
+        &mut self,
+        channel_id: u16,
+        log_time: u64,
+        publish_time: u64,
+        data: &[u8],
+    ) -> Result<(), WriteError> {
+        self.sequence = self.sequence.wrapping_add(1);
+        let header = mcap::records::MessageHeader {
+            channel_id,
+            sequence: self.sequence,
+            log_time,
+            publish_time,
+        };
+        let written = self.mcap.write_to_known_channel(&header, data);
+        written.map_err(self.err())
+    }
+
+    /// The id of a viewer's channel, added on first use.
+    fn drawn_channel(&mut self, channel: &tes_viewer::canvas::Channel) -> Result<u16, WriteError> {
+        if let Some(&id) = self.drawn_channels.get(channel.topic) {
+            return Ok(id);
+        }
+        let schema = &channel.schema;
+        let schema_id = self
+            .mcap
+            .add_schema(&schema.name, &schema.encoding, &schema.data)
+            .map_err(self.err())?;
+        let id = self
+            .mcap
+            .add_channel(
+                schema_id,
+                channel.topic,
+                &channel.encoding,
+                &BTreeMap::new(),
+            )
+            .map_err(self.err())?;
+        self.drawn_channels.insert(channel.topic, id);
+        Ok(id)
     }
 
     /// Writes the world map.
@@ -233,6 +270,14 @@ impl RunWriter {
         )
     }
 
+    /// Writes a drawing of the run's scene (Foxglove's schemas) on its own channel.
+    pub fn drawing(&mut self, d: tes_viewer::canvas::Drawing<'_>) -> Result<(), WriteError> {
+        let id = self.drawn_channel(d.channel)?;
+        self.write_to(id, d.wall_ns, d.stamp_ns, d.data)?;
+        self.counts.drawings += 1;
+        Ok(())
+    }
+
     /// What was written so far.
     pub fn counts(&self) -> RecordCounts {
         self.counts
@@ -261,6 +306,7 @@ impl RunWriter {
             counts.missed_observations.to_string(),
         );
         metadata.insert("missed_commands".into(), counts.missed_commands.to_string());
+        metadata.insert("drawings".into(), counts.drawings.to_string());
         metadata.insert(
             "missed_motor_states".into(),
             counts.missed_motor_states.to_string(),
@@ -273,5 +319,12 @@ impl RunWriter {
         let finished = self.mcap.finish();
         finished.map_err(self.err())?;
         Ok(counts)
+    }
+}
+
+impl tes_viewer::canvas::Canvas for RunWriter {
+    type Error = WriteError;
+    fn draw(&mut self, d: tes_viewer::canvas::Drawing<'_>) -> Result<(), WriteError> {
+        self.drawing(d)
     }
 }

@@ -165,6 +165,11 @@ impl SettingError {
         self
     }
 
+    /// Why the value is refused, without the key and place.
+    pub fn reason(&self) -> &str {
+        &self.reason
+    }
+
     /// The 1-based line of the key in the user's file, if the error is placed there.
     pub fn line(&self) -> Option<usize> {
         self.location.as_ref()?.position.map(|p| p.line)

@@ -55,13 +55,23 @@ pub struct LaunchArgs {
         num_args = 0..=1,
         require_equals = true,
         default_missing_value = "toml",
-        conflicts_with_all = ["config", "episodes", "tui", "record", "roles"]
+        conflicts_with_all = ["config", "episodes", "tui", "record", "foxglove", "roles"]
     )]
     print_config: Option<Format>,
     /// Record the run to this MCAP file (overrides `[launch] record`): every observation,
     /// command and motor state, for `tes replay` and viewers such as Foxglove.
     #[arg(long, value_name = "FILE.mcap")]
     record: Option<PathBuf>,
+    /// Serve the run live to Foxglove over its WebSocket protocol (overrides `[launch]
+    /// foxglove`): the arena, the robot moving, its decisions, rewards and logs. ADDR
+    /// defaults to 127.0.0.1:8765 (loopback only); another address is said at start.
+    #[arg(
+        long,
+        value_name = "ADDR",
+        num_args = 0..=1,
+        default_missing_value = tes_viewer::live::DEFAULT_ADDR
+    )]
+    foxglove: Option<String>,
     /// Start only these processes (comma-separated: perception-sim, controller, bridge;
     /// overrides `[launch] roles`); the others run on other hosts, reached over Zenoh
     /// (`[launch.link]`, docs/multi-host.md).
@@ -106,6 +116,12 @@ fn launch_file(args: &LaunchArgs) -> Result<LaunchFile> {
     }
     if let Some(path) = &args.record {
         file.launch.record = Some(path.clone());
+    }
+    if let Some(addr) = &args.foxglove {
+        file.launch.foxglove = Some(addr.clone());
+        if let Err(e) = file.launch.foxglove_addr() {
+            bail!("--foxglove: {}; nothing was started", e.reason());
+        }
     }
     if let Some(names) = &args.roles {
         // Parsed here rather than by clap, so that a bad role is said as every refusal of a

@@ -129,6 +129,18 @@ fn run_line(event: &Event) -> Option<Said> {
             path.display()
         )),
         Event::Recording { path } => note(format!("launch: recording to {}", path.display())),
+        Event::Foxglove { addr, exposed } => {
+            let mut line = format!(
+                "launch: live in Foxglove at ws://{addr} (Open connection → Foxglove WebSocket)"
+            );
+            if *exposed {
+                line.push_str(&format!(
+                    "; WARNING: {} is not loopback: anyone who reaches it sees the run",
+                    addr.ip()
+                ));
+            }
+            note(line)
+        }
         Event::EpisodeEnded { text, .. } | Event::Output { text, .. } => out(text.clone()),
         Event::Recorded(recorded) => note(format!("launch: {recorded}")),
         Event::Verdict(v) if v.failures.is_empty() => out(format!(

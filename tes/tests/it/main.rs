@@ -20,3 +20,4 @@ mod recording;
 mod run_folder;
 mod status;
 mod tui;
+mod viewers;

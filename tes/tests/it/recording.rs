@@ -36,7 +36,8 @@ fn record(dir: &Path, extra: &str, episodes: u32) -> (PathBuf, Vec<String>) {
 }
 
 /// What PyPI's `mcap` reader sees: `topic schema-name schema-encoding message-encoding count`
-/// per channel, then the metadata records' names.
+/// per JSON channel (ours; the viewers' Protobuf ones are read in `viewers.rs`), then the
+/// metadata records' names.
 fn python_view(file: &Path) -> Vec<String> {
     let script = r#"
 import json, sys
@@ -45,13 +46,15 @@ with open(sys.argv[1], "rb") as f:
     reader = make_reader(f)
     summary = reader.get_summary()
     counts = summary.statistics.channel_message_counts
-    for channel in sorted(summary.channels.values(), key=lambda c: c.topic):
+    ours = [c for c in summary.channels.values() if c.message_encoding == "json"]
+    for channel in sorted(ours, key=lambda c: c.topic):
         schema = summary.schemas[channel.schema_id]
         json.loads(schema.data)
         print(channel.topic, schema.name, schema.encoding, channel.message_encoding,
               counts.get(channel.id, 0))
-    for _, _, message in reader.iter_messages():
-        json.loads(message.data)
+    for _, channel, message in reader.iter_messages():
+        if channel.message_encoding == "json":
+            json.loads(message.data)
     print("metadata", *sorted(m.name for m in reader.iter_metadata()))
 "#;
     let out = Command::new("python3")

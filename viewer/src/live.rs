@@ -1,0 +1,186 @@
+//! The live view: a Foxglove WebSocket server (the `foxglove` crate's) on threads of its own,
+//! fed the same drawings as a recording.
+//!
+//! The server runs on a one-worker Tokio runtime whose threads are placed off the CPU the
+//! controller's acting thread is pinned to and run at the lowest priority (`SCHED_IDLE`, else
+//! nice +19), so serving a viewer never takes that CPU nor delays a waking group process.
+//! [`LiveServer::draw`] only queues a message for each subscribed client (a bounded queue per
+//! client, oldest dropped when full): a viewer that stops reading loses messages, never slows
+//! the caller. Requests it cannot serve (malformed, an unknown channel) are answered by the
+//! server with a status message.
+
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use foxglove::websocket::{ChannelView, Client, ServerListener};
+use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, WebSocketServer};
+
+use crate::canvas::{Canvas, Channel, Drawing};
+
+/// The address the live server binds unless told otherwise: loopback only.
+pub const DEFAULT_ADDR: &str = "127.0.0.1:8765";
+
+/// Messages queued per client before the oldest are dropped: about 50 actions' worth of
+/// drawings.
+const BACKLOG: usize = 1024;
+
+/// Why the live server cannot start.
+#[derive(Debug, thiserror::Error)]
+pub enum LiveError {
+    /// Its runtime cannot start.
+    #[error("cannot start the Foxglove server's threads: {0}")]
+    Runtime(#[source] std::io::Error),
+    /// A channel cannot be created.
+    #[error("cannot create the Foxglove channel {topic}: {source}")]
+    Channel {
+        /// The topic.
+        topic: &'static str,
+        /// Why.
+        #[source]
+        source: foxglove::FoxgloveError,
+    },
+    /// The server cannot listen.
+    #[error("cannot serve Foxglove on {addr}: {source}")]
+    Bind {
+        /// The address.
+        addr: SocketAddr,
+        /// Why.
+        #[source]
+        source: foxglove::FoxgloveError,
+    },
+}
+
+/// Notes that a client subscribed, so what is drawn once is drawn again for it.
+#[derive(Debug, Default)]
+struct Joins(AtomicBool);
+
+impl ServerListener for Joins {
+    fn on_subscribe(&self, _client: Client, _channel: ChannelView<'_>) {
+        self.0.store(true, Ordering::Release);
+    }
+}
+
+/// A running Foxglove WebSocket server serving a scene's channels.
+pub struct LiveServer {
+    addr: SocketAddr,
+    channels: BTreeMap<&'static str, Arc<RawChannel>>,
+    joins: Arc<Joins>,
+    server: Option<foxglove::WebSocketServerHandle>,
+    // Kept for its channels' lifetime; dropped last.
+    _context: Arc<Context>,
+    runtime: Option<tokio::runtime::Runtime>,
+}
+
+impl std::fmt::Debug for LiveServer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LiveServer")
+            .field("addr", &self.addr)
+            .field("channels", &self.channels.keys())
+            .finish_non_exhaustive()
+    }
+}
+
+/// Puts a server thread out of the acting thread's way.
+fn step_aside() {
+    let _ = tes_runtime::affinity::lower_this_threads_priority();
+    if let Some((_, helper_cpu)) = tes_runtime::affinity::auto_pair() {
+        let _ = tes_runtime::affinity::pin_this_thread(helper_cpu);
+    }
+}
+
+impl LiveServer {
+    /// Starts serving `channels` on `addr` (port 0: any free port; see [`addr`](Self::addr)).
+    pub fn start<'a>(
+        addr: SocketAddr,
+        channels: impl IntoIterator<Item = &'a Channel>,
+    ) -> Result<Self, LiveError> {
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .max_blocking_threads(1)
+            .thread_name("foxglove")
+            .on_thread_start(step_aside)
+            .enable_all()
+            .build()
+            .map_err(LiveError::Runtime)?;
+        let context = Context::new();
+        let channels = channels
+            .into_iter()
+            .map(|c| {
+                let raw = ChannelBuilder::new(c.topic)
+                    .context(&context)
+                    .message_encoding(c.encoding.clone())
+                    .schema(c.schema.clone())
+                    .build_raw()
+                    .map_err(|source| LiveError::Channel {
+                        topic: c.topic,
+                        source,
+                    })?;
+                Ok((c.topic, raw))
+            })
+            .collect::<Result<BTreeMap<_, _>, LiveError>>()?;
+        let joins = Arc::new(Joins::default());
+        let server = WebSocketServer::new()
+            .name(format!("tes {}", env!("CARGO_PKG_VERSION")))
+            .bind(addr.ip().to_string(), addr.port())
+            .context(&context)
+            .message_backlog_size(BACKLOG)
+            .listener(joins.clone())
+            .tokio_runtime(runtime.handle());
+        let handle = runtime
+            .block_on(server.start())
+            .map_err(|source| LiveError::Bind { addr, source })?;
+        let addr = SocketAddr::new(addr.ip(), handle.port());
+        Ok(Self {
+            addr,
+            channels,
+            joins,
+            server: Some(handle),
+            _context: context,
+            runtime: Some(runtime),
+        })
+    }
+
+    /// The address it listens on.
+    pub fn addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// Whether a client subscribed to a channel since the last call.
+    pub fn take_joined(&self) -> bool {
+        self.joins.0.swap(false, Ordering::AcqRel)
+    }
+
+    /// Stops serving: clients are disconnected.
+    pub fn stop(mut self) {
+        self.shut_down();
+    }
+
+    fn shut_down(&mut self) {
+        if let (Some(server), Some(runtime)) = (self.server.take(), &self.runtime) {
+            let stopping = server.stop();
+            runtime.block_on(stopping.wait());
+        }
+        if let Some(runtime) = self.runtime.take() {
+            runtime.shutdown_timeout(std::time::Duration::from_secs(1));
+        }
+    }
+}
+
+impl Drop for LiveServer {
+    fn drop(&mut self) {
+        self.shut_down();
+    }
+}
+
+impl Canvas for LiveServer {
+    type Error = std::convert::Infallible;
+
+    fn draw(&mut self, d: Drawing<'_>) -> Result<(), Self::Error> {
+        if let Some(channel) = self.channels.get(d.channel.topic) {
+            channel.log_with_meta(d.data, PartialMetadata::with_log_time(d.wall_ns));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,174 @@
+//! The robot: where it is (the camera's pose at each observation, dead-reckoned from the
+//! wheels while it moves) and how it is drawn (a body and a heading arrow, locked to frame
+//! [`ROBOT_FRAME`]).
+
+use foxglove::messages::{
+    ArrowPrimitive, Color, CubePrimitive, FrameTransform, Pose, Quaternion, SceneEntity, Timestamp,
+    Vector3,
+};
+use tes_perception_sim::arena::{self, DVec2};
+
+use crate::arena::{ARENA_FRAME, M_PER_CM, at, rgb};
+
+/// The robot's own frame: x ahead, y to its left, z up, at the point between its wheels.
+pub const ROBOT_FRAME: &str = "robot";
+
+/// The robot's body, m: length, width, height (an NXT on two wheels).
+const BODY_M: [f64; 3] = [0.16, 0.14, 0.10];
+
+/// A pose on the floor: position in cm, heading in radians counter-clockwise from east.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FloorPose {
+    /// Position, cm from the arena's south-west corner.
+    pub position: DVec2,
+    /// Heading, rad.
+    pub heading: f64,
+}
+
+impl FloorPose {
+    /// The quaternion turning x onto the heading about z.
+    pub fn rotation(&self) -> Quaternion {
+        let half = self.heading / 2.0;
+        Quaternion {
+            x: 0.0,
+            y: 0.0,
+            z: half.sin(),
+            w: half.cos(),
+        }
+    }
+
+    /// As a Foxglove pose, m.
+    pub fn pose(&self) -> Pose {
+        let mut p = at(self.position.x * M_PER_CM, self.position.y * M_PER_CM, 0.0);
+        p.orientation = Some(self.rotation());
+        p
+    }
+
+    /// The transform `arena → robot` at this pose.
+    pub fn transform(&self, timestamp: Timestamp) -> FrameTransform {
+        FrameTransform {
+            timestamp: Some(timestamp),
+            parent_frame_id: ARENA_FRAME.into(),
+            child_frame_id: ROBOT_FRAME.into(),
+            translation: Some(Vector3 {
+                x: self.position.x * M_PER_CM,
+                y: self.position.y * M_PER_CM,
+                z: 0.0,
+            }),
+            rotation: Some(self.rotation()),
+        }
+    }
+}
+
+/// Dead reckoning between observations: each wheel report moves the pose by the ideal
+/// differential-drive arc of the wheels' rotation since the last one (no slip: the real motion
+/// is only known at the next observation).
+#[derive(Debug, Clone, Default)]
+pub struct Odometry {
+    pose: Option<FloorPose>,
+    wheels: Option<[i32; 2]>,
+}
+
+impl Odometry {
+    /// The pose, once an observation has set one.
+    pub fn pose(&self) -> Option<FloorPose> {
+        self.pose
+    }
+
+    /// Sets the pose the camera saw (`None`: the robot is out of the area, not drawn).
+    pub fn observed(&mut self, pose: Option<FloorPose>) {
+        self.pose = pose;
+    }
+
+    /// Takes the wheels' tacho counts (degrees, left and right) as the baseline of the next
+    /// motion, without moving the pose: a report from before the last observation, whose
+    /// motion that observation's pose already holds.
+    pub fn rebase(&mut self, tacho: [i32; 2]) {
+        self.wheels = Some(tacho);
+    }
+
+    /// Takes the wheels' tacho counts (degrees, left and right); returns the new pose if the
+    /// wheels moved.
+    pub fn wheels(&mut self, tacho: [i32; 2]) -> Option<FloorPose> {
+        let before = self.wheels.replace(tacho)?;
+        let (dl, dr) = (tacho[0] - before[0], tacho[1] - before[1]);
+        if dl == 0 && dr == 0 {
+            return None;
+        }
+        let pose = self.pose.as_mut()?;
+        let cm_per_deg = std::f64::consts::PI * arena::WHEEL_DIAMETER_CM / 360.0;
+        let (left, right) = (f64::from(dl) * cm_per_deg, f64::from(dr) * cm_per_deg);
+        let turn = (right - left) / arena::TRACK_WIDTH_CM;
+        let mid = pose.heading + turn / 2.0;
+        let ahead = (left + right) / 2.0;
+        pose.position += DVec2::new(mid.cos(), mid.sin()) * ahead;
+        pose.heading = (pose.heading + turn).rem_euclid(std::f64::consts::TAU);
+        Some(*pose)
+    }
+}
+
+/// The robot's body and heading, drawn once and locked to [`ROBOT_FRAME`].
+pub fn body(timestamp: Timestamp) -> SceneEntity {
+    let [l, w, h] = BODY_M;
+    let shell = rgb(0.92, 0.55, 0.08);
+    SceneEntity {
+        timestamp: Some(timestamp),
+        frame_id: ROBOT_FRAME.into(),
+        id: "robot".into(),
+        frame_locked: true,
+        cubes: vec![CubePrimitive {
+            pose: Some(at(0.0, 0.0, h / 2.0)),
+            size: Some(Vector3 { x: l, y: w, z: h }),
+            color: Some(Color { a: 0.85, ..shell }),
+        }],
+        arrows: vec![ArrowPrimitive {
+            pose: Some(at(0.0, 0.0, h + 0.01)),
+            shaft_length: l * 0.7,
+            shaft_diameter: 0.015,
+            head_length: 0.05,
+            head_diameter: 0.04,
+            color: Some(rgb(0.95, 0.95, 0.95)),
+        }],
+        ..SceneEntity::default()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn equal_wheel_turns_drive_straight_and_opposite_ones_spin_in_place() {
+        let mut odo = Odometry::default();
+        odo.observed(Some(FloorPose {
+            position: DVec2::new(50.0, 50.0),
+            heading: 0.0,
+        }));
+        assert_eq!(odo.wheels([0, 0]), None, "the first report is the baseline");
+        let ahead = odo.wheels([360, 360]).expect("moved");
+        let circumference = std::f64::consts::PI * arena::WHEEL_DIAMETER_CM;
+        assert!((ahead.position.x - (50.0 + circumference)).abs() < 1e-9);
+        assert!(ahead.position.y == 50.0 && ahead.heading == 0.0);
+        // Spinning: the left wheel back, the right one forward, a quarter turn left.
+        let quarter = arena::TRACK_WIDTH_CM * std::f64::consts::FRAC_PI_4 / circumference * 360.0;
+        let q = quarter.round() as i32;
+        let spun = odo.wheels([360 - q, 360 + q]).expect("moved");
+        assert!((spun.position - ahead.position).length() < 1e-9);
+        assert!(
+            (spun.heading - std::f64::consts::FRAC_PI_2).abs() < 0.01,
+            "{spun:?}"
+        );
+    }
+
+    #[test]
+    fn the_transform_turns_the_robot_frame_to_its_heading() {
+        let p = FloorPose {
+            position: DVec2::new(100.0, 20.0),
+            heading: std::f64::consts::PI,
+        };
+        let t = p.transform(Timestamp::new(0, 0));
+        let r = t.rotation.expect("rotated");
+        assert!((r.z - 1.0).abs() < 1e-12 && r.w.abs() < 1e-12);
+        assert_eq!(t.translation.expect("moved").x, 1.0);
+    }
+}

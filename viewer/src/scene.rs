@@ -1,0 +1,490 @@
+//! The run as a scene: each sample of the group becomes the Foxglove messages that draw it.
+//!
+//! | topic | schema | what |
+//! |---|---|---|
+//! | `/arena` | `foxglove.SceneUpdate` | the arena, once (again for a late live client) |
+//! | `/arena/points` | `foxglove.PointCloud` | the same as coloured points (Rerun draws these) |
+//! | `/tf` | `foxglove.FrameTransform` | `arena → robot`, at each observation and as it moves |
+//! | `/robot` | `foxglove.SceneUpdate` | the robot's body, its episode's path, its last decision |
+//! | `/robot/pose` | `foxglove.PoseInFrame` | the robot's pose at each observation |
+//! | `/robot/path` | `foxglove.PosesInFrame` | the episode's poses so far |
+//! | `/log` | `foxglove.Log` | the processes' log lines |
+//! | `/tes/decision` | `tes.Decision` | each decision: its action and latency |
+//! | `/tes/episode` | `tes.EpisodeEnd` | each episode's reward, length and end |
+
+use foxglove::Encode;
+use foxglove::messages::{
+    Color, LinePrimitive, Log, Point3, PoseInFrame, PosesInFrame, SceneEntity, SceneUpdate,
+    TextPrimitive, Timestamp, line_primitive, log,
+};
+use tes_perception_sim::arena::{self, Arena, ArenaId, Effect};
+use tes_topics::{
+    Command, KEEP_ALIVE_ACTION, MotorState, Observation, WorldMap, motor_flags, observation_flags,
+};
+
+use crate::arena::{ARENA_FRAME, arena_points, arena_scene, at, rgb};
+use crate::canvas::{Canvas, Channel, Drawing};
+use crate::robot::{FloorPose, Odometry, ROBOT_FRAME, body};
+
+/// Topic of the arena's scene.
+pub const ARENA: &str = "/arena";
+/// Topic of the arena's points.
+pub const ARENA_POINTS: &str = "/arena/points";
+/// Topic of the robot's transforms.
+pub const TF: &str = "/tf";
+/// Topic of the robot's scene entities.
+pub const ROBOT: &str = "/robot";
+/// Topic of the robot's observed poses.
+pub const ROBOT_POSE: &str = "/robot/pose";
+/// Topic of the episode's path.
+pub const ROBOT_PATH: &str = "/robot/path";
+/// Topic of the processes' log lines.
+pub const LOG: &str = "/log";
+/// Topic of the decisions.
+pub const DECISION: &str = "/tes/decision";
+/// Topic of the episodes' ends.
+pub const EPISODE: &str = "/tes/episode";
+
+/// One decision of the controller.
+#[derive(Debug, Clone, Default, PartialEq, foxglove::Encode)]
+pub struct Decision {
+    /// Episode, from 0.
+    pub episode: u32,
+    /// Action index within the episode, from 0.
+    pub step: u32,
+    /// The action chosen.
+    pub action: u32,
+    /// Its name (`forward`, `spin`, `pivot`).
+    pub action_name: String,
+    /// Observation published → command published, µs.
+    pub latency_us: f64,
+}
+
+/// The end of an episode.
+#[derive(Debug, Clone, Default, PartialEq, foxglove::Encode)]
+pub struct EpisodeEnd {
+    /// Episode, from 0.
+    pub episode: u32,
+    /// Reward collected.
+    pub reward: f64,
+    /// Actions taken.
+    pub actions: u32,
+    /// How it ended: `ball`, `death spot`, `left the area`, or `cut short` (stuck, step cap).
+    pub outcome: String,
+}
+
+/// The channels of a scene, each built once.
+#[derive(Debug, Clone)]
+struct Channels {
+    arena: Channel,
+    arena_points: Channel,
+    tf: Channel,
+    robot: Channel,
+    robot_pose: Channel,
+    robot_path: Channel,
+    log: Channel,
+    decision: Channel,
+    episode: Channel,
+}
+
+impl Channels {
+    fn new() -> Self {
+        Self {
+            arena: Channel::of::<SceneUpdate>(ARENA),
+            arena_points: Channel::of::<foxglove::messages::PointCloud>(ARENA_POINTS),
+            tf: Channel::of::<foxglove::messages::FrameTransform>(TF),
+            robot: Channel::of::<SceneUpdate>(ROBOT),
+            robot_pose: Channel::of::<PoseInFrame>(ROBOT_POSE),
+            robot_path: Channel::of::<PosesInFrame>(ROBOT_PATH),
+            log: Channel::of::<Log>(LOG),
+            decision: Channel::of::<Decision>(DECISION),
+            episode: Channel::of::<EpisodeEnd>(EPISODE),
+        }
+    }
+
+    /// Every channel, in the order of the table above.
+    fn all(&self) -> [&Channel; 9] {
+        [
+            &self.arena,
+            &self.arena_points,
+            &self.tf,
+            &self.robot,
+            &self.robot_pose,
+            &self.robot_path,
+            &self.log,
+            &self.decision,
+            &self.episode,
+        ]
+    }
+}
+
+/// What the scene needs to know of the run beyond its samples.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SceneSettings {
+    /// Wall clock minus the monotonic clock, ns: the samples carry monotonic times, viewers
+    /// show wall-clock ones.
+    pub wall_offset_ns: i128,
+    /// The brick's output ports of the left and right wheel motors.
+    pub wheel_ports: [usize; 2],
+}
+
+impl Default for SceneSettings {
+    fn default() -> Self {
+        Self {
+            wall_offset_ns: 0,
+            wheel_ports: [1, 2],
+        }
+    }
+}
+
+/// The episode being drawn.
+#[derive(Debug, Default)]
+struct EpisodeTrack {
+    number: Option<u32>,
+    path: Vec<FloorPose>,
+    reward: f64,
+    actions: u32,
+    last_state: Option<usize>,
+    last_action: Option<u32>,
+}
+
+/// Turns the group's samples into drawings (see the module's table).
+#[derive(Debug)]
+pub struct Scene {
+    settings: SceneSettings,
+    channels: Channels,
+    buffer: Vec<u8>,
+    arena: Option<Arena>,
+    odometry: Odometry,
+    /// When the last observation was published: motor reports from before it tell of a
+    /// motion its pose already holds.
+    observed_ns: u64,
+    episode: EpisodeTrack,
+    /// The world number of a map that is not an arena, said once.
+    not_drawn: Option<u32>,
+}
+
+impl Scene {
+    /// An empty scene: nothing is drawn until the world map arrives.
+    pub fn new(settings: SceneSettings) -> Self {
+        Self {
+            settings,
+            channels: Channels::new(),
+            buffer: Vec::with_capacity(4096),
+            arena: None,
+            odometry: Odometry::default(),
+            observed_ns: 0,
+            episode: EpisodeTrack::default(),
+            not_drawn: None,
+        }
+    }
+
+    /// Every channel the scene draws on (a live server advertises them all at once).
+    pub fn channels(&self) -> impl Iterator<Item = &Channel> {
+        self.channels.all().into_iter()
+    }
+
+    fn wall_ns(&self, stamp_ns: u64) -> u64 {
+        (i128::from(stamp_ns) + self.settings.wall_offset_ns).clamp(0, i128::from(u64::MAX)) as u64
+    }
+
+    fn timestamp(&self, stamp_ns: u64) -> Timestamp {
+        let wall = self.wall_ns(stamp_ns);
+        Timestamp::new((wall / 1_000_000_000) as u32, (wall % 1_000_000_000) as u32)
+    }
+
+    /// Encodes `message` once and puts it on `canvas`.
+    fn put<T: Encode, C: Canvas>(
+        &mut self,
+        pick: fn(&Channels) -> &Channel,
+        message: &T,
+        stamp_ns: u64,
+        canvas: &mut C,
+    ) -> Result<(), C::Error> {
+        self.buffer.clear();
+        if let Err(e) = message.encode(&mut self.buffer) {
+            // Only a buffer that cannot grow fails; a Vec grows.
+            tracing::warn!("cannot encode a drawing: {e}");
+            return Ok(());
+        }
+        let wall_ns = self.wall_ns(stamp_ns);
+        canvas.draw(Drawing {
+            channel: pick(&self.channels),
+            data: &self.buffer,
+            stamp_ns,
+            wall_ns,
+        })
+    }
+
+    /// The world map: draws the arena and the robot's body.
+    pub fn world_map<C: Canvas>(
+        &mut self,
+        map: &WorldMap,
+        stamp_ns: u64,
+        canvas: &mut C,
+    ) -> Result<(), C::Error> {
+        match ArenaId::from_number(map.world) {
+            Ok(id) => self.arena = Some(Arena::new(id)),
+            Err(_) => {
+                if self.not_drawn.replace(map.world).is_none() {
+                    tracing::warn!("world {} is not an arena: not drawn", map.world);
+                }
+                return Ok(());
+            }
+        }
+        self.redraw(stamp_ns, canvas)
+    }
+
+    /// Draws what is drawn once again (the arena, the robot's body): for a viewer that
+    /// joined after the start.
+    pub fn redraw<C: Canvas>(&mut self, stamp_ns: u64, canvas: &mut C) -> Result<(), C::Error> {
+        let Some(arena) = &self.arena else {
+            return Ok(());
+        };
+        let t = self.timestamp(stamp_ns);
+        let (scene, points) = (arena_scene(arena, t), arena_points(arena, t));
+        self.put(|c| &c.arena, &scene, stamp_ns, canvas)?;
+        self.put(|c| &c.arena_points, &points, stamp_ns, canvas)?;
+        let robot = SceneUpdate {
+            deletions: Vec::new(),
+            entities: vec![body(t)],
+        };
+        self.put(|c| &c.robot, &robot, stamp_ns, canvas)?;
+        if let Some(pose) = self.odometry.pose() {
+            self.put(|c| &c.tf, &pose.transform(t), stamp_ns, canvas)?;
+        }
+        Ok(())
+    }
+
+    /// An observation: the robot's pose, its path, the effect of the last decision and, at
+    /// an episode's end, its reward.
+    pub fn observation<C: Canvas>(
+        &mut self,
+        o: &Observation,
+        canvas: &mut C,
+    ) -> Result<(), C::Error> {
+        let Some(arena) = &self.arena else {
+            return Ok(());
+        };
+        let state = arena.state_index(o.state);
+        let pose = state.and_then(|s| arena.state_pose(s)).map(|p| FloorPose {
+            position: p.position,
+            heading: p.heading,
+        });
+        let starts = o.flags & observation_flags::EPISODE_START != 0
+            || self.episode.number != Some(o.episode);
+        if starts {
+            self.episode = EpisodeTrack {
+                number: Some(o.episode),
+                ..EpisodeTrack::default()
+            };
+        } else {
+            self.episode.reward += f64::from(o.reward);
+        }
+        let effect = self.effect_of_last_decision(state, o.flags);
+        self.episode.actions = o.step;
+        self.episode.last_state = state;
+        self.odometry.observed(pose);
+        self.observed_ns = self.observed_ns.max(o.stamp_ns);
+        let t = self.timestamp(o.stamp_ns);
+        if let Some(p) = pose {
+            self.episode.path.push(p);
+            self.put(|c| &c.tf, &p.transform(t), o.stamp_ns, canvas)?;
+            let observed = PoseInFrame {
+                timestamp: Some(t),
+                frame_id: ARENA_FRAME.into(),
+                pose: Some(p.pose()),
+            };
+            self.put(|c| &c.robot_pose, &observed, o.stamp_ns, canvas)?;
+        }
+        let path = PosesInFrame {
+            timestamp: Some(t),
+            frame_id: ARENA_FRAME.into(),
+            poses: self.episode.path.iter().map(FloorPose::pose).collect(),
+        };
+        self.put(|c| &c.robot_path, &path, o.stamp_ns, canvas)?;
+        let robot = SceneUpdate {
+            deletions: Vec::new(),
+            entities: vec![self.path_entity(t), self.decision_entity(t, o, effect)],
+        };
+        self.put(|c| &c.robot, &robot, o.stamp_ns, canvas)?;
+        if o.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0 {
+            let end = self.episode_end(o);
+            self.put(|c| &c.episode, &end, o.stamp_ns, canvas)?;
+        }
+        Ok(())
+    }
+
+    /// The effect the last decision had, when it is known: the robot went from one state of
+    /// the area to another, and the outcome was not lost.
+    fn effect_of_last_decision(&self, state: Option<usize>, flags: u32) -> Option<Effect> {
+        let arena = self.arena.as_ref()?;
+        let (prev, next) = (self.episode.last_state?, state?);
+        if flags & observation_flags::RESYNC != 0 || prev >= arena.out_state() {
+            return None;
+        }
+        Effect::from_index(arena.effect_between(prev, next))
+    }
+
+    fn path_entity(&self, t: Timestamp) -> SceneEntity {
+        let points = self.episode.path.iter().map(|p| Point3 {
+            x: p.position.x * crate::arena::M_PER_CM,
+            y: p.position.y * crate::arena::M_PER_CM,
+            z: 0.02,
+        });
+        SceneEntity {
+            timestamp: Some(t),
+            frame_id: ARENA_FRAME.into(),
+            id: "path".into(),
+            lines: vec![LinePrimitive {
+                r#type: line_primitive::Type::LineStrip as i32,
+                pose: Some(at(0.0, 0.0, 0.0)),
+                thickness: 4.0,
+                scale_invariant: true,
+                points: points.collect(),
+                color: Some(rgb(1.0, 0.85, 0.1)),
+                ..LinePrimitive::default()
+            }],
+            ..SceneEntity::default()
+        }
+    }
+
+    fn decision_entity(
+        &self,
+        t: Timestamp,
+        o: &Observation,
+        effect: Option<Effect>,
+    ) -> SceneEntity {
+        let action = self
+            .episode
+            .last_action
+            .and_then(|a| arena::ACTION_NAMES.get(a as usize).copied());
+        let text = match (action, effect) {
+            (Some(a), Some(e)) => format!("episode {} step {}: {a} → {e}", o.episode, o.step),
+            _ => format!("episode {} step {}", o.episode, o.step),
+        };
+        SceneEntity {
+            timestamp: Some(t),
+            frame_id: ROBOT_FRAME.into(),
+            id: "decision".into(),
+            frame_locked: true,
+            texts: vec![TextPrimitive {
+                pose: Some(at(0.0, 0.0, 0.25)),
+                billboard: true,
+                font_size: 14.0,
+                scale_invariant: true,
+                color: Some(Color {
+                    a: 1.0,
+                    ..rgb(1.0, 1.0, 1.0)
+                }),
+                text,
+            }],
+            ..SceneEntity::default()
+        }
+    }
+
+    fn episode_end(&self, o: &Observation) -> EpisodeEnd {
+        let outcome = if o.flags & observation_flags::TRUNCATED != 0 {
+            "cut short"
+        } else if o.state.is_out() {
+            "left the area"
+        } else if o.reward > 0.0 {
+            "ball"
+        } else {
+            "death spot"
+        };
+        EpisodeEnd {
+            episode: o.episode,
+            reward: self.episode.reward,
+            actions: o.step,
+            outcome: outcome.into(),
+        }
+    }
+
+    /// A command: a decision (keep-alives are not drawn).
+    pub fn command<C: Canvas>(&mut self, c: &Command, canvas: &mut C) -> Result<(), C::Error> {
+        if c.action == KEEP_ALIVE_ACTION {
+            return Ok(());
+        }
+        self.episode.last_action = Some(c.action);
+        let decision = Decision {
+            episode: self.episode.number.unwrap_or(0),
+            step: self.episode.actions,
+            action: c.action,
+            action_name: arena::ACTION_NAMES
+                .get(c.action as usize)
+                .map_or_else(|| c.action.to_string(), |n| (*n).to_owned()),
+            latency_us: if c.observed_ns > 0 {
+                c.stamp_ns.saturating_sub(c.observed_ns) as f64 / 1e3
+            } else {
+                0.0
+            },
+        };
+        self.put(|ch| &ch.decision, &decision, c.stamp_ns, canvas)
+    }
+
+    /// A motor report: the robot moved by its wheels' rotation.
+    pub fn motor_state<C: Canvas>(
+        &mut self,
+        m: &MotorState,
+        canvas: &mut C,
+    ) -> Result<(), C::Error> {
+        if m.flags & motor_flags::LINK_DOWN != 0 {
+            return Ok(());
+        }
+        let [l, r] = self.settings.wheel_ports;
+        let (Some(&left), Some(&right)) = (m.tacho_count.get(l), m.tacho_count.get(r)) else {
+            return Ok(());
+        };
+        if m.stamp_ns <= self.observed_ns {
+            self.odometry.rebase([left, right]);
+            return Ok(());
+        }
+        match self.odometry.wheels([left, right]) {
+            Some(pose) => {
+                let t = self.timestamp(m.stamp_ns);
+                self.put(|c| &c.tf, &pose.transform(t), m.stamp_ns, canvas)
+            }
+            None => Ok(()),
+        }
+    }
+
+    /// A process's log line (`role` names the process), at `stamp_ns` on the monotonic clock.
+    pub fn log_line<C: Canvas>(
+        &mut self,
+        role: &str,
+        text: &str,
+        stamp_ns: u64,
+        canvas: &mut C,
+    ) -> Result<(), C::Error> {
+        let line = Log {
+            timestamp: Some(self.timestamp(stamp_ns)),
+            level: level_of(text) as i32,
+            message: text.to_owned(),
+            name: role.to_owned(),
+            ..Log::default()
+        };
+        self.put(|c| &c.log, &line, stamp_ns, canvas)
+    }
+}
+
+/// The level of a `tracing` line (`… WARN target: message`), from its first words.
+fn level_of(text: &str) -> log::Level {
+    let head: String = text.chars().take(48).collect();
+    let words: Vec<&str> = head.split_whitespace().collect();
+    let has = |w: &str| words.contains(&w);
+    if has("ERROR") {
+        log::Level::Error
+    } else if has("WARN") {
+        log::Level::Warning
+    } else if has("INFO") {
+        log::Level::Info
+    } else if has("DEBUG") || has("TRACE") {
+        log::Level::Debug
+    } else {
+        log::Level::Info
+    }
+}
+
+#[cfg(test)]
+mod tests;

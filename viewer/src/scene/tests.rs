@@ -1,0 +1,218 @@
+use super::*;
+use crate::canvas::Collected;
+use foxglove::messages::FrameTransform;
+use prost::Message;
+use tes_topics::StateAttributes;
+
+fn arena_map(world: u32) -> Box<WorldMap> {
+    let mut map = Box::new(WorldMap::EMPTY);
+    map.world = world;
+    map
+}
+
+fn observation(seq: u64, episode: u32, step: u32, at: StateAttributes, flags: u32) -> Observation {
+    Observation {
+        seq,
+        stamp_ns: seq * 1_000_000,
+        episode,
+        step,
+        state: at,
+        reward: if flags & observation_flags::TERMINAL != 0 {
+            2.0
+        } else {
+            -0.05
+        },
+        flags,
+        ..Observation::default()
+    }
+}
+
+fn decoded<M: Message + Default>(drawn: &Collected, topic: &str) -> Vec<M> {
+    drawn
+        .on(topic)
+        .map(|b| M::decode(b).expect("a well-formed message"))
+        .collect()
+}
+
+#[test]
+fn a_short_episode_draws_the_arena_the_robot_its_path_decisions_and_reward() {
+    let mut scene = Scene::new(SceneSettings {
+        wall_offset_ns: 1_700_000_000_000_000_000,
+        ..SceneSettings::default()
+    });
+    let mut drawn = Collected::default();
+    let ok = |r: Result<(), std::convert::Infallible>| r.unwrap_or_else(|e| match e {});
+    ok(scene.world_map(&arena_map(3), 1, &mut drawn));
+    ok(scene.observation(
+        &observation(
+            1,
+            0,
+            0,
+            StateAttributes::at(2, 2, 0),
+            observation_flags::EPISODE_START,
+        ),
+        &mut drawn,
+    ));
+    let forward = Command {
+        seq: 1,
+        answers: 1,
+        stamp_ns: 1_000_000 + 12_000,
+        observed_ns: 1_000_000,
+        action: 0,
+        ..Command::default()
+    };
+    ok(scene.command(&forward, &mut drawn));
+    // The wheels turn (port 1 left, port 2 right): the robot is dead-reckoned east.
+    for (i, deg) in [0, 120, 246].into_iter().enumerate() {
+        let m = MotorState {
+            seq: i as u64 + 1,
+            stamp_ns: 1_500_000 + i as u64,
+            tacho_count: [0, deg, deg],
+            ..MotorState::default()
+        };
+        ok(scene.motor_state(&m, &mut drawn));
+    }
+    ok(scene.observation(
+        &observation(
+            2,
+            0,
+            1,
+            StateAttributes::at(3, 2, 0),
+            observation_flags::TERMINAL,
+        ),
+        &mut drawn,
+    ));
+
+    let arena: Vec<SceneUpdate> = decoded(&drawn, ARENA);
+    assert_eq!(arena.len(), 1);
+    assert_eq!(arena[0].entities[0].frame_id, "arena");
+    assert_eq!(drawn.on(ARENA_POINTS).count(), 1);
+
+    let tf: Vec<FrameTransform> = decoded(&drawn, TF);
+    // At each observation (2) and as the wheels turned (2 reports after the baseline).
+    assert_eq!(tf.len(), 4, "{tf:?}");
+    let xs: Vec<f64> = tf.iter().map(|t| t.translation.expect("set").x).collect();
+    assert!(xs.windows(2).all(|w| w[1] > w[0]), "moving east: {xs:?}");
+    assert!(
+        tf.iter()
+            .all(|t| t.parent_frame_id == "arena" && t.child_frame_id == "robot")
+    );
+    let ts = tf[0].timestamp.expect("stamped");
+    assert!(ts.sec() >= 1_700_000_000, "wall-clock time: {ts:?}");
+
+    let robot: Vec<SceneUpdate> = decoded(&drawn, ROBOT);
+    let last = robot.last().expect("drawn");
+    let path = last
+        .entities
+        .iter()
+        .find(|e| e.id == "path")
+        .expect("a path");
+    assert_eq!(path.lines[0].points.len(), 2);
+    let text = &last
+        .entities
+        .iter()
+        .find(|e| e.id == "decision")
+        .expect("a decision")
+        .texts[0];
+    assert_eq!(text.text, "episode 0 step 1: forward → forward, no turn");
+    assert!(
+        robot
+            .iter()
+            .any(|u| u.entities.iter().any(|e| e.id == "robot" && e.frame_locked))
+    );
+
+    let decisions: Vec<Decision> = drawn.on(DECISION).map(decode_decision).collect();
+    assert_eq!(decisions.len(), 1);
+    assert_eq!(decisions[0].action_name, "forward");
+    assert!((decisions[0].latency_us - 12.0).abs() < 1e-9);
+
+    let ends: Vec<EpisodeEnd> = drawn.on(EPISODE).map(decode_episode).collect();
+    assert_eq!(ends.len(), 1);
+    assert_eq!(ends[0].outcome, "ball");
+    assert!((ends[0].reward - 2.0).abs() < 1e-9 && ends[0].actions == 1);
+}
+
+/// Our derived messages through a hand-written prost twin: the schema says field 1..=n in
+/// declaration order.
+#[derive(Clone, PartialEq, prost::Message)]
+struct DecisionTwin {
+    #[prost(uint32, tag = "1")]
+    episode: u32,
+    #[prost(uint32, tag = "2")]
+    step: u32,
+    #[prost(uint32, tag = "3")]
+    action: u32,
+    #[prost(string, tag = "4")]
+    action_name: String,
+    #[prost(double, tag = "5")]
+    latency_us: f64,
+}
+
+#[derive(Clone, PartialEq, prost::Message)]
+struct EpisodeTwin {
+    #[prost(uint32, tag = "1")]
+    episode: u32,
+    #[prost(double, tag = "2")]
+    reward: f64,
+    #[prost(uint32, tag = "3")]
+    actions: u32,
+    #[prost(string, tag = "4")]
+    outcome: String,
+}
+
+fn decode_decision(b: &[u8]) -> Decision {
+    let d = DecisionTwin::decode(b).expect("a decision");
+    Decision {
+        episode: d.episode,
+        step: d.step,
+        action: d.action,
+        action_name: d.action_name,
+        latency_us: d.latency_us,
+    }
+}
+
+fn decode_episode(b: &[u8]) -> EpisodeEnd {
+    let e = EpisodeTwin::decode(b).expect("an episode end");
+    EpisodeEnd {
+        episode: e.episode,
+        reward: e.reward,
+        actions: e.actions,
+        outcome: e.outcome,
+    }
+}
+
+#[test]
+fn a_world_that_is_not_an_arena_draws_nothing_and_says_so_once() {
+    let mut scene = Scene::new(SceneSettings::default());
+    let mut drawn = Collected::default();
+    let ok = |r: Result<(), std::convert::Infallible>| r.unwrap_or_else(|e| match e {});
+    ok(scene.world_map(&arena_map(0), 1, &mut drawn));
+    ok(scene.observation(
+        &observation(1, 0, 0, StateAttributes::at(0, 0, 0), 0),
+        &mut drawn,
+    ));
+    assert!(drawn.drawings.is_empty());
+}
+
+#[test]
+fn log_levels_come_from_the_tracing_line() {
+    assert_eq!(
+        level_of("2026-12-05T23:23:02Z  WARN bridge: slow"),
+        log::Level::Warning
+    );
+    assert_eq!(
+        level_of("2026-12-05T23:23:02Z ERROR x: y"),
+        log::Level::Error
+    );
+    assert_eq!(level_of("plain words"), log::Level::Info);
+}
+
+#[test]
+fn every_channel_has_a_protobuf_schema() {
+    let scene = Scene::new(SceneSettings::default());
+    for c in scene.channels() {
+        assert_eq!(c.encoding, "protobuf", "{}", c.topic);
+        assert_eq!(c.schema.encoding, "protobuf", "{}", c.topic);
+        assert!(!c.schema.data.is_empty(), "{}", c.topic);
+    }
+}
