@@ -13,7 +13,8 @@
 //!    between our actions, mostly the simulated robot moving), measured where the bridge
 //!    measures: by [`crate::relay`]'s three processes over iceoryx2, or by the same two hops
 //!    over the split launch's Zenoh link;
-//! 3. with `record`, the recorder's cost ([`crate::recorder_cost`]).
+//! 3. with `record` and `foxglove`, what the recorder and the live Foxglove server (with a
+//!    viewer) cost the group ([`crate::recorder_cost`]).
 //!
 //! Both leave out the same warm-up and count overruns of the same budget. `wait` applies to
 //! the two measured receivers (controller and bridge, hop and sink); perception and the
@@ -45,7 +46,7 @@ use crate::error::{BenchError, Result};
 use crate::fixtures;
 use crate::floor;
 use crate::group::{Carrier, Group};
-use crate::recorder_cost::{self, RecorderComparison};
+use crate::recorder_cost::{self, RecorderComparison, Watcher};
 
 /// How the group's processes reach each other.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
@@ -145,7 +146,9 @@ pub struct LatencySettings {
     pub planner_idle_spin_us: Option<u64>,
     /// Also compare the group with and without the recorder.
     pub record: bool,
-    /// With `record`: blocks of each kind.
+    /// Also compare the group with and without the live Foxglove server and a viewer.
+    pub foxglove: bool,
+    /// With `record` or `foxglove`: blocks of each kind.
     pub record_blocks: u64,
     /// How the processes reach each other.
     pub via: Via,
@@ -170,6 +173,7 @@ impl Default for LatencySettings {
             order: Order::DecideFirst,
             planner_idle_spin_us: None,
             record: false,
+            foxglove: false,
             record_blocks: 4,
             via: Via::Shm,
             pace: Pace::Fastest,
@@ -200,7 +204,7 @@ impl LatencySettings {
         let placement = controller.placement(self.wait, planning).map_err(|e| {
             BenchError::Settings(format!("--{}: {}", e.key.replace('_', "-"), e.reason))
         })?;
-        if self.record && self.record_blocks == 0 {
+        if (self.record || self.foxglove) && self.record_blocks == 0 {
             return Err(BenchError::Settings(
                 "--record-blocks must be at least 1".into(),
             ));
@@ -301,14 +305,16 @@ pub enum Note {
         /// One round trip every this many µs.
         cycle_us: u64,
     },
-    /// A block of the recorder's comparison runs.
+    /// A block of an observer's comparison runs.
     RecorderBlock {
         /// Its number, from 1.
         block: u64,
         /// Blocks in all.
         of: u64,
-        /// Whether the recorder runs.
+        /// Whether the observer runs.
         recorded: bool,
+        /// Which observer.
+        watcher: Watcher,
         /// Actions measured.
         measured: u64,
     },
@@ -365,12 +371,17 @@ impl fmt::Display for Note {
                 block,
                 of,
                 recorded,
+                watcher,
                 measured,
             } => write!(
                 f,
-                "bench: recorder comparison, block {block} of {of}: {} the recorder, \
-                 {measured} actions",
-                if *recorded { "with" } else { "without" }
+                "bench: {} comparison, block {block} of {of}: {} the {}, {measured} actions",
+                watcher.name(),
+                if *recorded { "with" } else { "without" },
+                match watcher {
+                    Watcher::Recorder => "recorder",
+                    Watcher::Foxglove => "Foxglove server and a viewer",
+                }
             ),
         }
     }
@@ -468,6 +479,9 @@ pub struct LatencyResult {
     /// With `record`: the group with and without the recorder, in alternating blocks (null
     /// without).
     pub recorder: Option<RecorderComparison>,
+    /// With `foxglove`: the group with and without the live Foxglove server and a viewer
+    /// reading every channel, in alternating blocks (null without).
+    pub foxglove: Option<RecorderComparison>,
 }
 
 impl LatencyResult {
@@ -524,7 +538,8 @@ pub struct Floor {
     pub cpu: std::collections::BTreeMap<String, CpuUse>,
 }
 
-/// Runs the group, then the floor, then (with `record`) the recorder's comparison; keeps the
+/// Runs the group, then the floor, then (with `record`, `foxglove`) the observers'
+/// comparisons; keeps the
 /// run's files in `out` (else in a temporary directory).
 pub fn run(latency: &CheckedLatency, harness: &mut Harness<'_>) -> Result<LatencyResult> {
     let s = &latency.settings;
@@ -554,11 +569,26 @@ pub fn run(latency: &CheckedLatency, harness: &mut Harness<'_>) -> Result<Latenc
     let ours = measure_ours(latency, &group, harness)?;
     let floor = measure_floor(latency, dir, &prefix, ours.cycle_us, harness)?;
     let recorder = if s.record {
-        Some(recorder_cost::compare(&group, s, harness)?)
+        Some(recorder_cost::compare(
+            &group,
+            s,
+            harness,
+            Watcher::Recorder,
+        )?)
     } else {
         None
     };
-    Ok(result(latency, ours, floor, recorder))
+    let foxglove = if s.foxglove {
+        Some(recorder_cost::compare(
+            &group,
+            s,
+            harness,
+            Watcher::Foxglove,
+        )?)
+    } else {
+        None
+    };
+    Ok(result(latency, ours, floor, [recorder, foxglove]))
 }
 
 /// Runs our group (shared memory or split) and checks it measured what was asked.
@@ -658,7 +688,7 @@ fn result(
     latency: &CheckedLatency,
     ours: Ours,
     floor: Floor,
-    recorder: Option<RecorderComparison>,
+    [recorder, foxglove]: [Option<RecorderComparison>; 2],
 ) -> LatencyResult {
     let s = &latency.settings;
     let Ours {
@@ -719,5 +749,6 @@ fn result(
         plans: controller.plans,
         planning: controller.planning,
         recorder,
+        foxglove,
     }
 }

@@ -20,6 +20,7 @@ pub mod latency;
 pub mod recorder_cost;
 pub mod relay;
 pub mod scaling;
+pub mod viewer_client;
 
 pub use error::{BenchError, GroupFailure};
 pub use latency::{

@@ -1,21 +1,44 @@
-//! The recorder's cost (`tes bench latency --record`): the measured group run in blocks
-//! without and with the recorder, alternating, each from the same starting library, compared
-//! by the medians over the blocks of each kind.
+//! What an observer of the group costs it: the recorder (`tes bench latency --record`) or the
+//! live Foxglove server with a viewer reading every channel (`--foxglove`). The measured group
+//! runs in blocks without and with it, alternating, each from the same starting library,
+//! compared by the medians over the blocks of each kind.
 
 use std::path::Path;
 
 use serde::Serialize;
+use tes_launch::Event;
 use tes_recorder::reader::Recording;
 
 use crate::error::{BenchError, Result};
 use crate::group::Group;
 use crate::latency::{Harness, LatencySettings, Note};
+use crate::viewer_client::ViewerClient;
+
+/// The observer a comparison switches on and off.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Watcher {
+    /// The launcher's recorder writing the run to MCAP (its drawings for viewers included).
+    Recorder,
+    /// The launcher's live Foxglove server, with a viewer subscribed to every channel.
+    Foxglove,
+}
+
+impl Watcher {
+    /// As the tables name it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Recorder => "recorder",
+            Self::Foxglove => "Foxglove server",
+        }
+    }
+}
 
 /// One block of the comparison: a run of the group from the starting library, with or
-/// without the recorder.
+/// without the observer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub struct RecorderBlock {
-    /// Whether the launcher's recorder ran.
+    /// Whether the observer ran (the recorder, or the Foxglove server and its viewer).
     pub recorded: bool,
     /// Observation → bridge, median, µs.
     pub p50_us: u64,
@@ -29,11 +52,15 @@ pub struct RecorderBlock {
     pub written: Option<[u64; 3]>,
     /// With the recorder: the samples it could not take in time.
     pub missed: Option<u64>,
+    /// With the Foxglove server: the messages its viewer received.
+    pub viewer_messages: Option<u64>,
 }
 
-/// The recorder's cost as the medians over blocks of each kind.
+/// An observer's cost as the medians over blocks of each kind.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct RecorderComparison {
+    /// The observer compared.
+    pub watcher: Watcher,
     /// In the order they ran.
     pub blocks: Vec<RecorderBlock>,
     /// Median over the blocks without the recorder of their p50, µs.
@@ -53,11 +80,12 @@ pub struct RecorderComparison {
 }
 
 /// Runs `2 × record_blocks` blocks of `actions / record_blocks` measured actions each,
-/// without and with the recorder in turn ([`block_is_recorded`]), and compares them.
+/// without and with `watcher` in turn ([`block_is_recorded`]), and compares them.
 pub(crate) fn compare(
     group: &Group,
     settings: &LatencySettings,
     harness: &mut Harness<'_>,
+    watcher: Watcher,
 ) -> Result<RecorderComparison> {
     let measured = (settings.actions / settings.record_blocks.max(1)).max(1);
     let mut block_file = group.file.clone();
@@ -66,16 +94,20 @@ pub(crate) fn compare(
     let kinds = 2 * settings.record_blocks;
     let mut blocks = Vec::new();
     for i in 0..kinds {
-        let recorded = block_is_recorded(i);
+        let with = block_is_recorded(i);
         (harness.notes)(&Note::RecorderBlock {
             block: i + 1,
             of: kinds,
-            recorded,
+            recorded: with,
+            watcher,
             measured,
         });
         let mut file = block_file.clone();
-        file.launch.record = recorded.then(|| mcap.clone());
-        let (report, summary) = group.run(&file, harness)?;
+        match watcher {
+            Watcher::Recorder => file.launch.record = with.then(|| mcap.clone()),
+            Watcher::Foxglove => file.launch.foxglove = with.then(|| "127.0.0.1:0".to_owned()),
+        }
+        let ((report, summary), viewer_messages) = run_watched(group, &file, harness)?;
         if report.count < measured {
             return Err(BenchError::Run(format!(
                 "block {}: the bridge saw {} measured commands, expected {measured}",
@@ -83,23 +115,62 @@ pub(crate) fn compare(
                 report.count
             )));
         }
-        let (written, missed) = if recorded {
+        let (written, missed) = if with && watcher == Watcher::Recorder {
             let (written, missed) = what_was_recorded(&mcap, i + 1)?;
             (Some(written), Some(missed))
         } else {
             (None, None)
         };
         blocks.push(RecorderBlock {
-            recorded,
+            recorded: with,
             p50_us: report.p50_us,
             p99_us: report.p99_us,
             misses: report.misses,
             allocations: summary.allocations,
             written,
             missed,
+            viewer_messages,
         });
     }
-    Ok(comparison(blocks))
+    Ok(comparison(watcher, blocks))
+}
+
+type Reports = (
+    tes_runtime::latency::LatencyReport,
+    tes_controller::process::ControllerSummary,
+);
+
+/// Runs the group once; when its launch serves Foxglove, a viewer follows it throughout and
+/// the messages it received are returned too.
+fn run_watched(
+    group: &Group,
+    file: &tes_launch::LaunchFile,
+    harness: &mut Harness<'_>,
+) -> Result<(Reports, Option<u64>)> {
+    let mut viewer: Option<ViewerClient> = None;
+    let mut failed = None;
+    let inner = &mut *harness.observer;
+    let mut watching = |e: &Event| {
+        if let Event::Foxglove { addr, .. } = e {
+            match ViewerClient::connect(*addr) {
+                Ok(client) => viewer = Some(client),
+                Err(e) => failed = Some(e),
+            }
+        }
+        inner.event(e);
+    };
+    let mut watched = Harness {
+        programs: harness.programs.clone(),
+        stop: harness.stop.clone(),
+        observer: &mut watching,
+        notes: &mut *harness.notes,
+    };
+    let ran = group.run(file, &mut watched);
+    let received = viewer.map(ViewerClient::stop);
+    if let Some(e) = failed {
+        return Err(e);
+    }
+    Ok((ran?, received))
 }
 
 /// Whether block `i` of the comparison runs with the recorder: without, with, with, without,
@@ -136,7 +207,7 @@ fn what_was_recorded(mcap: &Path, block: u64) -> Result<([u64; 3], u64)> {
 }
 
 /// The comparison of `blocks`: the medians of each kind and their change.
-fn comparison(blocks: Vec<RecorderBlock>) -> RecorderComparison {
+fn comparison(watcher: Watcher, blocks: Vec<RecorderBlock>) -> RecorderComparison {
     let of = |recorded: bool, pick: fn(&RecorderBlock) -> u64| {
         median(blocks.iter().filter(|b| b.recorded == recorded).map(pick))
     };
@@ -149,6 +220,7 @@ fn comparison(blocks: Vec<RecorderBlock>) -> RecorderComparison {
         .map(|b| b.allocations)
         .try_fold(0, |most, n| n.map(|n| most.max(n)));
     RecorderComparison {
+        watcher,
         change_p50: change(with_p50_us, without_p50_us),
         change_p99: change(with_p99_us, without_p99_us),
         blocks,
@@ -184,6 +256,7 @@ mod tests {
             allocations,
             written: None,
             missed: None,
+            viewer_messages: None,
         }
     }
 
@@ -202,18 +275,24 @@ mod tests {
 
     #[test]
     fn the_comparison_is_of_the_medians_of_each_kind() {
-        let c = comparison(vec![
-            block(false, 100, Some(0)),
-            block(true, 110, Some(0)),
-            block(true, 130, Some(2)),
-            block(false, 100, Some(0)),
-        ]);
+        let c = comparison(
+            Watcher::Recorder,
+            vec![
+                block(false, 100, Some(0)),
+                block(true, 110, Some(0)),
+                block(true, 130, Some(2)),
+                block(false, 100, Some(0)),
+            ],
+        );
         assert_eq!(c.without_p50_us, 100.0);
         assert_eq!(c.with_p50_us, 120.0);
         assert!((c.change_p50 - 0.2).abs() < 1e-12);
         assert!((c.change_p99 - 0.2).abs() < 1e-12);
         assert_eq!(c.allocations_with, Some(2));
-        let uncounted = comparison(vec![block(true, 1, None), block(true, 1, Some(3))]);
+        let uncounted = comparison(
+            Watcher::Foxglove,
+            vec![block(true, 1, None), block(true, 1, Some(3))],
+        );
         assert_eq!(uncounted.allocations_with, None);
     }
 }

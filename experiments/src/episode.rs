@@ -122,6 +122,35 @@ pub struct Episode {
     pub agent_seconds: f64,
 }
 
+/// What a watcher of a run sees ([`run_agent_watched`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Seen {
+    /// An episode starts in `state`.
+    Start {
+        /// The episode, from 0.
+        episode: usize,
+        /// Its start state.
+        state: usize,
+    },
+    /// The agent took `action` in `state`; it had `effect` and led to `next`.
+    Step {
+        /// Where the agent was.
+        state: usize,
+        /// What it did.
+        action: usize,
+        /// What that did.
+        effect: usize,
+        /// Where it is now.
+        next: usize,
+        /// The reward for entering `next`.
+        reward: f64,
+        /// Seconds the agent spent on this step (choosing and learning).
+        agent_seconds: f64,
+    },
+    /// The episode ended.
+    End(Episode),
+}
+
 /// Runs one episode of `agent` on `task`; `rng` drives the start state and the dynamics.
 pub fn run_episode(
     agent: &mut dyn Agent,
@@ -129,7 +158,23 @@ pub fn run_episode(
     structure: &CmdpStructure,
     rng: &mut ChaCha8Rng,
 ) -> Result<Episode, AgentError> {
+    run_episode_watched(agent, task, structure, rng, 0, &mut |_| {})
+}
+
+/// [`run_episode`], telling `watch` what happens (the episode numbered `number`).
+pub fn run_episode_watched(
+    agent: &mut dyn Agent,
+    task: &dyn EpisodicTask,
+    structure: &CmdpStructure,
+    rng: &mut ChaCha8Rng,
+    number: usize,
+    watch: &mut dyn FnMut(Seen),
+) -> Result<Episode, AgentError> {
     let mut state = task.random_start(rng);
+    watch(Seen::Start {
+        episode: number,
+        state,
+    });
     agent.begin_episode(state);
     let mut episode = Episode {
         reward: 0.0,
@@ -141,13 +186,24 @@ pub fn run_episode(
     for _ in 0..task.step_cap() {
         let t = Instant::now();
         let action = agent.act(state)?;
-        agent_time += t.elapsed();
+        let mut step_time = t.elapsed();
         let effect = task.sample_effect(state, action, rng);
         let t = Instant::now();
         agent.observe(state, action, effect)?;
-        agent_time += t.elapsed();
-        state = structure.next_state(state, effect);
-        episode.reward += structure.reward(state);
+        step_time += t.elapsed();
+        agent_time += step_time;
+        let next = structure.next_state(state, effect);
+        let reward = structure.reward(next);
+        watch(Seen::Step {
+            state,
+            action,
+            effect,
+            next,
+            reward,
+            agent_seconds: step_time.as_secs_f64(),
+        });
+        state = next;
+        episode.reward += reward;
         episode.steps += 1;
         if structure.is_terminal(state) {
             episode.finished = true;
@@ -155,6 +211,7 @@ pub fn run_episode(
         }
     }
     episode.agent_seconds = agent_time.as_secs_f64();
+    watch(Seen::End(episode));
     Ok(episode)
 }
 
@@ -182,13 +239,29 @@ pub fn run_agent(
     settings: AgentSettings,
     mut on_episode: impl FnMut(&Episode),
 ) -> Result<Vec<Episode>, BuildError> {
+    run_agent_watched(method, task, episodes, seed, settings, &mut |seen| {
+        if let Seen::End(e) = seen {
+            on_episode(&e);
+        }
+    })
+}
+
+/// [`run_agent`], telling `watch` every start, step and end: the same episodes, for the same
+/// seed, as the run without a watcher.
+pub fn run_agent_watched(
+    method: Method,
+    task: &dyn EpisodicTask,
+    episodes: usize,
+    seed: u64,
+    settings: AgentSettings,
+    watch: &mut dyn FnMut(Seen),
+) -> Result<Vec<Episode>, BuildError> {
     let structure = task.structure();
     let mut agent = build_agent(method, task, seed, settings)?;
     let mut world = ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_0F70_121D);
     let mut out = Vec::with_capacity(episodes);
-    for _ in 0..episodes {
-        let e = run_episode(agent.as_mut(), task, &structure, &mut world)?;
-        on_episode(&e);
+    for number in 0..episodes {
+        let e = run_episode_watched(agent.as_mut(), task, &structure, &mut world, number, watch)?;
         out.push(e);
     }
     Ok(out)

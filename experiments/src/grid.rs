@@ -26,7 +26,8 @@ use tes_learning::cmdp::CmdpStructure;
 use tes_perception_sim::grid::{GridSuite, GridTask};
 
 use crate::episode::{
-    AgentSettings, Episode, EpisodicTask, run_agent, write_episodes_csv, write_file, write_summary,
+    AgentSettings, Episode, EpisodicTask, Seen, run_agent, run_agent_watched, write_episodes_csv,
+    write_file, write_summary,
 };
 use crate::jobs::{self, JobOptions, Manifest};
 use crate::method::Method;
@@ -286,6 +287,93 @@ fn environments(config: &GridConfig) -> Result<BTreeMap<usize, GridEnv>> {
             Ok((n, GridEnv::new(task)?))
         })
         .collect()
+}
+
+/// What [`draw_run`] drew.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DrawnRun {
+    /// The method, feature count and seed of the run drawn.
+    pub method: Method,
+    /// Irrelevant features of its task.
+    pub irrelevant: usize,
+    /// Its agent seed.
+    pub seed: u64,
+    /// Its episodes (the study's job for the same method, count and run has the same).
+    pub episodes: Vec<Episode>,
+    /// Messages written.
+    pub messages: u64,
+}
+
+/// Draws the study's run 0 of loreRL on its task at the first feature count into the MCAP
+/// file `path`, its first `episodes` episodes, as Foxglove and Rerun show a run of the group
+/// (`tes_viewer::grid`). The same method, task and seed as the study's job, so the same
+/// episodes.
+pub fn draw_run(config: &GridConfig, path: &Path, episodes: usize) -> Result<DrawnRun> {
+    use tes_viewer::file::DrawingFile;
+    use tes_viewer::grid::GridRun;
+    let irrelevant = *config
+        .irrelevant_levels
+        .first()
+        .context("no feature count to draw a run at")?;
+    let tasks = GridSuite::paper(config.world_seed, irrelevant);
+    let task = tasks
+        .into_iter()
+        .nth(config.task_index)
+        .with_context(|| format!("the suite has no task {}", config.task_index))?;
+    let env = GridEnv::new(task)?;
+    let (method, seed) = (Method::LoreRl, config.seed);
+    let metadata = BTreeMap::from([
+        ("experiment".to_owned(), EXPERIMENT.to_owned()),
+        ("method".to_owned(), method.to_string()),
+        ("task_index".to_owned(), config.task_index.to_string()),
+        ("irrelevant_features".to_owned(), irrelevant.to_string()),
+        ("world_seed".to_owned(), config.world_seed.to_string()),
+        ("seed".to_owned(), seed.to_string()),
+    ]);
+    let mut file = DrawingFile::create(path, metadata)?;
+    let mut drawing = GridRun::start(env.task(), &mut file)?;
+    let mut failed = None;
+    let settings = AgentSettings {
+        planner: PlannerParams {
+            stop_at_drift: config.stop_at_drift,
+            ..PlannerParams::default()
+        },
+        rl_dt_examples: config.rl_dt_examples,
+    };
+    let ran = run_agent_watched(method, &env, episodes, seed, settings, &mut |seen| {
+        if failed.is_some() {
+            return;
+        }
+        let drawn = match seen {
+            Seen::Start { episode, state } => {
+                drawing.begin_episode(episode as u32, state, &mut file)
+            }
+            Seen::Step {
+                action,
+                effect,
+                next,
+                reward,
+                agent_seconds,
+                ..
+            } => drawing.step(action, effect, next, reward, agent_seconds * 1e6, &mut file),
+            Seen::End(e) => drawing.end_episode(e.finished, &mut file),
+        };
+        if let Err(e) = drawn {
+            failed = Some(e);
+        }
+    });
+    let episodes = ran.with_context(|| format!("{method} on the grid task"))?;
+    if let Some(e) = failed {
+        return Err(e.into());
+    }
+    let messages = file.finish()?;
+    Ok(DrawnRun {
+        method,
+        irrelevant,
+        seed,
+        episodes,
+        messages,
+    })
 }
 
 /// Runs the grid experiment, writes its files into `out`, and returns the summary.

@@ -31,7 +31,7 @@ pub enum RecordingError {
     #[error(transparent)]
     Setting(tes_runtime::settings::SettingError),
     /// The recorder cannot start.
-    #[error("cannot record to {target}; nothing was started")]
+    #[error("cannot start {target}; nothing was started")]
     Start {
         /// The recording's file, or the live server's address.
         target: String,
@@ -128,8 +128,12 @@ pub fn start(
         scene,
     };
     let target = match (&file.launch.record, foxglove) {
-        (Some(path), _) => path.display().to_string(),
-        (None, Some(addr)) => format!("Foxglove on {addr}"),
+        (Some(path), Some(addr)) => format!(
+            "recording to {} and the live Foxglove server on {addr}",
+            path.display()
+        ),
+        (Some(path), None) => format!("recording to {}", path.display()),
+        (None, Some(addr)) => format!("the live Foxglove server on {addr}"),
         (None, None) => String::new(),
     };
     Recorder::start_with(prefix, outputs)

@@ -85,7 +85,7 @@ pub struct RunWriter {
     mcap: mcap::Writer<BufWriter<File>>,
     channels: BTreeMap<Topic, u16>,
     /// The viewers' channels, added as the scene first draws on each.
-    drawn_channels: BTreeMap<&'static str, u16>,
+    drawn_channels: tes_viewer::file::ChannelIds,
     sequence: u32,
     wall_offset_ns: i128,
     counts: RecordCounts,
@@ -171,7 +171,7 @@ impl RunWriter {
             path: path.to_owned(),
             mcap,
             channels,
-            drawn_channels: BTreeMap::new(),
+            drawn_channels: tes_viewer::file::ChannelIds::default(),
             sequence: 0,
             wall_offset_ns: info.wall_offset_ns,
             counts: RecordCounts::default(),
@@ -214,29 +214,6 @@ impl RunWriter {
         written.map_err(self.err())
     }
 
-    /// The id of a viewer's channel, added on first use.
-    fn drawn_channel(&mut self, channel: &tes_viewer::canvas::Channel) -> Result<u16, WriteError> {
-        if let Some(&id) = self.drawn_channels.get(channel.topic) {
-            return Ok(id);
-        }
-        let schema = &channel.schema;
-        let schema_id = self
-            .mcap
-            .add_schema(&schema.name, &schema.encoding, &schema.data)
-            .map_err(self.err())?;
-        let id = self
-            .mcap
-            .add_channel(
-                schema_id,
-                channel.topic,
-                &channel.encoding,
-                &BTreeMap::new(),
-            )
-            .map_err(self.err())?;
-        self.drawn_channels.insert(channel.topic, id);
-        Ok(id)
-    }
-
     /// Writes the world map.
     pub fn world_map(&mut self, map: &WorldMap, stamp_ns: u64) -> Result<(), WriteError> {
         self.write(Topic::WorldMap, stamp_ns, &schema::encode_world_map(map))
@@ -272,7 +249,8 @@ impl RunWriter {
 
     /// Writes a drawing of the run's scene (Foxglove's schemas) on its own channel.
     pub fn drawing(&mut self, d: tes_viewer::canvas::Drawing<'_>) -> Result<(), WriteError> {
-        let id = self.drawn_channel(d.channel)?;
+        let id = self.drawn_channels.id(&mut self.mcap, d.channel);
+        let id = id.map_err(self.err())?;
         self.write_to(id, d.wall_ns, d.stamp_ns, d.data)?;
         self.counts.drawings += 1;
         Ok(())

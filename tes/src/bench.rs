@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
 use tes_bench::floor::{self, HopSettings};
-use tes_bench::recorder_cost::RecorderComparison;
+use tes_bench::recorder_cost::{RecorderComparison, Watcher};
 use tes_bench::relay::{self, RelayConfig};
 use tes_bench::{Harness, LatencyResult, LatencySettings, Note, Pace, Programs, Via, scaling};
 use tes_controller::config::{Order, PlanningMode};
@@ -150,8 +150,13 @@ pub struct LatencyArgs {
     /// without, …), each from the same library, and the medians over the blocks are compared.
     #[arg(long)]
     record: bool,
-    /// With `--record`: blocks of each kind; each measures `--actions / N` actions after the
-    /// warm-up.
+    /// Also compare the group with and without the live Foxglove server (`tes launch
+    /// --foxglove`) and a viewer subscribed to every channel, in alternating blocks as
+    /// `--record`'s.
+    #[arg(long)]
+    foxglove: bool,
+    /// With `--record` or `--foxglove`: blocks of each kind; each measures `--actions / N`
+    /// actions after the warm-up.
     #[arg(long, default_value_t = 4, value_name = "N")]
     record_blocks: u64,
     /// How the processes reach each other: shm (one host, iceoryx2 only; the floor a raw
@@ -276,6 +281,7 @@ fn latency_settings(args: &LatencyArgs) -> Result<LatencySettings> {
         order: args.order,
         planner_idle_spin_us: args.planner_idle_spin_us,
         record: args.record,
+        foxglove: args.foxglove,
         record_blocks: args.record_blocks,
         via: match args.via {
             ViaArg::Shm => Via::Shm,
@@ -385,8 +391,8 @@ fn print_latency(result: &LatencyResult, warmup: u64) {
         }
     );
     print_cpu(result);
-    if let Some(r) = &result.recorder {
-        print_recorder(r);
+    for r in [&result.recorder, &result.foxglove].into_iter().flatten() {
+        print_observer_cost(r);
     }
     // A planner thread yields to everything: where the measured loops keep both CPUs busy
     // (spin on two cores) it barely runs, and the agent acts on an old policy.
@@ -437,39 +443,39 @@ fn print_cpu(result: &LatencyResult) {
     }
 }
 
-/// The recorder comparison's blocks and medians, as a table.
-fn print_recorder(r: &RecorderComparison) {
-    println!("the recorder's cost (blocks in the order they ran; observation -> bridge):");
+/// An observer comparison's blocks and medians, as a table.
+fn print_observer_cost(r: &RecorderComparison) {
+    let name = r.watcher.name();
+    println!("the {name}'s cost (blocks in the order they ran; observation -> bridge):");
+    let what = match r.watcher {
+        Watcher::Recorder => "written obs/cmd/motor",
+        Watcher::Foxglove => "viewer received",
+    };
     println!(
-        "{:>5} {:>9} {:>8} {:>8} {:>7} {:>12} {:>24} {:>7}",
-        "block",
-        "recorder",
-        "p50 us",
-        "p99 us",
-        "misses",
-        "allocations",
-        "written obs/cmd/motor",
-        "missed"
+        "{:>5} {:>16} {:>8} {:>8} {:>7} {:>12} {:>24} {:>7}",
+        "block", name, "p50 us", "p99 us", "misses", "allocations", what, "missed"
     );
     for (i, b) in r.blocks.iter().enumerate() {
-        let written = b
-            .written
-            .map_or("-".to_owned(), |[o, c, m]| format!("{o}/{c}/{m}"));
+        let count = match (b.written, b.viewer_messages) {
+            (Some([o, c, m]), _) => format!("{o}/{c}/{m}"),
+            (None, Some(n)) => n.to_string(),
+            (None, None) => "-".to_owned(),
+        };
         println!(
-            "{:>5} {:>9} {:>8} {:>8} {:>7} {:>12} {:>24} {:>7}",
+            "{:>5} {:>16} {:>8} {:>8} {:>7} {:>12} {:>24} {:>7}",
             i + 1,
             if b.recorded { "with" } else { "without" },
             b.p50_us,
             b.p99_us,
             b.misses,
             b.allocations.map_or("-".to_owned(), |n| n.to_string()),
-            written,
+            count,
             b.missed.map_or("-".to_owned(), |n| n.to_string()),
         );
     }
     println!(
         "medians: without p50 {:.1} us, p99 {:.1} us; with p50 {:.1} us ({:+.1} %), p99 {:.1} us ({:+.1} %); \
-         allocations on the acting path with the recorder: {}",
+         allocations on the acting path with the {name}: {}",
         r.without_p50_us,
         r.without_p99_us,
         r.with_p50_us,

@@ -252,6 +252,14 @@ struct GridArgs {
     /// shortcut; the default list is Hester & Stone's and what Table 1 compares against).
     #[arg(long)]
     rl_dt_per_state_counts: bool,
+    /// Also draw the study's run 0 of loreRL at the first feature count (the same task and
+    /// seed, so the same episodes) to this MCAP file, as Foxglove and Rerun show a run of the
+    /// group: the grid, the agent moving, its path, decisions and episode rewards.
+    #[arg(long, value_name = "FILE.mcap")]
+    draw: Option<PathBuf>,
+    /// With `--draw`: the episodes drawn (from the first).
+    #[arg(long, default_value_t = 20, value_name = "N")]
+    draw_episodes: usize,
 }
 
 /// Runs `tes experiment`.
@@ -514,6 +522,34 @@ fn run_grid(args: &GridArgs) -> Result<()> {
     if let Some(report) = grid_with(&config, &out, options)? {
         print_summary(console::grid(&report, &out))?;
     }
+    if let Some(path) = &args.draw {
+        draw_grid_run(&config, path, args.draw_episodes)?;
+    }
+    Ok(())
+}
+
+/// `--draw`: the study's loreRL run 0, drawn for Foxglove and Rerun.
+fn draw_grid_run(config: &GridConfig, path: &Path, episodes: usize) -> Result<()> {
+    if episodes == 0 {
+        bail!("--draw-episodes must be at least 1");
+    }
+    let drawn = grid::draw_run(config, path, episodes)
+        .with_context(|| format!("cannot draw a grid run to {}", path.display()))?;
+    let rewards: Vec<String> = drawn
+        .episodes
+        .iter()
+        .map(|e| format!("{:.2}", e.reward))
+        .collect();
+    eprintln!(
+        "grid experiment: drew {} episodes of {} (run 0, {} irrelevant features, seed {}; rewards {}) to {}: {} messages for Foxglove and Rerun (docs/recording.md)",
+        drawn.episodes.len(),
+        drawn.method,
+        drawn.irrelevant,
+        drawn.seed,
+        rewards.join(" "),
+        path.display(),
+        drawn.messages
+    );
     Ok(())
 }
 

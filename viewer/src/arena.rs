@@ -19,7 +19,7 @@ pub const M_PER_CM: f64 = 0.01;
 /// Height of the arena's walls, m.
 const WALL_HEIGHT_M: f64 = 0.08;
 /// Thickness of the walls and of the floor, m.
-const WALL_THICKNESS_M: f64 = 0.02;
+pub(crate) const WALL_THICKNESS_M: f64 = 0.02;
 /// Diameter of a mark (a sticker on the floor), m.
 const MARK_DIAMETER_M: f64 = 0.06;
 /// Diameter of the ball, m.
@@ -62,7 +62,7 @@ pub const DEATH: Color = Color {
     b: 0.08,
     a: 1.0,
 };
-const WALL: Color = Color {
+pub(crate) const WALL: Color = Color {
     r: 0.25,
     g: 0.25,
     b: 0.28,
@@ -88,7 +88,7 @@ pub(crate) fn at(x: f64, y: f64, z: f64) -> Pose {
     }
 }
 
-fn size(x: f64, y: f64, z: f64) -> Option<Vector3> {
+pub(crate) fn size(x: f64, y: f64, z: f64) -> Option<Vector3> {
     Some(Vector3 { x, y, z })
 }
 
@@ -229,13 +229,10 @@ const POINT_STRIDE: usize = 16;
 /// The arena as coloured points in [`ARENA_FRAME`]: a point per cell centre in its surface's
 /// colour (red on a death spot), a point per mark and the ball, and the four corners.
 pub fn arena_points(arena: &Arena, timestamp: Timestamp) -> PointCloud {
-    let mut data = Vec::new();
-    let mut put = |p: DVec2, z: f64, c: &Color| {
+    let mut points = Vec::new();
+    let mut put = |p: DVec2, z: f64, c: Color| {
         let (x, y) = metres(p);
-        for v in [x, y, z] {
-            data.extend_from_slice(&(v as f32).to_le_bytes());
-        }
-        data.extend([c.r, c.g, c.b, c.a].map(|v| (v * 255.0).round() as u8));
+        points.push((x, y, z, c));
     };
     for (x, y) in every_cell(arena) {
         let colour = if arena.is_death_cell(x, y) {
@@ -243,17 +240,33 @@ pub fn arena_points(arena: &Arena, timestamp: Timestamp) -> PointCloud {
         } else {
             surface_colour(arena.surface(x, y))
         };
-        put(arena.cell_centre(x, y), 0.0, &colour);
+        put(arena.cell_centre(x, y), 0.0, colour);
     }
     for colour in [MarkColour::Blue, MarkColour::Green] {
         for &m in arena.marks(colour) {
-            put(m, 0.01, &mark_colour(colour));
+            put(m, 0.01, mark_colour(colour));
         }
     }
-    put(arena.ball(), BALL_DIAMETER_M / 2.0, &BALL);
+    put(arena.ball(), BALL_DIAMETER_M / 2.0, BALL);
     let side = arena.side_cm();
     for corner in [(0.0, 0.0), (side, 0.0), (0.0, side), (side, side)] {
-        put(DVec2::new(corner.0, corner.1), 0.0, &WALL);
+        put(DVec2::new(corner.0, corner.1), 0.0, WALL);
+    }
+    coloured_points(&points, timestamp)
+}
+
+/// Points `(x, y, z, colour)` (m) as one cloud in [`ARENA_FRAME`]: x, y, z as 32-bit floats,
+/// then red, green, blue and alpha as bytes ([`POINT_STRIDE`] bytes a point).
+pub(crate) fn coloured_points(
+    points: &[(f64, f64, f64, Color)],
+    timestamp: Timestamp,
+) -> PointCloud {
+    let mut data = Vec::with_capacity(points.len() * POINT_STRIDE);
+    for (x, y, z, c) in points {
+        for v in [x, y, z] {
+            data.extend_from_slice(&(*v as f32).to_le_bytes());
+        }
+        data.extend([c.r, c.g, c.b, c.a].map(|v| (v * 255.0).round() as u8));
     }
     let field =
         |name: &str, offset: u32, t: packed_element_field::NumericType| PackedElementField {

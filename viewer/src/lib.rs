@@ -24,6 +24,8 @@
 
 pub mod arena;
 pub mod canvas;
+pub mod file;
+pub mod grid;
 pub mod live;
 pub mod robot;
 pub mod scene;

@@ -107,9 +107,10 @@ impl Odometry {
     }
 }
 
-/// The robot's body and heading, drawn once and locked to [`ROBOT_FRAME`].
-pub fn body(timestamp: Timestamp) -> SceneEntity {
-    let [l, w, h] = BODY_M;
+/// The robot's body and heading, drawn once and locked to [`ROBOT_FRAME`], `scale` times an
+/// NXT's size (1 on the arena).
+pub fn body(timestamp: Timestamp, scale: f64) -> SceneEntity {
+    let [l, w, h] = BODY_M.map(|d| d * scale);
     let shell = rgb(0.92, 0.55, 0.08);
     SceneEntity {
         timestamp: Some(timestamp),
@@ -124,9 +125,9 @@ pub fn body(timestamp: Timestamp) -> SceneEntity {
         arrows: vec![ArrowPrimitive {
             pose: Some(at(0.0, 0.0, h + 0.01)),
             shaft_length: l * 0.7,
-            shaft_diameter: 0.015,
-            head_length: 0.05,
-            head_diameter: 0.04,
+            shaft_diameter: 0.015 * scale,
+            head_length: 0.05 * scale,
+            head_diameter: 0.04 * scale,
             color: Some(rgb(0.95, 0.95, 0.95)),
         }],
         ..SceneEntity::default()

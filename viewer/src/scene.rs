@@ -14,8 +14,8 @@
 
 use foxglove::Encode;
 use foxglove::messages::{
-    Color, LinePrimitive, Log, Point3, PoseInFrame, PosesInFrame, SceneEntity, SceneUpdate,
-    TextPrimitive, Timestamp, line_primitive, log,
+    LinePrimitive, Log, Point3, PoseInFrame, PosesInFrame, SceneEntity, SceneUpdate, TextPrimitive,
+    Timestamp, line_primitive, log,
 };
 use tes_perception_sim::arena::{self, Arena, ArenaId, Effect};
 use tes_topics::{
@@ -75,16 +75,16 @@ pub struct EpisodeEnd {
 
 /// The channels of a scene, each built once.
 #[derive(Debug, Clone)]
-struct Channels {
-    arena: Channel,
-    arena_points: Channel,
-    tf: Channel,
-    robot: Channel,
-    robot_pose: Channel,
-    robot_path: Channel,
-    log: Channel,
-    decision: Channel,
-    episode: Channel,
+pub(crate) struct Channels {
+    pub(crate) arena: Channel,
+    pub(crate) arena_points: Channel,
+    pub(crate) tf: Channel,
+    pub(crate) robot: Channel,
+    pub(crate) robot_pose: Channel,
+    pub(crate) robot_path: Channel,
+    pub(crate) log: Channel,
+    pub(crate) decision: Channel,
+    pub(crate) episode: Channel,
 }
 
 impl Channels {
@@ -148,53 +148,36 @@ struct EpisodeTrack {
     last_action: Option<u32>,
 }
 
-/// Turns the group's samples into drawings (see the module's table).
+/// Encodes messages onto the scene's channels, each once into a buffer it keeps, with times
+/// moved to the wall clock.
 #[derive(Debug)]
-pub struct Scene {
-    settings: SceneSettings,
+pub(crate) struct Painter {
     channels: Channels,
     buffer: Vec<u8>,
-    arena: Option<Arena>,
-    odometry: Odometry,
-    /// When the last observation was published: motor reports from before it tell of a
-    /// motion its pose already holds.
-    observed_ns: u64,
-    episode: EpisodeTrack,
-    /// The world number of a map that is not an arena, said once.
-    not_drawn: Option<u32>,
+    wall_offset_ns: i128,
 }
 
-impl Scene {
-    /// An empty scene: nothing is drawn until the world map arrives.
-    pub fn new(settings: SceneSettings) -> Self {
+impl Painter {
+    pub(crate) fn new(wall_offset_ns: i128) -> Self {
         Self {
-            settings,
             channels: Channels::new(),
             buffer: Vec::with_capacity(4096),
-            arena: None,
-            odometry: Odometry::default(),
-            observed_ns: 0,
-            episode: EpisodeTrack::default(),
-            not_drawn: None,
+            wall_offset_ns,
         }
     }
 
-    /// Every channel the scene draws on (a live server advertises them all at once).
-    pub fn channels(&self) -> impl Iterator<Item = &Channel> {
-        self.channels.all().into_iter()
-    }
-
     fn wall_ns(&self, stamp_ns: u64) -> u64 {
-        (i128::from(stamp_ns) + self.settings.wall_offset_ns).clamp(0, i128::from(u64::MAX)) as u64
+        (i128::from(stamp_ns) + self.wall_offset_ns).clamp(0, i128::from(u64::MAX)) as u64
     }
 
-    fn timestamp(&self, stamp_ns: u64) -> Timestamp {
+    /// A monotonic stamp as a Foxglove (wall-clock) timestamp.
+    pub(crate) fn timestamp(&self, stamp_ns: u64) -> Timestamp {
         let wall = self.wall_ns(stamp_ns);
         Timestamp::new((wall / 1_000_000_000) as u32, (wall % 1_000_000_000) as u32)
     }
 
-    /// Encodes `message` once and puts it on `canvas`.
-    fn put<T: Encode, C: Canvas>(
+    /// Encodes `message` once and puts it on `canvas`, on the channel `pick` chooses.
+    pub(crate) fn put<T: Encode, C: Canvas>(
         &mut self,
         pick: fn(&Channels) -> &Channel,
         message: &T,
@@ -214,6 +197,50 @@ impl Scene {
             stamp_ns,
             wall_ns,
         })
+    }
+
+    /// Every channel, in the order of the module's table.
+    pub(crate) fn channels(&self) -> [&Channel; 9] {
+        self.channels.all()
+    }
+}
+
+/// Turns the group's samples into drawings (see the module's table).
+#[derive(Debug)]
+pub struct Scene {
+    settings: SceneSettings,
+    painter: Painter,
+    arena: Option<Arena>,
+    odometry: Odometry,
+    /// When the last observation was published: motor reports from before it tell of a
+    /// motion its pose already holds.
+    observed_ns: u64,
+    episode: EpisodeTrack,
+    /// The world number of a map that is not an arena, said once.
+    not_drawn: Option<u32>,
+}
+
+impl Scene {
+    /// An empty scene: nothing is drawn until the world map arrives.
+    pub fn new(settings: SceneSettings) -> Self {
+        Self {
+            settings,
+            painter: Painter::new(settings.wall_offset_ns),
+            arena: None,
+            odometry: Odometry::default(),
+            observed_ns: 0,
+            episode: EpisodeTrack::default(),
+            not_drawn: None,
+        }
+    }
+
+    /// Every channel the scene draws on (a live server advertises them all at once).
+    pub fn channels(&self) -> impl Iterator<Item = &Channel> {
+        self.painter.channels().into_iter()
+    }
+
+    fn timestamp(&self, stamp_ns: u64) -> Timestamp {
+        self.painter.timestamp(stamp_ns)
     }
 
     /// The world map: draws the arena and the robot's body.
@@ -243,15 +270,17 @@ impl Scene {
         };
         let t = self.timestamp(stamp_ns);
         let (scene, points) = (arena_scene(arena, t), arena_points(arena, t));
-        self.put(|c| &c.arena, &scene, stamp_ns, canvas)?;
-        self.put(|c| &c.arena_points, &points, stamp_ns, canvas)?;
+        self.painter.put(|c| &c.arena, &scene, stamp_ns, canvas)?;
+        self.painter
+            .put(|c| &c.arena_points, &points, stamp_ns, canvas)?;
         let robot = SceneUpdate {
             deletions: Vec::new(),
-            entities: vec![body(t)],
+            entities: vec![body(t, 1.0)],
         };
-        self.put(|c| &c.robot, &robot, stamp_ns, canvas)?;
+        self.painter.put(|c| &c.robot, &robot, stamp_ns, canvas)?;
         if let Some(pose) = self.odometry.pose() {
-            self.put(|c| &c.tf, &pose.transform(t), stamp_ns, canvas)?;
+            self.painter
+                .put(|c| &c.tf, &pose.transform(t), stamp_ns, canvas)?;
         }
         Ok(())
     }
@@ -289,28 +318,31 @@ impl Scene {
         let t = self.timestamp(o.stamp_ns);
         if let Some(p) = pose {
             self.episode.path.push(p);
-            self.put(|c| &c.tf, &p.transform(t), o.stamp_ns, canvas)?;
+            self.painter
+                .put(|c| &c.tf, &p.transform(t), o.stamp_ns, canvas)?;
             let observed = PoseInFrame {
                 timestamp: Some(t),
                 frame_id: ARENA_FRAME.into(),
                 pose: Some(p.pose()),
             };
-            self.put(|c| &c.robot_pose, &observed, o.stamp_ns, canvas)?;
+            self.painter
+                .put(|c| &c.robot_pose, &observed, o.stamp_ns, canvas)?;
         }
         let path = PosesInFrame {
             timestamp: Some(t),
             frame_id: ARENA_FRAME.into(),
             poses: self.episode.path.iter().map(FloorPose::pose).collect(),
         };
-        self.put(|c| &c.robot_path, &path, o.stamp_ns, canvas)?;
+        self.painter
+            .put(|c| &c.robot_path, &path, o.stamp_ns, canvas)?;
         let robot = SceneUpdate {
             deletions: Vec::new(),
             entities: vec![self.path_entity(t), self.decision_entity(t, o, effect)],
         };
-        self.put(|c| &c.robot, &robot, o.stamp_ns, canvas)?;
+        self.painter.put(|c| &c.robot, &robot, o.stamp_ns, canvas)?;
         if o.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0 {
             let end = self.episode_end(o);
-            self.put(|c| &c.episode, &end, o.stamp_ns, canvas)?;
+            self.painter.put(|c| &c.episode, &end, o.stamp_ns, canvas)?;
         }
         Ok(())
     }
@@ -327,26 +359,13 @@ impl Scene {
     }
 
     fn path_entity(&self, t: Timestamp) -> SceneEntity {
-        let points = self.episode.path.iter().map(|p| Point3 {
-            x: p.position.x * crate::arena::M_PER_CM,
-            y: p.position.y * crate::arena::M_PER_CM,
-            z: 0.02,
-        });
-        SceneEntity {
-            timestamp: Some(t),
-            frame_id: ARENA_FRAME.into(),
-            id: "path".into(),
-            lines: vec![LinePrimitive {
-                r#type: line_primitive::Type::LineStrip as i32,
-                pose: Some(at(0.0, 0.0, 0.0)),
-                thickness: 4.0,
-                scale_invariant: true,
-                points: points.collect(),
-                color: Some(rgb(1.0, 0.85, 0.1)),
-                ..LinePrimitive::default()
-            }],
-            ..SceneEntity::default()
-        }
+        path_entity(
+            t,
+            self.episode
+                .path
+                .iter()
+                .map(|p| p.position * crate::arena::M_PER_CM),
+        )
     }
 
     fn decision_entity(
@@ -363,24 +382,7 @@ impl Scene {
             (Some(a), Some(e)) => format!("episode {} step {}: {a} → {e}", o.episode, o.step),
             _ => format!("episode {} step {}", o.episode, o.step),
         };
-        SceneEntity {
-            timestamp: Some(t),
-            frame_id: ROBOT_FRAME.into(),
-            id: "decision".into(),
-            frame_locked: true,
-            texts: vec![TextPrimitive {
-                pose: Some(at(0.0, 0.0, 0.25)),
-                billboard: true,
-                font_size: 14.0,
-                scale_invariant: true,
-                color: Some(Color {
-                    a: 1.0,
-                    ..rgb(1.0, 1.0, 1.0)
-                }),
-                text,
-            }],
-            ..SceneEntity::default()
-        }
+        said_over_robot(t, text, 0.25)
     }
 
     fn episode_end(&self, o: &Observation) -> EpisodeEnd {
@@ -420,7 +422,8 @@ impl Scene {
                 0.0
             },
         };
-        self.put(|ch| &ch.decision, &decision, c.stamp_ns, canvas)
+        self.painter
+            .put(|ch| &ch.decision, &decision, c.stamp_ns, canvas)
     }
 
     /// A motor report: the robot moved by its wheels' rotation.
@@ -443,7 +446,8 @@ impl Scene {
         match self.odometry.wheels([left, right]) {
             Some(pose) => {
                 let t = self.timestamp(m.stamp_ns);
-                self.put(|c| &c.tf, &pose.transform(t), m.stamp_ns, canvas)
+                self.painter
+                    .put(|c| &c.tf, &pose.transform(t), m.stamp_ns, canvas)
             }
             None => Ok(()),
         }
@@ -464,7 +468,50 @@ impl Scene {
             name: role.to_owned(),
             ..Log::default()
         };
-        self.put(|c| &c.log, &line, stamp_ns, canvas)
+        self.painter.put(|c| &c.log, &line, stamp_ns, canvas)
+    }
+}
+
+/// The line through `points` (m, on the floor) in the arena's frame: entity `path`.
+pub(crate) fn path_entity(t: Timestamp, points: impl Iterator<Item = glam::DVec2>) -> SceneEntity {
+    let points = points.map(|p| Point3 {
+        x: p.x,
+        y: p.y,
+        z: 0.02,
+    });
+    SceneEntity {
+        timestamp: Some(t),
+        frame_id: ARENA_FRAME.into(),
+        id: "path".into(),
+        lines: vec![LinePrimitive {
+            r#type: line_primitive::Type::LineStrip as i32,
+            pose: Some(at(0.0, 0.0, 0.0)),
+            thickness: 4.0,
+            scale_invariant: true,
+            points: points.collect(),
+            color: Some(rgb(1.0, 0.85, 0.1)),
+            ..LinePrimitive::default()
+        }],
+        ..SceneEntity::default()
+    }
+}
+
+/// `text` floating `height` m over the robot, facing the viewer: entity `decision`.
+pub(crate) fn said_over_robot(t: Timestamp, text: String, height: f64) -> SceneEntity {
+    SceneEntity {
+        timestamp: Some(t),
+        frame_id: ROBOT_FRAME.into(),
+        id: "decision".into(),
+        frame_locked: true,
+        texts: vec![TextPrimitive {
+            pose: Some(at(0.0, 0.0, height)),
+            billboard: true,
+            font_size: 14.0,
+            scale_invariant: true,
+            color: Some(rgb(1.0, 1.0, 1.0)),
+            text,
+        }],
+        ..SceneEntity::default()
     }
 }
 

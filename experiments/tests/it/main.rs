@@ -2,6 +2,7 @@
 //! experiment, the robot and transfer experiments end to end, and sharding, merging and
 //! resuming.
 
+mod drawing;
 mod figures;
 mod robot;
 mod shards;

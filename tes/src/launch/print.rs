@@ -130,16 +130,17 @@ fn run_line(event: &Event) -> Option<Said> {
         )),
         Event::Recording { path } => note(format!("launch: recording to {}", path.display())),
         Event::Foxglove { addr, exposed } => {
-            let mut line = format!(
+            let line = format!(
                 "launch: live in Foxglove at ws://{addr} (Open connection → Foxglove WebSocket)"
             );
             if *exposed {
-                line.push_str(&format!(
-                    "; WARNING: {} is not loopback: anyone who reaches it sees the run",
+                warn(format!(
+                    "{line}; WARNING: {} is not loopback: anyone who reaches it sees the run",
                     addr.ip()
-                ));
+                ))
+            } else {
+                note(line)
             }
-            note(line)
         }
         Event::EpisodeEnded { text, .. } | Event::Output { text, .. } => out(text.clone()),
         Event::Recorded(recorded) => note(format!("launch: {recorded}")),
@@ -530,6 +531,20 @@ mod tests {
             "launch: 4 episodes; failed: controller was killed by SIGKILL".into(),
         ));
         assert_eq!(said(true), echoed);
+    }
+
+    /// The live view's address is said; one beyond loopback is warned about even without echo.
+    #[test]
+    fn a_live_view_beyond_loopback_is_warned_about() {
+        let at = |addr: &str, exposed| Event::Foxglove {
+            addr: addr.parse().expect("an address"),
+            exposed,
+        };
+        let quiet = lines_of(&at("127.0.0.1:8765", false), false);
+        assert!(quiet.is_empty(), "{quiet:?}");
+        let said = lines_of(&at("0.0.0.0:8765", true), false);
+        assert_eq!(said.len(), 1);
+        assert!(said[0].1.contains("ws://0.0.0.0:8765") && said[0].1.contains("WARNING"));
     }
 
     /// The plan says its settings as the launch file spells them, and counts in words.

@@ -343,3 +343,53 @@ fn bad_bench_arguments_are_refused_before_anything_starts() {
         }
     }
 }
+
+/// `--record --foxglove`: blocks with and without each observer alternate; the recorder's
+/// blocks say what they wrote, the Foxglove server's what its viewer received, and the acting
+/// path allocates nothing with either.
+#[test]
+fn latency_compares_the_recorder_and_the_foxglove_server_in_blocks() {
+    let dir = tempfile::tempdir().unwrap();
+    let (ok, stdout, stderr) = run(
+        &[
+            "bench",
+            "latency",
+            "--actions",
+            "60",
+            "--warmup",
+            "20",
+            "--views",
+            "3",
+            "--record",
+            "--foxglove",
+            "--record-blocks",
+            "1",
+            "--json",
+        ],
+        &dir.path().join("data"),
+        Duration::from_secs(300),
+    );
+    assert!(ok, "bench failed:\n{stderr}");
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
+    for (key, watcher) in [("recorder", "recorder"), ("foxglove", "foxglove")] {
+        let c = &v[key];
+        assert_eq!(c["watcher"], watcher, "{v}");
+        let blocks = c["blocks"].as_array().expect("blocks");
+        let kinds: Vec<bool> = blocks.iter().map(|b| b["recorded"] == true).collect();
+        assert_eq!(kinds, [false, true], "{c}");
+        assert_eq!(c["allocations_with"], 0, "{c}");
+        assert!(c["with_p50_us"].as_f64().is_some_and(|us| us > 0.0), "{c}");
+    }
+    let with_viewer = &v["foxglove"]["blocks"][1];
+    assert!(
+        with_viewer["viewer_messages"]
+            .as_u64()
+            .is_some_and(|n| n > 60),
+        "{with_viewer}"
+    );
+    assert!(
+        v["recorder"]["blocks"][1]["written"][1]
+            .as_u64()
+            .is_some_and(|n| n >= 60)
+    );
+}

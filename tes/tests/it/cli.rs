@@ -397,17 +397,42 @@ fn experiment_grid_writes_its_summary_csv_and_plots() {
         "3",
         "--out",
         &out_s,
+        "--draw",
+        &format!("{out_s}/run.mcap"),
+        "--draw-episodes",
+        "3",
     ]);
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{stderr}");
     let summary: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(out.join("summary.json")).expect("summary.json"),
     )
     .expect("valid JSON");
     assert_eq!(summary["config"]["runs"], 2);
+    // The drawn run is the study's loreRL run 0 at 0 irrelevant features: the same rewards.
+    let csv = std::fs::read_to_string(out.join("episodes.csv")).expect("episodes.csv");
+    let studied: Vec<String> = csv
+        .lines()
+        .filter(|l| l.starts_with("loreRL,0,0,"))
+        .map(|l| {
+            let reward: f64 = l
+                .split(',')
+                .nth(5)
+                .and_then(|r| r.parse().ok())
+                .expect("a reward");
+            format!("{reward:.2}")
+        })
+        .collect();
+    assert_eq!(studied.len(), 3, "{csv}");
+    let drew = stderr
+        .lines()
+        .find(|l| l.contains("grid experiment: drew 3 episodes of loreRL"))
+        .unwrap_or_else(|| panic!("no drawing line in {stderr}"));
+    assert!(
+        drew.contains(&format!("rewards {})", studied.join(" "))),
+        "{drew} against {studied:?}"
+    );
+    assert!(std::fs::metadata(out.join("run.mcap")).is_ok_and(|m| m.len() > 1000));
     assert_eq!(summary["config"]["seed"], 1, "seeds are recorded");
     for alg in ["loreRL", "fRmax", "fEpsG", "Rmax", "RL-DT", "LSE-Rmax"] {
         assert!(summary["fig3a_final"][alg]["mean"].is_number(), "{alg}");
@@ -796,4 +821,26 @@ fn link_keygen_makes_private_keys_and_prints_the_launch_lines() {
     let again = tes(&["link", "keygen", keys_arg]);
     assert!(!again.status.success());
     assert!(String::from_utf8_lossy(&again.stderr).contains("never overwritten"));
+}
+
+/// `--foxglove` with something that is not an address is refused before anything starts.
+#[test]
+fn a_foxglove_address_that_is_not_one_is_refused_before_anything_starts() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let run = tes_command()
+        .args(["launch", "--episodes", "1", "--foxglove", "not an address"])
+        .env("TES_DATA_DIR", dir.path())
+        .output()
+        .expect("tes runs");
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success());
+    assert!(
+        stderr.contains("--foxglove: \"not an address\" is not an address to serve on")
+            && stderr.contains("nothing was started"),
+        "{stderr}"
+    );
+    assert!(
+        !dir.path().join("runs").exists(),
+        "nothing was started: {stderr}"
+    );
 }
