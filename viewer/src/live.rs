@@ -42,13 +42,12 @@ pub enum LiveError {
         source: foxglove::FoxgloveError,
     },
     /// The server cannot listen.
-    #[error("cannot serve Foxglove on {addr}: {source}")]
+    #[error("cannot serve Foxglove on {addr}: {reason}")]
     Bind {
         /// The address.
         addr: SocketAddr,
-        /// Why.
-        #[source]
-        source: foxglove::FoxgloveError,
+        /// Why, as the server says it (its own error already names its cause).
+        reason: String,
     },
 }
 
@@ -130,7 +129,10 @@ impl LiveServer {
             .tokio_runtime(runtime.handle());
         let handle = runtime
             .block_on(server.start())
-            .map_err(|source| LiveError::Bind { addr, source })?;
+            .map_err(|e| LiveError::Bind {
+                addr,
+                reason: e.to_string(),
+            })?;
         let addr = SocketAddr::new(addr.ip(), handle.port());
         Ok(Self {
             addr,
