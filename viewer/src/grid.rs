@@ -14,6 +14,7 @@ use crate::arena::{ARENA_FRAME, WALL, WALL_THICKNESS_M, at, coloured_points, rgb
 use crate::canvas::Canvas;
 use crate::robot::{FloorPose, body};
 use crate::scene::{Decision, EpisodeEnd, Painter, path_entity, said_over_robot};
+use crate::series::Sample;
 
 /// A grid cell's side, m: a 30 × 30 task is 3 m across.
 pub const CELL_M: f64 = 0.1;
@@ -221,6 +222,9 @@ impl<'t> GridRun<'t> {
         };
         self.painter
             .put(|c| &c.decision, &decision, self.clock_ns, canvas)?;
+        let latency = Sample::of(agent_us);
+        self.painter
+            .put(|c| &c.latency_series, &latency, self.clock_ns, canvas)?;
         self.clock_ns += STEP_NS;
         (self.step, self.reward) = (self.step + 1, self.reward + reward);
         if let Some(h) = heading_of(action) {
@@ -254,7 +258,10 @@ impl<'t> GridRun<'t> {
             outcome: outcome.into(),
         };
         self.painter
-            .put(|c| &c.episode, &end, self.clock_ns, canvas)
+            .put(|c| &c.episode, &end, self.clock_ns, canvas)?;
+        let reward = Sample::of(self.reward);
+        self.painter
+            .put(|c| &c.reward_series, &reward, self.clock_ns, canvas)
     }
 
     /// Draws the agent in `state`'s cell with its path and what it did last.

@@ -29,3 +29,4 @@ pub mod grid;
 pub mod live;
 pub mod robot;
 pub mod scene;
+pub mod series;

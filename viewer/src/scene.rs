@@ -11,6 +11,8 @@
 //! | `/log` | `foxglove.Log` | the processes' log lines |
 //! | `/tes/decision` | `tes.Decision` | each decision: its action and latency |
 //! | `/tes/episode` | `tes.EpisodeEnd` | each episode's reward, length and end |
+//! | `/tes/decision/latency_us` | `std_msgs/msg/Float64MultiArray` | the latency alone (Rerun plots it) |
+//! | `/tes/episode/reward` | `std_msgs/msg/Float64MultiArray` | the reward alone (Rerun plots it) |
 
 use foxglove::Encode;
 use foxglove::messages::{
@@ -25,6 +27,7 @@ use tes_topics::{
 use crate::arena::{ARENA_FRAME, arena_points, arena_scene, at, rgb};
 use crate::canvas::{Canvas, Channel, Drawing};
 use crate::robot::{FloorPose, Odometry, ROBOT_FRAME, body};
+use crate::series::Sample;
 
 /// Topic of the arena's scene.
 pub const ARENA: &str = "/arena";
@@ -44,6 +47,10 @@ pub const LOG: &str = "/log";
 pub const DECISION: &str = "/tes/decision";
 /// Topic of the episodes' ends.
 pub const EPISODE: &str = "/tes/episode";
+/// Topic of each decision's latency as a plain series, µs.
+pub const LATENCY_SERIES: &str = "/tes/decision/latency_us";
+/// Topic of each episode's reward as a plain series.
+pub const REWARD_SERIES: &str = "/tes/episode/reward";
 
 /// One decision of the controller.
 #[derive(Debug, Clone, Default, PartialEq, foxglove::Encode)]
@@ -85,6 +92,8 @@ pub(crate) struct Channels {
     pub(crate) log: Channel,
     pub(crate) decision: Channel,
     pub(crate) episode: Channel,
+    pub(crate) latency_series: Channel,
+    pub(crate) reward_series: Channel,
 }
 
 impl Channels {
@@ -99,11 +108,13 @@ impl Channels {
             log: Channel::of::<Log>(LOG),
             decision: Channel::of::<Decision>(DECISION),
             episode: Channel::of::<EpisodeEnd>(EPISODE),
+            latency_series: Channel::of::<Sample>(LATENCY_SERIES),
+            reward_series: Channel::of::<Sample>(REWARD_SERIES),
         }
     }
 
     /// Every channel, in the order of the table above.
-    fn all(&self) -> [&Channel; 9] {
+    fn all(&self) -> [&Channel; 11] {
         [
             &self.arena,
             &self.arena_points,
@@ -114,6 +125,8 @@ impl Channels {
             &self.log,
             &self.decision,
             &self.episode,
+            &self.latency_series,
+            &self.reward_series,
         ]
     }
 }
@@ -200,7 +213,7 @@ impl Painter {
     }
 
     /// Every channel, in the order of the module's table.
-    pub(crate) fn channels(&self) -> [&Channel; 9] {
+    pub(crate) fn channels(&self) -> [&Channel; 11] {
         self.channels.all()
     }
 }
@@ -343,6 +356,9 @@ impl Scene {
         if o.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0 {
             let end = self.episode_end(o);
             self.painter.put(|c| &c.episode, &end, o.stamp_ns, canvas)?;
+            let reward = Sample::of(end.reward);
+            self.painter
+                .put(|c| &c.reward_series, &reward, o.stamp_ns, canvas)?;
         }
         Ok(())
     }
@@ -423,7 +439,10 @@ impl Scene {
             },
         };
         self.painter
-            .put(|ch| &ch.decision, &decision, c.stamp_ns, canvas)
+            .put(|ch| &ch.decision, &decision, c.stamp_ns, canvas)?;
+        let latency = Sample::of(decision.latency_us);
+        self.painter
+            .put(|ch| &ch.latency_series, &latency, c.stamp_ns, canvas)
     }
 
     /// A motor report: the robot moved by its wheels' rotation.

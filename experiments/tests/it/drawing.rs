@@ -54,12 +54,15 @@ fn the_drawn_grid_run_is_the_studys_run_in_a_complete_file() {
             "/arena/points",
             "/robot",
             "/tes/decision",
+            "/tes/decision/latency_us",
             "/tes/episode",
+            "/tes/episode/reward",
             "/tf"
         ]
     );
     let steps: u32 = drawn.episodes.iter().map(|e| e.steps).sum();
-    // Per step a decision, a transform and a robot update; per episode a start's transform and
-    // robot update and an end; the arena, its points and the agent's body once.
-    assert_eq!(drawn.messages, u64::from(3 * steps) + 3 * 3 + 3);
+    // Per step a decision and its latency, a transform and a robot update; per episode a
+    // start's transform and robot update, an end and its reward; the arena, its points and
+    // the agent's body once.
+    assert_eq!(drawn.messages, u64::from(4 * steps) + 3 * 4 + 3);
 }

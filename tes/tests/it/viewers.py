@@ -133,7 +133,7 @@ def facts_of_live(addr, episodes):
 def follow_live(client, deadline, facts, episodes, message_class):
     ws = client()
     channels = {}
-    while len(channels) < 9 and time.monotonic() < deadline:
+    while len(channels) < 11 and time.monotonic() < deadline:
         m = ws.recv(timeout=10)
         if isinstance(m, str):
             j = json.loads(m)
@@ -141,7 +141,7 @@ def follow_live(client, deadline, facts, episodes, message_class):
                 for c in j["channels"]:
                     channels[c["id"]] = c
                     facts["advertised"][c["topic"]] = [c["schemaName"], c["encoding"]]
-    classes = {i: message_class(c) for i, c in channels.items()}
+    classes = {i: message_class(c) for i, c in channels.items() if c["encoding"] == "protobuf"}
     by_topic = {c["topic"]: i for i, c in channels.items()}
     subscriptions = {}
     wanted = ["/arena", "/tf", "/tes/episode", "/tes/decision", "/robot"]
@@ -182,7 +182,7 @@ def follow_live(client, deadline, facts, episodes, message_class):
     # A client that subscribes to everything and never reads again.
     slow = client()
     slow_channels = {}
-    while len(slow_channels) < 9:
+    while len(slow_channels) < 11:
         j = slow.recv(timeout=10)
         if isinstance(j, str) and json.loads(j).get("op") == "advertise":
             for c in json.loads(j)["channels"]:

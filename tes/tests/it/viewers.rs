@@ -77,6 +77,20 @@ fn a_recording_draws_the_arena_the_robot_its_decisions_rewards_and_logs() {
         );
         assert!(f["ordered"][topic] == true, "{topic}: log times go back");
     }
+    // The latency and reward again as ROS 2 number arrays (what Rerun plots), one a decision
+    // and one an episode.
+    for (topic, of) in [
+        ("/tes/decision/latency_us", "/tes/decision"),
+        ("/tes/episode/reward", "/tes/episode"),
+    ] {
+        let c = channel(topic);
+        assert_eq!(c[0], "std_msgs/msg/Float64MultiArray", "{topic}: {c}");
+        assert_eq!(
+            (c[1].as_str(), c[2].as_str()),
+            (Some("ros2msg"), Some("cdr"))
+        );
+        assert_eq!(count(&c[3]), count(&channel(of)[3]), "{topic}");
+    }
     // Our own channels are still there, unchanged.
     assert_eq!(channel("/tes/observation")[0], "tes.Observation");
     // The arena once, to scale: Env 3 is 6 ft (1.8288 m) square.
@@ -156,6 +170,14 @@ fn rerun_turns_a_recording_into_a_transform_points_text_and_numbers() {
         count(&points[0]) > 100 && count(&points[1]) >= 4,
         "{points}"
     );
+    // Rerun's own scalars: a latency per decision, a reward per episode.
+    let decisions = f["latencies"].as_array().expect("latencies").len() as u64;
+    assert_eq!(
+        rows("/tes/decision/latency_us Scalars:scalars"),
+        decisions,
+        "{f}"
+    );
+    assert_eq!(rows("/tes/episode/reward Scalars:scalars"), 3, "{f}");
     let latencies = f["latencies"].as_array().expect("latencies");
     assert!(
         !latencies.is_empty()
@@ -201,6 +223,7 @@ fn a_live_group_is_served_to_foxglove_clients_that_cannot_slow_or_break_it() {
         ("/tf", "foxglove.FrameTransform"),
         ("/tes/episode", "episodeend.EpisodeEnd"),
         ("/log", "foxglove.Log"),
+        ("/tes/decision/latency_us", "std_msgs/msg/Float64MultiArray"),
     ] {
         assert_eq!(f["advertised"][topic][0], schema, "{f}");
     }

@@ -126,6 +126,10 @@ fn a_short_episode_draws_the_arena_the_robot_its_path_decisions_and_reward() {
     assert_eq!(decisions[0].action_name, "forward");
     assert!((decisions[0].latency_us - 12.0).abs() < 1e-9);
 
+    // The same numbers as plain series: one per decision, one per episode.
+    assert_eq!(drawn.on(LATENCY_SERIES).count(), 1);
+    assert_eq!(drawn.on(REWARD_SERIES).count(), 1);
+
     let ends: Vec<EpisodeEnd> = drawn.on(EPISODE).map(decode_episode).collect();
     assert_eq!(ends.len(), 1);
     assert_eq!(ends[0].outcome, "ball");
@@ -208,11 +212,15 @@ fn log_levels_come_from_the_tracing_line() {
 }
 
 #[test]
-fn every_channel_has_a_protobuf_schema() {
+fn every_channel_describes_its_messages() {
     let scene = Scene::new(SceneSettings::default());
     for c in scene.channels() {
-        assert_eq!(c.encoding, "protobuf", "{}", c.topic);
-        assert_eq!(c.schema.encoding, "protobuf", "{}", c.topic);
+        let (schema, message) = match c.topic {
+            LATENCY_SERIES | REWARD_SERIES => ("ros2msg", "cdr"),
+            _ => ("protobuf", "protobuf"),
+        };
+        assert_eq!(c.encoding, message, "{}", c.topic);
+        assert_eq!(c.schema.encoding, schema, "{}", c.topic);
         assert!(!c.schema.data.is_empty(), "{}", c.topic);
     }
 }
