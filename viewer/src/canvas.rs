@@ -41,6 +41,10 @@ pub struct Drawing<'a> {
     pub stamp_ns: u64,
     /// The same instant on the wall clock (ns since the Unix epoch), as viewers show it.
     pub wall_ns: u64,
+    /// A picture of the robot's motion that the next one on its channel supersedes (a
+    /// transform, its pose, path and scene at an observation): a live view may skip it.
+    /// Everything else (the arena, decisions, episode ends, log lines) is always delivered.
+    pub motion: bool,
 }
 
 /// Something a drawing can be put on: a recording, the live server, or both.
@@ -73,6 +77,7 @@ impl Canvas for Collected {
     fn draw(&mut self, d: Drawing<'_>) -> Result<(), Self::Error> {
         self.drawings
             .push((d.channel.topic, d.data.to_vec(), d.wall_ns));
+        let _ = d.motion;
         Ok(())
     }
 }

@@ -6,7 +6,8 @@
 //! nice +19), so serving a viewer never takes that CPU nor delays a waking group process.
 //! [`LiveServer::draw`] only queues a message for each subscribed client (a bounded queue per
 //! client, oldest dropped when full): a viewer that stops reading loses messages, never slows
-//! the caller. Requests it cannot serve (malformed, an unknown channel) are answered by the
+//! the caller. Pictures of the robot's motion go out at a screen's pace ([`MotionPace`]), not
+//! the loop's; decisions, episode ends and log lines all go out. Requests it cannot serve (malformed, an unknown channel) are answered by the
 //! server with a status message.
 
 use std::collections::BTreeMap;
@@ -25,6 +26,33 @@ pub const DEFAULT_ADDR: &str = "127.0.0.1:8765";
 /// Messages queued per client before the oldest are dropped: about 50 actions' worth of
 /// drawings.
 const BACKLOG: usize = 1024;
+
+/// The live view's pace for the robot's motion: at most this many pictures a second per
+/// channel, about a screen's rate. The loop may decide 500 times a second; each picture sent
+/// is a loopback TCP send whose kernel work no thread priority holds back.
+pub const MOTION_PER_SECOND: u64 = 30;
+
+/// Which pictures of motion the live view sends: on each channel, one at least
+/// 1/[`MOTION_PER_SECOND`] s after the last one sent. A skipped picture is superseded by the
+/// next on its channel, so a viewer is at most that far behind.
+#[derive(Debug, Default, Clone)]
+pub struct MotionPace {
+    last_sent: BTreeMap<&'static str, u64>,
+}
+
+impl MotionPace {
+    /// Whether a picture on `topic` at `wall_ns` is sent (and, if so, notes it).
+    pub fn admits(&mut self, topic: &'static str, wall_ns: u64) -> bool {
+        let frame = 1_000_000_000 / MOTION_PER_SECOND;
+        match self.last_sent.get(topic) {
+            Some(&last) if wall_ns < last.saturating_add(frame) => false,
+            _ => {
+                self.last_sent.insert(topic, wall_ns);
+                true
+            }
+        }
+    }
+}
 
 /// Why the live server cannot start.
 #[derive(Debug, thiserror::Error)]
@@ -65,6 +93,7 @@ impl ServerListener for Joins {
 pub struct LiveServer {
     addr: SocketAddr,
     channels: BTreeMap<&'static str, Arc<RawChannel>>,
+    motion: MotionPace,
     joins: Arc<Joins>,
     server: Option<foxglove::WebSocketServerHandle>,
     // Kept for its channels' lifetime; dropped last.
@@ -137,6 +166,7 @@ impl LiveServer {
         Ok(Self {
             addr,
             channels,
+            motion: MotionPace::default(),
             joins,
             server: Some(handle),
             _context: context,
@@ -180,9 +210,32 @@ impl Canvas for LiveServer {
     type Error = std::convert::Infallible;
 
     fn draw(&mut self, d: Drawing<'_>) -> Result<(), Self::Error> {
+        if d.motion && !self.motion.admits(d.channel.topic, d.wall_ns) {
+            return Ok(());
+        }
         if let Some(channel) = self.channels.get(d.channel.topic) {
             channel.log_with_meta(d.data, PartialMetadata::with_log_time(d.wall_ns));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn motion_goes_out_at_a_screens_pace_per_channel() {
+        let mut pace = MotionPace::default();
+        let frame = 1_000_000_000 / MOTION_PER_SECOND;
+        // 500 pictures a second for one second: 30 go out, one per frame.
+        let sent = (0..500u64)
+            .filter(|i| pace.admits("/tf", i * 2_000_000))
+            .count() as u64;
+        assert_eq!(sent, MOTION_PER_SECOND);
+        // Another channel has its own pace.
+        assert!(pace.admits("/robot", 1));
+        assert!(!pace.admits("/robot", frame));
+        assert!(pace.admits("/robot", frame + 1));
     }
 }

@@ -161,6 +161,15 @@ struct EpisodeTrack {
     last_action: Option<u32>,
 }
 
+/// How a drawing may be delivered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Delivery {
+    /// Always, as every drawing to a file.
+    Always,
+    /// A picture of the robot's motion: a live view may skip it ([`Drawing::motion`]).
+    Motion,
+}
+
 /// Encodes messages onto the scene's channels, each once into a buffer it keeps, with times
 /// moved to the wall clock.
 #[derive(Debug)]
@@ -197,6 +206,18 @@ impl Painter {
         stamp_ns: u64,
         canvas: &mut C,
     ) -> Result<(), C::Error> {
+        self.put_as(pick, message, stamp_ns, Delivery::Always, canvas)
+    }
+
+    /// [`put`](Self::put), saying how the drawing may be delivered.
+    pub(crate) fn put_as<T: Encode, C: Canvas>(
+        &mut self,
+        pick: fn(&Channels) -> &Channel,
+        message: &T,
+        stamp_ns: u64,
+        delivery: Delivery,
+        canvas: &mut C,
+    ) -> Result<(), C::Error> {
         self.buffer.clear();
         if let Err(e) = message.encode(&mut self.buffer) {
             // Only a buffer that cannot grow fails; a Vec grows.
@@ -209,6 +230,7 @@ impl Painter {
             data: &self.buffer,
             stamp_ns,
             wall_ns,
+            motion: delivery == Delivery::Motion,
         })
     }
 
@@ -331,28 +353,44 @@ impl Scene {
         let t = self.timestamp(o.stamp_ns);
         if let Some(p) = pose {
             self.episode.path.push(p);
-            self.painter
-                .put(|c| &c.tf, &p.transform(t), o.stamp_ns, canvas)?;
+            self.painter.put_as(
+                |c| &c.tf,
+                &p.transform(t),
+                o.stamp_ns,
+                Delivery::Motion,
+                canvas,
+            )?;
             let observed = PoseInFrame {
                 timestamp: Some(t),
                 frame_id: ARENA_FRAME.into(),
                 pose: Some(p.pose()),
             };
-            self.painter
-                .put(|c| &c.robot_pose, &observed, o.stamp_ns, canvas)?;
+            self.painter.put_as(
+                |c| &c.robot_pose,
+                &observed,
+                o.stamp_ns,
+                Delivery::Motion,
+                canvas,
+            )?;
         }
         let path = PosesInFrame {
             timestamp: Some(t),
             frame_id: ARENA_FRAME.into(),
             poses: self.episode.path.iter().map(FloorPose::pose).collect(),
         };
-        self.painter
-            .put(|c| &c.robot_path, &path, o.stamp_ns, canvas)?;
+        self.painter.put_as(
+            |c| &c.robot_path,
+            &path,
+            o.stamp_ns,
+            Delivery::Motion,
+            canvas,
+        )?;
         let robot = SceneUpdate {
             deletions: Vec::new(),
             entities: vec![self.path_entity(t), self.decision_entity(t, o, effect)],
         };
-        self.painter.put(|c| &c.robot, &robot, o.stamp_ns, canvas)?;
+        self.painter
+            .put_as(|c| &c.robot, &robot, o.stamp_ns, Delivery::Motion, canvas)?;
         if o.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0 {
             let end = self.episode_end(o);
             self.painter.put(|c| &c.episode, &end, o.stamp_ns, canvas)?;
@@ -465,8 +503,13 @@ impl Scene {
         match self.odometry.wheels([left, right]) {
             Some(pose) => {
                 let t = self.timestamp(m.stamp_ns);
-                self.painter
-                    .put(|c| &c.tf, &pose.transform(t), m.stamp_ns, canvas)
+                self.painter.put_as(
+                    |c| &c.tf,
+                    &pose.transform(t),
+                    m.stamp_ns,
+                    Delivery::Motion,
+                    canvas,
+                )
             }
             None => Ok(()),
         }
