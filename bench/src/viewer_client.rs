@@ -36,10 +36,7 @@ impl ViewerClient {
         let thread = std::thread::Builder::new()
             .name("bench-viewer".into())
             .spawn(move || {
-                let _ = tes_runtime::affinity::lower_this_threads_priority();
-                if let Some((_, helper)) = tes_runtime::affinity::auto_pair() {
-                    let _ = tes_runtime::affinity::pin_this_thread(helper);
-                }
+                tes_runtime::affinity::make_this_a_background_thread("the bench's viewer");
                 let runtime = tokio::runtime::Builder::new_current_thread()
                     .enable_all()
                     .build();

@@ -381,21 +381,6 @@ impl Tap {
     }
 }
 
-/// Puts the recorder thread out of the acting thread's way.
-fn step_aside() {
-    // Best effort: recording works at any priority, at some cost to the group's latency.
-    if !tes_runtime::affinity::lower_this_threads_priority() {
-        tracing::warn!("the recorder runs at nice +19 or normal priority, not SCHED_IDLE");
-    }
-    // Off the CPU the controller's acting thread is pinned to by default, so the recorder's
-    // wake-ups and writes never sit between that thread and its next observation.
-    if let Some((_, helper_cpu)) = tes_runtime::affinity::auto_pair()
-        && let Err(e) = tes_runtime::affinity::pin_this_thread(helper_cpu)
-    {
-        tracing::debug!("the recorder thread stays unpinned: {e}");
-    }
-}
-
 /// The recorder thread.
 fn record(
     prefix: &str,
@@ -404,7 +389,8 @@ fn record(
     lines: &mpsc::Receiver<LogLine>,
     ready: mpsc::Sender<Result<Option<SocketAddr>, RecordError>>,
 ) -> Result<RecordCounts, RecordError> {
-    step_aside();
+    // Recording works at any priority, at some cost to the group's latency.
+    tes_runtime::affinity::make_this_a_background_thread("the recorder");
     let scene = Scene::new(outputs.scene);
     let opened = (|| -> Result<_, RecordError> {
         let ports = open_ports(prefix)?;

@@ -127,6 +127,19 @@ pub fn keep_off_the_acting_cpu(wait: crate::wait::WaitStrategy, who: &str) {
     }
 }
 
+/// Makes the calling thread a background one (`who` names it in the log): the lowest priority
+/// ([`lower_this_threads_priority`]) and off the acting thread's CPU
+/// ([`pin_off_the_acting_cpu`]), so its wake-ups and work never sit between the acting thread
+/// and its next observation. Best effort: a refusal is logged and the thread runs anyway.
+pub fn make_this_a_background_thread(who: &str) {
+    if !lower_this_threads_priority() {
+        tracing::warn!("{who} runs at nice +19 or normal priority, not SCHED_IDLE");
+    }
+    if let Err(e) = pin_off_the_acting_cpu() {
+        tracing::debug!("{who} stays unpinned: {e}");
+    }
+}
+
 /// Why a thread could not be pinned.
 #[derive(Debug, Clone, PartialEq, Eq, Error)]
 pub enum AffinityError {

@@ -77,7 +77,6 @@ impl Canvas for Collected {
     fn draw(&mut self, d: Drawing<'_>) -> Result<(), Self::Error> {
         self.drawings
             .push((d.channel.topic, d.data.to_vec(), d.wall_ns));
-        let _ = d.motion;
         Ok(())
     }
 }

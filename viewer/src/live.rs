@@ -110,14 +110,6 @@ impl std::fmt::Debug for LiveServer {
     }
 }
 
-/// Puts a server thread out of the acting thread's way.
-fn step_aside() {
-    let _ = tes_runtime::affinity::lower_this_threads_priority();
-    if let Some((_, helper_cpu)) = tes_runtime::affinity::auto_pair() {
-        let _ = tes_runtime::affinity::pin_this_thread(helper_cpu);
-    }
-}
-
 impl LiveServer {
     /// Starts serving `channels` on `addr` (port 0: any free port; see [`addr`](Self::addr)).
     pub fn start<'a>(
@@ -128,7 +120,9 @@ impl LiveServer {
             .worker_threads(1)
             .max_blocking_threads(1)
             .thread_name("foxglove")
-            .on_thread_start(step_aside)
+            .on_thread_start(|| {
+                tes_runtime::affinity::make_this_a_background_thread("a Foxglove server thread")
+            })
             .enable_all()
             .build()
             .map_err(LiveError::Runtime)?;

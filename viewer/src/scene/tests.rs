@@ -121,7 +121,7 @@ fn a_short_episode_draws_the_arena_the_robot_its_path_decisions_and_reward() {
             .any(|u| u.entities.iter().any(|e| e.id == "robot" && e.frame_locked))
     );
 
-    let decisions: Vec<Decision> = drawn.on(DECISION).map(decode_decision).collect();
+    let decisions: Vec<DecisionTwin> = decoded(&drawn, DECISION);
     assert_eq!(decisions.len(), 1);
     assert_eq!(decisions[0].action_name, "forward");
     assert!((decisions[0].latency_us - 12.0).abs() < 1e-9);
@@ -130,14 +130,14 @@ fn a_short_episode_draws_the_arena_the_robot_its_path_decisions_and_reward() {
     assert_eq!(drawn.on(LATENCY_SERIES).count(), 1);
     assert_eq!(drawn.on(REWARD_SERIES).count(), 1);
 
-    let ends: Vec<EpisodeEnd> = drawn.on(EPISODE).map(decode_episode).collect();
+    let ends: Vec<EpisodeTwin> = decoded(&drawn, EPISODE);
     assert_eq!(ends.len(), 1);
     assert_eq!(ends[0].outcome, "ball");
     assert!((ends[0].reward - 2.0).abs() < 1e-9 && ends[0].actions == 1);
 }
 
-/// Our derived messages through a hand-written prost twin: the schema says field 1..=n in
-/// declaration order.
+/// Our derived messages read through hand-written prost twins: the derived schema numbers
+/// the fields 1..=n in declaration order.
 #[derive(Clone, PartialEq, prost::Message)]
 struct DecisionTwin {
     #[prost(uint32, tag = "1")]
@@ -162,27 +162,6 @@ struct EpisodeTwin {
     actions: u32,
     #[prost(string, tag = "4")]
     outcome: String,
-}
-
-fn decode_decision(b: &[u8]) -> Decision {
-    let d = DecisionTwin::decode(b).expect("a decision");
-    Decision {
-        episode: d.episode,
-        step: d.step,
-        action: d.action,
-        action_name: d.action_name,
-        latency_us: d.latency_us,
-    }
-}
-
-fn decode_episode(b: &[u8]) -> EpisodeEnd {
-    let e = EpisodeTwin::decode(b).expect("an episode end");
-    EpisodeEnd {
-        episode: e.episode,
-        reward: e.reward,
-        actions: e.actions,
-        outcome: e.outcome,
-    }
 }
 
 #[test]
