@@ -58,6 +58,7 @@ pub fn build_agent(
     let AgentSettings {
         planner,
         rl_dt_examples,
+        fepsg_epsilon,
     } = settings;
     let structure = task.structure();
     let lore = |params: LoreRlParams| LoreRlParams { planner, ..params };
@@ -81,7 +82,7 @@ pub fn build_agent(
         Method::FEpsG => Box::new(CountingAgent::factored_epsilon_greedy(
             structure,
             task.oracle_contexts(),
-            0.1,
+            fepsg_epsilon,
             planner,
             seed,
         )?),
@@ -120,6 +121,115 @@ pub struct Episode {
     pub finished: bool,
     /// Seconds the agent spent choosing actions and learning (the world's time excluded).
     pub agent_seconds: f64,
+    /// How it ended.
+    #[serde(default)]
+    pub end: End,
+}
+
+impl Episode {
+    /// An episode not yet begun.
+    pub fn new() -> Self {
+        Self {
+            reward: 0.0,
+            steps: 0,
+            finished: false,
+            agent_seconds: 0.0,
+            end: End::Cap,
+        }
+    }
+}
+
+impl Default for Episode {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// How an episode ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum End {
+    /// Cut off at the step cap.
+    #[default]
+    Cap,
+    /// In a rewarding terminal state: a grid exit, the arena's ball.
+    Goal,
+    /// In a costly terminal state: fire, a death spot, off the arena.
+    Death,
+    /// Stuck: the robot did not move for the arena's limit of actions.
+    Stuck,
+}
+
+impl End {
+    /// How an episode that reached a terminal state with `last_reward` ended.
+    pub fn terminal(last_reward: f64) -> Self {
+        if last_reward > 0.0 {
+            Self::Goal
+        } else {
+            Self::Death
+        }
+    }
+
+    /// One letter for the per-run records: `g`oal, `d`eath, `c`ap, `s`tuck.
+    pub fn letter(self) -> char {
+        match self {
+            Self::Goal => 'g',
+            Self::Death => 'd',
+            Self::Cap => 'c',
+            Self::Stuck => 's',
+        }
+    }
+}
+
+/// One run's episodes, as a result folder's summary keeps them for every claim made of them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunOutcome {
+    /// The first episode's reward (the jumpstart).
+    pub first: f64,
+    /// The reward of all the episodes.
+    pub accumulated: f64,
+    /// Agent seconds per episode.
+    pub seconds_per_episode: f64,
+    /// How each episode ended, one [`End::letter`] per episode.
+    pub ends: String,
+    /// Each episode's reward, where the experiment keeps them (the robot study's claims by
+    /// episode range).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rewards: Option<Vec<f64>>,
+}
+
+impl RunOutcome {
+    /// The outcome of `episodes`, each episode's reward kept if `keep_rewards`.
+    pub fn of(episodes: &[Episode], keep_rewards: bool) -> Self {
+        Self {
+            first: episodes.first().map_or(f64::NAN, |e| e.reward),
+            accumulated: episodes.iter().map(|e| e.reward).sum(),
+            seconds_per_episode: episodes.iter().map(|e| e.agent_seconds).sum::<f64>()
+                / episodes.len().max(1) as f64,
+            ends: episodes.iter().map(|e| e.end.letter()).collect(),
+            rewards: keep_rewards.then(|| episodes.iter().map(|e| e.reward).collect()),
+        }
+    }
+
+    /// The share of episodes `from..to` (0-based, clipped) that ended as `end`.
+    pub fn share(&self, end: End, from: usize, to: usize) -> f64 {
+        let slice: Vec<char> = self
+            .ends
+            .chars()
+            .skip(from)
+            .take(to.saturating_sub(from))
+            .collect();
+        if slice.is_empty() {
+            return f64::NAN;
+        }
+        slice.iter().filter(|&&c| c == end.letter()).count() as f64 / slice.len() as f64
+    }
+
+    /// The reward of episodes `from..to` (0-based, clipped), where kept.
+    pub fn reward_between(&self, from: usize, to: usize) -> Option<f64> {
+        let r = self.rewards.as_ref()?;
+        Some(r.iter().skip(from).take(to.saturating_sub(from)).sum())
+    }
 }
 
 /// What a watcher of a run sees ([`run_agent_watched`]).
@@ -176,12 +286,7 @@ pub fn run_episode_watched(
         state,
     });
     agent.begin_episode(state);
-    let mut episode = Episode {
-        reward: 0.0,
-        steps: 0,
-        finished: false,
-        agent_seconds: 0.0,
-    };
+    let mut episode = Episode::new();
     let mut agent_time = std::time::Duration::ZERO;
     for _ in 0..task.step_cap() {
         let t = Instant::now();
@@ -207,6 +312,7 @@ pub fn run_episode_watched(
         episode.steps += 1;
         if structure.is_terminal(state) {
             episode.finished = true;
+            episode.end = End::terminal(reward);
             break;
         }
     }
@@ -215,15 +321,30 @@ pub fn run_episode_watched(
     Ok(episode)
 }
 
+/// fEpsG's exploration on the grid tasks (paper §5.1.2: ε = 0.1).
+pub const PAPER_FEPSG_EPSILON: f64 = 0.1;
+
 /// Settings an experiment may vary across every agent [`build_agent`] builds; the rest are the
 /// paper's.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AgentSettings {
     /// Every agent's planner.
     pub planner: PlannerParams,
     /// How RL-DT keeps its examples (same behaviour, different cost; default: the list, as
     /// Hester & Stone).
     pub rl_dt_examples: ExampleStore,
+    /// fEpsG's exploration ε (default: the paper's 0.1).
+    pub fepsg_epsilon: f64,
+}
+
+impl Default for AgentSettings {
+    fn default() -> Self {
+        Self {
+            planner: PlannerParams::default(),
+            rl_dt_examples: ExampleStore::default(),
+            fepsg_epsilon: PAPER_FEPSG_EPSILON,
+        }
+    }
 }
 
 /// Runs `episodes` episodes of a fresh `method` agent on `task`, built with `settings`.
@@ -268,7 +389,7 @@ pub fn run_agent_watched(
 }
 
 /// Writes `episodes.csv`-style rows: the key columns named by `key_header` (comma-separated),
-/// then `episode,reward,steps,finished,agent_seconds`, one row per episode of each
+/// then `episode,reward,steps,finished,agent_seconds,end` (`end` an [`End::letter`]), one row per episode of each
 /// `(key, episodes)` group, the key already formatted as its comma-separated values.
 pub(crate) fn write_episodes_csv<'a>(
     path: &std::path::Path,
@@ -283,18 +404,19 @@ pub(crate) fn write_episodes_csv<'a>(
     let write = || -> std::io::Result<()> {
         writeln!(
             out,
-            "{key_header},episode,reward,steps,finished,agent_seconds"
+            "{key_header},episode,reward,steps,finished,agent_seconds,end"
         )?;
         for (key, episodes) in groups {
             for (i, e) in episodes.iter().enumerate() {
                 writeln!(
                     out,
-                    "{key},{},{},{},{},{:.6}",
+                    "{key},{},{},{},{},{:.6},{}",
                     i + 1,
                     e.reward,
                     e.steps,
                     e.finished,
-                    e.agent_seconds
+                    e.agent_seconds,
+                    e.end.letter()
                 )?;
             }
         }

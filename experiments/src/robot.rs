@@ -36,12 +36,14 @@ use tes_learning::mdagl::MdaglParams;
 use tes_learning::plan::PlannerParams;
 use tes_perception_sim::arena::{Arena, ArenaId, Episode as ArenaEpisode, EpisodeStatus};
 
-use crate::episode::{Episode, write_episodes_csv, write_file, write_summary};
+use crate::episode::{End, Episode, RunOutcome, write_episodes_csv, write_file, write_summary};
 use crate::jobs::{self, JobOptions, Manifest};
 use crate::method::Method;
-use crate::stats::{Summary, summarise};
+use crate::stats::{ALPHA, Summary, holm, sign_test, summarise};
 use crate::svg::{BandPoint, LineChart, Series};
-use crate::verdict::TargetCheck;
+use crate::verdict::{
+    Paired, Side, TargetCheck, Verdict, difference, p_value, paired, paired_family, ratio,
+};
 
 /// Settings of `tes experiment robot`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -167,12 +169,7 @@ fn run_episode(
     let mut tracker = ArenaEpisode::new(arena, state)?;
     agent.begin_episode(state);
     let mut agent_time = std::time::Duration::ZERO;
-    let mut episode = Episode {
-        reward: 0.0,
-        steps: 0,
-        finished: false,
-        agent_seconds: 0.0,
-    };
+    let mut episode = Episode::new();
     while (episode.steps as usize) < step_cap {
         let t = Instant::now();
         let action = agent.act(state)?;
@@ -191,9 +188,13 @@ fn run_episode(
             EpisodeStatus::Continuing => {}
             EpisodeStatus::Terminal => {
                 episode.finished = true;
+                episode.end = End::terminal(step.reward);
                 break;
             }
-            EpisodeStatus::Stuck => break,
+            EpisodeStatus::Stuck => {
+                episode.end = End::Stuck;
+                break;
+            }
         }
     }
     episode.agent_seconds = agent_time.as_secs_f64();
@@ -311,9 +312,11 @@ pub struct RobotReport {
     pub first_episode: BTreeMap<String, Vec<f64>>,
     /// Agent seconds per episode, per method (Table 6 / Table 3).
     pub seconds_per_episode: BTreeMap<String, Summary>,
-    /// The paper's Fig. 8 target — TES ≥ TES-woRi ≥ loreRL > LWT in mean accumulated
-    /// reward — and whether it holds (a `--quick` run says it is too small to judge).
+    /// The paper's §5.2 claims, the test of each and its verdict (a `--quick` run says it is
+    /// too small to judge).
     pub targets: Vec<TargetCheck>,
+    /// Every run's outcome (each episode's reward kept), per method, runs in order.
+    pub runs: RunsByMethod,
 }
 
 /// The experiment's name in manifests.
@@ -431,7 +434,14 @@ fn report_from(
         })
         .collect();
     let difference_to_tes = differences_to_tes(config, &by);
-    let targets = targets(config, &accumulated);
+    let runs: RunsByMethod = METHODS
+        .iter()
+        .map(|&m| {
+            let outcomes = runs_of(m).iter().map(|e| RunOutcome::of(e, true)).collect();
+            (m.name().into_owned(), outcomes)
+        })
+        .collect();
+    let targets = targets(config.quick, &runs);
     write_figures(config, &by, out)?;
     write_episodes_csv(
         &out.join("episodes.csv"),
@@ -449,6 +459,7 @@ fn report_from(
         first_episode,
         seconds_per_episode,
         targets,
+        runs,
     };
     write_summary(out, &report)?;
     Ok(report)
@@ -475,26 +486,173 @@ fn differences_to_tes(config: &RobotConfig, by: &ByJob) -> BTreeMap<String, Summ
         .collect()
 }
 
-/// The paper's Fig. 8 target on the mean accumulated rewards.
-fn targets(config: &RobotConfig, accumulated: &BTreeMap<String, Summary>) -> Vec<TargetCheck> {
-    let mean = |m: Method| {
-        accumulated
-            .get(&*m.name())
-            .map_or(f64::NAN, |s: &Summary| s.mean)
+/// Every run's outcome on Env 3, per method.
+pub type RunsByMethod = BTreeMap<String, Vec<RunOutcome>>;
+
+/// The paper's §5.2 claims, each judged by a paired test over runs:
+///
+/// * Fig. 9: TES accumulates more than TES-woRi, loreRL and LWT;
+/// * §5.2.3: LWT accumulates least (below loreRL and TES-woRi);
+/// * §5.2.3: TES-woRi loses to loreRL, "but not to a large extent" (our bound: by less than
+///   10 % of loreRL's accumulated reward);
+/// * Table 5: TES's first episode beats loreRL's, LWT's and TES-woRi's (sign test);
+/// * Table 3: loreRL's time per episode is "only slightly" above man-loreRL's (our bound:
+///   at most 1.5 times; paper 1.16).
+fn targets(quick: bool, runs: &RunsByMethod) -> Vec<TargetCheck> {
+    let of = |m: Method| runs.get(&*m.name()).map_or(&[][..], Vec::as_slice);
+    let by_run = |a: Method, b: Method, f: &dyn Fn(&RunOutcome, &RunOutcome) -> f64| -> Vec<f64> {
+        of(a).iter().zip(of(b)).map(|(a, b)| f(a, b)).collect()
     };
-    let (tes, wo_ri, lore, lwt) = (
-        mean(Method::Tes),
-        mean(Method::TesWoRi),
-        mean(Method::LoreRl),
-        mean(Method::Lwt),
-    );
-    let ordering_holds = tes >= wo_ri && wo_ri >= lore && lore > lwt;
-    vec![TargetCheck::new(
-        "Fig. 8: accumulated reward TES >= TES-woRi >= loreRL > LWT",
-        format!("TES {tes:.1}, TES-woRi {wo_ri:.1}, loreRL {lore:.1}, LWT {lwt:.1}"),
-        config.quick,
-        ordering_holds,
-    )]
+    let accumulated = |a: Method, b: Method| by_run(a, b, &|a, b| a.accumulated - b.accumulated);
+    let family = |a: Method, others: &[Method]| {
+        paired_family(
+            &others
+                .iter()
+                .map(|&b| accumulated(a, b))
+                .collect::<Vec<_>>(),
+        )
+    };
+    let listed = |names: &[Method], tests: &[Paired]| {
+        names
+            .iter()
+            .zip(tests)
+            .map(|(m, p)| format!("{m} {}", difference(p)))
+            .collect::<Vec<_>>()
+            .join("; ")
+    };
+    let fig9_others = [Method::TesWoRi, Method::LoreRl, Method::Lwt];
+    let fig9 = family(Method::Tes, &fig9_others);
+    let lwt_least = paired_family(&[
+        accumulated(Method::LoreRl, Method::Lwt),
+        accumulated(Method::TesWoRi, Method::Lwt),
+    ]);
+    let wo_ri_loses = paired(&accumulated(Method::LoreRl, Method::TesWoRi));
+    let not_by_much = paired(&by_run(Method::TesWoRi, Method::LoreRl, &|w, l| {
+        w.accumulated - 0.9 * l.accumulated
+    }));
+    let jumpstart = first_episode_wins(of(Method::Tes), &fig9_others.map(of));
+    let time_ratio = summarise(&by_run(Method::LoreRl, Method::ManLoreRl, &|l, m| {
+        l.seconds_per_episode / m.seconds_per_episode
+    }));
+    let holm = "paired t-tests over runs, Holm's correction over the comparisons, family-wise 5 %";
+    vec![
+        TargetCheck::new(
+            "Fig. 9: TES accumulates more than TES-woRi, loreRL and LWT (every difference to TES below 0)",
+            holm,
+            format!("TES − {}", listed(&fig9_others, &fig9)),
+            quick,
+            Verdict::all(fig9.iter().map(|p| Verdict::of_side(p.side))),
+        ),
+        TargetCheck::new(
+            "§5.2.3: LWT accumulates least (below loreRL and TES-woRi)",
+            holm,
+            format!(
+                "loreRL − LWT {}; TES-woRi − LWT {}",
+                difference(&lwt_least[0]),
+                difference(&lwt_least[1])
+            ),
+            quick,
+            Verdict::all(lwt_least.iter().map(|p| Verdict::of_side(p.side))),
+        ),
+        TargetCheck::new(
+            "§5.2.3: TES-woRi loses to loreRL",
+            "paired t-test over runs of loreRL − TES-woRi, two-sided 5 %",
+            format!("loreRL − TES-woRi {}", difference(&wo_ri_loses)),
+            quick,
+            Verdict::of_side(wo_ri_loses.side),
+        ),
+        TargetCheck::new(
+            "§5.2.3: ... but not to a large extent (ours: by less than 10 % of loreRL's accumulated reward)",
+            "paired t-test over runs of TES-woRi − 0.9 × loreRL, two-sided 5 %",
+            format!("TES-woRi − 0.9 × loreRL {}", difference(&not_by_much)),
+            quick,
+            Verdict::of_side(not_by_much.side),
+        ),
+        TargetCheck::new(
+            "Table 5: TES's first-episode reward beats loreRL's, LWT's and TES-woRi's",
+            "sign test over runs (draws left out), Holm's correction over the three, family-wise 5 %",
+            jumpstart
+                .iter()
+                .zip(&fig9_others)
+                .map(|(w, m)| format!("vs {m}: {}", w.describe()))
+                .collect::<Vec<_>>()
+                .join("; "),
+            quick,
+            Verdict::all(jumpstart.iter().map(|w| Verdict::of_side(w.side))),
+        ),
+        TargetCheck::new(
+            "Table 3: loreRL's time per episode only slightly above man-loreRL's (ours: at most 1.5 times; paper 1.16)",
+            "the per-run ratio's 95 % interval against the bound",
+            ratio(&time_ratio),
+            quick,
+            Verdict::at_most(&time_ratio, 1.5),
+        ),
+    ]
+}
+
+/// TES's first episodes against each of `others`' runs: wins, draws, losses and the sign
+/// tests, Holm-corrected over the comparisons.
+fn first_episode_wins(tes: &[RunOutcome], others: &[&[RunOutcome]]) -> Vec<WinsAndLosses> {
+    let counts: Vec<[usize; 3]> = others
+        .iter()
+        .map(|other| {
+            let mut c = [0; 3];
+            for (t, o) in tes.iter().zip(other.iter()) {
+                let i = match t.first.total_cmp(&o.first) {
+                    std::cmp::Ordering::Greater => 0,
+                    std::cmp::Ordering::Equal => 1,
+                    std::cmp::Ordering::Less => 2,
+                };
+                c[i] += 1;
+            }
+            c
+        })
+        .collect();
+    let p: Vec<f64> = counts.iter().map(|c| sign_test(c[0], c[2])).collect();
+    let adjusted = holm(&p);
+    counts
+        .into_iter()
+        .zip(p.into_iter().zip(adjusted))
+        .map(|([wins, draws, losses], (p, p_holm))| WinsAndLosses {
+            wins,
+            draws,
+            losses,
+            p,
+            p_holm,
+            side: Side::of(wins as f64 - losses as f64, p_holm < ALPHA),
+        })
+        .collect()
+}
+
+/// Wins, draws and losses of paired runs, with the sign test.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct WinsAndLosses {
+    /// Runs won.
+    pub wins: usize,
+    /// Runs drawn.
+    pub draws: usize,
+    /// Runs lost.
+    pub losses: usize,
+    /// Two-sided sign test.
+    pub p: f64,
+    /// `p` after Holm's correction over its family.
+    pub p_holm: f64,
+    /// The side decided.
+    pub side: Side,
+}
+
+impl WinsAndLosses {
+    /// In words: "41 wins, 30 draws, 29 losses (p = 0.19, Holm 0.38)".
+    pub fn describe(&self) -> String {
+        format!(
+            "{} wins, {} draws, {} losses (p = {}, Holm {})",
+            self.wins,
+            self.draws,
+            self.losses,
+            p_value(self.p),
+            p_value(self.p_holm)
+        )
+    }
 }
 
 /// Fig. 8 (the single-environment learners' accumulated reward) and Fig. 9 (the transfer

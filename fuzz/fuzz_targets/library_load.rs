@@ -1,5 +1,5 @@
-//! Feeds arbitrary bytes to the view-library decoder, twice: as a whole file, and as a body
-//! behind a valid header (magic, version, length and checksum), so the fuzzer reaches the
+//! Feeds arbitrary bytes to the view-library decoder: as a whole file, and as a body behind
+//! a valid header of each format version (magic, version, length and checksum), so the fuzzer reaches the
 //! body's consistency checks without having to forge a CRC-32. Whatever decodes must
 //! re-encode to exactly the same bytes, and its views must predict without panicking.
 #![no_main]
@@ -10,13 +10,15 @@ use tes_learning::mdagl::Features;
 
 fuzz_target!(|data: &[u8]| {
     check(data);
-    let mut file = Vec::with_capacity(24 + data.len());
-    file.extend_from_slice(&MAGIC);
-    file.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-    file.extend_from_slice(&(data.len() as u64).to_le_bytes());
-    file.extend_from_slice(&crc32fast::hash(data).to_le_bytes());
-    file.extend_from_slice(data);
-    check(&file);
+    for version in 1..=FORMAT_VERSION {
+        let mut file = Vec::with_capacity(24 + data.len());
+        file.extend_from_slice(&MAGIC);
+        file.extend_from_slice(&version.to_le_bytes());
+        file.extend_from_slice(&(data.len() as u64).to_le_bytes());
+        file.extend_from_slice(&crc32fast::hash(data).to_le_bytes());
+        file.extend_from_slice(data);
+        check(&file);
+    }
 });
 
 fn check(bytes: &[u8]) {

@@ -37,6 +37,21 @@ pub struct LibraryParams {
     pub recency: f64,
     /// Settings of the fresh views a task starts with (paper: λ = 0.05, α = 1.5).
     pub mdagl: MdaglParams,
+    /// How a task's end brings the library back towards `M` views.
+    pub pruning: Pruning,
+}
+
+/// How the end of a task prunes a library that holds more than `M` views.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Pruning {
+    /// Remove the least valuable view until `M` are left: the library never holds more than
+    /// `M` (ours, and the default: a task may add a view per action, which one removal
+    /// does not balance).
+    #[default]
+    ToLimit,
+    /// Remove the one least valuable view, as Algorithm 2 writes it (`if |T| > M then T ← T −
+    /// {argmin Φ}`): a task that adds several views leaves the library above `M`.
+    OnePerTask,
 }
 
 impl Default for LibraryParams {
@@ -47,6 +62,7 @@ impl Default for LibraryParams {
             growth_threshold: 300f64.ln(),
             recency: 0.0,
             mdagl: MdaglParams::default(),
+            pruning: Pruning::ToLimit,
         }
     }
 }
@@ -339,7 +355,7 @@ impl ViewLibrary {
     }
 
     /// Ends task `j = tasks_seen()`: grows the library from the task's winners (Algorithm 3),
-    /// records every participating view's score, prunes it to `M` views and moves on to task
+    /// records every participating view's score, prunes it ([`Pruning`]) and moves on to task
     /// `j + 1`. Actions without outcome or without observations leave the library as it was.
     /// On error nothing changes.
     pub fn end_task(&mut self, outcomes: Vec<ActionOutcome>) -> Result<TaskReport, LibraryError> {
@@ -427,6 +443,9 @@ impl ViewLibrary {
         while self.views.len() > self.params.max_views {
             let worst = self.least_valuable(task);
             report.removed.push(self.views.remove(worst).id);
+            if self.params.pruning == Pruning::OnePerTask {
+                break;
+            }
         }
         Ok(report)
     }

@@ -10,6 +10,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use tes_experiments::console;
 use tes_experiments::grid::{self, GridConfig, GridReport};
 use tes_experiments::jobs::{self, JobOptions, Manifest, Shard};
+use tes_experiments::method::Method;
 use tes_experiments::progress::ProgressLines;
 use tes_experiments::robot::{self, RobotConfig, RobotReport};
 use tes_experiments::study::{self, Study, StudyConfigs};
@@ -216,6 +217,11 @@ struct TransferArgs {
     /// less, an ablation of the library's pruning.
     #[arg(long)]
     max_views: Option<usize>,
+    /// Prune one view per task as Algorithm 2 writes it (`if |T| > M then remove the least
+    /// valuable`), which lets a task that adds several views leave the library above M,
+    /// instead of pruning down to M (the default).
+    #[arg(long)]
+    prune_one_per_task: bool,
 }
 
 #[derive(Debug, Args)]
@@ -252,6 +258,13 @@ struct GridArgs {
     /// shortcut; the default list is Hester & Stone's and what Table 1 compares against).
     #[arg(long)]
     rl_dt_per_state_counts: bool,
+    /// fEpsG's exploration ε [default: 0.1, the paper's; loreRL explores with 0.05].
+    #[arg(long, value_name = "EPSILON", value_parser = epsilon)]
+    fepsg_epsilon: Option<f64>,
+    /// Only these algorithms, comma-separated names as in the figures (e.g. `loreRL,fEpsG`)
+    /// [default: every figure's].
+    #[arg(long, value_delimiter = ',', value_parser = method)]
+    methods: Option<Vec<Method>>,
     /// Also draw the study's run 0 of loreRL at the first feature count (the same task and
     /// seed, so the same episodes) to this MCAP file, as Foxglove and Rerun show a run of the
     /// group: the grid, the agent moving, its path, decisions and episode rewards.
@@ -324,6 +337,7 @@ impl TransferArgs {
             || self.world_seed.is_some()
             || self.converge_plans
             || self.max_views.is_some()
+            || self.prune_one_per_task
     }
 
     fn config(&self, runs: Option<usize>) -> TransferConfig {
@@ -354,6 +368,7 @@ impl TransferArgs {
         if let Some(m) = self.max_views {
             config.max_views = m;
         }
+        config.prune_one_per_task = self.prune_one_per_task;
         config
     }
 }
@@ -482,6 +497,8 @@ impl GridArgs {
             || self.world_seed.is_some()
             || self.converge_plans
             || self.rl_dt_per_state_counts
+            || self.fepsg_epsilon.is_some()
+            || self.methods.is_some()
     }
 
     fn config(&self, runs: Option<usize>) -> GridConfig {
@@ -506,8 +523,34 @@ impl GridArgs {
         if self.rl_dt_per_state_counts {
             config.rl_dt_examples = ExampleStore::PerStateCounts;
         }
+        if let Some(e) = self.fepsg_epsilon {
+            config.fepsg_epsilon = e;
+        }
+        config.methods.clone_from(&self.methods);
         config
     }
+}
+
+/// An exploration probability, in [0, 1].
+fn epsilon(text: &str) -> Result<f64, String> {
+    let e: f64 = text
+        .parse()
+        .map_err(|_| format!("{text:?} is not a number"))?;
+    if (0.0..=1.0).contains(&e) {
+        Ok(e)
+    } else {
+        Err(format!("{e} is not a probability in [0, 1]"))
+    }
+}
+
+/// A method by the name the figures give it.
+fn method(text: &str) -> Result<Method, String> {
+    Method::from_name(text).ok_or_else(|| {
+        format!(
+            "{text:?} is no method; the grid's are {}",
+            grid::METHODS.map(|m| m.name().into_owned()).join(", ")
+        )
+    })
 }
 
 fn run_grid(args: &GridArgs) -> Result<()> {

@@ -51,7 +51,27 @@ fn a_tiny_transfer_run_writes_a_consistent_summary() {
         serde_json::from_str(&std::fs::read_to_string(dir.path().join("summary.json")).unwrap())
             .unwrap();
     assert_eq!(json["config"]["runs"], 2);
-    assert!(json["tes_beats_lwt"].is_u64());
+    // Every run keeps each method's first and accumulated reward and how each episode ended,
+    // which the claims are decided from.
+    let run = &json["tasks"][0]["runs"][0]["methods"]["TES"];
+    assert!(run["first"].is_f64() && run["accumulated"].is_f64());
+    let ends = run["ends"].as_str().unwrap();
+    assert_eq!(ends.len(), 3);
+    assert!(ends.chars().all(|c| "gdc".contains(c)), "{ends}");
+    let claim = &json["claims"]["jumpstart: TES − loreRL"];
+    assert!(claim["tasks"]["1"]["p_holm"].is_f64(), "{claim}");
+    assert!(claim["pooled"]["p"].is_f64(), "{claim}");
+    // A quick run states each target's test but judges none.
+    let targets = json["targets"].as_array().unwrap();
+    assert_eq!(targets.len(), 8);
+    for t in targets {
+        assert!(!t["test"].as_str().unwrap().is_empty(), "{t}");
+        assert_eq!(
+            t["verdict"],
+            tes_experiments::verdict::QUICK_RUN_NOTE,
+            "{t}"
+        );
+    }
 }
 
 #[test]

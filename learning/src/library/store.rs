@@ -6,7 +6,7 @@
 //! complete file or the new complete file, never a mix; a failed save leaves the previous
 //! file untouched.
 //!
-//! # Format, version 1
+//! # Format, versions 1 and 2
 //!
 //! All integers little-endian; `f64` as IEEE-754 bits.
 //!
@@ -19,12 +19,17 @@
 //! | body | see below |
 //!
 //! Body: `n_actions u32, n_effects u32, n_features u32`; the parameters `max_views u32,
-//! growth_threshold f64, recency f64, lambda f64, alpha f64, intercept u8`; `tasks_seen u32,
+//! growth_threshold f64, recency f64, lambda f64, alpha f64, intercept u8` and, in version 2
+//! only, `pruning u8` (0 to the limit, 1 one view per task as Algorithm 2); `tasks_seen u32,
 //! next_id u64`; the world name (`u32` length + UTF-8); the action names and the feature names
 //! (each a `u32` count, then `u32` length + UTF-8 per name; count 0 = unnamed); `u32` view
 //! count, then per view: `id u64, action u32, updates u64`, the gradient sums (`u32` count +
 //! `f64` each), the tasks won (`u32` count + `u32` each), and the score history (`u32` count,
 //! then `task u32, score f64, observations u64, won u8` each).
+//!
+//! A library that prunes to its limit (the default) is written as version 1, which older builds
+//! read; only one that prunes a view per task needs version 2. A version 1 file reads as
+//! pruning to the limit.
 //!
 //! Loading checks everything: magic, version, length, checksum, then that the body is
 //! consistent (shapes, parameters, ids, histories) before anything is built. Every count is
@@ -56,13 +61,13 @@ use std::path::{Path, PathBuf};
 
 use thiserror::Error;
 
-use super::{LibraryParams, TaskScore, View, ViewLibrary};
+use super::{LibraryParams, Pruning, TaskScore, View, ViewLibrary};
 use crate::mdagl::{Mdagl, MdaglParams, MdaglStateError};
 
 /// The file's magic bytes.
 pub const MAGIC: [u8; 8] = *b"TESVLIB\0";
-/// The format version this build writes and reads.
-pub const FORMAT_VERSION: u32 = 1;
+/// The newest format version this build writes and reads.
+pub const FORMAT_VERSION: u32 = 2;
 const HEADER_LEN: usize = 8 + 4 + 8 + 4;
 /// The largest view a file may describe, in weights (effects × (features + intercept)):
 /// 2^24, 128 MiB of gradient sums per view. The paper's robot needs 20 × 312.
@@ -472,6 +477,13 @@ pub fn encode(stored: &StoredLibrary) -> Vec<u8> {
     body.f64(l.params.mdagl.lambda);
     body.f64(l.params.mdagl.alpha);
     body.0.push(u8::from(l.params.mdagl.intercept));
+    let version = match l.params.pruning {
+        Pruning::ToLimit => 1,
+        Pruning::OnePerTask => {
+            body.0.push(1);
+            2
+        }
+    };
     body.u32(l.tasks_seen);
     body.u64(l.next_id);
     body.str(&stored.world);
@@ -500,7 +512,7 @@ pub fn encode(stored: &StoredLibrary) -> Vec<u8> {
     let body = body.0;
     let mut out = Vec::with_capacity(HEADER_LEN + body.len());
     out.extend_from_slice(&MAGIC);
-    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    out.extend_from_slice(&u32::to_le_bytes(version));
     out.extend_from_slice(&(body.len() as u64).to_le_bytes());
     out.extend_from_slice(&crc32fast::hash(&body).to_le_bytes());
     out.extend_from_slice(&body);
@@ -509,6 +521,8 @@ pub fn encode(stored: &StoredLibrary) -> Vec<u8> {
 
 /// What the header says about the body.
 struct Header {
+    /// The format version.
+    version: u32,
     /// The body's length.
     len: u64,
     /// The body's CRC-32.
@@ -542,6 +556,7 @@ fn parse_header(bytes: &[u8]) -> Result<Header, StoreProblem> {
         return Err(StoreProblem::Inconsistent("format version 0".into()));
     }
     Ok(Header {
+        version,
         len: header.u64()?,
         crc: header.u32()?,
     })
@@ -566,6 +581,7 @@ fn check_body_len(len: u64, size: u64) -> Result<(), StoreProblem> {
 /// Decodes and checks a whole file's bytes.
 pub fn decode(bytes: &[u8]) -> Result<StoredLibrary, StoreProblem> {
     let Header {
+        version,
         len,
         crc: stored_crc,
     } = parse_header(bytes)?;
@@ -578,11 +594,11 @@ pub fn decode(bytes: &[u8]) -> Result<StoredLibrary, StoreProblem> {
             computed,
         });
     }
-    decode_body(&mut Reader(body))
+    decode_body(&mut Reader(body), version)
 }
 
-fn decode_body(r: &mut Reader<'_>) -> Result<StoredLibrary, StoreProblem> {
-    let shape = decode_shape(r)?;
+fn decode_body(r: &mut Reader<'_>, version: u32) -> Result<StoredLibrary, StoreProblem> {
+    let shape = decode_shape(r, version)?;
     let mut library = ViewLibrary::new(
         shape.n_actions,
         shape.n_effects,
@@ -630,11 +646,11 @@ struct Shape {
 
 /// Reads the library's shape and parameters, and refuses a shape whose views are too large
 /// to build: building the library builds a fresh model of this shape.
-fn decode_shape(r: &mut Reader<'_>) -> Result<Shape, StoreProblem> {
+fn decode_shape(r: &mut Reader<'_>, version: u32) -> Result<Shape, StoreProblem> {
     let n_actions = r.u32()? as usize;
     let n_effects = r.u32()? as usize;
     let n_features = r.u32()? as usize;
-    let params = LibraryParams {
+    let mut params = LibraryParams {
         max_views: r.u32()? as usize,
         growth_threshold: r.f64()?,
         recency: r.f64()?,
@@ -647,7 +663,16 @@ fn decode_shape(r: &mut Reader<'_>) -> Result<Shape, StoreProblem> {
                 b => return Err(inconsistent(format!("intercept flag {b}"))),
             },
         },
+        pruning: Pruning::ToLimit,
     };
+    if version >= 2 {
+        // Version 2 exists for the one pruning version 1 cannot say: a library pruned to its
+        // limit is written as version 1, so each library has exactly one encoding.
+        params.pruning = match r.u8()? {
+            1 => Pruning::OnePerTask,
+            b => return Err(inconsistent(format!("pruning {b} in a version 2 file"))),
+        };
+    }
     let columns = n_features as u64 + u64::from(params.mdagl.intercept);
     let weights = columns.saturating_mul(n_effects as u64);
     if weights > MAX_VIEW_WEIGHTS {
@@ -686,7 +711,7 @@ fn decode_views(
     library: &mut ViewLibrary,
 ) -> Result<(), StoreProblem> {
     let n_views = r.count(8 + 4 + 8 + 4 + 4 + 4)?;
-    if n_views > library.params.max_views {
+    if library.params.pruning == Pruning::ToLimit && n_views > library.params.max_views {
         return Err(inconsistent(format!(
             "{n_views} views, more than the library's limit of {}",
             library.params.max_views

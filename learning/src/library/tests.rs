@@ -243,3 +243,21 @@ fn settings_are_checked() {
         Err(LibraryError::View(_))
     ));
 }
+
+#[test]
+fn algorithm_2_prunes_one_view_per_task_and_ours_prunes_to_the_limit() {
+    for (pruning, left) in [(Pruning::ToLimit, 1), (Pruning::OnePerTask, 2)] {
+        let params = LibraryParams {
+            max_views: 1,
+            pruning,
+            ..LibraryParams::default()
+        };
+        let mut lib = ViewLibrary::new(3, EFFECTS, FEATURES, params).unwrap();
+        // One task adds a view per action (three), over M = 1.
+        let wins: Vec<ActionOutcome> = (0..3).map(|a| fresh_win(&lib, a, a % EFFECTS)).collect();
+        let report = lib.end_task(wins).unwrap();
+        assert_eq!(report.added.len(), 3);
+        assert_eq!(lib.len(), left, "{pruning:?}");
+        assert_eq!(report.removed.len(), 3 - left, "{pruning:?}");
+    }
+}

@@ -268,10 +268,10 @@ fn a_view_with_the_wrong_number_of_sums_is_refused_before_its_model_is_built() {
     }
 }
 
-/// A file of `body` behind a valid header (magic, version, length, checksum).
+/// A file of `body` behind a valid version 1 header (magic, version, length, checksum).
 fn with_header(body: &[u8]) -> Vec<u8> {
     let mut out = MAGIC.to_vec();
-    out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    out.extend_from_slice(&1u32.to_le_bytes());
     out.extend_from_slice(&(body.len() as u64).to_le_bytes());
     out.extend_from_slice(&crc32fast::hash(body).to_le_bytes());
     out.extend_from_slice(body);
@@ -819,4 +819,40 @@ proptest! {
         prop_assert!(decode(&good[..n]).is_err());
         prop_assert!(decode(&good).is_ok());
     }
+}
+
+#[test]
+fn a_library_pruned_one_view_per_task_round_trips_as_version_2() {
+    let mut stored = grown();
+    let bytes_v1 = encode(&stored);
+    assert_eq!(
+        bytes_v1[8..12],
+        1u32.to_le_bytes(),
+        "pruning to the limit stays version 1"
+    );
+    assert_eq!(
+        decode(&bytes_v1).unwrap().library.params().pruning,
+        Pruning::ToLimit
+    );
+    stored.library.params.pruning = Pruning::OnePerTask;
+    let bytes = encode(&stored);
+    assert_eq!(bytes[8..12], 2u32.to_le_bytes());
+    let back = decode(&bytes).unwrap();
+    assert_eq!(back, stored);
+    assert_eq!(encode(&back), bytes);
+    // A version 2 file saying "to the limit" is not canonical, and refused.
+    let mut body = bytes[HEADER_LEN..].to_vec();
+    let flag = 4 * 3 + 4 + 8 * 4 + 1; // shape, max_views, four f64, intercept
+    assert_eq!(body[flag], 1);
+    body[flag] = 0;
+    let mut file = MAGIC.to_vec();
+    file.extend_from_slice(&2u32.to_le_bytes());
+    file.extend_from_slice(&(body.len() as u64).to_le_bytes());
+    file.extend_from_slice(&crc32fast::hash(&body).to_le_bytes());
+    file.extend_from_slice(&body);
+    let err = decode(&file).unwrap_err();
+    assert!(
+        err.to_string().contains("pruning 0 in a version 2 file"),
+        "{err}"
+    );
 }
