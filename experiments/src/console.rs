@@ -4,7 +4,9 @@
 use std::fmt::{self, Write as _};
 use std::path::Path;
 
+use crate::fig4::Fig4Report;
 use crate::grid::GridReport;
+use crate::lifelong::LifelongReport;
 use crate::robot::RobotReport;
 use crate::transfer::TransferReport;
 
@@ -144,6 +146,99 @@ pub fn robot(report: &RobotReport, out: &Path) -> Result<String, fmt::Error> {
     writeln!(
         text,
         "wrote summary.json, episodes.csv, fig8.svg, fig9.svg to {}",
+        out.display()
+    )?;
+    Ok(text)
+}
+
+/// What `tes experiment fig4` prints of `report`, written to `out`: each case's accumulated
+/// rewards and the paper's targets.
+pub fn fig4(report: &Fig4Report, out: &Path) -> Result<String, fmt::Error> {
+    let mut text = String::new();
+    let c = &report.config;
+    writeln!(
+        text,
+        "{:.1} s wall clock. Accumulated reward (95% CI over {} runs):",
+        report.wall_seconds, c.runs
+    )?;
+    let cases = report
+        .same_dynamics
+        .iter()
+        .map(|case| {
+            (
+                format!(
+                    "Fig. 4a, task {} after task {:?} (dynamics set {}), {} episodes",
+                    case.test_task, case.trained_on, case.dynamics_set, c.test_episodes
+                ),
+                case,
+            )
+        })
+        .chain(std::iter::once((
+            format!(
+                "Fig. 4c, task {}, {} episodes",
+                report.convergence.test_task, c.convergence_episodes
+            ),
+            &report.convergence,
+        )));
+    for (title, case) in cases {
+        writeln!(text, "  {title}:")?;
+        for (name, s) in &case.accumulated {
+            writeln!(
+                text,
+                "    {name:<8} {:>9.2} [{:.2}, {:.2}]",
+                s.mean, s.lo, s.hi
+            )?;
+        }
+    }
+    for line in crate::verdict::lines(&report.targets) {
+        writeln!(text, "{line}")?;
+    }
+    writeln!(
+        text,
+        "wrote summary.json, episodes.csv, fig4a-task*.svg, fig4c.svg to {}",
+        out.display()
+    )?;
+    Ok(text)
+}
+
+/// What `tes experiment lifelong` prints of `report`, written to `out`: the accumulated reward
+/// over the whole sequence per method, the libraries' final sizes, and our questions.
+pub fn lifelong(report: &LifelongReport, out: &Path) -> Result<String, fmt::Error> {
+    let mut text = String::new();
+    let c = &report.config;
+    writeln!(
+        text,
+        "{:.1} s wall clock. {} tasks ({} worlds, {} not logistic), {} episodes each; over the whole sequence (mean over {} runs):",
+        report.wall_seconds,
+        report.sequence.len(),
+        c.worlds(),
+        c.table_worlds,
+        c.episodes,
+        c.runs
+    )?;
+    for (name, tasks) in &report.per_task {
+        let total: f64 = tasks.iter().map(|s| s.mean).sum();
+        let secs = report
+            .seconds_per_episode
+            .get(name)
+            .map_or(f64::NAN, |s| s.mean);
+        writeln!(text, "  {name:<14} {total:>9.2}  {secs:.4} s / episode")?;
+    }
+    for (name, sizes) in &report.library_views {
+        if let Some(last) = sizes.last() {
+            writeln!(
+                text,
+                "  {name}'s library after the last task: {:.1} views",
+                last.mean
+            )?;
+        }
+    }
+    for line in crate::verdict::lines(&report.targets) {
+        writeln!(text, "{line}")?;
+    }
+    writeln!(
+        text,
+        "wrote summary.json, lifelong-reward.svg, lifelong-lead.svg, lifelong-library.svg to {}",
         out.display()
     )?;
     Ok(text)

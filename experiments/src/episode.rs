@@ -104,7 +104,12 @@ pub fn build_agent(
             },
             seed,
         )?),
-        Method::Tes | Method::TesWoRi | Method::Lwt | Method::ManLoreRl | Method::Rands(_) => {
+        Method::Tes
+        | Method::TesWoRi
+        | Method::TesUnbounded
+        | Method::Lwt
+        | Method::ManLoreRl
+        | Method::Rands(_) => {
             return Err(BuildError::NotFromTask(method));
         }
     })
@@ -185,10 +190,13 @@ impl End {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RunOutcome {
     /// The first episode's reward (the jumpstart).
+    #[serde(deserialize_with = "crate::stats::f64_or_nan")]
     pub first: f64,
     /// The reward of all the episodes.
+    #[serde(deserialize_with = "crate::stats::f64_or_nan")]
     pub accumulated: f64,
     /// Agent seconds per episode.
+    #[serde(deserialize_with = "crate::stats::f64_or_nan")]
     pub seconds_per_episode: f64,
     /// How each episode ended, one [`End::letter`] per episode.
     pub ends: String,

@@ -1,9 +1,13 @@
 //! The paper's experiments, reproduced: agents on episodic tasks, with tables and plots.
 //!
 //! * [`grid`] — §5.1: the 15 grid tasks, loreRL against the baselines (Fig. 3, Table 1);
-//! * [`transfer`] — §5.1: leave-one-out transfer with TES (Table 2, Fig. 4);
+//! * [`transfer`] — §5.1: leave-one-out transfer with TES (Table 2, Fig. 4b);
+//! * [`fig4`] — §5.1: transfer between tasks of the same dynamics (Fig. 4a) and TES over a
+//!   long run against the converging methods (Fig. 4c);
 //! * [`robot`] — §5.2: the robot arenas, TES against loreRL, LWT and the baselines
 //!   (Figs. 8–9, Tables 5–6);
+//! * [`lifelong`] — beyond the paper: a long, non-stationary sequence of grid tasks from more
+//!   worlds than the library holds, some not logistic, returning after long gaps;
 //! * [`episode`] — what they share: a task, building the agents, running an episode;
 //! * [`method`] — every method compared: its name in every output, its colour in every figure,
 //!   its order;
@@ -22,8 +26,10 @@
 
 pub mod console;
 pub mod episode;
+pub mod fig4;
 pub mod grid;
 pub mod jobs;
+pub mod lifelong;
 pub mod method;
 pub mod progress;
 pub mod replot;

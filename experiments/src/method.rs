@@ -50,6 +50,8 @@ pub enum Method {
     RlDt,
     /// LSE-Rmax: R-max with learned parent sets.
     LseRmax,
+    /// TES with a library of no practical bound (the lifelong benchmark).
+    TesUnbounded,
     /// The `i`-th random view combination (from 1): a random library view per action,
     /// learning, never switched (the transfer study's "Rands").
     Rands(usize),
@@ -58,7 +60,7 @@ pub enum Method {
 impl Method {
     /// Every method without a parameter, in order; the random combinations
     /// ([`Rands`](Self::Rands)) come after them.
-    pub const FIXED: [Method; 11] = [
+    pub const FIXED: [Method; 12] = [
         Method::Tes,
         Method::TesWoRi,
         Method::Lwt,
@@ -70,6 +72,7 @@ impl Method {
         Method::FEpsG,
         Method::RlDt,
         Method::LseRmax,
+        Method::TesUnbounded,
     ];
 
     /// The name in reports, files and legends; borrowed for every method but the numbered
@@ -87,6 +90,7 @@ impl Method {
             Method::FEpsG => "fEpsG",
             Method::RlDt => "RL-DT",
             Method::LseRmax => "LSE-Rmax",
+            Method::TesUnbounded => "TES-unbounded",
             Method::Rands(i) => return Cow::Owned(format!("Rands {i}")),
         })
     }
@@ -116,6 +120,7 @@ impl Method {
             Method::FEpsG => "#CC79A7",
             Method::RlDt => "#000000",
             Method::LseRmax => "#332288",
+            Method::TesUnbounded => "#004488",
             Method::Rands(1) => "#8C510A",
             Method::Rands(2) => "#BF812D",
             Method::Rands(3) => "#DDCC77",
@@ -215,6 +220,7 @@ mod tests {
                 "fEpsG",
                 "RL-DT",
                 "LSE-Rmax",
+                "TES-unbounded",
                 "Rands 1",
                 "Rands 2",
                 "Rands 3",

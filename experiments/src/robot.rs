@@ -298,7 +298,7 @@ fn run_job(
 }
 
 /// The summary written to `summary.json`.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, Deserialize)]
 pub struct RobotReport {
     /// The settings, seeds included.
     pub config: RobotConfig,
@@ -634,18 +634,20 @@ pub struct WinsAndLosses {
     /// Runs lost.
     pub losses: usize,
     /// Two-sided sign test.
+    #[serde(deserialize_with = "crate::stats::f64_or_nan")]
     pub p: f64,
     /// `p` after Holm's correction over its family.
+    #[serde(deserialize_with = "crate::stats::f64_or_nan")]
     pub p_holm: f64,
     /// The side decided.
     pub side: Side,
 }
 
 impl WinsAndLosses {
-    /// In words: "41 wins, 30 draws, 29 losses (p = 0.19, Holm 0.38)".
+    /// In words: "41 wins, 30 draws, 29 losses (p = 0.1900, Holm p = 0.3800)".
     pub fn describe(&self) -> String {
         format!(
-            "{} wins, {} draws, {} losses (p = {}, Holm {})",
+            "{} wins, {} draws, {} losses (p {}, Holm p {})",
             self.wins,
             self.draws,
             self.losses,

@@ -11,6 +11,12 @@
 use serde::{Deserialize, Serialize};
 use statrs::distribution::{Binomial, ContinuousCDF, DiscreteCDF, Normal, StudentsT};
 
+/// Reads a number that JSON may hold as `null`: `serde_json` writes NaN (an interval of no
+/// runs, a ratio of a method not run) as `null`, and a summary must read back what it wrote.
+pub fn f64_or_nan<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
 /// The level every test and interval here is taken at: 5 % (95 % intervals).
 pub const ALPHA: f64 = 0.05;
 
@@ -79,10 +85,13 @@ pub fn median(values: &[f64]) -> Option<f64> {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
     /// Mean over runs.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub mean: f64,
     /// Lower end of the 95 % interval.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub lo: f64,
     /// Upper end of the 95 % interval.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub hi: f64,
     /// Runs.
     pub n: usize,
@@ -164,10 +173,13 @@ pub struct SignedRank {
     /// Differences that are not 0 (zeros are dropped).
     pub n: usize,
     /// Sum of the ranks of the positive differences.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub w_plus: f64,
     /// Sum of the ranks of the negative differences.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub w_minus: f64,
     /// Two-sided p-value.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub p: f64,
     /// Whether `p` is exact (no ties, at most [`EXACT_SIGNED_RANK`] differences) or from the
     /// normal approximation with tie and continuity corrections.

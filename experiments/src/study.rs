@@ -1,5 +1,6 @@
-//! The whole study (`tes experiment all`): the grid, transfer and robot experiments in one
-//! folder (`OUT/grid`, `OUT/transfer`, `OUT/robot`), then `OUT/report.md` with every table
+//! The whole study (`tes experiment all`): the grid, transfer, robot, Fig. 4 and lifelong
+//! experiments in one folder (`OUT/grid`, `OUT/transfer`, `OUT/robot`, `OUT/fig4`,
+//! `OUT/lifelong`), then `OUT/report.md` with every table
 //! and figure. A study is split into shards and resumed as each experiment is: every
 //! experiment's manifest is written before the first job runs, so an interrupted study
 //! resumes from any point, and shard folders of one study merge into one ([`merge`]).
@@ -8,18 +9,27 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 
-use crate::grid::{self, GridConfig, GridReport};
+use crate::fig4::{self, Fig4Config};
+use crate::grid::{self, GridConfig};
 use crate::jobs::{self, Manifest, Shard};
-use crate::robot::{self, RobotConfig, RobotReport};
-use crate::transfer::{self, TransferConfig, TransferReport};
+use crate::lifelong::{self, LifelongConfig};
+use crate::report::Results;
+use crate::robot::{self, RobotConfig};
+use crate::transfer::{self, TransferConfig};
 
 /// The experiments of a study, in the order they run (each one's folder name).
-pub const EXPERIMENTS: [&str; 3] = [grid::EXPERIMENT, transfer::EXPERIMENT, robot::EXPERIMENT];
+pub const EXPERIMENTS: [&str; 5] = [
+    grid::EXPERIMENT,
+    transfer::EXPERIMENT,
+    robot::EXPERIMENT,
+    fig4::EXPERIMENT,
+    lifelong::EXPERIMENT,
+];
 
 /// The report of a whole study, in its folder.
 pub const REPORT: &str = "report.md";
 
-/// The settings of the study's three experiments.
+/// The settings of the study's experiments.
 #[derive(Debug, Clone)]
 pub struct StudyConfigs {
     /// The grid experiment's.
@@ -28,6 +38,10 @@ pub struct StudyConfigs {
     pub transfer: TransferConfig,
     /// The robot experiment's.
     pub robot: RobotConfig,
+    /// Fig. 4a's and 4c's.
+    pub fig4: Fig4Config,
+    /// The lifelong benchmark's.
+    pub lifelong: LifelongConfig,
 }
 
 impl StudyConfigs {
@@ -37,6 +51,8 @@ impl StudyConfigs {
             grid: GridConfig::paper(20, 800),
             transfer: TransferConfig::paper(),
             robot: RobotConfig::paper(),
+            fig4: Fig4Config::paper(),
+            lifelong: LifelongConfig::standard(),
         }
     }
 
@@ -46,12 +62,20 @@ impl StudyConfigs {
             grid: GridConfig::quick(),
             transfer: TransferConfig::quick(),
             robot: RobotConfig::quick(),
+            fig4: Fig4Config::quick(),
+            lifelong: LifelongConfig::quick(),
         }
     }
 
     /// The same with `runs` repeats of every experiment.
     pub fn with_runs(mut self, runs: usize) -> Self {
-        (self.grid.runs, self.transfer.runs, self.robot.runs) = (runs, runs, runs);
+        (
+            self.grid.runs,
+            self.transfer.runs,
+            self.robot.runs,
+            self.fig4.runs,
+            self.lifelong.runs,
+        ) = (runs, runs, runs, runs, runs);
         self
     }
 }
@@ -89,6 +113,14 @@ impl Study {
             &study.dir(robot::EXPERIMENT),
             &robot::manifest(&c.robot, shard)?,
         )?;
+        jobs::prepare(
+            &study.dir(fig4::EXPERIMENT),
+            &fig4::manifest(&c.fig4, shard)?,
+        )?;
+        jobs::prepare(
+            &study.dir(lifelong::EXPERIMENT),
+            &lifelong::manifest(&c.lifelong, shard)?,
+        )?;
         Ok(study)
     }
 
@@ -102,6 +134,8 @@ impl Study {
                 grid: manifest(grid::EXPERIMENT)?.settings()?,
                 transfer: manifest(transfer::EXPERIMENT)?.settings()?,
                 robot: manifest(robot::EXPERIMENT)?.settings()?,
+                fig4: manifest(fig4::EXPERIMENT)?.settings()?,
+                lifelong: manifest(lifelong::EXPERIMENT)?.settings()?,
             },
         })
     }
@@ -111,15 +145,10 @@ impl Study {
         self.out.join(experiment)
     }
 
-    /// Writes the study's report ([`REPORT`]) from its three experiments' reports; its path.
-    pub fn write_report(
-        &self,
-        grid: &GridReport,
-        transfer: &TransferReport,
-        robot: &RobotReport,
-    ) -> Result<PathBuf> {
+    /// Writes the study's report ([`REPORT`]) from its experiments' reports; its path.
+    pub fn write_report(&self, reports: &[Results]) -> Result<PathBuf> {
         let path = self.out.join(REPORT);
-        crate::report::write(&path, grid, transfer, robot)?;
+        crate::report::write(&path, reports)?;
         Ok(path)
     }
 }
@@ -134,12 +163,8 @@ pub fn are_studies(dirs: &[PathBuf]) -> bool {
 /// What merging study shards made: the experiments' reports and the study's report's path.
 #[derive(Debug)]
 pub struct MergedStudy {
-    /// The grid experiment's report.
-    pub grid: GridReport,
-    /// The transfer experiment's report.
-    pub transfer: TransferReport,
-    /// The robot experiment's report.
-    pub robot: RobotReport,
+    /// Every experiment's report, in [`EXPERIMENTS`]' order.
+    pub reports: Vec<Results>,
     /// The study's report.
     pub report: PathBuf,
 }
@@ -148,24 +173,25 @@ pub struct MergedStudy {
 /// its folder, then the study's report.
 pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<MergedStudy> {
     if !are_studies(dirs) {
-        bail!("not the shard folders of a study (each holds grid/, transfer/ and robot/)");
+        bail!(
+            "not the shard folders of a study (each holds grid/, transfer/, robot/, fig4/ and lifelong/)"
+        );
     }
     for experiment in EXPERIMENTS {
         let shards: Vec<PathBuf> = dirs.iter().map(|d| d.join(experiment)).collect();
         jobs::merge(&shards, &out.join(experiment))
             .with_context(|| format!("cannot merge the {experiment} shards"))?;
     }
-    let grid = grid::summarise_dir(&out.join(grid::EXPERIMENT))?;
-    let transfer = transfer::summarise_dir(&out.join(transfer::EXPERIMENT))?;
-    let robot = robot::summarise_dir(&out.join(robot::EXPERIMENT))?;
+    let reports = vec![
+        Results::Grid(grid::summarise_dir(&out.join(grid::EXPERIMENT))?),
+        Results::Transfer(transfer::summarise_dir(&out.join(transfer::EXPERIMENT))?),
+        Results::Robot(robot::summarise_dir(&out.join(robot::EXPERIMENT))?),
+        Results::Fig4(fig4::summarise_dir(&out.join(fig4::EXPERIMENT))?),
+        Results::Lifelong(lifelong::summarise_dir(&out.join(lifelong::EXPERIMENT))?),
+    ];
     let report = out.join(REPORT);
-    crate::report::write(&report, &grid, &transfer, &robot)?;
-    Ok(MergedStudy {
-        grid,
-        transfer,
-        robot,
-        report,
-    })
+    crate::report::write(&report, &reports)?;
+    Ok(MergedStudy { reports, report })
 }
 
 #[cfg(test)]
@@ -175,7 +201,16 @@ mod tests {
     #[test]
     fn runs_set_every_experiments_repeats() {
         let c = StudyConfigs::quick().with_runs(7);
-        assert_eq!((c.grid.runs, c.transfer.runs, c.robot.runs), (7, 7, 7));
+        assert_eq!(
+            (
+                c.grid.runs,
+                c.transfer.runs,
+                c.robot.runs,
+                c.fig4.runs,
+                c.lifelong.runs
+            ),
+            (7, 7, 7, 7, 7)
+        );
         assert_eq!(StudyConfigs::paper().grid.episodes, 800);
     }
 
@@ -190,8 +225,9 @@ mod tests {
         }
         let resumed = Study::resume(dir.path()).unwrap();
         assert_eq!((resumed.out, resumed.shard), (study.out.clone(), shard));
-        let json =
-            |c: &StudyConfigs| serde_json::to_string(&(&c.grid, &c.transfer, &c.robot)).unwrap();
+        let json = |c: &StudyConfigs| {
+            serde_json::to_string(&(&c.grid, &c.transfer, &c.robot, &c.fig4, &c.lifelong)).unwrap()
+        };
         assert_eq!(json(&resumed.configs), json(&study.configs));
         assert!(!are_studies(&[study.dir(grid::EXPERIMENT)]));
         assert!(are_studies(&[dir.path().to_owned()]));

@@ -210,21 +210,24 @@ fn seed_offset(method: Method) -> usize {
         Method::LoreRl => 2,
         Method::FEpsG => 3,
         Method::Rands(i) => 3 + i,
-        // Methods this experiment does not run: it builds no agent of theirs.
+        // Fig. 4a's and Fig. 4c's other baselines, past any Rands.
+        Method::FRmax => 100,
+        Method::Rmax => 101,
+        // Methods no transfer experiment runs: it builds no agent of theirs.
         _ => 0,
     }
 }
 
 /// One (test task, run)'s results (a job, a run, records one per test task).
 #[derive(Debug, Clone, Serialize, Deserialize)]
-struct JobResult {
-    task: usize,
-    run: usize,
-    seed: u64,
-    training_order: Vec<usize>,
-    library_views: usize,
+pub(crate) struct JobResult {
+    pub(crate) task: usize,
+    pub(crate) run: usize,
+    pub(crate) seed: u64,
+    pub(crate) training_order: Vec<usize>,
+    pub(crate) library_views: usize,
     /// Per method, keyed by [`Method::name`] in the record.
-    episodes: BTreeMap<Method, Vec<Episode>>,
+    pub(crate) episodes: BTreeMap<Method, Vec<Episode>>,
 }
 
 /// Per test task, what `summary.json` records.
@@ -309,7 +312,7 @@ pub fn manifest(config: &TransferConfig, shard: jobs::Shard) -> Result<Manifest>
     Manifest::new(EXPERIMENT, config, job_list(config).len(), shard)
 }
 
-fn environments(config: &TransferConfig) -> Result<Vec<GridEnv>> {
+pub(crate) fn environments(config: &TransferConfig) -> Result<Vec<GridEnv>> {
     GridSuite::paper(config.world_seed, config.irrelevant)
         .into_iter()
         .map(GridEnv::new)
@@ -449,7 +452,7 @@ fn report_from(
 
 /// Trains a TES agent with `library` on task `t` of `run` for the training episodes; returns
 /// the library it ends with.
-fn train_on(
+pub(crate) fn train_on(
     config: &TransferConfig,
     envs: &[GridEnv],
     library: ViewLibrary,
@@ -474,7 +477,7 @@ fn train_on(
 }
 
 /// Every agent's planner settings under `config` (the paper's γ, tolerance and sweep cap).
-fn planner_of(config: &TransferConfig) -> PlannerParams {
+pub(crate) fn planner_of(config: &TransferConfig) -> PlannerParams {
     PlannerParams {
         stop_at_drift: config.stop_at_drift,
         ..PlannerParams::default()
@@ -482,7 +485,7 @@ fn planner_of(config: &TransferConfig) -> PlannerParams {
 }
 
 /// An empty library of the suite's shape.
-fn empty_library(config: &TransferConfig, envs: &[GridEnv]) -> Result<ViewLibrary> {
+pub(crate) fn empty_library(config: &TransferConfig, envs: &[GridEnv]) -> Result<ViewLibrary> {
     let structure = envs[0].structure();
     Ok(ViewLibrary::new(
         structure.n_actions(),
@@ -506,7 +509,7 @@ fn empty_library(config: &TransferConfig, envs: &[GridEnv]) -> Result<ViewLibrar
 /// first `min(p, training_tasks)` tasks of the order (shared with every later held-out task)
 /// and trains on the rest of its own list. The same libraries, bit for bit, as
 /// `library_alone` (a test) trains for each task from scratch.
-fn trained_libraries(
+pub(crate) fn trained_libraries(
     config: &TransferConfig,
     envs: &[GridEnv],
     run: usize,
@@ -571,15 +574,50 @@ fn run_job(
         .par_iter()
         .zip(libraries)
         .map(|(&task, (order, library))| {
-            test_job(config, envs, methods, task, run, order, library, out)
+            if run == 0 {
+                save_library(
+                    config,
+                    envs,
+                    task,
+                    &library,
+                    &out.join(format!("library-task{task}.tesl")),
+                )?;
+            }
+            test_job(config, envs, methods, task, run, order, library)
         })
         .collect()
 }
 
-/// Runs every method on test task `task` of `run`, transferring `library` (trained on
-/// `order`).
-#[allow(clippy::too_many_arguments)]
-fn test_job(
+/// Saves a library trained for test task `task` to `path`, for `tes library show`.
+pub(crate) fn save_library(
+    config: &TransferConfig,
+    envs: &[GridEnv],
+    task: usize,
+    library: &ViewLibrary,
+    path: &Path,
+) -> Result<()> {
+    let test = &envs[task];
+    let structure = test.structure();
+    let stored = StoredLibrary {
+        library: library.clone(),
+        world: format!(
+            "grid suite (world seed {}), trained for test task {task}",
+            config.world_seed
+        ),
+        action_names: ["north", "east", "south", "west"]
+            .map(String::from)
+            .to_vec(),
+        feature_names: (0..structure.n_features())
+            .map(|i| test.task().feature_name(i))
+            .collect(),
+    };
+    store::save(path, &stored)?;
+    Ok(())
+}
+
+/// Runs every method on test task `task` of `run` for the test episodes, transferring
+/// `library` (trained on `order`).
+pub(crate) fn test_job(
     config: &TransferConfig,
     envs: &[GridEnv],
     methods: &[Method],
@@ -587,31 +625,12 @@ fn test_job(
     run: usize,
     order: Vec<usize>,
     library: ViewLibrary,
-    out: &Path,
 ) -> Result<JobResult> {
     let seed = job_seed(config, task, run);
     let test = &envs[task];
     let structure = test.structure();
     let context = |what: &str| format!("test task {task}, run {run}: {what}");
 
-    if run == 0 {
-        // Run 0's trained library, for `tes library show`.
-        let path = out.join(format!("library-task{task}.tesl"));
-        let stored = StoredLibrary {
-            library: library.clone(),
-            world: format!(
-                "grid suite (world seed {}), trained for test task {task}",
-                config.world_seed
-            ),
-            action_names: ["north", "east", "south", "west"]
-                .map(String::from)
-                .to_vec(),
-            feature_names: (0..structure.n_features())
-                .map(|i| test.task().feature_name(i))
-                .collect(),
-        };
-        store::save(&path, &stored)?;
-    }
     let settings = AgentSettings {
         planner: planner_of(config),
         ..AgentSettings::default()

@@ -177,9 +177,9 @@ impl TargetCheck {
 pub fn lines(targets: &[TargetCheck]) -> Vec<String> {
     let quick = targets.iter().any(|t| t.verdict == Verdict::QuickRun);
     let mut lines = vec![if quick {
-        format!("the paper's targets ({QUICK_RUN_NOTE}):")
+        format!("targets ({QUICK_RUN_NOTE}):")
     } else {
-        "the paper's targets:".to_owned()
+        "targets:".to_owned()
     }];
     for t in targets {
         lines.push(if t.verdict == Verdict::QuickRun {
@@ -222,8 +222,10 @@ pub struct Paired {
     /// Mean difference and its (uncorrected) 95 % interval.
     pub difference: Summary,
     /// Two-sided paired t-test.
+    #[serde(deserialize_with = "crate::stats::f64_or_nan")]
     pub p: f64,
     /// `p` after Holm's correction over the family (`p` itself for a family of one).
+    #[serde(deserialize_with = "crate::stats::f64_or_nan")]
     pub p_holm: f64,
     /// Which side the corrected test decides.
     pub side: Side,
@@ -324,7 +326,7 @@ impl TaskDecisions {
     /// The pooled test in words, e.g. "W+ 110, W- 10 over 15 tasks, p = 0.0012".
     pub fn describe_pooled(&self) -> String {
         format!(
-            "W+ {}, W- {} over {} tasks, p = {}",
+            "W+ {}, W- {} over {} tasks, p {}",
             self.pooled.w_plus,
             self.pooled.w_minus,
             self.pooled.n,
@@ -336,31 +338,29 @@ impl TaskDecisions {
 /// A paired difference for a reader: "+51.1 [+45.0, +57.2] (p = 0.0001)"; with Holm's
 /// p-value where it differs.
 pub fn difference(p: &Paired) -> String {
-    let d = &p.difference;
     let holm = if p.p_holm != p.p {
-        format!(", Holm {}", p_value(p.p_holm))
+        format!(", Holm p {}", p_value(p.p_holm))
     } else {
         String::new()
     };
-    format!(
-        "{} [{}, {}] (p = {}{holm})",
-        signed(d.mean),
-        signed(d.lo),
-        signed(d.hi),
-        p_value(p.p)
-    )
+    format!("{} (p {}{holm})", interval(&p.difference), p_value(p.p))
 }
 
-/// A number with its sign, to the precision its size needs.
-pub fn signed(x: f64) -> String {
-    let digits = if x.abs() >= 10.0 {
+/// A mean with its interval, signed, all three to the precision the mean's size needs:
+/// "+2.86 [-0.82, +6.54]".
+pub fn interval(d: &Summary) -> String {
+    let m = d.mean.abs();
+    let digits = if m >= 10.0 {
         1
-    } else if x.abs() >= 1.0 {
+    } else if m >= 0.1 {
         2
     } else {
         3
     };
-    format!("{x:+.digits$}")
+    format!(
+        "{:+.digits$} [{:+.digits$}, {:+.digits$}]",
+        d.mean, d.lo, d.hi
+    )
 }
 
 /// A ratio's mean and interval for a reader: "1.48 [1.45, 1.51]".
@@ -368,12 +368,12 @@ pub fn ratio(s: &Summary) -> String {
     format!("{:.2} [{:.2}, {:.2}]", s.mean, s.lo, s.hi)
 }
 
-/// A p-value for a reader: 4 significant digits, `< 0.0001` below that.
+/// A p-value for a reader, after "p": `= 0.0151`, or `< 0.0001` below that.
 pub fn p_value(p: f64) -> String {
     if p < 1e-4 {
         "< 0.0001".to_owned()
     } else {
-        format!("{p:.4}")
+        format!("= {p:.4}")
     }
 }
 
@@ -424,7 +424,7 @@ mod tests {
     #[test]
     fn a_full_run_prints_a_verdict_per_target() {
         let lines = lines(&checks(false));
-        assert_eq!(lines[0], "the paper's targets:");
+        assert_eq!(lines[0], "targets:");
         assert_eq!(lines[1], "  a <= 2.5: 3.10 — fails");
         assert_eq!(lines[2], "  b >= 10: 16.0 — holds");
     }

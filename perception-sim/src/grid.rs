@@ -380,6 +380,7 @@ pub struct GridTask {
     width: usize,
     height: usize,
     dynamics_set: usize,
+    dynamics: Dynamics,
     n_irrelevant: usize,
     surfaces: Vec<Surface>,
     /// Wall bits per cell ([`Dir::bit`]); borders included.
@@ -399,6 +400,20 @@ impl GridTask {
     /// The layout does not depend on `n_irrelevant`, so tasks that differ only in it share
     /// their map and dynamics.
     pub fn generate(params: GridParams, seed: u64) -> Result<Self, GridError> {
+        let dynamics = Dynamics::paper(params.dynamics_set)
+            .ok_or(GridError::BadDynamicsSet(params.dynamics_set))?;
+        Self::generate_with(params, dynamics, seed)
+    }
+
+    /// [`GridTask::generate`] with dynamics of the caller's own (drawn at random for the
+    /// lifelong benchmark, say); `params.dynamics_set` is then only the id
+    /// [`GridTask::dynamics_set`] reports. The same seed gives the same layout and features
+    /// whatever the dynamics.
+    pub fn generate_with(
+        params: GridParams,
+        dynamics: Dynamics,
+        seed: u64,
+    ) -> Result<Self, GridError> {
         let sw_total = check_params(&params)?;
         let (w, h) = (params.width, params.height);
         // One generator for the layout, drawn from in this order: patches, fires, exits,
@@ -414,7 +429,7 @@ impl GridTask {
         Ok(Self::assemble(
             w,
             h,
-            params.dynamics_set,
+            (params.dynamics_set, dynamics),
             params.n_irrelevant,
             surfaces,
             walls,
@@ -534,11 +549,13 @@ impl GridTask {
                 walls[t] |= d.opposite().bit();
             }
         }
+        let dynamics =
+            Dynamics::paper(dynamics_set).ok_or(GridError::BadDynamicsSet(dynamics_set))?;
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         Ok(Self::assemble(
             w,
             h,
-            dynamics_set,
+            (dynamics_set, dynamics),
             n_irrelevant,
             surfaces,
             walls,
@@ -551,7 +568,7 @@ impl GridTask {
     fn assemble(
         width: usize,
         height: usize,
-        dynamics_set: usize,
+        (dynamics_set, dynamics): (usize, Dynamics),
         n_irrelevant: usize,
         surfaces: Vec<Surface>,
         walls: Vec<u8>,
@@ -581,6 +598,7 @@ impl GridTask {
             width,
             height,
             dynamics_set,
+            dynamics,
             n_irrelevant,
             starts: Vec::new(),
             probs: vec![0.0; n * N_ACTIONS * N_EFFECTS],
@@ -603,26 +621,14 @@ impl GridTask {
         task
     }
 
-    /// The true `P(effect | state, action)`: `softmax(W_a · φ(s))` over the relevant
-    /// features, with blocked moves zeroed and their mass spread evenly over the effects
-    /// still possible.
+    /// The true `P(effect | state, action)` ([`Dynamics::unmasked`]: for the logistic sets
+    /// `softmax(W_a · φ(s))` over the relevant features), with blocked moves zeroed and
+    /// their mass spread evenly over the effects still possible.
     fn compute_probs(&self, s: usize, a: usize) -> [f64; N_EFFECTS] {
-        let w = DYNAMICS_SETS[self.dynamics_set].weights(a);
         let walls = self.walls[s];
-        let mut scores = [0.0; N_EFFECTS];
-        for &j in self.features(s) {
-            let j = j as usize;
-            if j >= N_RELEVANT_FEATURES {
-                break; // sorted: the rest are irrelevant
-            }
-            for (score, row) in scores.iter_mut().zip(&w) {
-                *score += row[j];
-            }
-        }
-        let max = scores.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        let mut p = scores.map(|v| (v - max).exp());
-        let total: f64 = p.iter().sum();
-        p.iter_mut().for_each(|v| *v /= total);
+        let mut p = self
+            .dynamics
+            .unmasked(self.features(s), self.surfaces[s], walls, a);
         let blocked: f64 = Dir::ALL
             .iter()
             .filter(|d| walls & d.bit() != 0)
@@ -663,9 +669,15 @@ impl GridTask {
         N_EFFECTS
     }
 
-    /// Which dynamics set the task uses.
+    /// Which dynamics set the task uses: the paper's set, or the id given to
+    /// [`GridTask::generate_with`].
     pub fn dynamics_set(&self) -> usize {
         self.dynamics_set
+    }
+
+    /// The task's true dynamics.
+    pub fn dynamics(&self) -> &Dynamics {
+        &self.dynamics
     }
 
     /// The surface of a cell.
@@ -786,8 +798,12 @@ impl GridTask {
     /// The weight matrix `W_a` of the true dynamics for `action` (see
     /// [`DynamicsSet::weights`]); before wall masking, `P(e | s, a) = softmax(W_a · φ(s))`
     /// with φ the relevant features of `s`.
-    pub fn true_weights(&self, action: usize) -> [[f64; N_RELEVANT_FEATURES]; N_EFFECTS] {
-        DYNAMICS_SETS[self.dynamics_set].weights(action)
+    /// `None` for dynamics that are not logistic.
+    pub fn true_weights(&self, action: usize) -> Option<[[f64; N_RELEVANT_FEATURES]; N_EFFECTS]> {
+        match &self.dynamics {
+            Dynamics::Logistic(set) => Some(set.weights(action)),
+            Dynamics::Table(_) => None,
+        }
     }
 
     /// The features the true dynamics depend on (bias, surfaces, walls).
@@ -852,9 +868,6 @@ fn check_params(params: &GridParams) -> Result<f64, GridError> {
             width: w,
             height: h,
         });
-    }
-    if params.dynamics_set >= DYNAMICS_SETS.len() {
-        return Err(GridError::BadDynamicsSet(params.dynamics_set));
     }
     if !(0.0..=0.5).contains(&params.wall_density) {
         return Err(GridError::BadWallDensity(params.wall_density));
@@ -1122,6 +1135,9 @@ impl GridSuite {
             .collect()
     }
 }
+
+mod dynamics;
+pub use dynamics::{Dynamics, InteractionTable};
 
 #[cfg(test)]
 mod tests;

@@ -1,9 +1,11 @@
 //! Integration tests of the experiments, each on a tiny configuration: every figure of every
-//! experiment, the robot and transfer experiments end to end, and sharding, merging and
-//! resuming.
+//! experiment, each experiment end to end, sharding, merging and resuming, and the generated
+//! tables of the docs against their result folders.
 
 mod drawing;
+mod fig4;
 mod figures;
+mod lifelong;
 mod robot;
 mod shards;
 mod transfer;

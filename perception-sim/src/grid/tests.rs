@@ -304,7 +304,7 @@ fn true_dynamics_are_a_masked_softmax_of_the_relevant_features() {
         let mut by_context: HashMap<(usize, usize), [f64; 5]> = HashMap::new();
         for s in 0..t.n_states() {
             for a in 0..4 {
-                let w = t.true_weights(a);
+                let w = t.true_weights(a).unwrap();
                 let mut z = [0.0; 5];
                 for &j in t.features(s).iter().filter(|&&j| j < 10) {
                     for e in 0..5 {
@@ -377,4 +377,53 @@ fn interior_walls_block_and_show() {
     let map = t.to_string();
     assert_eq!(map.lines().nth(2), Some(". .|."), "{map}");
     assert_eq!(map.lines().nth(1), Some("  -"), "{map}");
+}
+
+#[test]
+fn dynamics_of_ones_own_give_the_same_layout_and_their_own_probabilities() {
+    use rand::SeedableRng;
+    let params = GridParams {
+        dynamics_set: 7,
+        ..GridParams::default()
+    };
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    let table = Dynamics::random_table(&mut rng);
+    let Dynamics::Table(rows) = &table else {
+        panic!("a table")
+    };
+    for row in rows.probs.iter().flatten() {
+        assert!((row.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+    }
+    let logistic = Dynamics::random_logistic(&mut rng);
+    assert!(logistic.is_logistic() && !table.is_logistic());
+    let a = GridTask::generate_with(params, table.clone(), 11).unwrap();
+    let b = GridTask::generate_with(params, logistic, 11).unwrap();
+    let paper = GridTask::generate(
+        GridParams {
+            dynamics_set: 0,
+            ..params
+        },
+        11,
+    )
+    .unwrap();
+    // The layout and the features follow the seed alone.
+    for s in 0..a.n_states() {
+        assert_eq!(a.surface(s), paper.surface(s));
+        assert_eq!(a.features(s), b.features(s));
+    }
+    assert_eq!(a.dynamics_set(), 7);
+    assert!(a.true_weights(0).is_none() && b.true_weights(0).is_some());
+    // On a cell with no wall the table's row for pattern 0 is the distribution, turned
+    // with the move: relative effect k of action a is absolute effect (a + k) mod 4.
+    let open = (0..a.n_states())
+        .find(|&s| !a.is_terminal(s) && Dir::ALL.iter().all(|&d| !a.has_wall(s, d)))
+        .expect("an open cell");
+    let row = rows.probs[a.surface(open).index()][0];
+    for action in 0..4 {
+        let p = a.true_effect_probs(open, action);
+        for k in 0..4 {
+            assert!((p[(action + k) % 4] - row[k]).abs() < 1e-12);
+        }
+        assert!((p[STAY] - row[STAY]).abs() < 1e-12);
+    }
 }

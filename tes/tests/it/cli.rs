@@ -604,7 +604,7 @@ fn experiment_all_gives_the_separate_commands_results_to_the_last_digit() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(study.join("report.md").exists());
-    for experiment in ["grid", "transfer", "robot"] {
+    for experiment in ["grid", "transfer", "robot", "fig4", "lifelong"] {
         let alone = dir.path().join(experiment);
         let out = tes(&[
             "experiment",

@@ -1,0 +1,732 @@
+//! Beyond the paper: a lifelong benchmark where TES's growth, pruning and recency matter.
+//!
+//! A long, non-stationary sequence of grid tasks: [`LifelongConfig::worlds`] worlds, each a
+//! task of its own dynamics — logistic sets drawn at random, and interaction tables that are
+//! not logistic in the features ([`Dynamics::random_table`]) — visited in
+//! [`LifelongConfig::rounds`] shuffled passes, so every world recurs, some after long gaps.
+//! The worlds need more views (up to one per action each) than a library of `M = 20` holds.
+//! Along the same sequence, with the same world stream per task:
+//!
+//! * **TES** — the library carried from task to task, `M = 20`, recency `μ > 0`;
+//! * **TES, unbounded** — the same with no practical limit on the library;
+//! * **LWT** — at each task, the best-track-record view per action of TES's library as TES
+//!   starts the task, frozen;
+//! * **loreRL** — a fresh agent on every task.
+//!
+//! Reported: each task's accumulated reward per method over the sequence, the library's size
+//! after each task, the time per episode, and questions of our own judged by paired tests.
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::path::Path;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use rand::SeedableRng;
+use rand::seq::SliceRandom;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use tes_learning::agents::{Agent, Tes, TesParams, ViewPolicy};
+use tes_learning::library::{LibraryParams, ViewLibrary};
+use tes_learning::plan::PlannerParams;
+use tes_perception_sim::grid::{Dynamics, GridParams, GridSuite, GridTask};
+
+use crate::episode::{
+    AgentSettings, Episode, EpisodicTask, RunOutcome, build_agent, run_episode, write_file,
+    write_summary,
+};
+use crate::grid::GridEnv;
+use crate::jobs::{self, JobOptions, Manifest};
+use crate::method::Method;
+use crate::stats::{Summary, summarise};
+use crate::svg::{LineChart, Series};
+use crate::verdict::{Paired, TargetCheck, Verdict, difference, paired, ratio};
+
+/// Settings of `tes experiment lifelong`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LifelongConfig {
+    /// Independent runs of the whole sequence.
+    pub runs: usize,
+    /// Worlds with logistic dynamics drawn at random.
+    pub logistic_worlds: usize,
+    /// Worlds whose dynamics are interaction tables, not logistic in the features.
+    pub table_worlds: usize,
+    /// Shuffled passes over all worlds: the sequence has `rounds × worlds` tasks.
+    pub rounds: usize,
+    /// Episodes on each task of the sequence.
+    pub episodes: usize,
+    /// The bounded library's `M` (the paper's 20).
+    pub max_views: usize,
+    /// The unbounded library's `M`: more than the sequence can add.
+    pub unbounded_views: usize,
+    /// The recency decay `μ` of the track record (the paper's experiments: 0).
+    pub recency: f64,
+    /// Irrelevant features per cell (the paper's grid: 200).
+    pub irrelevant: usize,
+    /// Seed of the worlds (dynamics, layouts) and of the sequence: the same for every run.
+    pub world_seed: u64,
+    /// Base agent seed; run `r` derives its agents' and its world stream's seeds from it.
+    pub seed: u64,
+    /// Whether this is the reduced `--quick` configuration.
+    pub quick: bool,
+}
+
+impl LifelongConfig {
+    /// Our defaults: 8 logistic and 4 table worlds, 4 passes (48 tasks), 50 episodes each,
+    /// `M = 20`, `μ = 0.1`, 200 irrelevant features, 20 runs.
+    pub fn standard() -> Self {
+        Self {
+            runs: 20,
+            logistic_worlds: 8,
+            table_worlds: 4,
+            rounds: 4,
+            episodes: 50,
+            max_views: 20,
+            unbounded_views: 10_000,
+            recency: 0.1,
+            irrelevant: 200,
+            world_seed: 2017,
+            seed: 1,
+            quick: false,
+        }
+    }
+
+    /// A first look in seconds: 3 + 1 worlds, 2 passes, 8 episodes, 2 runs, `M = 6`.
+    pub fn quick() -> Self {
+        Self {
+            runs: 2,
+            logistic_worlds: 3,
+            table_worlds: 1,
+            rounds: 2,
+            episodes: 8,
+            max_views: 6,
+            irrelevant: 20,
+            quick: true,
+            ..Self::standard()
+        }
+    }
+
+    /// Worlds in all.
+    pub fn worlds(&self) -> usize {
+        self.logistic_worlds + self.table_worlds
+    }
+
+    fn check(&self) -> Result<()> {
+        if self.runs == 0 || self.episodes == 0 || self.rounds == 0 || self.worlds() == 0 {
+            bail!("runs, episodes, rounds and worlds must all be at least 1");
+        }
+        if self.max_views == 0 || self.unbounded_views < self.max_views {
+            bail!("the library must keep at least 1 view, the unbounded one at least as many");
+        }
+        if !(self.recency >= 0.0 && self.recency.is_finite()) {
+            bail!("the recency decay must be a finite number >= 0");
+        }
+        Ok(())
+    }
+}
+
+/// The compared methods, in report order.
+pub const METHODS: [Method; 4] = [
+    Method::Tes,
+    Method::TesUnbounded,
+    Method::Lwt,
+    Method::LoreRl,
+];
+
+/// One task of the sequence.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SequenceTask {
+    /// Position in the sequence, from 0.
+    pub position: usize,
+    /// The world visited.
+    pub world: usize,
+    /// Whether the world's dynamics are logistic in the features.
+    pub logistic: bool,
+    /// Width × height.
+    pub size: String,
+    /// Tasks since the world was last visited (`None` on its first visit).
+    pub gap: Option<usize>,
+}
+
+/// The worlds (one task each, its own dynamics and layout) and the order they are visited.
+struct Worlds {
+    envs: Vec<GridEnv>,
+    sequence: Vec<SequenceTask>,
+}
+
+impl Worlds {
+    fn new(config: &LifelongConfig) -> Result<Self> {
+        let mut rng = ChaCha8Rng::seed_from_u64(config.world_seed ^ 0x11FE_10E6);
+        let mut envs = Vec::with_capacity(config.worlds());
+        for w in 0..config.worlds() {
+            let logistic = w < config.logistic_worlds;
+            let dynamics = if logistic {
+                Dynamics::random_logistic(&mut rng)
+            } else {
+                Dynamics::random_table(&mut rng)
+            };
+            // The suite's layouts, cycled: sizes 20×20 to 30×30 and their walls and exits.
+            let params = GridParams {
+                dynamics_set: w,
+                ..GridSuite::params(1 + w % (GridSuite::TASKS - 1), config.irrelevant)
+            };
+            let seed = config.world_seed.wrapping_mul(7_919).wrapping_add(w as u64);
+            let task = GridTask::generate_with(params, dynamics, seed)
+                .with_context(|| format!("world {w}"))?;
+            envs.push(GridEnv::new(task)?);
+        }
+        let mut sequence = Vec::new();
+        let mut last_seen: BTreeMap<usize, usize> = BTreeMap::new();
+        for _ in 0..config.rounds {
+            let mut order: Vec<usize> = (0..config.worlds()).collect();
+            order.shuffle(&mut rng);
+            for world in order {
+                let position = sequence.len();
+                let task = envs[world].task();
+                sequence.push(SequenceTask {
+                    position,
+                    world,
+                    logistic: world < config.logistic_worlds,
+                    size: format!("{}x{}", task.width(), task.height()),
+                    gap: last_seen.insert(world, position).map(|p| position - p - 1),
+                });
+            }
+        }
+        Ok(Self { envs, sequence })
+    }
+}
+
+/// One run's record: per method, each task's episodes; the libraries' sizes after each task.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct RunRecord {
+    run: usize,
+    episodes: BTreeMap<Method, Vec<Vec<Episode>>>,
+    library_views: BTreeMap<Method, Vec<usize>>,
+}
+
+/// The experiment's name in manifests.
+pub const EXPERIMENT: &str = "lifelong";
+
+/// The manifest of a run of `config` (or its `shard`): a job is a run of the sequence.
+pub fn manifest(config: &LifelongConfig, shard: jobs::Shard) -> Result<Manifest> {
+    Manifest::new(EXPERIMENT, config, config.runs, shard)
+}
+
+fn planner() -> PlannerParams {
+    // As in the transfer experiment: a re-plan stops at the drift that triggered it.
+    PlannerParams {
+        stop_at_drift: true,
+        ..PlannerParams::default()
+    }
+}
+
+fn empty_library(
+    config: &LifelongConfig,
+    worlds: &Worlds,
+    max_views: usize,
+) -> Result<ViewLibrary> {
+    let s = worlds.envs[0].structure();
+    Ok(ViewLibrary::new(
+        s.n_actions(),
+        s.n_effects(),
+        s.n_features(),
+        LibraryParams {
+            max_views,
+            recency: config.recency,
+            ..LibraryParams::default()
+        },
+    )?)
+}
+
+/// The seeds of (run, position): the agents' and the world stream's.
+fn seeds(config: &LifelongConfig, run: usize, position: usize) -> (u64, u64) {
+    let base = config
+        .seed
+        .wrapping_add(10_000 * run as u64)
+        .wrapping_mul(31)
+        .wrapping_add(position as u64);
+    (base, base ^ 0x7E57_11FE)
+}
+
+/// Runs `agent` for the task's episodes on the world stream `world_seed`.
+fn live(
+    agent: &mut dyn Agent,
+    env: &GridEnv,
+    episodes: usize,
+    world_seed: u64,
+) -> Result<Vec<Episode>> {
+    let structure = env.structure();
+    let mut world = ChaCha8Rng::seed_from_u64(world_seed);
+    (0..episodes)
+        .map(|_| Ok(run_episode(agent, env, &structure, &mut world)?))
+        .collect()
+}
+
+fn run_job(config: &LifelongConfig, worlds: &Worlds, run: usize) -> Result<RunRecord> {
+    let mut episodes: BTreeMap<Method, Vec<Vec<Episode>>> = BTreeMap::new();
+    let mut library_views: BTreeMap<Method, Vec<usize>> = BTreeMap::new();
+    let mut bounded = empty_library(config, worlds, config.max_views)?;
+    let mut unbounded = empty_library(config, worlds, config.unbounded_views)?;
+    let tes = |policy| TesParams {
+        policy,
+        planner: planner(),
+        ..TesParams::default()
+    };
+    for task in &worlds.sequence {
+        let env = &worlds.envs[task.world];
+        let (agent_seed, world_seed) = seeds(config, run, task.position);
+        let context = |m: Method| {
+            format!(
+                "run {run}, task {} (world {}): {m}",
+                task.position, task.world
+            )
+        };
+        let mut lwt = Tes::new(
+            env.structure(),
+            bounded.clone(),
+            tes(ViewPolicy::Lwt),
+            agent_seed,
+        )
+        .with_context(|| context(Method::Lwt))?;
+        let mut record = |m: Method, e: Vec<Episode>| episodes.entry(m).or_default().push(e);
+        record(
+            Method::Lwt,
+            live(&mut lwt, env, config.episodes, world_seed)?,
+        );
+        for (method, library) in [
+            (Method::Tes, &mut bounded),
+            (Method::TesUnbounded, &mut unbounded),
+        ] {
+            let mut agent = Tes::new(
+                env.structure(),
+                library.clone(),
+                tes(ViewPolicy::Tes),
+                agent_seed,
+            )
+            .with_context(|| context(method))?;
+            record(method, live(&mut agent, env, config.episodes, world_seed)?);
+            *library = agent.finish_task().with_context(|| context(method))?.0;
+            library_views.entry(method).or_default().push(library.len());
+        }
+        let settings = AgentSettings {
+            planner: planner(),
+            ..AgentSettings::default()
+        };
+        let mut lore = build_agent(Method::LoreRl, env, agent_seed, settings)
+            .with_context(|| context(Method::LoreRl))?;
+        record(
+            Method::LoreRl,
+            live(lore.as_mut(), env, config.episodes, world_seed)?,
+        );
+    }
+    Ok(RunRecord {
+        run,
+        episodes,
+        library_views,
+    })
+}
+
+/// Runs the benchmark, writes its files into `out`, and returns the summary.
+pub fn run(
+    config: &LifelongConfig,
+    out: &Path,
+    progress: &(dyn Fn(u64, u64) + Sync),
+) -> Result<LifelongReport> {
+    run_with(config, out, JobOptions::default(), progress)?
+        .context("a run over every job gives a summary")
+}
+
+/// [`run`] with `options`: a share of the runs (then only their records and the manifest
+/// are written, and `None` returned) or a resumed run.
+pub fn run_with(
+    config: &LifelongConfig,
+    out: &Path,
+    options: JobOptions,
+    progress: &(dyn Fn(u64, u64) + Sync),
+) -> Result<Option<LifelongReport>> {
+    config.check()?;
+    let started = Instant::now();
+    fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let worlds = Worlds::new(config)?;
+    let manifest = manifest(config, options.shard)?;
+    let results = jobs::run_jobs(out, &manifest, options, progress, |run| {
+        run_job(config, &worlds, run)
+    })?;
+    if !options.shard.is_all() {
+        return Ok(None);
+    }
+    report_from(
+        config,
+        &worlds,
+        results.into_values().collect(),
+        out,
+        started,
+    )
+    .map(Some)
+}
+
+/// Computes the summary and figures of a complete result folder from its job records.
+pub fn summarise_dir(out: &Path) -> Result<LifelongReport> {
+    let started = Instant::now();
+    let manifest = Manifest::read(out)?;
+    let config: LifelongConfig = manifest.settings()?;
+    config.check()?;
+    let worlds = Worlds::new(&config)?;
+    let results: BTreeMap<usize, RunRecord> = jobs::read_all(out, &manifest)?;
+    report_from(
+        &config,
+        &worlds,
+        results.into_values().collect(),
+        out,
+        started,
+    )
+}
+
+/// The summary written to `summary.json`.
+#[derive(Debug, Serialize, Deserialize)]
+pub struct LifelongReport {
+    /// The settings, seeds included.
+    pub config: LifelongConfig,
+    /// Wall-clock seconds.
+    pub wall_seconds: f64,
+    /// The sequence of tasks.
+    pub sequence: Vec<SequenceTask>,
+    /// Per method, each task's accumulated reward over runs, in sequence order.
+    pub per_task: BTreeMap<String, Vec<Summary>>,
+    /// Per library (TES, TES unbounded), its views after each task over runs.
+    pub library_views: BTreeMap<String, Vec<Summary>>,
+    /// Agent seconds per episode over the whole sequence, per method.
+    pub seconds_per_episode: BTreeMap<String, Summary>,
+    /// Every run's outcome per method and task: `runs[method][run][position]`.
+    pub runs: BTreeMap<String, Vec<Vec<RunOutcome>>>,
+    /// Our questions, the test of each and its verdict.
+    pub targets: Vec<TargetCheck>,
+}
+
+fn report_from(
+    config: &LifelongConfig,
+    worlds: &Worlds,
+    mut records: Vec<RunRecord>,
+    out: &Path,
+    started: Instant,
+) -> Result<LifelongReport> {
+    records.sort_by_key(|r| r.run);
+    let runs: BTreeMap<String, Vec<Vec<RunOutcome>>> = METHODS
+        .iter()
+        .map(|&m| {
+            let per_run = records
+                .iter()
+                .map(|r| {
+                    r.episodes
+                        .get(&m)
+                        .map(|tasks| tasks.iter().map(|e| RunOutcome::of(e, false)).collect())
+                        .unwrap_or_default()
+                })
+                .collect();
+            (m.name().into_owned(), per_run)
+        })
+        .collect();
+    let positions = worlds.sequence.len();
+    let per_task = runs
+        .iter()
+        .map(|(m, per_run)| {
+            let by_task = (0..positions)
+                .map(|p| {
+                    summarise(
+                        &per_run
+                            .iter()
+                            .filter_map(|r: &Vec<RunOutcome>| r.get(p).map(|o| o.accumulated))
+                            .collect::<Vec<_>>(),
+                    )
+                })
+                .collect();
+            (m.clone(), by_task)
+        })
+        .collect();
+    let library_views = [Method::Tes, Method::TesUnbounded]
+        .iter()
+        .map(|&m| {
+            let sizes = (0..positions)
+                .map(|p| {
+                    summarise(
+                        &records
+                            .iter()
+                            .filter_map(|r| r.library_views.get(&m)?.get(p).map(|&v| v as f64))
+                            .collect::<Vec<_>>(),
+                    )
+                })
+                .collect();
+            (m.name().into_owned(), sizes)
+        })
+        .collect();
+    let seconds_per_episode = runs
+        .iter()
+        .map(|(m, per_run)| {
+            let per_run_mean: Vec<f64> = per_run
+                .iter()
+                .map(|tasks| {
+                    tasks.iter().map(|o| o.seconds_per_episode).sum::<f64>()
+                        / tasks.len().max(1) as f64
+                })
+                .collect();
+            (m.clone(), summarise(&per_run_mean))
+        })
+        .collect();
+    let mut report = LifelongReport {
+        config: config.clone(),
+        wall_seconds: 0.0,
+        sequence: worlds.sequence.clone(),
+        per_task,
+        library_views,
+        seconds_per_episode,
+        runs,
+        targets: Vec::new(),
+    };
+    report.targets = targets(&report);
+    write_figures(&report, out)?;
+    report.wall_seconds = started.elapsed().as_secs_f64();
+    write_summary(out, &report)?;
+    Ok(report)
+}
+
+/// Per run, the sum over the tasks `which` admits of `a`'s accumulated reward minus `b`'s.
+fn over_tasks(
+    report: &LifelongReport,
+    a: Method,
+    b: Method,
+    which: &dyn Fn(&SequenceTask) -> bool,
+) -> Vec<f64> {
+    let (Some(a), Some(b)) = (report.runs.get(&*a.name()), report.runs.get(&*b.name())) else {
+        return Vec::new();
+    };
+    a.iter()
+        .zip(b)
+        .map(|(ra, rb)| {
+            report
+                .sequence
+                .iter()
+                .filter(|t| which(t))
+                .filter_map(|t| {
+                    Some(ra.get(t.position)?.accumulated - rb.get(t.position)?.accumulated)
+                })
+                .sum()
+        })
+        .collect()
+}
+
+/// Per run, the mean over the tasks `which` admits of `a`'s accumulated reward minus `b`'s.
+fn mean_over_tasks(
+    report: &LifelongReport,
+    a: Method,
+    b: Method,
+    which: &dyn Fn(&SequenceTask) -> bool,
+) -> Vec<f64> {
+    let n = report.sequence.iter().filter(|t| which(t)).count().max(1) as f64;
+    over_tasks(report, a, b, which)
+        .into_iter()
+        .map(|x| x / n)
+        .collect()
+}
+
+/// Our questions, each judged by a paired test over runs (two-sided, 5 %):
+///
+/// * does TES accumulate more than loreRL over the sequence? than LWT?
+/// * does TES's lead over loreRL grow on a world's return visits (the library remembers)?
+/// * does the unbounded library accumulate more than the bounded one, and on returns after
+///   long gaps especially (what pruning forgets)?
+/// * does TES beat loreRL on the worlds that are not logistic in the features?
+/// * is the bounded library faster per episode than the unbounded one?
+fn targets(report: &LifelongReport) -> Vec<TargetCheck> {
+    let quick = report.config.quick;
+    let all = |_: &SequenceTask| true;
+    let test = "paired t-test over runs, two-sided 5 %";
+    let check = |target: String, measured: String, p: &Paired| {
+        TargetCheck::new(target, test, measured, quick, Verdict::of_side(p.side))
+    };
+    let over =
+        |a, b, which: &dyn Fn(&SequenceTask) -> bool| paired(&over_tasks(report, a, b, which));
+    let tes_lore = over(Method::Tes, Method::LoreRl, &all);
+    let tes_lwt = over(Method::Tes, Method::Lwt, &all);
+    let unbounded = over(Method::TesUnbounded, Method::Tes, &all);
+    let long_gap = report
+        .sequence
+        .iter()
+        .filter_map(|t| t.gap)
+        .max()
+        .map_or(usize::MAX, |g| g / 2);
+    let far = |t: &SequenceTask| t.gap.is_some_and(|g| g >= long_gap);
+    let unbounded_far = over(Method::TesUnbounded, Method::Tes, &far);
+    let not_logistic = over(Method::Tes, Method::LoreRl, &|t| !t.logistic);
+    let returns: Vec<f64> =
+        mean_over_tasks(report, Method::Tes, Method::LoreRl, &|t| t.gap.is_some())
+            .into_iter()
+            .zip(mean_over_tasks(report, Method::Tes, Method::LoreRl, &|t| {
+                t.gap.is_none()
+            }))
+            .map(|(r, f)| r - f)
+            .collect();
+    let returns = paired(&returns);
+    let time = |m: Method| {
+        report
+            .runs
+            .get(&*m.name())
+            .map(|runs| {
+                runs.iter()
+                    .map(|t| {
+                        t.iter().map(|o| o.seconds_per_episode).sum::<f64>() / t.len().max(1) as f64
+                    })
+                    .collect::<Vec<_>>()
+            })
+            .unwrap_or_default()
+    };
+    let ratios: Vec<f64> = time(Method::Tes)
+        .iter()
+        .zip(time(Method::TesUnbounded))
+        .map(|(b, u)| b / u)
+        .collect();
+    let ratio_summary = summarise(&ratios);
+    let n = report.sequence.len();
+    vec![
+        check(
+            format!("ours: TES accumulates more than loreRL over the {n} tasks"),
+            format!("TES − loreRL {}", difference(&tes_lore)),
+            &tes_lore,
+        ),
+        check(
+            format!("ours: TES accumulates more than LWT over the {n} tasks"),
+            format!("TES − LWT {}", difference(&tes_lwt)),
+            &tes_lwt,
+        ),
+        check(
+            "ours: TES's lead over loreRL per task is larger on a world's return visits than on its first".into(),
+            format!("(TES − loreRL) on returns − on first visits, per task {}", difference(&returns)),
+            &returns,
+        ),
+        check(
+            format!("ours: the unbounded library accumulates more than M = {} over the {n} tasks", report.config.max_views),
+            format!("unbounded − bounded {}", difference(&unbounded)),
+            &unbounded,
+        ),
+        check(
+            format!("ours: ... and on returns after a gap of at least {long_gap} tasks"),
+            format!("unbounded − bounded {}", difference(&unbounded_far)),
+            &unbounded_far,
+        ),
+        check(
+            "ours: TES accumulates more than loreRL on the worlds whose dynamics are not logistic".into(),
+            format!("TES − loreRL {}", difference(&not_logistic)),
+            &not_logistic,
+        ),
+        TargetCheck::new(
+            format!("ours: the bounded library (M = {}) costs less time per episode than the unbounded one", report.config.max_views),
+            "the per-run ratio's 95 % interval against 1",
+            ratio(&ratio_summary),
+            quick,
+            Verdict::at_most(&ratio_summary, 1.0),
+        ),
+    ]
+}
+
+/// The figures: each task's accumulated reward per method over the sequence, TES's lead
+/// over loreRL per task, and the libraries' sizes.
+fn write_figures(report: &LifelongReport, out: &Path) -> Result<()> {
+    let position = |p: usize| (p + 1) as f64;
+    let chart = LineChart {
+        title: format!(
+            "Lifelong: accumulated reward on each task of the sequence ({} episodes each)",
+            report.config.episodes
+        ),
+        x_label: "task in the sequence".into(),
+        y_label: "accumulated reward on the task".into(),
+        series: METHODS
+            .iter()
+            .filter_map(|&m| {
+                let tasks = report.per_task.get(&*m.name())?;
+                Some(Series::method(
+                    m,
+                    tasks
+                        .iter()
+                        .enumerate()
+                        .map(|(p, s)| s.at(position(p)))
+                        .collect(),
+                ))
+            })
+            .collect(),
+        markers: true,
+    };
+    write_file(&out.join("lifelong-reward.svg"), &chart.to_svg())?;
+    let lead = |m: Method| -> Vec<crate::svg::BandPoint> {
+        (0..report.sequence.len())
+            .map(|p| {
+                let d: Vec<f64> = over_tasks(report, m, Method::LoreRl, &|t| t.position == p);
+                summarise(&d).at(position(p))
+            })
+            .collect()
+    };
+    let chart = LineChart {
+        title: "Lifelong: each task's accumulated reward minus loreRL's (paired by run)".into(),
+        x_label: "task in the sequence".into(),
+        y_label: "difference to loreRL".into(),
+        series: [Method::Tes, Method::TesUnbounded, Method::Lwt]
+            .into_iter()
+            .map(|m| Series::method(m, lead(m)))
+            .collect(),
+        markers: true,
+    };
+    write_file(&out.join("lifelong-lead.svg"), &chart.to_svg())?;
+    let chart = LineChart {
+        title: "Lifelong: views in the library after each task".into(),
+        x_label: "task in the sequence".into(),
+        y_label: "views".into(),
+        series: report
+            .library_views
+            .iter()
+            .filter_map(|(name, sizes)| {
+                let m = Method::from_name(name)?;
+                Some(Series::method(
+                    m,
+                    sizes
+                        .iter()
+                        .enumerate()
+                        .map(|(p, s)| s.at(position(p)))
+                        .collect(),
+                ))
+            })
+            .collect(),
+        markers: true,
+    };
+    write_file(&out.join("lifelong-library.svg"), &chart.to_svg())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_sequence_visits_every_world_each_round_and_knows_the_gaps() {
+        let config = LifelongConfig::quick();
+        let worlds = Worlds::new(&config).unwrap();
+        assert_eq!(worlds.sequence.len(), config.rounds * config.worlds());
+        for round in worlds.sequence.chunks(config.worlds()) {
+            let mut seen: Vec<usize> = round.iter().map(|t| t.world).collect();
+            seen.sort_unstable();
+            assert_eq!(seen, (0..config.worlds()).collect::<Vec<_>>());
+        }
+        for t in &worlds.sequence {
+            let earlier = worlds.sequence[..t.position]
+                .iter()
+                .rposition(|e| e.world == t.world);
+            assert_eq!(t.gap, earlier.map(|e| t.position - e - 1));
+            assert_eq!(
+                t.logistic,
+                worlds.envs[t.world].task().dynamics().is_logistic()
+            );
+        }
+        // The same seed, the same worlds and order.
+        let again = Worlds::new(&config).unwrap();
+        assert_eq!(
+            again.sequence.iter().map(|t| t.world).collect::<Vec<_>>(),
+            worlds.sequence.iter().map(|t| t.world).collect::<Vec<_>>()
+        );
+    }
+}
