@@ -256,8 +256,11 @@ fn grid_table1(grid: &GridReport) -> String {
         let s = &t.seconds_per_episode;
         let _ = writeln!(
             md,
-            "| {name} | {} | {:.5} [{:.5}, {:.5}] |",
-            t.features, s.mean, s.lo, s.hi
+            "| {name} | {} | {} [{}, {}] |",
+            t.features,
+            significant(s.mean),
+            significant(s.lo),
+            significant(s.hi)
         );
     }
     md
@@ -265,10 +268,33 @@ fn grid_table1(grid: &GridReport) -> String {
 
 fn seconds(by_method: &BTreeMap<String, Summary>, per: &str) -> String {
     let mut md = format!("| method | agent s / {per} |\n|---|---|\n");
-    for (m, s) in by_method {
-        let _ = writeln!(md, "| {m} | {:.4} [{:.4}, {:.4}] |", s.mean, s.lo, s.hi);
+    let mut rows: Vec<_> = by_method.iter().collect();
+    rows.sort_by(|a, b| a.1.mean.total_cmp(&b.1.mean));
+    for (m, s) in rows {
+        let _ = writeln!(
+            md,
+            "| {m} | {} [{}, {}] |",
+            significant(s.mean),
+            significant(s.lo),
+            significant(s.hi)
+        );
     }
     md
+}
+
+/// `x` to three significant digits, in plain notation: 0.00241, 0.0000132, 1.52.
+fn significant(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() {
+        return format!("{x}");
+    }
+    let digits = (2 - x.abs().log10().floor() as i32).max(0) as usize;
+    format!("{x:.digits$}")
+}
+
+/// A share in [0, 1] as the tables write it: ".65", "1.00".
+fn share(x: f64) -> String {
+    let text = format!("{x:.2}");
+    text.strip_prefix('0').map_or(text.clone(), str::to_owned)
 }
 
 /// Table 2 with the paired differences each claim decides by (bold: Holm's correction over
@@ -333,10 +359,10 @@ fn transfer_first_ends(t: &TransferReport) -> String {
             .map(|&m| {
                 let runs = method_runs(task, m);
                 format!(
-                    ".{:02.0} / .{:02.0} / .{:02.0}",
-                    100.0 * end_share(&runs, End::Goal, 0, 1),
-                    100.0 * end_share(&runs, End::Death, 0, 1),
-                    100.0 * end_share(&runs, End::Cap, 0, 1)
+                    "{} / {} / {}",
+                    share(end_share(&runs, End::Goal, 0, 1)),
+                    share(end_share(&runs, End::Death, 0, 1)),
+                    share(end_share(&runs, End::Cap, 0, 1))
                 )
             })
             .collect();
@@ -547,10 +573,11 @@ fn fig4c(f: &Fig4Report) -> String {
             .map_or(f64::NAN, |s| s.mean);
         let _ = writeln!(
             md,
-            "| {m} | {} | {} | {} | {secs:.4} |",
+            "| {m} | {} | {} | {} | {} |",
             ci(&window(0, head, 1.0)),
             ci(&window(0, n, 1.0)),
-            ci3(&window(n - tail, n, tail as f64))
+            ci3(&window(n - tail, n, tail as f64)),
+            significant(secs)
         );
     }
     md
@@ -795,6 +822,17 @@ pub fn stale_blocks(doc: &str, root: &Path) -> Result<Vec<String>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn numbers_are_written_as_the_tables_want_them() {
+        assert_eq!(significant(0.002_413), "0.00241");
+        assert_eq!(significant(0.000_013_2), "0.0000132");
+        assert_eq!(significant(1.523), "1.52");
+        assert_eq!(significant(152.3), "152");
+        assert_eq!(share(0.65), ".65");
+        assert_eq!(share(1.0), "1.00");
+        assert_eq!(share(0.0), ".00");
+    }
 
     #[test]
     fn blocks_are_found_and_their_commands_read() {
