@@ -29,6 +29,9 @@ pub const QUICK_RUN_NOTE: &str =
 pub const PARTIAL_RUN_NOTE: &str =
     "partial run: the target counts every test task; run them all to judge it";
 
+/// What a run that left out a method a target compares says in place of a verdict.
+pub const NOT_RUN_NOTE: &str = "not run: the run left out a method this target compares";
+
 /// Whether a run meets one of the paper's targets. Serialised as its [`text`](Self::text).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Verdict {
@@ -47,6 +50,9 @@ pub enum Verdict {
     /// A full-size run over only some of the cases the target counts.
     #[serde(rename = "partial run: the target counts every test task; run them all to judge it")]
     PartialRun,
+    /// A run without one of the methods the target compares (`--methods`).
+    #[serde(rename = "not run: the run left out a method this target compares")]
+    NotRun,
 }
 
 impl Verdict {
@@ -129,6 +135,7 @@ impl Verdict {
             Verdict::Undecided => "undecided",
             Verdict::QuickRun => QUICK_RUN_NOTE,
             Verdict::PartialRun => PARTIAL_RUN_NOTE,
+            Verdict::NotRun => NOT_RUN_NOTE,
         }
     }
 
@@ -448,6 +455,7 @@ mod tests {
             Verdict::Undecided,
             Verdict::QuickRun,
             Verdict::PartialRun,
+            Verdict::NotRun,
         ] {
             let json = serde_json::to_string(&v).unwrap();
             assert_eq!(json, format!("\"{}\"", v.text()));
