@@ -120,7 +120,7 @@ impl Method {
             Method::FEpsG => "#CC79A7",
             Method::RlDt => "#000000",
             Method::LseRmax => "#332288",
-            Method::TesUnbounded => "#004488",
+            Method::TesUnbounded => "#AA3377",
             Method::Rands(1) => "#8C510A",
             Method::Rands(2) => "#BF812D",
             Method::Rands(3) => "#DDCC77",
