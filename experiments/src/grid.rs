@@ -34,7 +34,9 @@ use crate::method::Method;
 pub use crate::stats::Summary;
 use crate::stats::summarise;
 use crate::svg::{BandPoint, LineChart, Series};
-use crate::verdict::{Side, TargetCheck, Verdict, difference, paired, paired_family, ratio};
+use crate::verdict::{
+    Side, TIME_RATIO_TEST, TargetCheck, Verdict, difference, paired, paired_family, ratio,
+};
 use tes_learning::plan::PlannerParams;
 
 /// A grid task as an experiment sees it.
@@ -813,7 +815,7 @@ fn targets(quick: bool, runs: &RunsByCell) -> Vec<TargetCheck> {
         unless_left_out(
             TargetCheck::new(
                 "Table 1: loreRL / fEpsG time per episode <= 2.5 (paper: 2.2)",
-                "the per-run ratio's 95 % interval against the bound",
+                TIME_RATIO_TEST,
                 ratio(&lore_fepsg),
                 quick,
                 Verdict::at_most(&lore_fepsg, 2.5),
@@ -823,7 +825,7 @@ fn targets(quick: bool, runs: &RunsByCell) -> Vec<TargetCheck> {
         unless_left_out(
             TargetCheck::new(
                 "Table 1: RL-DT / loreRL time per episode >= 10 (paper: 16.5)",
-                "the per-run ratio's 95 % interval against the bound",
+                TIME_RATIO_TEST,
                 ratio(&rldt_lore),
                 quick,
                 Verdict::at_least(&rldt_lore, 10.0),

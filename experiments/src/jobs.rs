@@ -38,6 +38,8 @@ use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
+use crate::verdict::TIME_RATIO_TEST;
+
 /// The version of the manifest and record format.
 pub const FORMAT: u32 = 1;
 
@@ -514,26 +516,25 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Manifest> {
     Ok(merged)
 }
 
-/// The start of the targets whose measurements are times (the grid's Table 1 ratios), so
-/// their figures and verdicts depend on the machine.
-const TIMED_TARGETS: &str = "Table 1:";
-
 /// `summary` (the `summary.json` of any experiment) without what depends on the clock: wall
-/// and agent seconds (`wall_seconds`, `seconds_per_episode`), time ratios (keys ending in
-/// `_time`), and the measured figure and verdict of the targets on times (Table 1's). What
+/// and agent seconds (`wall_seconds`, keys ending in `seconds_per_episode`), time ratios
+/// (keys ending in `_time`), and the measured figure and verdict of the targets on times
+/// (those judged by [`TIME_RATIO_TEST`]). What
 /// is left is the same for every run of the same settings and code: one run, a resumed one,
 /// merged shards, `tes experiment all` or the separate commands.
 ///
 /// ```
 /// use serde_json::json;
 /// use tes_experiments::jobs::summary_without_timings;
+/// use tes_experiments::verdict::TIME_RATIO_TEST;
 ///
 /// let summary = json!({
 ///     "wall_seconds": 12.5,
 ///     "lore_over_fepsg_time": 2.1,
 ///     "table1": {"loreRL": {"features": 210, "seconds_per_episode": {"mean": 0.1}}},
 ///     "targets": [
-///         {"target": "Table 1: loreRL / fEpsG ...", "measured": "2.10", "verdict": "holds"},
+///         {"target": "Table 1: loreRL / fEpsG ...", "test": TIME_RATIO_TEST,
+///          "measured": "2.10", "verdict": "holds"},
 ///         {"target": "Fig. 8: ...", "measured": "TES 3.0", "verdict": "holds"},
 ///     ],
 /// });
@@ -542,7 +543,7 @@ const TIMED_TARGETS: &str = "Table 1:";
 ///     json!({
 ///         "table1": {"loreRL": {"features": 210}},
 ///         "targets": [
-///             {"target": "Table 1: loreRL / fEpsG ..."},
+///             {"target": "Table 1: loreRL / fEpsG ...", "test": TIME_RATIO_TEST},
 ///             {"target": "Fig. 8: ...", "measured": "TES 3.0", "verdict": "holds"},
 ///         ],
 ///     })
@@ -553,15 +554,16 @@ pub fn summary_without_timings(summary: &Value) -> Value {
         match v {
             Value::Object(map) => {
                 let timed = map
-                    .get("target")
+                    .get("test")
                     .and_then(Value::as_str)
-                    .is_some_and(|t| t.starts_with(TIMED_TARGETS));
+                    .is_some_and(|t| t == TIME_RATIO_TEST);
                 if timed {
                     map.remove("measured");
                     map.remove("verdict");
                 }
                 map.retain(|key, _| {
-                    !matches!(key.as_str(), "wall_seconds" | "seconds_per_episode")
+                    key != "wall_seconds"
+                        && !key.ends_with("seconds_per_episode")
                         && !key.ends_with("_time")
                 });
                 map.values_mut().for_each(strip);

@@ -40,7 +40,7 @@ use crate::jobs::{self, JobOptions, Manifest};
 use crate::method::Method;
 use crate::stats::{Summary, summarise};
 use crate::svg::{LineChart, Series};
-use crate::verdict::{Paired, TargetCheck, Verdict, difference, paired, ratio};
+use crate::verdict::{Paired, TIME_RATIO_TEST, TargetCheck, Verdict, difference, paired, ratio};
 
 /// Settings of `tes experiment lifelong`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -626,7 +626,7 @@ fn targets(report: &LifelongReport) -> Vec<TargetCheck> {
         ),
         TargetCheck::new(
             format!("ours: the bounded library (M = {}) costs less time per episode than the unbounded one", report.config.max_views),
-            "the per-run ratio's 95 % interval against 1",
+            TIME_RATIO_TEST,
             ratio(&ratio_summary),
             quick,
             Verdict::at_most(&ratio_summary, 1.0),

@@ -90,8 +90,8 @@ impl Results {
     pub fn table(&self, name: &str) -> Result<String> {
         let table = match (self, name) {
             (_, "targets") => targets(self.targets()),
-            (Self::Grid(g), "fig3a") => grid_finals(&g.fig3a_final, g.config.episodes),
-            (Self::Grid(g), "fig3b") => grid_finals(&g.fig3b_final, g.config.episodes),
+            (Self::Grid(g), "fig3a") => grid_finals(g, &g.fig3a_final, 0),
+            (Self::Grid(g), "fig3b") => grid_finals(g, &g.fig3b_final, 200),
             (Self::Grid(g), "fig3c") => grid_fig3c(g),
             (Self::Grid(g), "table1") => grid_table1(g),
             (Self::Transfer(t), "table2") => transfer_table2(t),
@@ -208,13 +208,30 @@ fn targets(targets: &[TargetCheck]) -> String {
     md
 }
 
-fn grid_finals(finals: &BTreeMap<String, Summary>, episodes: usize) -> String {
-    let mut md =
-        format!("| algorithm | accumulated reward after {episodes} episodes |\n|---|---|\n");
+/// A figure's final accumulated rewards, best first, each with its difference to loreRL's
+/// paired by run (bold: the paired t-test decides it).
+fn grid_finals(grid: &GridReport, finals: &BTreeMap<String, Summary>, level: usize) -> String {
+    let mut md = format!(
+        "| algorithm | accumulated reward after {} episodes | minus loreRL's, paired by run |\n|---|---|---|\n",
+        grid.config.episodes
+    );
+    let runs = |m: &str| grid.runs.get(m).and_then(|l| l.get(&level));
+    let lore = runs(&Method::LoreRl.name());
     let mut rows: Vec<_> = finals.iter().collect();
     rows.sort_by(|a, b| b.1.mean.total_cmp(&a.1.mean));
     for (name, s) in rows {
-        let _ = writeln!(md, "| {name} | {} |", ci(s));
+        let d = match (runs(name), lore) {
+            (Some(mine), Some(lore)) if *name != Method::LoreRl.name() => {
+                let d: Vec<f64> = mine
+                    .iter()
+                    .zip(lore)
+                    .map(|(a, b)| a.accumulated - b.accumulated)
+                    .collect();
+                decided(&paired(&d))
+            }
+            _ => "—".into(),
+        };
+        let _ = writeln!(md, "| {name} | {} | {d} |", ci(s));
     }
     md
 }

@@ -404,6 +404,10 @@ fn named(tasks: &[usize]) -> String {
 pub const PER_TASK_TEST: &str =
     "per task a paired t-test over runs, Holm's correction over the tasks, family-wise 5 %";
 
+/// The test a target on times is judged by, in words: such a target's figure and verdict
+/// depend on the machine.
+pub const TIME_RATIO_TEST: &str = "the per-run time ratio's 95 % interval against the bound";
+
 /// The test a pooled target is judged by, in words.
 pub const POOLED_TEST: &str =
     "Wilcoxon signed-rank test over the tasks' mean paired differences, two-sided 5 %";
