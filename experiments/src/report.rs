@@ -415,7 +415,7 @@ fn transfer_late_caps(t: &TransferReport) -> String {
 fn transfer_against(this: &TransferReport, base: &TransferReport) -> String {
     let n = this.config.test_episodes;
     let mut md = format!(
-        "| task | TES, first episode: this − default | TES over {n} episodes: this − default | loreRL over {n} episodes: this − default |\n|---|---|---|---|\n"
+        "| task | library views: default → this | TES, first episode: this − default | TES over {n} episodes: this − default | loreRL over {n} episodes: this − default |\n|---|---|---|---|---|\n"
     );
     for (t, b) in this.tasks.iter().zip(&base.tasks) {
         let pair = |m: Method, f: fn(&RunOutcome) -> f64| -> String {
@@ -428,8 +428,10 @@ fn transfer_against(this: &TransferReport, base: &TransferReport) -> String {
         };
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} |",
+            "| {} | {:.1} → {:.1} | {} | {} | {} |",
             t.task,
+            b.library_views.mean,
+            t.library_views.mean,
             pair(Method::Tes, |o| o.first),
             pair(Method::Tes, |o| o.accumulated),
             pair(Method::LoreRl, |o| o.accumulated)

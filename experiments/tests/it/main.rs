@@ -2,6 +2,7 @@
 //! experiment, each experiment end to end, sharding, merging and resuming, and the generated
 //! tables of the docs against their result folders.
 
+mod docs;
 mod drawing;
 mod fig4;
 mod figures;
