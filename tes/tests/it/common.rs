@@ -313,10 +313,21 @@ impl Group {
 impl Drop for Group {
     fn drop(&mut self) {
         if self.launcher.try_wait().ok().flatten().is_none() {
-            // The children follow by their parent-death signal.
+            // The children follow by their parent-death signal. A node's resources can be
+            // removed only once its process is gone, which on a loaded machine takes longer
+            // than any fixed pause: wait for each child (bounded, and without a panic in a
+            // drop), then clean.
+            let children = self.children();
             let _ = self.launcher.kill();
             let _ = self.launcher.wait();
-            std::thread::sleep(Duration::from_millis(300));
+            let deadline = Instant::now() + Duration::from_secs(30);
+            while children
+                .iter()
+                .any(|&p| nix::sys::signal::kill(p, None).is_ok())
+                && Instant::now() < deadline
+            {
+                std::thread::sleep(Duration::from_millis(20));
+            }
         }
         let _ = tes_runtime::channel::clean_stale_resources();
     }
