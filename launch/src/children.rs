@@ -132,13 +132,22 @@ pub fn spawn_as(command: &ChildCommand, name: &str, config: &Path) -> Result<Chi
     cmd.spawn().map_err(|e| failed(&e))
 }
 
-/// Has the child of `cmd` receive SIGTERM when this process dies, however it dies.
+/// Has the child of `cmd` receive SIGTERM when this process dies, however it dies — also
+/// when it dies between the fork and the child's `prctl`, which no signal would then tell the
+/// child: the child checks that its parent is still this process and does not start if not.
 pub fn die_with_parent(cmd: &mut Command) {
-    // SAFETY: `pre_exec` runs in the forked child before exec; prctl(PR_SET_PDEATHSIG) is
-    // async-signal-safe and touches no memory of the parent.
+    let parent = nix::unistd::getpid();
+    // SAFETY: `pre_exec` runs in the forked child before exec; prctl(PR_SET_PDEATHSIG) and
+    // getppid are async-signal-safe and touch no memory of the parent.
     unsafe {
-        cmd.pre_exec(|| {
-            nix::sys::prctl::set_pdeathsig(Signal::SIGTERM).map_err(std::io::Error::from)
+        cmd.pre_exec(move || {
+            nix::sys::prctl::set_pdeathsig(Signal::SIGTERM).map_err(std::io::Error::from)?;
+            if nix::unistd::getppid() != parent {
+                return Err(std::io::Error::other(
+                    "the launcher died while starting this process",
+                ));
+            }
+            Ok(())
         });
     }
 }
