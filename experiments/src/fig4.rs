@@ -15,6 +15,7 @@
 //! phase are the transfer experiment's ([`crate::transfer`]).
 
 use std::collections::BTreeMap;
+use std::fmt;
 use std::fs;
 use std::path::Path;
 use std::time::Instant;
@@ -24,13 +25,14 @@ use serde::{Deserialize, Serialize};
 use tes_perception_sim::grid::GridSuite;
 
 use crate::episode::{Episode, RunOutcome, write_episodes_csv, write_file, write_summary};
+use crate::experiment::Experiment;
 use crate::grid::GridEnv;
 use crate::jobs::{self, JobOptions, Manifest};
 use crate::method::Method;
 use crate::stats::{Summary, summarise};
 use crate::svg::{BandPoint, LineChart, Series};
 use crate::transfer::{self, JobResult, TransferConfig};
-use crate::verdict::{Paired, TargetCheck, Verdict, difference, paired_family};
+use crate::verdict::{TargetCheck, Verdict, difference, paired_family};
 
 /// Settings of `tes experiment fig4`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -291,6 +293,39 @@ pub fn summarise_dir(out: &Path) -> Result<Fig4Report> {
     report_from(&config, results.into_values().collect(), out, started)
 }
 
+impl Experiment for Fig4Config {
+    type Report = Fig4Report;
+    const NAME: &'static str = EXPERIMENT;
+
+    fn describe(&self) -> String {
+        format!(
+            "{} runs of the long run ({} episodes on task {}) and of each of {} same-dynamics pairs (the progress counts these runs), seed {}",
+            self.runs,
+            self.convergence_episodes,
+            self.convergence_task,
+            self.pairs.len(),
+            self.seed
+        )
+    }
+
+    fn run_with(
+        &self,
+        out: &Path,
+        options: JobOptions,
+        progress: &(dyn Fn(u64, u64) + Sync),
+    ) -> Result<Option<Fig4Report>> {
+        run_with(self, out, options, progress)
+    }
+
+    fn summarise_dir(out: &Path) -> Result<Fig4Report> {
+        summarise_dir(out)
+    }
+
+    fn console(report: &Fig4Report, out: &Path) -> Result<String, fmt::Error> {
+        crate::console::fig4(report, out)
+    }
+}
+
 /// One test task's methods over runs: what `summary.json` keeps of a Fig. 4a pair or of
 /// Fig. 4c.
 #[derive(Debug, Serialize, Deserialize)]
@@ -445,62 +480,128 @@ fn window_differences(
         .collect()
 }
 
-/// Fig. 4a's and Fig. 4c's claims:
-///
-/// * Fig. 4a: on a task of the training task's dynamics, TES accumulates more than loreRL,
-///   fRmax and fEpsG over the test episodes (every pair);
-/// * Fig. 4a: loreRL and fEpsG are more effective than fRmax early (the first
-///   [`Fig4Config::early_episodes`]);
-/// * Fig. 4c: TES is ahead of fRmax and Rmax early (the first 50 episodes);
-/// * Fig. 4c: fRmax and Rmax gradually catch up: TES's lead per episode over the last 100
-///   episodes is smaller than over the first 50.
+/// Fig. 4a's and Fig. 4c's claims, each judged by paired t-tests over runs with Holm's
+/// correction over the claim's comparisons.
 fn targets(config: &Fig4Config, pairs: &[CaseSummary], long: &CaseSummary) -> Vec<TargetCheck> {
-    let holm = "paired t-tests over runs, Holm's correction over every comparison of the claim, family-wise 5 %";
+    vec![
+        tes_ahead_on_same_dynamics(config, pairs),
+        learners_ahead_of_frmax_early(config, pairs),
+        tes_ahead_early_in_long_run(config, long),
+        oracles_catch_up(config, long),
+    ]
+}
+
+/// The test every claim of this experiment states.
+const HOLM_OVER_CLAIM: &str = "paired t-tests over runs, Holm's correction over every comparison of the claim, family-wise 5 %";
+
+/// One comparison of a claim: its label in the report and its per-run paired differences.
+type Labelled = (String, Vec<f64>);
+
+/// A claim that holds when every one of its comparisons is decided positive, fails when one
+/// is decided negative (Holm over the claim's comparisons).
+fn every_ahead(
+    target: String,
+    config: &Fig4Config,
+    measured_prefix: &str,
+    comparisons: Vec<Labelled>,
+) -> TargetCheck {
+    let (labels, differences): (Vec<String>, Vec<Vec<f64>>) = comparisons.into_iter().unzip();
+    let tests = paired_family(&differences);
+    let measured = labels
+        .iter()
+        .zip(&tests)
+        .map(|(label, p)| format!("{label} {}", difference(p)))
+        .collect::<Vec<_>>()
+        .join("; ");
+    TargetCheck::new(
+        target,
+        HOLM_OVER_CLAIM,
+        format!("{measured_prefix}{measured}"),
+        config.quick,
+        Verdict::all(tests.iter().map(|p| Verdict::of_side(p.side))),
+    )
+}
+
+/// Fig. 4a: on a task of the training task's dynamics, TES accumulates more than loreRL,
+/// fRmax and fEpsG over the test episodes (every pair).
+fn tes_ahead_on_same_dynamics(config: &Fig4Config, pairs: &[CaseSummary]) -> TargetCheck {
     let n = config.test_episodes;
+    let comparisons = pairs
+        .iter()
+        .flat_map(|c| {
+            [Method::LoreRl, Method::FRmax, Method::FEpsG].map(|m| {
+                (
+                    format!("task {}: TES − {m}", c.test_task),
+                    window_differences(c, Method::Tes, m, 0, n),
+                )
+            })
+        })
+        .collect();
+    every_ahead(
+        format!(
+            "Fig. 4a: with the training task's dynamics, TES accumulates more than loreRL, fRmax and fEpsG over {n} test episodes"
+        ),
+        config,
+        "",
+        comparisons,
+    )
+}
+
+/// Fig. 4a: loreRL and fEpsG are more effective than fRmax early (the first
+/// [`Fig4Config::early_episodes`]).
+fn learners_ahead_of_frmax_early(config: &Fig4Config, pairs: &[CaseSummary]) -> TargetCheck {
     let early = config.early_episodes;
-    let family = |cases: &[(&CaseSummary, Method, Method, usize, usize)]| -> Vec<Paired> {
-        paired_family(
-            &cases
-                .iter()
-                .map(|&(c, a, b, from, to)| window_differences(c, a, b, from, to))
-                .collect::<Vec<_>>(),
-        )
-    };
-    let all = |tests: &[Paired]| Verdict::all(tests.iter().map(|p| Verdict::of_side(p.side)));
-    let described = |labels: &[String], tests: &[Paired]| {
-        labels
-            .iter()
-            .zip(tests)
-            .map(|(l, p)| format!("{l} {}", difference(p)))
-            .collect::<Vec<_>>()
-            .join("; ")
-    };
-    let mut cases = Vec::new();
-    let mut labels = Vec::new();
-    for c in pairs {
-        for m in [Method::LoreRl, Method::FRmax, Method::FEpsG] {
-            cases.push((c, Method::Tes, m, 0, n));
-            labels.push(format!("task {}: TES − {m}", c.test_task));
-        }
-    }
-    let tes_ahead = family(&cases);
-    let tes_ahead_text = described(&labels, &tes_ahead);
-    let (mut cases, mut labels) = (Vec::new(), Vec::new());
-    for c in pairs {
-        for m in [Method::LoreRl, Method::FEpsG] {
-            cases.push((c, m, Method::FRmax, 0, early));
-            labels.push(format!("task {}: {m} − fRmax", c.test_task));
-        }
-    }
-    let early_ahead = family(&cases);
-    let early_text = described(&labels, &early_ahead);
+    let comparisons = pairs
+        .iter()
+        .flat_map(|c| {
+            [Method::LoreRl, Method::FEpsG].map(|m| {
+                (
+                    format!("task {}: {m} − fRmax", c.test_task),
+                    window_differences(c, m, Method::FRmax, 0, early),
+                )
+            })
+        })
+        .collect();
+    every_ahead(
+        format!(
+            "Fig. 4a: loreRL and fEpsG are more effective than fRmax early (ours: the first {early} episodes)"
+        ),
+        config,
+        "",
+        comparisons,
+    )
+}
+
+/// Fig. 4c's early episodes of the long run: the first 50 (or half the run, if shorter).
+fn long_run_head(config: &Fig4Config) -> usize {
+    50.min(config.convergence_episodes / 2)
+}
+
+/// Fig. 4c: TES is ahead of fRmax and Rmax early (the first 50 episodes).
+fn tes_ahead_early_in_long_run(config: &Fig4Config, long: &CaseSummary) -> TargetCheck {
+    let head = long_run_head(config);
+    let comparisons = [Method::FRmax, Method::Rmax]
+        .map(|m| {
+            (
+                format!("TES − {m}"),
+                window_differences(long, Method::Tes, m, 0, head),
+            )
+        })
+        .into();
+    every_ahead(
+        format!("Fig. 4c: TES ahead of fRmax and Rmax early (the first {head} episodes)"),
+        config,
+        "",
+        comparisons,
+    )
+}
+
+/// Fig. 4c: fRmax and Rmax gradually catch up: TES's lead per episode over the last 100
+/// episodes is smaller than over the first 50.
+fn oracles_catch_up(config: &Fig4Config, long: &CaseSummary) -> TargetCheck {
     let long_n = config.convergence_episodes;
-    let head = 50.min(long_n / 2);
+    let head = long_run_head(config);
     let tail = 100.min(long_n / 2);
-    let long_early = family(&[
-        (long, Method::Tes, Method::FRmax, 0, head),
-        (long, Method::Tes, Method::Rmax, 0, head),
-    ]);
     let narrowing = |other: Method| -> Vec<f64> {
         let first = window_differences(long, Method::Tes, other, 0, head);
         let last = window_differences(long, Method::Tes, other, long_n - tail, long_n);
@@ -510,51 +611,17 @@ fn targets(config: &Fig4Config, pairs: &[CaseSummary], long: &CaseSummary) -> Ve
             .map(|(f, l)| f / head as f64 - l / tail as f64)
             .collect()
     };
-    let catch_up = paired_family(&[narrowing(Method::FRmax), narrowing(Method::Rmax)]);
-    vec![
-        TargetCheck::new(
-            format!(
-                "Fig. 4a: with the training task's dynamics, TES accumulates more than loreRL, fRmax and fEpsG over {n} test episodes"
-            ),
-            holm,
-            tes_ahead_text,
-            config.quick,
-            all(&tes_ahead),
+    let comparisons = [Method::FRmax, Method::Rmax]
+        .map(|m| (m.to_string(), narrowing(m)))
+        .into();
+    every_ahead(
+        format!(
+            "Fig. 4c: fRmax and Rmax gradually catch up: TES's lead per episode over the last {tail} of {long_n} episodes is smaller than over the first {head}"
         ),
-        TargetCheck::new(
-            format!(
-                "Fig. 4a: loreRL and fEpsG are more effective than fRmax early (ours: the first {early} episodes)"
-            ),
-            holm,
-            early_text,
-            config.quick,
-            all(&early_ahead),
-        ),
-        TargetCheck::new(
-            format!("Fig. 4c: TES ahead of fRmax and Rmax early (the first {head} episodes)"),
-            holm,
-            format!(
-                "TES − fRmax {}; TES − Rmax {}",
-                difference(&long_early[0]),
-                difference(&long_early[1])
-            ),
-            config.quick,
-            all(&long_early),
-        ),
-        TargetCheck::new(
-            format!(
-                "Fig. 4c: fRmax and Rmax gradually catch up: TES's lead per episode over the last {tail} of {long_n} episodes is smaller than over the first {head}"
-            ),
-            holm,
-            format!(
-                "lead first − lead last, per episode: fRmax {}; Rmax {}",
-                difference(&catch_up[0]),
-                difference(&catch_up[1])
-            ),
-            config.quick,
-            all(&catch_up),
-        ),
-    ]
+        config,
+        "lead first − lead last, per episode: ",
+        comparisons,
+    )
 }
 
 /// Per episode, the mean over runs of the accumulated reward of `m` (minus `minus`'s,

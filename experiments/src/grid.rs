@@ -13,12 +13,13 @@
 //! fixed by the world seed; run `r` of every algorithm uses agent seed `seed + r`.
 
 use std::collections::BTreeMap;
+use std::fmt;
 use std::fs;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use tes_learning::agents::{Contexts, ExampleStore};
@@ -29,6 +30,7 @@ use crate::episode::{
     AgentSettings, Episode, EpisodicTask, RunOutcome, Seen, run_agent, run_agent_watched,
     write_episodes_csv, write_file, write_summary,
 };
+use crate::experiment::Experiment;
 use crate::jobs::{self, JobOptions, Manifest};
 use crate::method::Method;
 pub use crate::stats::Summary;
@@ -465,6 +467,9 @@ pub fn run_with(
     options: JobOptions,
     progress: &(dyn Fn(u64, u64) + Sync),
 ) -> Result<Option<GridReport>> {
+    if config.runs == 0 || config.episodes == 0 {
+        bail!("--runs and --episodes must be at least 1");
+    }
     let started = Instant::now();
     fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let envs = environments(config)?;
@@ -503,6 +508,35 @@ pub fn summarise_dir(out: &Path) -> Result<GridReport> {
     let envs = environments(&config)?;
     let results = jobs::read_all(out, &manifest)?;
     report_from(&config, &envs, results, out, started)
+}
+
+impl Experiment for GridConfig {
+    type Report = GridReport;
+    const NAME: &'static str = EXPERIMENT;
+
+    fn describe(&self) -> String {
+        format!(
+            "{} runs x {} episodes of each method at each count of irrelevant features {:?} (the progress counts these runs), seeds {}.., world seed {}",
+            self.runs, self.episodes, self.irrelevant_levels, self.seed, self.world_seed
+        )
+    }
+
+    fn run_with(
+        &self,
+        out: &Path,
+        options: JobOptions,
+        progress: &(dyn Fn(u64, u64) + Sync),
+    ) -> Result<Option<GridReport>> {
+        run_with(self, out, options, progress)
+    }
+
+    fn summarise_dir(out: &Path) -> Result<GridReport> {
+        summarise_dir(out)
+    }
+
+    fn console(report: &GridReport, out: &Path) -> Result<String, fmt::Error> {
+        crate::console::grid(report, out)
+    }
 }
 
 fn report_from(

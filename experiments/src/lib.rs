@@ -9,6 +9,8 @@
 //! * [`lifelong`] — beyond the paper: a long, non-stationary sequence of grid tasks from more
 //!   worlds than the library holds, some not logistic, returning after long gaps;
 //! * [`episode`] — what they share: a task, building the agents, running an episode;
+//! * [`experiment`] — the trait each experiment's settings implement, so the command line
+//!   and the study run, resume and summarise every one the same way;
 //! * [`method`] — every method compared: its name in every output, its colour in every figure,
 //!   its order;
 //! * [`stats`], [`svg`] — confidence intervals and dependency-free SVG charts for the reports,
@@ -26,6 +28,7 @@
 
 pub mod console;
 pub mod episode;
+pub mod experiment;
 pub mod fig4;
 pub mod grid;
 pub mod jobs;

@@ -17,6 +17,7 @@
 //! after each task, the time per episode, and questions of our own judged by paired tests.
 
 use std::collections::BTreeMap;
+use std::fmt;
 use std::fs;
 use std::path::Path;
 use std::time::Instant;
@@ -35,6 +36,7 @@ use crate::episode::{
     AgentSettings, Episode, EpisodicTask, RunOutcome, build_agent, run_episode, write_file,
     write_summary,
 };
+use crate::experiment::Experiment;
 use crate::grid::GridEnv;
 use crate::jobs::{self, JobOptions, Manifest};
 use crate::method::Method;
@@ -380,6 +382,42 @@ pub fn summarise_dir(out: &Path) -> Result<LifelongReport> {
         out,
         started,
     )
+}
+
+impl Experiment for LifelongConfig {
+    type Report = LifelongReport;
+    const NAME: &'static str = EXPERIMENT;
+
+    fn describe(&self) -> String {
+        format!(
+            "{} runs (the progress counts these runs) of a sequence of {} tasks from {} worlds ({} not logistic), {} episodes each, M = {}, recency {}, seed {}",
+            self.runs,
+            self.rounds * self.worlds(),
+            self.worlds(),
+            self.table_worlds,
+            self.episodes,
+            self.max_views,
+            self.recency,
+            self.seed
+        )
+    }
+
+    fn run_with(
+        &self,
+        out: &Path,
+        options: JobOptions,
+        progress: &(dyn Fn(u64, u64) + Sync),
+    ) -> Result<Option<LifelongReport>> {
+        run_with(self, out, options, progress)
+    }
+
+    fn summarise_dir(out: &Path) -> Result<LifelongReport> {
+        summarise_dir(out)
+    }
+
+    fn console(report: &LifelongReport, out: &Path) -> Result<String, fmt::Error> {
+        crate::console::lifelong(report, out)
+    }
 }
 
 /// The summary written to `summary.json`.

@@ -18,6 +18,7 @@
 //! Paper settings: α = 0.5, λ = 0.05, γ = 0.95, ε = 0.05, m = 10.
 
 use std::collections::BTreeMap;
+use std::fmt;
 use std::fs;
 use std::path::Path;
 use std::sync::Arc;
@@ -37,6 +38,7 @@ use tes_learning::plan::PlannerParams;
 use tes_perception_sim::arena::{Arena, ArenaId, Episode as ArenaEpisode, EpisodeStatus};
 
 use crate::episode::{End, Episode, RunOutcome, write_episodes_csv, write_file, write_summary};
+use crate::experiment::Experiment;
 use crate::jobs::{self, JobOptions, Manifest};
 use crate::method::Method;
 use crate::stats::{ALPHA, Summary, holm, sign_test, summarise};
@@ -392,6 +394,35 @@ pub fn summarise_dir(out: &Path) -> Result<RobotReport> {
     check(&config)?;
     let results = jobs::read_all(out, &manifest)?;
     report_from(&config, results, out, started)
+}
+
+impl Experiment for RobotConfig {
+    type Report = RobotReport;
+    const NAME: &'static str = EXPERIMENT;
+
+    fn describe(&self) -> String {
+        format!(
+            "{} runs of each method (the progress counts these runs), {} episodes on Env 3 after {} per earlier arena, seeds {}..",
+            self.runs, self.episodes, self.train_episodes, self.seed
+        )
+    }
+
+    fn run_with(
+        &self,
+        out: &Path,
+        options: JobOptions,
+        progress: &(dyn Fn(u64, u64) + Sync),
+    ) -> Result<Option<RobotReport>> {
+        run_with(self, out, options, progress)
+    }
+
+    fn summarise_dir(out: &Path) -> Result<RobotReport> {
+        summarise_dir(out)
+    }
+
+    fn console(report: &RobotReport, out: &Path) -> Result<String, fmt::Error> {
+        crate::console::robot(report, out)
+    }
 }
 
 /// Every job's Env 3 episodes, by (method, run).

@@ -20,6 +20,7 @@
 //! line up while their actions do).
 
 use std::collections::BTreeMap;
+use std::fmt;
 use std::fs;
 use std::path::Path;
 use std::time::Instant;
@@ -40,6 +41,7 @@ use crate::episode::{
     AgentSettings, BuildError, Episode, EpisodicTask, RunOutcome, build_agent, run_episode,
     write_episodes_csv, write_file, write_summary,
 };
+use crate::experiment::Experiment;
 use crate::grid::GridEnv;
 use crate::jobs::{self, JobOptions, Manifest};
 use crate::method::Method;
@@ -379,6 +381,41 @@ pub fn summarise_dir(out: &Path) -> Result<TransferReport> {
         out,
         started,
     )
+}
+
+impl Experiment for TransferConfig {
+    type Report = TransferReport;
+    const NAME: &'static str = EXPERIMENT;
+
+    fn describe(&self) -> String {
+        format!(
+            "test tasks {:?}, {} runs of each method on each (the progress counts these runs), training on {} tasks x {} episodes, {} test episodes, seed {}, world seed {}",
+            self.test_tasks,
+            self.runs,
+            self.training_tasks,
+            self.train_episodes,
+            self.test_episodes,
+            self.seed,
+            self.world_seed
+        )
+    }
+
+    fn run_with(
+        &self,
+        out: &Path,
+        options: JobOptions,
+        progress: &(dyn Fn(u64, u64) + Sync),
+    ) -> Result<Option<TransferReport>> {
+        run_with(self, out, options, progress)
+    }
+
+    fn summarise_dir(out: &Path) -> Result<TransferReport> {
+        summarise_dir(out)
+    }
+
+    fn console(report: &TransferReport, out: &Path) -> Result<String, fmt::Error> {
+        crate::console::transfer(report, out)
+    }
 }
 
 fn report_from(

@@ -8,16 +8,17 @@ use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use tes_experiments::console;
-use tes_experiments::fig4::{self, Fig4Config, Fig4Report};
-use tes_experiments::grid::{self, GridConfig, GridReport};
+use tes_experiments::experiment::Experiment;
+use tes_experiments::fig4::{self, Fig4Config};
+use tes_experiments::grid::{self, GridConfig};
 use tes_experiments::jobs::{self, JobOptions, Manifest, Shard};
-use tes_experiments::lifelong::{self, LifelongConfig, LifelongReport};
+use tes_experiments::lifelong::{self, LifelongConfig};
 use tes_experiments::method::Method;
 use tes_experiments::progress::ProgressLines;
 use tes_experiments::report::Results;
-use tes_experiments::robot::{self, RobotConfig, RobotReport};
+use tes_experiments::robot::{self, RobotConfig};
 use tes_experiments::study::{self, Study, StudyConfigs};
-use tes_experiments::transfer::{self, TransferConfig, TransferReport};
+use tes_experiments::transfer::{self, TransferConfig};
 use tes_learning::agents::ExampleStore;
 
 /// Arguments of `tes experiment`.
@@ -176,13 +177,17 @@ struct SummariseArgs {
 fn summarise_folder(dir: &Path) -> Result<()> {
     let manifest = Manifest::read(dir)?;
     match manifest.experiment.as_str() {
-        "grid" => print_summary(console::grid(&grid::summarise_dir(dir)?, dir)),
-        "transfer" => print_summary(console::transfer(&transfer::summarise_dir(dir)?, dir)),
-        "robot" => print_summary(console::robot(&robot::summarise_dir(dir)?, dir)),
-        "fig4" => print_summary(console::fig4(&fig4::summarise_dir(dir)?, dir)),
-        "lifelong" => print_summary(console::lifelong(&lifelong::summarise_dir(dir)?, dir)),
+        GridConfig::NAME => summarise::<GridConfig>(dir),
+        TransferConfig::NAME => summarise::<TransferConfig>(dir),
+        RobotConfig::NAME => summarise::<RobotConfig>(dir),
+        Fig4Config::NAME => summarise::<Fig4Config>(dir),
+        LifelongConfig::NAME => summarise::<LifelongConfig>(dir),
         other => bail!("unknown experiment {other:?} in {}", dir.display()),
     }
+}
+
+fn summarise<E: Experiment>(dir: &Path) -> Result<()> {
+    print_summary(E::console(&E::summarise_dir(dir)?, dir))
 }
 
 #[derive(Debug, Args)]
@@ -321,13 +326,13 @@ impl LifelongArgs {
             || self.world_seed.is_some()
     }
 
-    fn config(&self, runs: Option<usize>) -> LifelongConfig {
+    fn config(&self) -> LifelongConfig {
         let mut config = if self.quick {
             LifelongConfig::quick()
         } else {
             LifelongConfig::standard()
         };
-        if let Some(runs) = self.runs.or(runs) {
+        if let Some(runs) = self.runs {
             config.runs = runs;
         }
         if let Some(n) = self.episodes {
@@ -350,43 +355,14 @@ impl LifelongArgs {
 }
 
 fn run_lifelong(args: &LifelongArgs) -> Result<()> {
-    set_threads(args.threads)?;
-    let (options, out, resumed) =
-        args.jobs
-            .resolve(&args.out, lifelong::EXPERIMENT, args.settings_given())?;
-    let config = match &resumed {
-        Some(m) => m.settings()?,
-        None => args.config(None),
-    };
-    if let Some(report) = lifelong_with(&config, &out, options)? {
-        print_summary(console::lifelong(&report, &out))?;
-    }
+    run_experiment(
+        &args.out,
+        args.threads,
+        &args.jobs,
+        args.settings_given(),
+        || args.config(),
+    )?;
     Ok(())
-}
-
-/// Runs (a share of) the lifelong benchmark with a progress bar; `None` for a shard.
-fn lifelong_with(
-    config: &LifelongConfig,
-    out: &Path,
-    options: JobOptions,
-) -> Result<Option<LifelongReport>> {
-    eprintln!(
-        "lifelong experiment: {} runs (the progress counts these runs) of a sequence of {} tasks from {} worlds ({} not logistic), {} episodes each, M = {}, recency {}, seed {}{} -> {}",
-        config.runs,
-        config.rounds * config.worlds(),
-        config.worlds(),
-        config.table_worlds,
-        config.episodes,
-        config.max_views,
-        config.recency,
-        config.seed,
-        shard_note(options),
-        out.display()
-    );
-    let bar = progress_bar("lifelong");
-    let report = lifelong::run_with(config, out, options, &bar.callback())?;
-    bar.finish(out, "lifelong", options);
-    Ok(report)
 }
 
 #[derive(Debug, Args)]
@@ -418,13 +394,13 @@ impl Fig4Args {
         self.runs.is_some() || self.long_episodes.is_some() || self.quick || self.seed.is_some()
     }
 
-    fn config(&self, runs: Option<usize>) -> Fig4Config {
+    fn config(&self) -> Fig4Config {
         let mut config = if self.quick {
             Fig4Config::quick()
         } else {
             Fig4Config::paper()
         };
-        if let Some(runs) = self.runs.or(runs) {
+        if let Some(runs) = self.runs {
             config.runs = runs;
         }
         if let Some(n) = self.long_episodes {
@@ -438,36 +414,14 @@ impl Fig4Args {
 }
 
 fn run_fig4(args: &Fig4Args) -> Result<()> {
-    set_threads(args.threads)?;
-    let (options, out, resumed) =
-        args.jobs
-            .resolve(&args.out, fig4::EXPERIMENT, args.settings_given())?;
-    let config = match &resumed {
-        Some(m) => m.settings()?,
-        None => args.config(None),
-    };
-    if let Some(report) = fig4_with(&config, &out, options)? {
-        print_summary(console::fig4(&report, &out))?;
-    }
+    run_experiment(
+        &args.out,
+        args.threads,
+        &args.jobs,
+        args.settings_given(),
+        || args.config(),
+    )?;
     Ok(())
-}
-
-/// Runs (a share of) the Fig. 4a and 4c experiment with a progress bar; `None` for a shard.
-fn fig4_with(config: &Fig4Config, out: &Path, options: JobOptions) -> Result<Option<Fig4Report>> {
-    eprintln!(
-        "fig4 experiment: {} runs of the long run ({} episodes on task {}) and of each of {} same-dynamics pairs (the progress counts these runs), seed {}{} -> {}",
-        config.runs,
-        config.convergence_episodes,
-        config.convergence_task,
-        config.pairs.len(),
-        config.seed,
-        shard_note(options),
-        out.display()
-    );
-    let bar = progress_bar("fig4");
-    let report = fig4::run_with(config, out, options, &bar.callback())?;
-    bar.finish(out, "fig4", options);
-    Ok(report)
 }
 
 #[derive(Debug, Args)]
@@ -636,13 +590,13 @@ impl TransferArgs {
             || self.prune_one_per_task
     }
 
-    fn config(&self, runs: Option<usize>) -> TransferConfig {
+    fn config(&self) -> TransferConfig {
         let mut config = if self.quick {
             TransferConfig::quick()
         } else {
             TransferConfig::paper()
         };
-        if let Some(runs) = self.runs.or(runs) {
+        if let Some(runs) = self.runs {
             config.runs = runs;
         }
         if let Some(tasks) = &self.tasks {
@@ -670,41 +624,55 @@ impl TransferArgs {
 }
 
 fn run_transfer(args: &TransferArgs) -> Result<()> {
-    set_threads(args.threads)?;
-    let (options, out, resumed) =
-        args.jobs
-            .resolve(&args.out, transfer::EXPERIMENT, args.settings_given())?;
-    let config = match &resumed {
-        Some(m) => m.settings()?,
-        None => args.config(None),
-    };
-    if let Some(report) = transfer_with(&config, &out, options)? {
-        print_summary(console::transfer(&report, &out))?;
-    }
+    run_experiment(
+        &args.out,
+        args.threads,
+        &args.jobs,
+        args.settings_given(),
+        || args.config(),
+    )?;
     Ok(())
 }
 
-/// Runs (a share of) the transfer experiment with a progress bar; `None` for a shard.
-fn transfer_with(
-    config: &TransferConfig,
+/// Runs one experiment from its command line: the settings given (or a resumed folder's),
+/// the jobs with progress, and the console summary of a complete run. Returns the settings
+/// that ran.
+fn run_experiment<E: Experiment>(
+    out: &Path,
+    threads: Option<usize>,
+    jobs: &JobArgs,
+    settings_given: bool,
+    config: impl FnOnce() -> E,
+) -> Result<E> {
+    set_threads(threads)?;
+    let (options, out, resumed) = jobs.resolve(out, E::NAME, settings_given)?;
+    let config = match &resumed {
+        Some(m) => m.settings()?,
+        None => config(),
+    };
+    if let Some(report) = with_progress(&config, &out, options)? {
+        print_summary(E::console(&report, &out))?;
+    }
+    Ok(config)
+}
+
+/// Runs (a share of) an experiment with a line saying what runs and a progress bar; `None`
+/// for a shard.
+fn with_progress<E: Experiment>(
+    config: &E,
     out: &Path,
     options: JobOptions,
-) -> Result<Option<TransferReport>> {
+) -> Result<Option<E::Report>> {
     eprintln!(
-        "transfer experiment: test tasks {:?}, {} runs of each method on each (the progress counts these runs), training on {} tasks x {} episodes, {} test episodes, seed {}, world seed {}{} -> {}",
-        config.test_tasks,
-        config.runs,
-        config.training_tasks,
-        config.train_episodes,
-        config.test_episodes,
-        config.seed,
-        config.world_seed,
+        "{} experiment: {}{} -> {}",
+        E::NAME,
+        config.describe(),
         shard_note(options),
         out.display()
     );
-    let bar = progress_bar("transfer");
-    let report = transfer::run_with(config, out, options, &bar.callback())?;
-    bar.finish(out, "transfer", options);
+    let bar = progress_bar(E::NAME);
+    let report = config.run_with(out, options, &bar.callback())?;
+    bar.finish(out, E::NAME, options);
     Ok(report)
 }
 
@@ -797,13 +765,13 @@ impl GridArgs {
             || self.methods.is_some()
     }
 
-    fn config(&self, runs: Option<usize>) -> GridConfig {
+    fn config(&self) -> GridConfig {
         let mut config = if self.quick {
             GridConfig::quick()
         } else {
             GridConfig::paper(20, 800)
         };
-        if let Some(runs) = self.runs.or(runs) {
+        if let Some(runs) = self.runs {
             config.runs = runs;
         }
         if let Some(episodes) = self.episodes {
@@ -850,17 +818,13 @@ fn method(text: &str) -> Result<Method, String> {
 }
 
 fn run_grid(args: &GridArgs) -> Result<()> {
-    set_threads(args.threads)?;
-    let (options, out, resumed) =
-        args.jobs
-            .resolve(&args.out, grid::EXPERIMENT, args.settings_given())?;
-    let config = match &resumed {
-        Some(m) => m.settings()?,
-        None => args.config(None),
-    };
-    if let Some(report) = grid_with(&config, &out, options)? {
-        print_summary(console::grid(&report, &out))?;
-    }
+    let config = run_experiment(
+        &args.out,
+        args.threads,
+        &args.jobs,
+        args.settings_given(),
+        || args.config(),
+    )?;
     if let Some(path) = &args.draw {
         draw_grid_run(&config, path, args.draw_episodes)?;
     }
@@ -892,27 +856,6 @@ fn draw_grid_run(config: &GridConfig, path: &Path, episodes: usize) -> Result<()
     Ok(())
 }
 
-/// Runs (a share of) the grid experiment with a progress bar; `None` for a shard.
-fn grid_with(config: &GridConfig, out: &Path, options: JobOptions) -> Result<Option<GridReport>> {
-    if config.runs == 0 || config.episodes == 0 {
-        bail!("--runs and --episodes must be at least 1");
-    }
-    eprintln!(
-        "grid experiment: {} runs x {} episodes of each method at each count of irrelevant features {:?} (the progress counts these runs), seeds {}.., world seed {}{} -> {}",
-        config.runs,
-        config.episodes,
-        config.irrelevant_levels,
-        config.seed,
-        config.world_seed,
-        shard_note(options),
-        out.display()
-    );
-    let bar = progress_bar("grid");
-    let report = grid::run_with(config, out, options, &bar.callback())?;
-    bar.finish(out, "grid", options);
-    Ok(report)
-}
-
 impl RobotArgs {
     fn settings_given(&self) -> bool {
         self.runs.is_some()
@@ -922,13 +865,13 @@ impl RobotArgs {
             || self.seed.is_some()
     }
 
-    fn config(&self, runs: Option<usize>) -> RobotConfig {
+    fn config(&self) -> RobotConfig {
         let mut config = if self.quick {
             RobotConfig::quick()
         } else {
             RobotConfig::paper()
         };
-        if let Some(n) = self.runs.or(runs) {
+        if let Some(n) = self.runs {
             config.runs = n;
         }
         if let Some(n) = self.episodes {
@@ -945,39 +888,14 @@ impl RobotArgs {
 }
 
 fn run_robot(args: &RobotArgs) -> Result<()> {
-    set_threads(args.threads)?;
-    let (options, out, resumed) =
-        args.jobs
-            .resolve(&args.out, robot::EXPERIMENT, args.settings_given())?;
-    let config = match &resumed {
-        Some(m) => m.settings()?,
-        None => args.config(None),
-    };
-    if let Some(report) = robot_with(&config, &out, options)? {
-        print_summary(console::robot(&report, &out))?;
-    }
+    run_experiment(
+        &args.out,
+        args.threads,
+        &args.jobs,
+        args.settings_given(),
+        || args.config(),
+    )?;
     Ok(())
-}
-
-/// Runs (a share of) the robot study with a progress bar; `None` for a shard.
-fn robot_with(
-    config: &RobotConfig,
-    out: &Path,
-    options: JobOptions,
-) -> Result<Option<RobotReport>> {
-    eprintln!(
-        "robot experiment: {} runs of each method (the progress counts these runs), {} episodes on Env 3 after {} per earlier arena, seeds {}..{} -> {}",
-        config.runs,
-        config.episodes,
-        config.train_episodes,
-        config.seed,
-        shard_note(options),
-        out.display()
-    );
-    let bar = progress_bar("robot");
-    let report = robot::run_with(config, out, options, &bar.callback())?;
-    bar.finish(out, "robot", options);
-    Ok(report)
 }
 
 fn run_all(args: &AllArgs) -> Result<()> {
@@ -1011,11 +929,11 @@ fn run_all(args: &AllArgs) -> Result<()> {
     };
     let started = std::time::Instant::now();
     let c = &study.configs;
-    let g = grid_with(&c.grid, &study.dir(grid::EXPERIMENT), options)?;
-    let t = transfer_with(&c.transfer, &study.dir(transfer::EXPERIMENT), options)?;
-    let r = robot_with(&c.robot, &study.dir(robot::EXPERIMENT), options)?;
-    let f = fig4_with(&c.fig4, &study.dir(fig4::EXPERIMENT), options)?;
-    let l = lifelong_with(&c.lifelong, &study.dir(lifelong::EXPERIMENT), options)?;
+    let g = with_progress(&c.grid, &study.dir(grid::EXPERIMENT), options)?;
+    let t = with_progress(&c.transfer, &study.dir(transfer::EXPERIMENT), options)?;
+    let r = with_progress(&c.robot, &study.dir(robot::EXPERIMENT), options)?;
+    let f = with_progress(&c.fig4, &study.dir(fig4::EXPERIMENT), options)?;
+    let l = with_progress(&c.lifelong, &study.dir(lifelong::EXPERIMENT), options)?;
     let (Some(g), Some(t), Some(r), Some(f), Some(l)) = (g, t, r, f, l) else {
         println!(
             "shard {} of the study written to {}; combine the shards with `tes experiment merge DIR... --out DIR`",
