@@ -12,7 +12,9 @@
 //!    MotorState) with the same wait strategy, no work, and the same cadence (the mean time
 //!    between our actions, mostly the simulated robot moving), measured where the bridge
 //!    measures: by [`crate::relay`]'s three processes over iceoryx2, or by the same two hops
-//!    over the split launch's Zenoh link;
+//!    over the split launch's Zenoh link; at the fastest pace it runs again with every CPU
+//!    kept out of its idle state ([`crate::keep_awake`]), the help the group's busy
+//!    processes give each other;
 //! 3. with `record` and `foxglove`, what the recorder and the live Foxglove server (with a
 //!    viewer) cost the group ([`crate::recorder_cost`]).
 //!
@@ -36,7 +38,7 @@ use tes_controller::process::ControllerSummary;
 use tes_launch::ChildCommand;
 use tes_launch::event::Observer;
 use tes_learning::library::store::StoredLibrary;
-use tes_runtime::affinity::Placement;
+use tes_runtime::affinity::{self, Placement};
 use tes_runtime::channel::Catches;
 use tes_runtime::channel::WaitStrategy;
 use tes_runtime::cpu::CpuUse;
@@ -46,6 +48,7 @@ use crate::error::{BenchError, Result};
 use crate::fixtures;
 use crate::floor;
 use crate::group::{Carrier, Group};
+use crate::keep_awake::KeepAwake;
 use crate::recorder_cost::{self, RecorderComparison, Watcher};
 
 /// How the group's processes reach each other.
@@ -304,6 +307,8 @@ pub enum Note {
         wait: WaitStrategy,
         /// One round trip every this many µs.
         cycle_us: u64,
+        /// Whether every CPU is kept awake while it runs ([`crate::keep_awake`]).
+        awake: bool,
     },
     /// A block of an observer's comparison runs.
     RecorderBlock {
@@ -349,6 +354,7 @@ impl fmt::Display for Note {
                 total,
                 wait,
                 cycle_us,
+                awake,
             } => {
                 let kind = match via {
                     Via::Shm => "a raw iceoryx2 two-hop relay",
@@ -364,7 +370,12 @@ impl fmt::Display for Note {
                 write!(
                     f,
                     "bench: the floor — {kind}, {total} round trips, wait {wait}, one every \
-                     {cycle_us} us"
+                     {cycle_us} us{}",
+                    if *awake {
+                        ", every CPU kept awake by a SCHED_IDLE spinner"
+                    } else {
+                        ""
+                    }
                 )
             }
             Self::RecorderBlock {
@@ -451,6 +462,10 @@ pub struct LatencyResult {
     /// Whether the floor can be compared with: a ratio below [`COMPARABLE_RATIO`] means the
     /// group had a help the floor lacked, not that it beat its transport.
     pub floor_comparable: bool,
+    /// At the fastest pace, the floor again with every CPU kept out of its idle state
+    /// ([`crate::keep_awake`]): the help a group's busy processes give each other, given to
+    /// the floor (null at the robot's pace, where both sides wake from the same idleness).
+    pub floor_awake: Option<AwakeFloor>,
     /// The pace the group ran at: `fastest` or `real`.
     pub pace: Pace,
     /// Each process's CPU over the measured actions, by name (`perception-sim`,
@@ -517,6 +532,42 @@ impl LatencyResult {
 /// not comparable.
 pub const COMPARABLE_RATIO: f64 = 0.9;
 
+/// Whether a floor with these ratios (ours over the floor's) can be compared with.
+fn comparable(ratio_p50: f64, ratio_p99: f64) -> bool {
+    ratio_p50 >= COMPARABLE_RATIO && ratio_p99 >= COMPARABLE_RATIO
+}
+
+/// The floor measured with every CPU kept awake, and ours against it.
+#[derive(Debug, Clone, Serialize)]
+pub struct AwakeFloor {
+    /// Observation stamped → command at the sink.
+    pub round_trip: LatencyReport,
+    /// Observation stamped → the hop's command published.
+    pub first_hop: LatencyReport,
+    /// Ours over this floor's, at the median.
+    pub ratio_p50: f64,
+    /// Ours over this floor's, at the 99th percentile.
+    pub ratio_p99: f64,
+    /// Whether this floor can be compared with (both ratios at least [`COMPARABLE_RATIO`]).
+    pub comparable: bool,
+}
+
+impl AwakeFloor {
+    fn against(ours: &LatencyReport, floor: Floor) -> Self {
+        let (ratio_p50, ratio_p99) = (
+            ratio(ours.p50_us, floor.round_trip.p50_us),
+            ratio(ours.p99_us, floor.round_trip.p99_us),
+        );
+        Self {
+            round_trip: floor.round_trip,
+            first_hop: floor.first_hop,
+            ratio_p50,
+            ratio_p99,
+            comparable: comparable(ratio_p50, ratio_p99),
+        }
+    }
+}
+
 /// Our group's run: the bridge's report, the controller's summary, the processes' CPU, and
 /// the mean time between actions.
 struct Ours {
@@ -567,7 +618,21 @@ pub fn run(latency: &CheckedLatency, harness: &mut Harness<'_>) -> Result<Latenc
     };
     let group = Group::new(dir, &prefix, latency, stored);
     let ours = measure_ours(latency, &group, harness)?;
-    let floor = measure_floor(latency, dir, &prefix, ours.cycle_us, harness)?;
+    let floor = measure_floor(latency, dir, &prefix, ours.cycle_us, false, harness)?;
+    // At the robot's pace both sides wake from the same idleness (that is what the pace
+    // measures); back to back, the group's busy processes keep CPUs awake for each other,
+    // which the bare floor lacks: it runs again with that help.
+    let floor_awake = match s.pace {
+        Pace::Fastest => Some(measure_floor(
+            latency,
+            dir,
+            &prefix,
+            ours.cycle_us,
+            true,
+            harness,
+        )?),
+        Pace::Real => None,
+    };
     let recorder = if s.record {
         Some(recorder_cost::compare(
             &group,
@@ -588,7 +653,13 @@ pub fn run(latency: &CheckedLatency, harness: &mut Harness<'_>) -> Result<Latenc
     } else {
         None
     };
-    Ok(result(latency, ours, floor, [recorder, foxglove]))
+    Ok(result(
+        latency,
+        ours,
+        floor,
+        floor_awake,
+        [recorder, foxglove],
+    ))
 }
 
 /// Runs our group (shared memory or split) and checks it measured what was asked.
@@ -634,12 +705,14 @@ fn measure_ours(
     })
 }
 
-/// Runs the floor of `via` at our cadence: its round trip, and its first hop alone.
+/// Runs the floor of `via` at our cadence (with `awake`, every CPU kept out of its idle
+/// state, in a folder and service names of its own): its round trip, and its first hop alone.
 fn measure_floor(
     latency: &CheckedLatency,
     dir: &Path,
     prefix: &str,
     cycle_us: u64,
+    awake: bool,
     harness: &mut Harness<'_>,
 ) -> Result<Floor> {
     let s = &latency.settings;
@@ -648,7 +721,27 @@ fn measure_floor(
         total: latency.total(),
         wait: s.wait,
         cycle_us,
+        awake,
     });
+    if !awake {
+        return floor_of_via(latency, dir, prefix, cycle_us, harness);
+    }
+    let dir = dir.join("floor-awake");
+    std::fs::create_dir_all(&dir)
+        .map_err(BenchError::io(format!("cannot create {}", dir.display())))?;
+    let _awake = KeepAwake::start(&affinity::allowed_cpus())?;
+    floor_of_via(latency, &dir, &format!("{prefix}awake-"), cycle_us, harness)
+}
+
+/// The floor of `via`: a raw relay over shared memory, or the link's two hops.
+fn floor_of_via(
+    latency: &CheckedLatency,
+    dir: &Path,
+    prefix: &str,
+    cycle_us: u64,
+    harness: &mut Harness<'_>,
+) -> Result<Floor> {
+    let s = &latency.settings;
     let hop_cpu = latency.placement.acting;
     match s.via {
         Via::Shm => {
@@ -688,6 +781,7 @@ fn result(
     latency: &CheckedLatency,
     ours: Ours,
     floor: Floor,
+    floor_awake: Option<Floor>,
     [recorder, foxglove]: [Option<RecorderComparison>; 2],
 ) -> LatencyResult {
     let s = &latency.settings;
@@ -707,6 +801,7 @@ fn result(
         ratio(report.p50_us, floor.p50_us),
         ratio(report.p99_us, floor.p99_us),
     );
+    let floor_awake = floor_awake.map(|f| AwakeFloor::against(&report, f));
     LatencyResult {
         via: s.via,
         wait: s.wait.to_string(),
@@ -736,7 +831,8 @@ fn result(
         floor_decision,
         ratio_p50,
         ratio_p99,
-        floor_comparable: ratio_p50 >= COMPARABLE_RATIO && ratio_p99 >= COMPARABLE_RATIO,
+        floor_comparable: comparable(ratio_p50, ratio_p99),
+        floor_awake,
         pace: s.pace,
         cpu,
         floor_cpu,

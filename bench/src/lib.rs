@@ -4,7 +4,8 @@
 //! * [`latency`] — the controller's per-action latency, the real process group measured
 //!   against its floor in the same run (`tes bench latency`): the measured group, its
 //!   [`floor`] (by [`relay`] over shared memory, or over the Zenoh link), and with `record`
-//!   the [`recorder_cost`];
+//!   the [`recorder_cost`]; at the fastest pace the floor is measured again with every CPU
+//!   kept out of its idle state ([`keep_awake`]);
 //! * [`scaling`] — the acting step's cost against the number of features and views
 //!   (`tes bench scaling`);
 //! * [`fixtures`] — the learned arena libraries the harnesses and the benches run on.
@@ -16,6 +17,7 @@ pub mod error;
 pub mod fixtures;
 pub mod floor;
 mod group;
+pub mod keep_awake;
 pub mod latency;
 pub mod recorder_cost;
 pub mod relay;

@@ -304,6 +304,21 @@ impl MdaglRace {
     /// The race's bookkeeping for the `n` rows just learned, row by row as
     /// [`update`](Self::update) does it, from the records in `self.block`.
     fn weigh_run(&mut self, n: usize, out: &mut Vec<Prequential>) {
+        if let [lone] = self.entrants.as_mut_slice() {
+            // A lone entrant is its own mixture (weight 1: the mixture's log-probability is
+            // its own, to the bit) and the leader: its records are the race's.
+            for record in &self.block[..n] {
+                lone.loss -= record.log_prob;
+                lone.recent -= record.log_prob;
+            }
+            out.extend_from_slice(&self.block[..n]);
+            self.rows += n as u64;
+            // A run ends at a cut, so a cut can only be due after its last row.
+            if self.rows >= self.next_cut {
+                self.cut();
+            }
+            return;
+        }
         for row in 0..n {
             self.log_probs.clear();
             self.log_probs

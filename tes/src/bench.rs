@@ -369,6 +369,10 @@ fn print_latency(result: &LatencyResult, warmup: u64) {
         &result.floor(),
     );
     row("floor: first hop only", &result.floor_decision);
+    if let Some(awake) = &result.floor_awake {
+        row("floor, every CPU kept awake", &awake.round_trip);
+        row("  its first hop only", &awake.first_hop);
+    }
     row("ours: observation -> bridge", &result.ours());
     row("ours: controller decision only", &result.decision);
     row("  of which: stamp -> received", &result.wake);
@@ -390,6 +394,18 @@ fn print_latency(result: &LatencyResult, warmup: u64) {
             _ => "not counted".to_owned(),
         }
     );
+    if let Some(awake) = &result.floor_awake {
+        println!(
+            "ratio ours/floor with every CPU kept awake: p50 {:.2}, p99 {:.2}{}",
+            awake.ratio_p50,
+            awake.ratio_p99,
+            if awake.comparable {
+                ""
+            } else {
+                " — not comparable either"
+            }
+        );
+    }
     print_cpu(result);
     for r in [&result.recorder, &result.foxglove].into_iter().flatten() {
         print_observer_cost(r);

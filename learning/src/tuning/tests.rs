@@ -306,11 +306,24 @@ fn blocks_on_any_number_of_threads_learn_as_rows_one_by_one() {
     };
     let (rows, _) = stream(shape);
     let grid = auto_grid(None, None, true);
-    let schedule = RaceSchedule {
-        first_cut: 300,
-        finalists: 2,
-    };
-    let new_race = || MdaglRace::new(shape.classes, shape.features, &grid, schedule).expect("race");
+    // Two finalists weigh every row as a mixture to the end; one predicts alone after 2 400
+    // rows, on the race's shorter path.
+    for finalists in [2, 1] {
+        let schedule = RaceSchedule {
+            first_cut: 300,
+            finalists,
+        };
+        blocks_learn_as_rows_one_by_one(shape, &rows, &grid, schedule);
+    }
+}
+
+fn blocks_learn_as_rows_one_by_one(
+    shape: StreamShape,
+    rows: &[(Vec<u32>, usize)],
+    grid: &[MdaglParams],
+    schedule: RaceSchedule,
+) {
+    let new_race = || MdaglRace::new(shape.classes, shape.features, grid, schedule).expect("race");
     let mut one_by_one = new_race();
     let expected: Vec<Prequential> = rows
         .iter()
@@ -333,7 +346,10 @@ fn blocks_on_any_number_of_threads_learn_as_rows_one_by_one() {
             race.update_block(&batch, &mut out).expect("block");
             got.extend_from_slice(&out);
         }
-        assert_eq!(got, expected, "{threads} threads, blocks of {block}");
+        assert_eq!(
+            got, expected,
+            "{threads} threads, blocks of {block}, {schedule:?}"
+        );
         assert_eq!(race.standings(), one_by_one.standings());
         assert_eq!(race.model(), one_by_one.model());
     }

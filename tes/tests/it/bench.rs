@@ -165,6 +165,13 @@ fn latency_runs_both_paths_and_reports_every_key() {
     let comparable =
         v["ratio_p50"].as_f64().unwrap() >= 0.9 && v["ratio_p99"].as_f64().unwrap() >= 0.9;
     assert_eq!(v["floor_comparable"], comparable, "{v}");
+    // At the fastest pace the floor runs again with every CPU kept awake.
+    let awake = &v["floor_awake"];
+    assert_eq!(awake["round_trip"]["count"], 150, "{v}");
+    assert_eq!(awake["first_hop"]["count"], 150, "{v}");
+    let awake_comparable =
+        awake["ratio_p50"].as_f64().unwrap() >= 0.9 && awake["ratio_p99"].as_f64().unwrap() >= 0.9;
+    assert_eq!(awake["comparable"], awake_comparable, "{v}");
     assert_cpu_reported(&v);
     assert_eq!(v["acting_cpu"], acting, "{v}");
     assert_eq!(v["planner_cpu"], planner, "{v}");
@@ -246,6 +253,8 @@ fn latency_at_the_robots_pace_anticipates_and_reports_cpu() {
     for part in ["decision", "floor_decision"] {
         assert_eq!(v[part]["count"], 20, "{part}: {v}");
     }
+    // At this pace both sides wake from the same idleness: no floor kept awake.
+    assert!(v["floor_awake"].is_null(), "{v}");
     assert_floor_consistent(&v);
     assert_cpu_reported(&v);
     // Both anticipating receivers kept score of every message they took.
@@ -266,7 +275,14 @@ fn latency_via_zenoh_runs_the_split_group_and_its_floor_in_one_invocation() {
 /// alike.
 #[test]
 fn latency_via_zenoh_tls_runs_both_over_quic_with_the_runs_keys() {
-    split_group_and_its_floor("zenoh-tls", &["keys/ca.pem", "floor/keys/ca.pem"]);
+    split_group_and_its_floor(
+        "zenoh-tls",
+        &[
+            "keys/ca.pem",
+            "floor/keys/ca.pem",
+            "floor-awake/floor/keys/ca.pem",
+        ],
+    );
 }
 
 /// `tes bench latency --via VIA` measures the split group and its floor in one invocation;
@@ -302,6 +318,9 @@ fn split_group_and_its_floor(via: &str, kept: &[&str]) {
     for part in ["decision", "floor_decision"] {
         assert_eq!(v[part]["count"], 100, "{part}: {v}");
     }
+    // And the floor again with every CPU kept awake, in a folder of its own.
+    assert_eq!(v["floor_awake"]["round_trip"]["count"], 100, "{v}");
+    assert_eq!(v["floor_awake"]["first_hop"]["count"], 100, "{v}");
     assert_floor_consistent(&v);
     // Across the link the acting path still allocates nothing.
     assert_eq!(v["allocations"], 0, "{v}");
@@ -313,6 +332,7 @@ fn split_group_and_its_floor(via: &str, kept: &[&str]) {
             "controller.json",
             "bridge.json",
             "controller-launch.log",
+            "floor-awake/floor-first-hop.json",
         ],
     );
     assert_kept(&out, kept);
