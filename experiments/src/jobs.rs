@@ -178,8 +178,8 @@ fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
     fs::rename(&tmp, path).with_context(|| format!("cannot rename {}", tmp.display()))
 }
 
-/// The job indices recorded in `dir/jobs`.
-fn recorded(dir: &Path) -> Result<Vec<usize>> {
+/// The job indices recorded in `dir/jobs` (none if it has no such folder), sorted.
+pub fn recorded(dir: &Path) -> Result<Vec<usize>> {
     let jobs = dir.join(JOBS);
     if !jobs.is_dir() {
         return Ok(Vec::new());

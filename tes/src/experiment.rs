@@ -646,6 +646,7 @@ fn run_experiment<E: Experiment>(
 ) -> Result<E> {
     set_threads(threads)?;
     let (options, out, resumed) = jobs.resolve(out, E::NAME, settings_given)?;
+    stop_on_interrupt(&out, E::NAME, std::slice::from_ref(&out))?;
     let config = match &resumed {
         Some(m) => m.settings()?,
         None => config(),
@@ -674,6 +675,37 @@ fn with_progress<E: Experiment>(
     let report = config.run_with(out, options, &bar.callback())?;
     bar.finish(out, E::NAME, options);
     Ok(report)
+}
+
+/// Ctrl-C or SIGTERM stops the run at once and says how to go on: every finished run is
+/// already on disk in one of `folders` (its record is written whole or not at all), and
+/// `tes experiment WHICH --resume OUT` runs the rest. Installed by the command itself, so a
+/// run started with SIGINT ignored (a script's background job) still stops when told to.
+fn stop_on_interrupt(out: &Path, which: &str, folders: &[PathBuf]) -> Result<()> {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let mut signals = signal_hook::iterator::Signals::new([SIGINT, SIGTERM])
+        .context("cannot install the signal handlers")?;
+    let (out, which, folders) = (out.to_owned(), which.to_owned(), folders.to_owned());
+    std::thread::Builder::new()
+        .name("interrupt".into())
+        .spawn(move || {
+            let Some(signal) = signals.forever().next() else {
+                return;
+            };
+            let kept: usize = folders
+                .iter()
+                .map(|f| jobs::recorded(f).map_or(0, |r| r.len()))
+                .sum();
+            eprintln!(
+                "\nexperiment {which}: interrupted; the {kept} runs recorded in {} are kept; \
+                 run the rest with `tes experiment {which} --resume {}`",
+                out.display(),
+                out.display()
+            );
+            std::process::exit(128 + signal);
+        })
+        .context("cannot start the signal thread")?;
+    Ok(())
 }
 
 fn shard_note(options: JobOptions) -> String {
@@ -923,6 +955,8 @@ fn run_all(args: &AllArgs) -> Result<()> {
             Study::prepare(&args.out, configs, args.jobs.shard.unwrap_or(Shard::ALL))?
         }
     };
+    let folders: Vec<PathBuf> = study::EXPERIMENTS.map(|e| study.dir(e)).into();
+    stop_on_interrupt(&study.out, "all", &folders)?;
     let options = JobOptions {
         shard: study.shard,
         resume: true,
