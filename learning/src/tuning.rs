@@ -107,14 +107,18 @@ pub struct BlockError {
     pub source: MdaglError,
 }
 
-/// One entrant learns `run` in order, keeping each row's prequential record.
+/// One entrant learns `run` in order, keeping each row's prequential record. The rows were
+/// checked for every entrant ([`MdaglRace::update_block`]).
 fn learn_entrant(
     entrant: &mut Entrant,
     run: &[(Features<'_>, usize)],
     records: &mut [Prequential],
 ) -> Result<(), (usize, MdaglError)> {
     for (row, (&(x, label), record)) in run.iter().zip(records).enumerate() {
-        *record = entrant.model.update(x, label).map_err(|e| (row, e))?;
+        *record = entrant
+            .model
+            .update_checked(x, label)
+            .map_err(|e| (row, e))?;
     }
     Ok(())
 }

@@ -408,6 +408,32 @@ fn recovers_the_relevant_columns_among_200_irrelevant_features() {
     }
 }
 
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+
+    /// Binary rows take their own path (two columns at a time); it learns exactly what the
+    /// same rows given densely learn, to the bit, with or without an intercept and with an
+    /// odd or even number of active columns.
+    #[test]
+    fn binary_rows_learn_as_their_dense_twins_to_the_bit(
+        (k, d, rows, _) in stream(),
+        intercept in any::<bool>(),
+        lambda in prop_oneof![Just(0.0), 0.001..0.1f64],
+    ) {
+        let params = MdaglParams { lambda, alpha: 0.5, intercept };
+        let mut binary = Mdagl::new(k, d, params).unwrap();
+        let mut dense_twin = binary.clone();
+        for (y, x) in &rows {
+            let x: Vec<f64> = x.iter().map(|&v| f64::from(v != 0.0)).collect();
+            let active: Vec<u32> = (0..d as u32).filter(|&i| x[i as usize] != 0.0).collect();
+            let a = binary.update(Features::SparseBinary(&active), *y).unwrap();
+            let b = dense_twin.update(Features::Dense(&x), *y).unwrap();
+            prop_assert_eq!(a, b);
+        }
+        prop_assert_eq!(&binary, &dense_twin);
+    }
+}
+
 #[test]
 fn dense_and_sparse_inputs_agree() {
     let spec = SyntheticSpec {
