@@ -783,8 +783,9 @@ fn accumulate(sums: &mut [f64], norms: &mut [f64], g: &[f64], col: usize, value:
 
 /// [`accumulate`] for binary features (value 1, strictly increasing columns), two columns at
 /// a time. Each norm is still the sum of its squares in class order, so the sums and norms are
-/// the same to the bit; but a norm is a chain of dependent additions, and two chains in
-/// flight instead of one halve the time the chain's latency costs.
+/// the same to the bit; but a norm is a chain of dependent additions, and with two chains in
+/// flight the processor waits on the adder less (2–3 % off an update here; four chains
+/// measured no faster). Relies on the row having passed [`Features::validate`].
 #[inline]
 fn accumulate_binary(sums: &mut [f64], norms: &mut [f64], g: &[f64], columns: &[u32]) {
     let k = g.len();
