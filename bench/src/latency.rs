@@ -90,7 +90,7 @@ pub enum Pace {
 }
 
 impl Pace {
-    /// Actions measured by default: at the robot's pace ~13 minutes a side.
+    /// Actions measured by default: at the robot's pace ~14 minutes a side.
     pub fn default_actions(self) -> u64 {
         match self {
             Self::Fastest => 10_000,

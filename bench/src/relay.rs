@@ -25,7 +25,7 @@ use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
 use tes_runtime::channel::{
-    self, Idle, Inbox, IpcError, LatestInbox, LatestOutbox, Outbox, WaitStrategy,
+    self, Idle, Inbox, IpcError, LatestInbox, LatestOutbox, Loan, Outbox, WaitStrategy,
 };
 use tes_runtime::clock::monotonic_ns;
 use tes_runtime::cpu::CpuMeter;
@@ -255,8 +255,8 @@ fn source(
         &names.observation_due_event,
         0,
     )?;
-    // Where perception runs when its receivers anticipate: off the hop's CPU.
-    if cfg.announce && cfg.wait == WaitStrategy::Anticipate {
+    // Where perception runs when it announces: off the hop's CPU.
+    if cfg.announce {
         tes_runtime::affinity::pin_off_the_acting_cpu()?;
     }
     let mut cpu = CpuMeter::process();
@@ -267,22 +267,26 @@ fn source(
         features.set(i);
     }
     for seq in 1..=cfg.messages {
+        let mut loan = None;
         if !gap.is_zero() && seq > 1 {
-            pause(cfg, &heads_up, seq, gap)?;
+            loan = pause(cfg, &out, &heads_up, seq, gap)?;
         }
         let last = seq == cfg.messages;
         let started = Instant::now();
         // Until the other two are up, an observation may reach nobody: send it again.
         'resend: loop {
             out.update_connections()?;
-            out.send(Observation {
-                seq,
-                stamp_ns: monotonic_ns(),
-                n_features: tes_topics::ARENA_FEATURES as u32,
-                features,
-                flags: if last { observation_flags::TERMINAL } else { 0 },
-                ..Observation::default()
-            })?;
+            out.send_in(
+                loan.take(),
+                Observation {
+                    seq,
+                    stamp_ns: monotonic_ns(),
+                    n_features: tes_topics::ARENA_FEATURES as u32,
+                    features,
+                    flags: if last { observation_flags::TERMINAL } else { 0 },
+                    ..Observation::default()
+                },
+            )?;
             // As perception does at the robot's pace: the receivers run first.
             if cfg.announce {
                 std::thread::yield_now();
@@ -307,21 +311,23 @@ fn source(
 }
 
 /// The source's pause before observation `seq`, as perception's settle: announced and kept
-/// with `announce`, a plain sleep without.
+/// with `announce` (the observation's sample loaned just before), a plain sleep without.
 fn pause(
     cfg: &RelayConfig,
+    out: &Outbox<Observation>,
     heads_up: &Outbox<HeadsUp>,
     seq: u64,
     gap: Duration,
-) -> Result<(), RelayError> {
+) -> Result<Option<Loan<Observation>>, RelayError> {
     if !cfg.announce {
         std::thread::sleep(gap);
-        return Ok(());
+        return Ok(None);
     }
     let due_ns = monotonic_ns() + gap.as_nanos() as u64;
     heads_up.send(HeadsUp { seq, due_ns })?;
-    tes_runtime::anticipate::sleep_until(due_ns);
-    Ok(())
+    Ok(Some(tes_runtime::anticipate::sleep_until_with_loan(
+        due_ns, out,
+    )?))
 }
 
 fn hop(
@@ -332,7 +338,7 @@ fn hop(
     stop: &AtomicBool,
 ) -> Result<(), RelayError> {
     let names = cfg.names();
-    let observations: Inbox<Observation> =
+    let mut observations: Inbox<Observation> =
         Inbox::open(node, &names.observation, &names.observation_event, 0, wait)?.with_heads_up(
             node,
             &names.observation_due,
@@ -342,6 +348,8 @@ fn hop(
         LatestOutbox::open(node, &names.command, &names.command_event)?;
     if let Some(cpu) = cfg.hop_cpu {
         tes_runtime::affinity::pin_this_thread(cpu)?;
+        // As the controller's acting thread: polls without yielding when alone on its CPU.
+        observations.poll_alone(tes_runtime::affinity::kept_clear(cpu));
     }
     let helper = Helper::spawn(cfg);
     let mut cpu = CpuMeter::process();

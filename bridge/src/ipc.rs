@@ -240,7 +240,7 @@ pub fn run_with<T: Transport, C: Clock>(
     let mut cpu = CpuMeter::process();
     // Anticipating, it polls beside the controller's acting thread around each observation:
     // off that thread's CPU, so the acting thread polls alone.
-    tes_runtime::affinity::keep_off_the_acting_cpu(wait, "the bridge");
+    tes_runtime::affinity::keep_off_the_acting_cpu(wait == WaitStrategy::Anticipate, "the bridge");
     let states: Outbox<MotorState> =
         Outbox::open(&node, &names.motor_state, &names.motor_state_event, 0)?;
     let mut progress = ProgressOutbox::open(&node, names, Role::Bridge)?;

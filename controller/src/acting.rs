@@ -316,8 +316,8 @@ pub struct ActingLoop {
     in_flight: Option<InFlight>,
     episode: EpisodeTally,
     /// The episode that just ended, reported once the next command is out: perception
-    /// publishes the next episode's first observation right after the last one, so reporting
-    /// first would delay that action.
+    /// publishes the next episode's first observation right after the last one at the
+    /// fastest pace, so reporting first would delay that action.
     ended: Option<EpisodeLine>,
     last_sent_ns: u64,
     /// When the learning after the last command finished (deciding first), until the next
@@ -329,6 +329,9 @@ pub struct ActingLoop {
     learned_at_save: u64,
     /// The last command returned (a keep-alive carries it).
     last_command: Command,
+    /// What went wrong adopting a plan in [`prepare`](Self::prepare), reported by the next
+    /// observation.
+    prepare_failed: Option<ActingError>,
 }
 
 impl ActingLoop {
@@ -391,6 +394,7 @@ impl ActingLoop {
             last_save_ns: now_ns,
             learned_at_save: 0,
             last_command: Command::default(),
+            prepare_failed: None,
         })
     }
 
@@ -403,6 +407,9 @@ impl ActingLoop {
         clock: &impl Clock,
     ) -> Result<Step, ActingError> {
         let received_ns = clock.now_ns();
+        if let Some(e) = self.prepare_failed.take() {
+            return Err(e);
+        }
         let state = match self.admit(obs) {
             Ok(state) => state,
             Err(why) => {
@@ -633,6 +640,26 @@ impl ActingLoop {
     /// needs none); returns whether work is left.
     pub fn plan_between_polls(&mut self) -> bool {
         self.planner.work(self.agent.model_mut())
+    }
+
+    /// Gets ready for an observation due any moment (an anticipating wait calls it between
+    /// its polls): adopts a finished plan now rather than when the observation comes, and
+    /// reads the adopted policy once, so that the decision finds it in this CPU's cache
+    /// instead of in the planner's. The plan is the one the observation would have adopted
+    /// (the last offer was with the last command), so the decisions are the same. An error
+    /// is reported by the next [`on_observation`](Self::on_observation).
+    pub fn prepare(&mut self) {
+        if self.prepare_failed.is_some() {
+            return;
+        }
+        match self.planner.collect(self.agent.model_mut()) {
+            Ok(Some(_)) => {
+                let policy = self.agent.model_mut().planner().policy();
+                std::hint::black_box(policy.iter().fold(0, |a, &p| a ^ p));
+            }
+            Ok(None) => {}
+            Err(e) => self.prepare_failed = Some(e.into()),
+        }
     }
 
     /// Waits up to `timeout` for the plan in flight to be made, leaving its adoption to the

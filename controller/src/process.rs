@@ -180,7 +180,7 @@ pub fn run(
     log_placement(&checked);
     let names = ServiceNames::with_prefix(&config.service_prefix);
     let node = channel::group_node(&names, Role::Controller, false)?;
-    let ports = Ports {
+    let mut ports = Ports {
         maps: Inbox::open(
             &node,
             &names.world_map,
@@ -222,6 +222,9 @@ pub fn run(
     let progress = ProgressOutbox::open(&node, &names, Role::Controller)?;
     if let Some(cpu) = checked.placement().acting {
         tes_runtime::affinity::pin_this_thread(cpu)?;
+        ports
+            .observations
+            .poll_alone(tes_runtime::affinity::kept_clear(cpu));
     }
     let mut shell = Shell {
         progress,
@@ -449,12 +452,22 @@ impl Shell<'_> {
         &mut self,
         stop: &AtomicBool,
     ) -> Result<Option<Observation>, ControllerError> {
+        let anticipating = self.ports.observations.strategy() == WaitStrategy::Anticipate;
         loop {
             let acting = &mut self.acting;
+            // Anticipating, the work between polls is the poll window's: just before the
+            // observation is due.
+            let work = || {
+                let more = acting.plan_between_polls();
+                if anticipating {
+                    acting.prepare();
+                }
+                more
+            };
             match self
                 .ports
                 .observations
-                .next_or_work(self.idle_timeout, stop, || acting.plan_between_polls())?
+                .next_or_work(self.idle_timeout, stop, work)?
             {
                 Ok(o) => return Ok(Some(o)),
                 Err(Idle::Stopped) => return Ok(None),

@@ -86,6 +86,9 @@ pub fn follow(
     std::thread::Builder::new()
         .name(format!("follow-{role}"))
         .spawn(move || {
+            // It wakes every 10 ms: never where the controller's acting thread polls alone
+            // (best effort: unpinned, it follows all the same).
+            let _ = tes_runtime::affinity::pin_off_the_acting_cpu();
             let mut reader = BufReader::new(file);
             let mut partial = String::new();
             loop {

@@ -2,8 +2,8 @@
 //! Fig. 7 (the observatory system).
 //!
 //! At start it publishes the arena's [`WorldMap`] (kept as history, so a controller that starts
-//! later still gets it). Then, per episode: it places the robot at a random start and
-//! publishes an [`Observation`]; every time the bridge reports that a commanded motion has
+//! later still gets it). Then, per episode: it places the robot at a random start, lets it
+//! settle and publishes an [`Observation`]; every time the bridge reports that a commanded motion has
 //! finished (a [`MotorState`] flagged `SETTLED` after a new command), it turns the wheel
 //! rotations the brick measured into a new pose — with the arena's surface-dependent slip —
 //! waits the settle time (the paper's 200 ms, scaled by the real-time factor), discretises the
@@ -28,7 +28,7 @@ use std::time::Duration;
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use tes_runtime::channel::{self, Idle, Inbox, IpcError, Outbox};
+use tes_runtime::channel::{self, Idle, Inbox, IpcError, Loan, Outbox};
 use tes_runtime::clock::monotonic_ns;
 use tes_runtime::cpu::{CpuMeter, CpuUse};
 use tes_runtime::progress::{ProgressOutbox, ProgressWatch};
@@ -173,9 +173,13 @@ pub fn run(
     else {
         return Ok(PerceptionSummary::default());
     };
-    // Announcing its observations to receivers that anticipate them, perception publishes
-    // while they poll: off the acting thread's CPU, that thread polls alone.
-    tes_runtime::affinity::keep_off_the_acting_cpu(config.wait, "perception");
+    // Announcing its observations (at the robot's pace), perception publishes while
+    // anticipating receivers poll: off the acting thread's CPU, that thread polls alone.
+    let announces = config.settle_ms > 0 && config.real_time_factor > 0.0;
+    tes_runtime::affinity::keep_off_the_acting_cpu(
+        announces || config.wait == tes_runtime::wait::WaitStrategy::Anticipate,
+        "perception",
+    );
     let mut camera = Camera {
         arena: &arena,
         config,
@@ -185,6 +189,7 @@ pub fn run(
         motors: &motors,
         progress,
         settle: Duration::from_millis(config.settle_ms).mul_f64(config.real_time_factor),
+        loan: None,
         motor_timeout: Duration::from_millis(config.motor_timeout_ms),
         rng: ChaCha8Rng::seed_from_u64(config.seed),
         summary: PerceptionSummary::default(),
@@ -290,6 +295,8 @@ struct Camera<'a> {
     progress: ProgressOutbox,
     /// How long the robot settles after a motion (scaled by the real-time factor).
     settle: Duration,
+    /// The next observation's sample, loaned as the settle ends.
+    loan: Option<Loan<Observation>>,
     /// How long to wait for a motion report before re-publishing an observation.
     motor_timeout: Duration,
     rng: ChaCha8Rng,
@@ -357,6 +364,9 @@ impl Camera<'_> {
     fn run_episode(&mut self, episode: u32, stop: &AtomicBool) -> Result<Flow, PerceptionError> {
         let pose = self.arena.random_start(&mut self.rng);
         let state = self.arena.discretise(pose);
+        // The robot is put at its start and comes to rest there, as after any motion: at
+        // the robot's pace the episode's first observation is announced like every other.
+        self.settle()?;
         let mut run = EpisodeRun {
             episode,
             pose,
@@ -405,9 +415,9 @@ impl Camera<'_> {
     /// meanwhile) writes the last action's trajectory row and notes the progress.
     fn publish(&mut self, run: &mut EpisodeRun) -> Result<(), PerceptionError> {
         self.seq += 1;
-        self.observations.send(Observation {
+        let mut observation = Observation {
             seq: self.seq,
-            stamp_ns: monotonic_ns(),
+            stamp_ns: 0,
             after_command: run.after_command,
             episode: run.episode,
             step: run.step,
@@ -416,7 +426,11 @@ impl Camera<'_> {
             features: bits(self.arena.features(run.state)),
             reward: run.reward as f32,
             flags: run.flags,
-        })?;
+        };
+        // Stamped as it is handed over, as the floor's source stamps: the latency measured
+        // from here is the link's and the decision's, not what it took to see the world.
+        observation.stamp_ns = monotonic_ns();
+        self.observations.send_in(self.loan.take(), observation)?;
         // The receivers may be polling on this very CPU (two CPUs, three processes around
         // the observation's time): let them run before the rest of this step's work.
         if !self.settle.is_zero() {
@@ -494,6 +508,26 @@ impl Camera<'_> {
         Ok(None)
     }
 
+    /// Lets the robot come to rest (the settle time; nothing at the fastest pace), having
+    /// said first when the next observation is due, so that a receiver waiting by
+    /// `anticipate` sleeps until just before it; and keeps that time, the observation's
+    /// sample loaned just before.
+    fn settle(&mut self) -> Result<(), PerceptionError> {
+        if self.settle.is_zero() {
+            return Ok(());
+        }
+        let due_ns = monotonic_ns() + self.settle.as_nanos() as u64;
+        self.heads_up.send(HeadsUp {
+            seq: self.seq + 1,
+            due_ns,
+        })?;
+        self.loan = Some(tes_runtime::anticipate::sleep_until_with_loan(
+            due_ns,
+            self.observations,
+        )?);
+        Ok(())
+    }
+
     /// Moves the robot by `motion` (with the arena's slip), lets it settle, and sets what the
     /// next observation says: the state, its reward, whether the episode ends.
     fn take_motion(&mut self, run: &mut EpisodeRun, motion: Motion) -> Result<(), PerceptionError> {
@@ -504,16 +538,7 @@ impl Camera<'_> {
             f64::from(motion.right),
             &mut self.rng,
         );
-        if !self.settle.is_zero() {
-            // Said first, so that a receiver waiting by `anticipate` sleeps until just
-            // before the observation; and kept: the settle ends on time.
-            let due_ns = monotonic_ns() + self.settle.as_nanos() as u64;
-            self.heads_up.send(HeadsUp {
-                seq: self.seq + 1,
-                due_ns,
-            })?;
-            tes_runtime::anticipate::sleep_until(due_ns);
-        }
+        self.settle()?;
         run.state = self.arena.discretise(run.pose);
         let outcome = run.tracker.observe(self.arena, run.state)?;
         run.reward = outcome.reward;
@@ -679,6 +704,27 @@ mod tests {
         }
     }
 
+    /// Perception starts its first episode once the controller has reported and the bridge
+    /// has reported the brick at rest: plays both (`controller`'s progress, `at_rest`
+    /// reporting the brick) until it does, and returns the first observation.
+    fn first_observation(
+        controller: &mut ProgressOutbox,
+        observations: &Inbox<Observation>,
+        mut at_rest: impl FnMut(),
+    ) -> Observation {
+        let never = AtomicBool::new(false);
+        loop {
+            controller.publish(monotonic_ns()).unwrap();
+            at_rest();
+            if let Ok(o) = observations
+                .next(Duration::from_millis(20), &never)
+                .unwrap()
+            {
+                return o;
+            }
+        }
+    }
+
     #[test]
     fn duplicate_and_out_of_order_motion_reports_move_nothing() {
         let prefix = format!("tes-test/perception-seq/{}/", std::process::id());
@@ -753,19 +799,8 @@ mod tests {
             // A failed assertion below must not leave perception waiting forever (the scope
             // joins it): stop it on the way out, however that is.
             let _stop_perception = StopOnDrop(&stop);
-            // Perception starts its first episode once the controller has reported and the
-            // bridge has reported the brick at rest: play both until it does.
             let mut controller = ProgressOutbox::open(&node, &names, Role::Controller).unwrap();
-            let first = loop {
-                controller.publish(monotonic_ns()).unwrap();
-                report(0);
-                if let Ok(o) = observations
-                    .next(Duration::from_millis(20), &never)
-                    .unwrap()
-                {
-                    break o;
-                }
-            };
+            let first = first_observation(&mut controller, &observations, || report(0));
             assert_eq!(first.flags, observation_flags::EPISODE_START);
             assert_eq!((first.episode, first.step), (0, 0));
             assert!(first.seq > 0);
@@ -789,5 +824,109 @@ mod tests {
         });
         assert_eq!(summary.episodes, 2);
         assert!(summary.resyncs >= 3, "{summary:?}");
+    }
+
+    /// At a pace with a settle time, every observation — each episode's first included — is
+    /// announced before it is published, and published no earlier than announced.
+    #[test]
+    fn every_observation_is_announced_and_kept_on_time() {
+        let prefix = format!("tes-test/perception-heads-up/{}/", std::process::id());
+        let config = PerceptionConfig {
+            episodes: 3,
+            step_cap: 1,
+            real_time_factor: 0.05, // a 10 ms settle
+            service_prefix: prefix.clone(),
+            ..PerceptionConfig::default()
+        };
+        let names = ServiceNames::with_prefix(&prefix);
+        let node = channel::node(false).unwrap();
+        let (observations, heads_ups): (Inbox<Observation>, Inbox<HeadsUp>) = (
+            Inbox::open(
+                &node,
+                &names.observation,
+                &names.observation_event,
+                0,
+                WaitStrategy::Block,
+            )
+            .unwrap(),
+            Inbox::open(
+                &node,
+                &names.observation_due,
+                &names.observation_due_event,
+                0,
+                WaitStrategy::Block,
+            )
+            .unwrap(),
+        );
+        let motors: Outbox<MotorState> =
+            Outbox::open(&node, &names.motor_state, &names.motor_state_event, 0).unwrap();
+        let report = |after_command: u64| {
+            motors.update_connections().unwrap();
+            motors
+                .send(MotorState {
+                    seq: after_command + 1,
+                    after_command,
+                    flags: motor_flags::SETTLED,
+                    ..MotorState::default()
+                })
+                .unwrap();
+        };
+        let (stop, never) = (AtomicBool::new(false), AtomicBool::new(false));
+        let next = || match observations.next(Duration::from_secs(10), &never).unwrap() {
+            Ok(o) => o,
+            Err(idle) => panic!("no observation within 10 s ({idle:?})"),
+        };
+        let (seen, announced) = std::thread::scope(|s| {
+            let perception = s.spawn(|| run(&config, &stop));
+            let _stop_perception = StopOnDrop(&stop);
+            let mut controller = ProgressOutbox::open(&node, &names, Role::Controller).unwrap();
+            let first = first_observation(&mut controller, &observations, || report(0));
+            let mut seen = vec![first];
+            // Episodes of one step each: a motion after each episode's first observation ends
+            // it, and the next one starts.
+            for command in 1..=2 {
+                report(command);
+                seen.push(next());
+                seen.push(next());
+            }
+            // Read while perception still runs (it waits for the third episode's motion): a
+            // publisher's samples go with it.
+            let mut announced = Vec::new();
+            while let Some(h) = heads_ups.try_next().unwrap() {
+                announced.push(h);
+            }
+            stop.store(true, std::sync::atomic::Ordering::SeqCst);
+            perception.join().unwrap().unwrap();
+            (seen, announced)
+        });
+        let ends = observation_flags::TERMINAL | observation_flags::TRUNCATED;
+        let kinds: Vec<(bool, bool)> = seen
+            .iter()
+            .map(|o| {
+                (
+                    o.flags == observation_flags::EPISODE_START,
+                    o.flags & ends != 0,
+                )
+            })
+            .collect();
+        assert_eq!(
+            kinds,
+            [
+                (true, false),
+                (false, true),
+                (true, false),
+                (false, true),
+                (true, false)
+            ],
+            "{seen:?}"
+        );
+        assert_eq!(announced.len(), seen.len(), "{announced:?}");
+        for (h, o) in announced.iter().zip(&seen) {
+            assert_eq!(h.seq, o.seq, "announced as the observation that came");
+            assert!(
+                o.stamp_ns >= h.due_ns,
+                "published before it was due: {h:?} {o:?}"
+            );
+        }
     }
 }

@@ -116,10 +116,17 @@ pub fn pin_off_the_acting_cpu() -> Result<Option<usize>, AffinityError> {
     pin_this_thread(other).map(|()| Some(other))
 }
 
-/// [`pin_off_the_acting_cpu`] for a process `who` that waits by `wait`, if that is
-/// `anticipate`; a refusal is logged (the process runs unpinned), not an error.
-pub fn keep_off_the_acting_cpu(wait: crate::wait::WaitStrategy, who: &str) {
-    if wait != crate::wait::WaitStrategy::Anticipate {
+/// Whether a thread pinned to `cpu` has it to itself as far as TES goes: the processes that
+/// keep off the acting thread's CPU ([`pin_off_the_acting_cpu`]) run elsewhere.
+pub fn kept_clear(cpu: usize) -> bool {
+    auto_pair().is_some_and(|(_, other)| other != cpu)
+}
+
+/// [`pin_off_the_acting_cpu`] for a process `who` if `needed` (it anticipates its input,
+/// or announces its output to receivers that may anticipate it); a refusal is logged (the
+/// process runs unpinned), not an error.
+pub fn keep_off_the_acting_cpu(needed: bool, who: &str) {
+    if !needed {
         return;
     }
     if let Err(e) = pin_off_the_acting_cpu() {

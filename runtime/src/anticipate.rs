@@ -13,7 +13,8 @@
 //!   perception's own oversleep; for the bridge, that plus the controller's decision);
 //! * **learned** — with no heads-up (a sender that gives none, or one behind a link), the
 //!   receiver learns the time between messages and expects the next after the shortest recent
-//!   gap.
+//!   gap. Once its sender has announced a message, a receiver expects only announced ones:
+//!   anything else (a keep-alive, a re-publication) is waited for by blocking.
 //!
 //! Either way it also learns how late its own timed wake-ups are, and wakes twice that much
 //! earlier (at least 300 µs, at most 1 ms). The poll window is bounded ([`MAX_WINDOW_NS`], and a twentieth of the gap when
@@ -130,6 +131,9 @@ pub struct ArrivalModel {
     last_arrival_ns: Option<u64>,
     /// The announced time of the next message, if announced.
     due_ns: Option<u64>,
+    /// Whether the sender announces its messages: then an unannounced message (a
+    /// keep-alive, a re-publication) is not expected, and gaps are not learned.
+    announces: bool,
     /// The current expectation's window passed with no message.
     window_spent: bool,
     catches: Catches,
@@ -143,6 +147,7 @@ impl Default for ArrivalModel {
             oversleep: Recent::EMPTY,
             last_arrival_ns: None,
             due_ns: None,
+            announces: false,
             window_spent: false,
             catches: Catches::default(),
         }
@@ -153,6 +158,7 @@ impl ArrivalModel {
     /// A heads-up: the next message is due at `due_ns`.
     pub fn announce(&mut self, due_ns: u64) {
         self.due_ns = Some(due_ns);
+        self.announces = true;
         self.window_spent = false;
     }
 
@@ -170,7 +176,7 @@ impl ArrivalModel {
                 due + self.lateness.max().unwrap_or(0),
                 MAX_WINDOW_NS,
             ),
-            (None, Some(last)) => {
+            (None, Some(last)) if !self.announces => {
                 let (shortest, longest) = (self.gaps.min()?, self.gaps.max()?);
                 (
                     last + shortest,
@@ -178,7 +184,7 @@ impl ArrivalModel {
                     MAX_WINDOW_NS.min(shortest / 20),
                 )
             }
-            (None, None) => return None,
+            (None, _) => return None,
         };
         let from = earliest.saturating_sub(guard);
         let until = (latest + SLACK_NS).min(from + guard + cap).max(from);
@@ -221,6 +227,7 @@ impl ArrivalModel {
                 }
                 self.due_ns = None;
             }
+            None if self.announces => {}
             None => {
                 if let Some(last) = self.last_arrival_ns {
                     self.gaps.push(now_ns.saturating_sub(last));
@@ -246,6 +253,10 @@ impl ArrivalModel {
 /// the heads-up channel's subscriber and listener.
 pub(crate) struct Anticipation<S: Service = ipc::Service> {
     pub(crate) model: RefCell<ArrivalModel>,
+    /// The receiver has its CPU to itself (pinned, everything else kept off it): its poll
+    /// spins instead of yielding, since a yield would only hand the CPU to whatever else
+    /// wakes there (a kernel thread, a log follower) when the message comes.
+    pub(crate) alone: bool,
     heads_up: Option<HeadsUpPorts<S>>,
 }
 
@@ -258,6 +269,7 @@ impl<S: Service> fmt::Debug for Anticipation<S> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.debug_struct("Anticipation")
             .field("model", &self.model)
+            .field("alone", &self.alone)
             .field("heads_up", &self.heads_up.is_some())
             .finish()
     }
@@ -275,6 +287,7 @@ impl<S: Service> Anticipation<S> {
         set_fine_timer_slack();
         Self {
             model: RefCell::new(ArrivalModel::default()),
+            alone: false,
             heads_up: None,
         }
     }
@@ -342,6 +355,24 @@ pub fn sleep_until(due_ns: u64) {
     }
 }
 
+/// How long before a message is due its sender loans its sample
+/// ([`sleep_until_with_loan`]), ns: inside [`sleep_until`]'s final poll of the clock.
+const LOAN_AHEAD_NS: u64 = 100_000;
+
+/// [`sleep_until`] for a sender whose message, sent by `outbox`, is due at `due_ns`: returns
+/// then with the message's sample loaned shortly before, so that the send at the due time
+/// only writes and publishes memory this CPU has just touched (a loan after an idle settle
+/// finds the publisher's memory cold).
+pub fn sleep_until_with_loan<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service>(
+    due_ns: u64,
+    outbox: &crate::channel::Outbox<T, S>,
+) -> Result<crate::channel::Loan<T, S>, IpcError> {
+    sleep_until(due_ns.saturating_sub(LOAN_AHEAD_NS));
+    let loan = outbox.loan()?;
+    sleep_until(due_ns);
+    Ok(loan)
+}
+
 /// Timed wake-ups as precise as the kernel makes them: a normal thread's timers may fire up
 /// to 50 µs late by default (its timer slack), which the guard would have to absorb.
 fn set_fine_timer_slack() {
@@ -400,6 +431,22 @@ mod tests {
         assert_eq!(until - from, MIN_GUARD_NS + 9 * MS / 20);
         assert!(matches!(m.step(t + MS), Step::SleepUntil(f) if f == from));
         assert!(matches!(m.step(from), Step::PollUntil(u) if u == until));
+    }
+
+    #[test]
+    fn a_sender_that_announces_is_not_expected_between_its_announcements() {
+        let mut m = ArrivalModel::default();
+        // Announced messages every 800 ms, with unannounced keep-alives between them.
+        for i in 1..=5u64 {
+            m.arrived(i * 800 * MS - 400 * MS, false);
+            m.announce(i * 800 * MS);
+            m.arrived(i * 800 * MS + 20 * US, true);
+        }
+        // No heads-up yet for the next: nothing to poll for, however short the gaps were.
+        assert_eq!(m.window(), None);
+        assert_eq!(m.step(4_100 * MS), Step::Block);
+        assert_eq!(m.catches().missed_windows, 0);
+        assert_eq!(m.gaps.len, 0);
     }
 
     #[test]

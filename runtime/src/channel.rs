@@ -67,10 +67,26 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service> Outbox<T, S> {
     /// `loan_uninit` allocates one small shared-state object per sample (see
     /// `runtime/tests/allocations.rs` and docs/performance.md).
     pub fn send(&self, value: T) -> Result<(), IpcError> {
-        let sample = self
-            .publisher
+        self.send_in(None, value)
+    }
+
+    /// Loans the next message's sample now, for [`send_in`](Self::send_in): a sender that
+    /// knows when its next message is due loans it shortly before, so that the send itself
+    /// only writes and publishes memory its CPU has just touched.
+    pub fn loan(&self) -> Result<Loan<T, S>, IpcError> {
+        self.publisher
             .loan_uninit()
-            .map_err(ipc_err("loan a sample"))?;
+            .map(Loan)
+            .map_err(ipc_err("loan a sample"))
+    }
+
+    /// [`send`](Self::send) into `loan`, if given (from [`loan`](Self::loan)), else into a
+    /// sample loaned now.
+    pub fn send_in(&self, loan: Option<Loan<T, S>>, value: T) -> Result<(), IpcError> {
+        let Loan(sample) = match loan {
+            Some(loan) => loan,
+            None => self.loan()?,
+        };
         sample
             .write_payload(value)
             .send()
@@ -84,6 +100,18 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service> Outbox<T, S> {
         self.publisher
             .update_connections()
             .map_err(ipc_err("connect a publisher"))
+    }
+}
+
+/// A sample loaned ahead of the message that will fill it ([`Outbox::loan`]). Dropped
+/// unsent, it goes back to the publisher.
+pub struct Loan<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service = ipc::Service>(
+    iceoryx2::sample_mut_uninit::SampleMutUninit<S, std::mem::MaybeUninit<T>, ()>,
+);
+
+impl<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service> fmt::Debug for Loan<T, S> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str("Loan")
     }
 }
 
@@ -157,6 +185,15 @@ impl<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service> Inbox<T, S> {
             a.listen(node, name, event)?;
         }
         Ok(self)
+    }
+
+    /// Waiting by `anticipate`, whether the receiving thread has its CPU to itself (pinned
+    /// there, with the other processes kept off it): if so its poll window spins without
+    /// yielding the CPU. With any other strategy, nothing.
+    pub fn poll_alone(&mut self, alone: bool) {
+        if let Some(a) = &mut self.anticipation {
+            a.alone = alone;
+        }
     }
 
     /// Waiting by `anticipate`, how its messages came against their poll windows.
@@ -339,7 +376,12 @@ where
                     if monotonic_ns() >= until || stop.load(Ordering::Relaxed) {
                         break;
                     }
-                    if !work() {
+                    if work() {
+                        continue;
+                    }
+                    if anticipation.alone {
+                        std::hint::spin_loop();
+                    } else {
                         // The window is shared with the sender, which must run to send: on
                         // a machine with fewer CPUs than busy threads, a poll that keeps
                         // its CPU would hold the message up.

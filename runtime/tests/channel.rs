@@ -87,7 +87,17 @@ fn anticipate_round_trip() {
 /// still receives by blocking).
 #[test]
 fn announced_messages_are_caught_polling() {
-    let base = format!("tes-test/{}/heads-up", std::process::id());
+    announced_messages("heads-up", false);
+}
+
+/// The same with a sender that loans each message's sample just before it is due.
+#[test]
+fn announced_messages_are_caught_polling_sent_in_samples_loaned_ahead() {
+    announced_messages("heads-up-loaned", true);
+}
+
+fn announced_messages(tag: &str, loan_ahead: bool) {
+    let base = format!("tes-test/{}/{tag}", std::process::id());
     let (payload, event, due, due_event) = (
         format!("{base}/payload"),
         format!("{base}/event"),
@@ -108,13 +118,19 @@ fn announced_messages_are_caught_polling() {
         for seq in 1..=MESSAGES {
             let due_ns = monotonic_ns() + 20_000_000;
             heads_up.send(HeadsUp { seq, due_ns }).unwrap();
-            tes_runtime::anticipate::sleep_until(due_ns);
-            outbox
-                .send(Command {
-                    seq,
-                    ..Command::default()
-                })
-                .unwrap();
+            let loan = if loan_ahead {
+                let loan = tes_runtime::anticipate::sleep_until_with_loan(due_ns, &outbox);
+                Some(loan.unwrap())
+            } else {
+                tes_runtime::anticipate::sleep_until(due_ns);
+                None
+            };
+            assert!(monotonic_ns() >= due_ns, "the due time is kept");
+            let command = Command {
+                seq,
+                ..Command::default()
+            };
+            outbox.send_in(loan, command).unwrap();
         }
     });
     let mut seen = Vec::new();

@@ -101,7 +101,7 @@ pub struct LatencyArgs {
     /// The pace the group runs at: fastest (actions back to back) or real (the robot's own:
     /// the paper's 200 ms settle after each motion, the simulated brick in real time, and a
     /// Bluetooth-like 30 ± 10 ms delay on each of its replies — about 0.8 s per action, so
-    /// the default 1000 actions take some 13 minutes, and as long again for the floor). The
+    /// the default 1000 actions take some 14 minutes, and as long again for the floor). The
     /// floor runs at the group's measured cadence either way.
     #[arg(long, value_enum, default_value = "fastest")]
     pace: PaceArg,

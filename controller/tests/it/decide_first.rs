@@ -6,7 +6,8 @@
 //! each kind of planner, and compare every command, every working view and score, and the
 //! library the task leaves. Each plan is made before the next observation (the planner is
 //! settled between observations) so that the two runs adopt each plan at the same step, as
-//! a fast enough planner does live.
+//! a fast enough planner does live. Adopting it before the observation comes (as an
+//! anticipating wait's poll window does) decides the same too.
 
 use std::time::Duration;
 
@@ -55,7 +56,15 @@ struct Run {
     learned: u64,
 }
 
-fn run(library: &ViewLibrary, planning: Planning, order: Order, offer_before: bool) -> Run {
+/// How a run waits between observations: `prepare` adopts the finished plan before the
+/// next observation comes, as an anticipating wait's poll window does.
+fn run(
+    library: &ViewLibrary,
+    planning: Planning,
+    order: Order,
+    offer_before: bool,
+    prepare: bool,
+) -> Run {
     let settings = ActingSettings {
         order,
         offer_before_command: offer_before,
@@ -72,6 +81,9 @@ fn run(library: &ViewLibrary, planning: Planning, order: Order, offer_before: bo
     .unwrap();
     let mut commands = Vec::new();
     for t in 0..12_000u64 {
+        if prepare {
+            acting.prepare();
+        }
         if let Some(command) = driver.step(&mut acting) {
             // Stamps come from the shared fake clock, which other work may read more or
             // less often; what was decided is the rest.
@@ -148,7 +160,7 @@ fn run_task(library: ViewLibrary) -> ViewLibrary {
 
 fn same_run(planning: Planning) {
     let library = learned_library();
-    let reference = run(&library, planning, Order::LearnFirst, true);
+    let reference = run(&library, planning, Order::LearnFirst, true, false);
     assert!(
         reference.commands.len() >= 10_000,
         "{planning:?}: only {} commands",
@@ -160,8 +172,12 @@ fn same_run(planning: Planning) {
         reference.plans
     );
     assert!(reference.learned > 9_000, "{planning:?}");
-    for (order, offer_before) in [(Order::LearnFirst, false), (Order::DecideFirst, true)] {
-        let other = run(&library, planning, order, offer_before);
+    for (order, offer_before, prepare) in [
+        (Order::LearnFirst, false, false),
+        (Order::DecideFirst, true, false),
+        (Order::DecideFirst, true, true),
+    ] {
+        let other = run(&library, planning, order, offer_before, prepare);
         let first_difference = reference
             .commands
             .iter()
@@ -169,7 +185,8 @@ fn same_run(planning: Planning) {
             .position(|(a, b)| a != b);
         assert_eq!(
             first_difference, None,
-            "{planning:?}, {order} (hand-over before the command: {offer_before}): the commands differ"
+            "{planning:?}, {order} (hand-over before the command: {offer_before}, \
+             plan adopted before the observation: {prepare}): the commands differ"
         );
         assert_eq!(
             reference.commands.len(),

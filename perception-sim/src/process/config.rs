@@ -37,7 +37,8 @@ pub struct PerceptionConfig {
     ///
     /// Values: factor, finite, at least 0.
     pub real_time_factor: f64,
-    /// The idle time after a motion at real-time factor 1 (scaled by `real_time_factor`).
+    /// The idle time after a motion, and after the robot is put at an episode's start, at
+    /// real-time factor 1 (scaled by `real_time_factor`).
     ///
     /// Values: ms.
     pub settle_ms: u64,
