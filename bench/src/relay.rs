@@ -267,10 +267,11 @@ fn source(
         features.set(i);
     }
     for seq in 1..=cfg.messages {
-        let mut loan = None;
-        if !gap.is_zero() && seq > 1 {
-            loan = pause(cfg, &out, &heads_up, seq, gap)?;
-        }
+        let mut loan = if !gap.is_zero() && seq > 1 {
+            pause(cfg, &out, &heads_up, seq, gap)?
+        } else {
+            None
+        };
         let last = seq == cfg.messages;
         let started = Instant::now();
         // Until the other two are up, an observation may reach nobody: send it again.

@@ -3,9 +3,9 @@
 //!
 //! At start it publishes the arena's [`WorldMap`] (kept as history, so a controller that starts
 //! later still gets it). Then, per episode: it places the robot at a random start, lets it
-//! settle and publishes an [`Observation`]; every time the bridge reports that a commanded motion has
-//! finished (a [`MotorState`] flagged `SETTLED` after a new command), it turns the wheel
-//! rotations the brick measured into a new pose — with the arena's surface-dependent slip —
+//! settle and publishes an [`Observation`]; every time the bridge reports that a commanded
+//! motion has finished (a [`MotorState`] flagged `SETTLED` after a new command), it turns the
+//! wheel rotations the brick measured into a new pose — with the arena's surface-dependent slip —
 //! waits the settle time (the paper's 200 ms, scaled by the real-time factor), discretises the
 //! pose and publishes the next observation with its reward. An episode ends at a terminal
 //! state, when the robot is stuck for four actions, or at the step cap.
@@ -142,7 +142,8 @@ pub fn run(
     config: &PerceptionConfig,
     stop: &AtomicBool,
 ) -> Result<PerceptionSummary, PerceptionError> {
-    let strategy = config.check()?.wait();
+    let checked = config.check()?;
+    let (strategy, settle) = (checked.wait(), checked.settle());
     let arena = Arena::new(ArenaId::from_number(config.arena).map_err(PerceptionError::Arena)?);
     let names = ServiceNames::with_prefix(&config.service_prefix);
     let node = channel::group_node(&names, Role::Perception, false)?;
@@ -175,9 +176,8 @@ pub fn run(
     };
     // Announcing its observations (at the robot's pace), perception publishes while
     // anticipating receivers poll: off the acting thread's CPU, that thread polls alone.
-    let announces = config.settle_ms > 0 && config.real_time_factor > 0.0;
     tes_runtime::affinity::keep_off_the_acting_cpu(
-        announces || config.wait == tes_runtime::wait::WaitStrategy::Anticipate,
+        !settle.is_zero() || strategy == tes_runtime::wait::WaitStrategy::Anticipate,
         "perception",
     );
     let mut camera = Camera {
@@ -188,7 +188,7 @@ pub fn run(
         heads_up: &heads_up,
         motors: &motors,
         progress,
-        settle: Duration::from_millis(config.settle_ms).mul_f64(config.real_time_factor),
+        settle,
         loan: None,
         motor_timeout: Duration::from_millis(config.motor_timeout_ms),
         rng: ChaCha8Rng::seed_from_u64(config.seed),
