@@ -13,10 +13,11 @@
 //! alone pays for every switch of leader.
 //!
 //! Racing keeps the cost near one model's: after [`RaceSchedule::first_cut`] rows the worse
-//! half of the field — by their loss since the previous cut — retires, and again each time the
-//! row count doubles, until [`RaceSchedule::finalists`] remain: by default one, after 32 000
-//! rows, which from then on predicts alone and costs what one model costs. Over `n` rows a
-//! field of `m` costs about `first_cut · (2m + log₂ m) + n` updates instead of `m · n`.
+//! half of the field — by their loss since the previous cut, never the leader — retires, and
+//! again each time the row count doubles, until [`RaceSchedule::finalists`] remain: by default
+//! one, after 32 000 rows, which from then on predicts alone and costs what one model costs.
+//! Over `n` rows a field of `m` costs about `first_cut · (2m + log₂ m) + n` updates instead of
+//! `m · n`.
 //!
 //! ```
 //! use tes_learning::mdagl::Features;
@@ -470,11 +471,14 @@ impl MdaglRace {
     /// Retires the worse half of the field (never below the finalists), ranked by their loss
     /// since the last cut — the latest half of the rows: a setting that starts slowly but
     /// learns better (a smaller λ keeps more columns, so it is noisier at first) is judged on
-    /// how it does now, not on its start. The next cut comes when the row count has doubled.
+    /// how it does now, not on its start. The leader always stays: it is the model reported
+    /// and used, and the sparsest of a tie may trail the denser settings it tied with by a
+    /// hair over the recent rows. The next cut comes when the row count has doubled.
     fn cut(&mut self) {
         self.next_cut = self.rows.saturating_mul(2);
         let keep = self.entrants.len().div_ceil(2).max(self.schedule.finalists);
-        self.entrants.sort_by(|a, b| a.recent.total_cmp(&b.recent));
+        self.entrants.swap(0, self.leader);
+        self.entrants[1..].sort_by(|a, b| a.recent.total_cmp(&b.recent));
         for e in &mut self.entrants {
             e.recent = 0.0;
         }
