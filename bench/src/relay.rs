@@ -24,6 +24,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
+use tes_runtime::anticipate::Catches;
 use tes_runtime::channel::{
     self, Idle, Inbox, IpcError, LatestInbox, LatestOutbox, Loan, Outbox, WaitStrategy,
 };
@@ -172,12 +173,24 @@ impl RelayConfig {
         let (Some(dir), Some(used)) = (&self.cpu_dir, meter.report()) else {
             return Ok(());
         };
-        let path = cpu_file(dir, role);
-        serde_json::to_string_pretty(&used)
-            .map_err(std::io::Error::other)
-            .and_then(|text| std::fs::write(&path, text))
-            .map_err(|error| RelayError::Report { path, error })
+        save_json(cpu_file(dir, role), &used)
     }
+
+    /// Writes an anticipating receiver's catches to `cpu_dir`, if set: how its messages came
+    /// against its poll windows, as the group's receivers report theirs.
+    fn save_catches(&self, role: &str, catches: Option<Catches>) -> Result<(), RelayError> {
+        let (Some(dir), Some(catches)) = (&self.cpu_dir, catches) else {
+            return Ok(());
+        };
+        save_json(catches_file(dir, role), &catches)
+    }
+}
+
+fn save_json(path: PathBuf, value: &impl serde::Serialize) -> Result<(), RelayError> {
+    serde_json::to_string_pretty(value)
+        .map_err(std::io::Error::other)
+        .and_then(|text| std::fs::write(&path, text))
+        .map_err(|error| RelayError::Report { path, error })
 }
 
 /// Why a relay process failed.
@@ -211,6 +224,11 @@ pub enum RelayError {
 /// Where `role` writes its CPU in `dir`.
 pub fn cpu_file(dir: &std::path::Path, role: &str) -> PathBuf {
     dir.join(format!("{role}-cpu.json"))
+}
+
+/// Where an anticipating `role` writes its catches in `dir`.
+pub fn catches_file(dir: &std::path::Path, role: &str) -> PathBuf {
+    dir.join(format!("{role}-catches.json"))
 }
 
 /// Runs one relay role until its messages are done or `stop` is raised. The sink returns its
@@ -274,9 +292,15 @@ fn source(
         };
         let last = seq == cfg.messages;
         let started = Instant::now();
-        // Until the other two are up, an observation may reach nobody: send it again.
+        // Until the other two are up, an observation may reach nobody: send it again, with
+        // the connections brought up to date. Once they are up, the source sends as
+        // perception does, with nothing between its stamp and the hand-over.
+        let mut resend = seq == 1;
         'resend: loop {
-            out.update_connections()?;
+            if resend {
+                out.update_connections()?;
+            }
+            resend = true;
             out.send_in(
                 loan.take(),
                 Observation {
@@ -357,7 +381,7 @@ fn hop(
     loop {
         let obs = match observations.next(idle, stop)? {
             Ok(o) => o,
-            Err(Idle::Stopped) => return cfg.save_cpu("relay-hop", &cpu),
+            Err(Idle::Stopped) => break,
             Err(Idle::Timeout) => return Err(RelayError::Silent(idle, "relay-hop")),
         };
         out.send(Command {
@@ -370,9 +394,11 @@ fn hop(
         helper.wake();
         cfg.mark(&mut cpu, obs.seq);
         if obs.flags & observation_flags::TERMINAL != 0 {
-            return cfg.save_cpu("relay-hop", &cpu);
+            break;
         }
     }
+    cfg.save_catches("relay-hop", observations.catches())?;
+    cfg.save_cpu("relay-hop", &cpu)
 }
 
 /// The hop's counterpart of the controller's planner thread: woken after each observation,
@@ -472,6 +498,7 @@ fn sink(
             break;
         }
     }
+    cfg.save_catches("relay-sink", commands.catches())?;
     cfg.save_cpu("relay-sink", &cpu)?;
     let report = latency.report();
     for (path, report) in [
