@@ -11,7 +11,6 @@
 //! Each returns the round trip, and its first hop alone (observation stamped → the hop's
 //! command published).
 
-use std::collections::BTreeMap;
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Stdio};
@@ -20,7 +19,6 @@ use std::time::{Duration, Instant};
 
 use tes_launch::children::{self, ChildCommand, Process};
 use tes_link::{Link, LinkSection};
-use tes_runtime::anticipate::Catches;
 use tes_runtime::channel::{self, Inbox, LatestInbox, LatestOutbox, Outbox, WaitStrategy};
 use tes_runtime::clock::monotonic_ns;
 use tes_runtime::latency::{LatencyRecorder, LatencyReport};
@@ -103,25 +101,7 @@ pub fn relay_floor(
         round_trip: load(&report)?,
         first_hop: load(&hop_report)?,
         cpu,
-        catches: load_catches(dir)?,
     })
-}
-
-/// The anticipating roles' catches (the hop's observations, the sink's commands): none
-/// unless they waited by `anticipate`.
-fn load_catches(dir: &Path) -> Result<BTreeMap<String, Catches>> {
-    let mut catches = BTreeMap::new();
-    for role in [relay::ROLES[1], relay::ROLES[2]] {
-        let path = relay::catches_file(dir, role);
-        let text = match std::fs::read_to_string(&path) {
-            Ok(text) => text,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
-            Err(e) => return Err(BenchError::io(format!("cannot read {}", path.display()))(e)),
-        };
-        let caught = serde_json::from_str(&text).map_err(BenchError::Malformed)?;
-        catches.insert(role.trim_start_matches("relay-").to_owned(), caught);
-    }
-    Ok(catches)
 }
 
 /// Waits up to `limit` for the relay's processes, stops those still running, and checks they

@@ -477,8 +477,6 @@ pub struct LatencyResult {
     /// Waiting by `anticipate`: how observations came against the controller's poll
     /// windows, and commands against the bridge's.
     pub catches: std::collections::BTreeMap<String, Catches>,
-    /// The floor's anticipating roles' (`hop`, `sink`), likewise.
-    pub floor_catches: std::collections::BTreeMap<String, Catches>,
     /// How long the planner thread polled after each plan, µs.
     pub planner_idle_spin_us: u64,
     /// Mean time between actions in our run, which the floor's source kept too, µs.
@@ -589,9 +587,6 @@ pub struct Floor {
     pub first_hop: LatencyReport,
     /// Each role's CPU (`source`, `hop`, `sink`; empty where not measured).
     pub cpu: std::collections::BTreeMap<String, CpuUse>,
-    /// Waiting by `anticipate`: how observations came against the hop's poll windows, and
-    /// commands against the sink's (empty otherwise, and over Zenoh).
-    pub catches: std::collections::BTreeMap<String, Catches>,
 }
 
 /// Runs the group, then the floor, then (with `record`, `foxglove`) the observers'
@@ -771,7 +766,6 @@ fn floor_of_via(
                 round_trip,
                 first_hop,
                 cpu: Default::default(),
-                catches: Default::default(),
             })
         }
     }
@@ -802,7 +796,6 @@ fn result(
         round_trip: floor,
         first_hop: floor_decision,
         cpu: floor_cpu,
-        catches: floor_catches,
     } = floor;
     let (ratio_p50, ratio_p99) = (
         ratio(report.p50_us, floor.p50_us),
@@ -844,7 +837,6 @@ fn result(
         cpu,
         floor_cpu,
         catches,
-        floor_catches,
         planner_idle_spin_us: latency.planner_idle_spin_us(),
         cycle_us,
         seed: s.seed,

@@ -24,7 +24,6 @@ use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
-use tes_runtime::anticipate::Catches;
 use tes_runtime::channel::{
     self, Idle, Inbox, IpcError, LatestInbox, LatestOutbox, Loan, Outbox, WaitStrategy,
 };
@@ -173,24 +172,12 @@ impl RelayConfig {
         let (Some(dir), Some(used)) = (&self.cpu_dir, meter.report()) else {
             return Ok(());
         };
-        save_json(cpu_file(dir, role), &used)
+        let path = cpu_file(dir, role);
+        serde_json::to_string_pretty(&used)
+            .map_err(std::io::Error::other)
+            .and_then(|text| std::fs::write(&path, text))
+            .map_err(|error| RelayError::Report { path, error })
     }
-
-    /// Writes an anticipating receiver's catches to `cpu_dir`, if set: how its messages came
-    /// against its poll windows, as the group's receivers report theirs.
-    fn save_catches(&self, role: &str, catches: Option<Catches>) -> Result<(), RelayError> {
-        let (Some(dir), Some(catches)) = (&self.cpu_dir, catches) else {
-            return Ok(());
-        };
-        save_json(catches_file(dir, role), &catches)
-    }
-}
-
-fn save_json(path: PathBuf, value: &impl serde::Serialize) -> Result<(), RelayError> {
-    serde_json::to_string_pretty(value)
-        .map_err(std::io::Error::other)
-        .and_then(|text| std::fs::write(&path, text))
-        .map_err(|error| RelayError::Report { path, error })
 }
 
 /// Why a relay process failed.
@@ -224,11 +211,6 @@ pub enum RelayError {
 /// Where `role` writes its CPU in `dir`.
 pub fn cpu_file(dir: &std::path::Path, role: &str) -> PathBuf {
     dir.join(format!("{role}-cpu.json"))
-}
-
-/// Where an anticipating `role` writes its catches in `dir`.
-pub fn catches_file(dir: &std::path::Path, role: &str) -> PathBuf {
-    dir.join(format!("{role}-catches.json"))
 }
 
 /// Runs one relay role until its messages are done or `stop` is raised. The sink returns its
@@ -292,15 +274,9 @@ fn source(
         };
         let last = seq == cfg.messages;
         let started = Instant::now();
-        // Until the other two are up, an observation may reach nobody: send it again, with
-        // the connections brought up to date. Once they are up, the source sends as
-        // perception does, with nothing between its stamp and the hand-over.
-        let mut resend = seq == 1;
+        // Until the other two are up, an observation may reach nobody: send it again.
         'resend: loop {
-            if resend {
-                out.update_connections()?;
-            }
-            resend = true;
+            out.update_connections()?;
             out.send_in(
                 loan.take(),
                 Observation {
@@ -381,7 +357,7 @@ fn hop(
     loop {
         let obs = match observations.next(idle, stop)? {
             Ok(o) => o,
-            Err(Idle::Stopped) => break,
+            Err(Idle::Stopped) => return cfg.save_cpu("relay-hop", &cpu),
             Err(Idle::Timeout) => return Err(RelayError::Silent(idle, "relay-hop")),
         };
         out.send(Command {
@@ -394,11 +370,9 @@ fn hop(
         helper.wake();
         cfg.mark(&mut cpu, obs.seq);
         if obs.flags & observation_flags::TERMINAL != 0 {
-            break;
+            return cfg.save_cpu("relay-hop", &cpu);
         }
     }
-    cfg.save_catches("relay-hop", observations.catches())?;
-    cfg.save_cpu("relay-hop", &cpu)
 }
 
 /// The hop's counterpart of the controller's planner thread: woken after each observation,
@@ -498,7 +472,6 @@ fn sink(
             break;
         }
     }
-    cfg.save_catches("relay-sink", commands.catches())?;
     cfg.save_cpu("relay-sink", &cpu)?;
     let report = latency.report();
     for (path, report) in [

@@ -26,7 +26,6 @@
 
 use std::cell::RefCell;
 use std::fmt;
-use std::os::unix::net::UnixDatagram;
 
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
@@ -363,46 +362,15 @@ const LOAN_AHEAD_NS: u64 = 100_000;
 /// [`sleep_until`] for a sender whose message, sent by `outbox`, is due at `due_ns`: returns
 /// then with the message's sample loaned shortly before, so that the send at the due time
 /// only writes and publishes memory this CPU has just touched (a loan after an idle settle
-/// finds the publisher's memory cold), and with the kernel's path for its notification
-/// warmed at the same time.
+/// finds the publisher's memory cold).
 pub fn sleep_until_with_loan<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service>(
     due_ns: u64,
     outbox: &crate::channel::Outbox<T, S>,
 ) -> Result<crate::channel::Loan<T, S>, IpcError> {
     sleep_until(due_ns.saturating_sub(LOAN_AHEAD_NS));
     let loan = outbox.loan()?;
-    warm_the_notify_path();
     sleep_until(due_ns);
     Ok(loan)
-}
-
-thread_local! {
-    /// The socket pair [`warm_the_notify_path`] sends through: this thread's own, both ends
-    /// non-blocking (none if the system refused it).
-    static WARMING_PAIR: Option<(UnixDatagram, UnixDatagram)> = UnixDatagram::pair()
-        .and_then(|(tx, rx)| {
-            tx.set_nonblocking(true)?;
-            rx.set_nonblocking(true)?;
-            Ok((tx, rx))
-        })
-        .ok();
-}
-
-/// Sends a byte through a socket pair of this thread's own and reads it back, so that the
-/// kernel's local-socket send path — the one an iceoryx2 event notification takes — is warm
-/// when the message is sent. After a CPU has idled for a settle, the first notification
-/// took 20-50 µs here against 4 µs warm: time the sender holds its CPU, in which a receiver
-/// sharing that CPU (the bridge beside perception) cannot run. Best effort: without the
-/// pair, nothing is warmed.
-fn warm_the_notify_path() {
-    WARMING_PAIR.with(|pair| {
-        if let Some((tx, rx)) = pair {
-            let mut byte = [0u8; 1];
-            if tx.send(&byte).is_ok() {
-                let _ = rx.recv(&mut byte);
-            }
-        }
-    });
 }
 
 /// Timed wake-ups as precise as the kernel makes them: a normal thread's timers may fire up
@@ -418,21 +386,6 @@ mod tests {
 
     const MS: u64 = 1_000_000;
     const US: u64 = 1_000;
-
-    /// Warming reads back every byte it sends: a pair left with bytes would fill up, and
-    /// warming would silently stop.
-    #[test]
-    fn warming_the_notify_path_leaves_nothing_behind() {
-        for _ in 0..1000 {
-            warm_the_notify_path();
-        }
-        WARMING_PAIR.with(|pair| {
-            let (_, rx) = pair.as_ref().expect("a socket pair");
-            let mut byte = [0u8; 1];
-            let left = rx.recv(&mut byte).expect_err("nothing left to read");
-            assert_eq!(left.kind(), std::io::ErrorKind::WouldBlock);
-        });
-    }
 
     #[test]
     fn an_announced_message_is_polled_for_from_just_before_it_is_due() {

@@ -451,17 +451,7 @@ fn print_cpu(result: &LatencyResult) {
             used.us_per_action
         );
     }
-    let catches = result
-        .catches
-        .iter()
-        .map(|(who, c)| (format!("ours: {who}"), c))
-        .chain(
-            result
-                .floor_catches
-                .iter()
-                .map(|(role, c)| (format!("floor: {role}"), c)),
-        );
-    for (who, c) in catches {
+    for (who, c) in &result.catches {
         println!(
             "anticipation ({who}): {} caught polling, {} woken (early, late or unannounced), {} windows passed empty",
             c.polled, c.woken, c.missed_windows

@@ -257,17 +257,11 @@ fn latency_at_the_robots_pace_anticipates_and_reports_cpu() {
     assert!(v["floor_awake"].is_null(), "{v}");
     assert_floor_consistent(&v);
     assert_cpu_reported(&v);
-    // Both anticipating receivers kept score of every message they took, and so did the
-    // floor's.
-    for (side, who) in [
-        ("catches", "controller"),
-        ("catches", "bridge"),
-        ("floor_catches", "hop"),
-        ("floor_catches", "sink"),
-    ] {
-        let c = &v[side][who];
+    // Both anticipating receivers kept score of every message they took.
+    for who in ["controller", "bridge"] {
+        let c = &v["catches"][who];
         let taken = c["polled"].as_u64().unwrap() + c["woken"].as_u64().unwrap();
-        assert!(taken >= 25, "{side}.{who}: {v}");
+        assert!(taken >= 25, "{who}: {v}");
     }
     assert_eq!(v["allocations"], 0, "{v}");
 }
