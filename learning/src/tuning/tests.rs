@@ -142,11 +142,11 @@ fn the_race_keeps_up_with_the_best_fixed_setting(shape: StreamShape) {
             (loss, p, model)
         })
         .collect();
-    let (best_loss, best_params, _) = fixed_runs
+    let (best_loss, best_params) = fixed_runs
         .iter()
+        .map(|(loss, params, _)| (*loss, *params))
         .min_by(|a, b| a.0.total_cmp(&b.0))
         .expect("a grid");
-    let (best_loss, best_params) = (*best_loss, *best_params);
     let (_, hindsight_params, hindsight_model) = fixed_runs
         .iter()
         .filter(|(loss, _, _)| *loss <= best_loss * (1.0 + TIE))
