@@ -366,3 +366,48 @@ async fn splice(opened: Opened) -> Result<(), ConnectionEnd> {
         ended = downstream => ended,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_inner_server_whose_listener_is_gone_is_started_again() {
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .expect("a runtime");
+        let context = foxglove::Context::new();
+        let on = runtime.handle().clone();
+        let build: BuildInner = Box::new(move || {
+            WebSocketServer::new()
+                .bind("127.0.0.1", 0)
+                .context(&context)
+                .tokio_runtime(&on)
+        });
+        runtime.block_on(async {
+            let inner = Inner::start(build).await.expect("the inner server starts");
+            let first = inner.addr();
+            // Its listener dropped, as the crate does after a failed accept.
+            for handle in inner.take_handles() {
+                handle.stop().wait().await;
+            }
+            let deadline = Instant::now() + Duration::from_secs(30);
+            while TcpStream::connect(first).await.is_ok() {
+                assert!(
+                    Instant::now() < deadline,
+                    "the stopped server still listens"
+                );
+                tokio::time::sleep(Duration::from_millis(10)).await;
+            }
+            let connected = inner.connect().await;
+            assert!(connected.is_ok(), "{connected:?}");
+            assert_ne!(inner.addr(), first);
+            assert_eq!(
+                inner.take_handles().len(),
+                1,
+                "the new server is kept to stop"
+            );
+        });
+    }
+}
