@@ -203,8 +203,10 @@ fn half_open_handshakes_fill_at_most_the_cap_and_are_closed_at_the_deadline() {
     extra
         .set_read_timeout(Some(PATIENCE))
         .expect("a read timeout");
-    let mut answer = String::new();
-    let _ = extra.read_to_string(&mut answer);
+    let mut answer = Vec::new();
+    // What arrived before the close, whether it ended with a FIN or a reset.
+    let _ = extra.read_to_end(&mut answer);
+    let answer = String::from_utf8_lossy(&answer);
     assert!(answer.starts_with("HTTP/1.1 503"), "{answer:?}");
     // Each held one is closed at the handshake deadline (with wide slack for a loaded
     // machine), and the slots are free again.

@@ -183,7 +183,11 @@ impl Door {
             }
             Err(_) => {
                 notices.full(peer);
-                // Best effort and never waiting: the connection is closed either way.
+                // Best effort and never waiting: the connection is closed either way. What it
+                // already sent is read first, so the close is a FIN after the answer rather
+                // than a reset that may discard it.
+                let mut unread = [0u8; 1024];
+                let _ = stream.try_read(&mut unread);
                 let _ = stream.try_write(FULL_ANSWER);
             }
         }
