@@ -291,7 +291,10 @@ fn a_launcher_ends_its_run_on_its_own_whatever_live_clients_hold() {
     let took = ended.elapsed();
     let opened = attack.end();
     assert!(ok, "the launch failed: {out:?} {err:?}");
-    assert!(opened >= 300, "the attack was under way: {opened} connections");
+    assert!(
+        opened >= 300,
+        "the attack was under way: {opened} connections"
+    );
     eprintln!("exited {took:?} after its last episode, {opened} half-open connections opened");
 }
 
