@@ -86,8 +86,9 @@ pub fn run(args: &LaunchArgs) -> Result<()> {
     }
     let file = launch_file(args)?;
     // Zenoh tells refused connections and messages only in its log: the link's layer picks
-    // them out. Log lines themselves only with RUST_LOG (the launcher says what it does).
-    tes_runtime::logging::init_with("off", tes_link::refusals::layer());
+    // them out. Log lines themselves only with RUST_LOG (the launcher says what it does),
+    // but for the live view's warnings (full, or out of file descriptors).
+    tes_runtime::logging::init_with("off,tes_viewer::live=warn", tes_link::refusals::layer());
     let stop = stop_on_signals()?;
     let options = Options::new(this_executable()?, stop);
     let verdict = if args.tui {

@@ -15,6 +15,7 @@ mod config_reference;
 mod faults;
 mod launch;
 mod library_facts;
+mod live_view;
 mod multi_host;
 mod recording;
 mod run_folder;

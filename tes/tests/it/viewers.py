@@ -3,6 +3,7 @@
     viewers.py mcap FILE.mcap        PyPI's mcap and Foxglove's Protobuf schemas read a recording
     viewers.py rerun FILE.mcap RRD   Rerun converts it, checks it and reads the result back
     viewers.py live HOST:PORT N      a Foxglove WebSocket client follows a live group for N episodes
+    viewers.py names HOST:PORT       a client offering each name of the protocol, one after the other
 
 Each prints one JSON object of facts for the Rust test to judge.
 """
@@ -204,6 +205,35 @@ def follow_live(client, deadline, facts, episodes, message_class):
     return facts
 
 
+def facts_of_names(addr):
+    """What a client offering only the SDK's name of the protocol, and one offering only its
+    published name (Lichtblick's, older Foxglove Studio's), are each given: the subprotocol
+    the server answers with, the channels advertised, and messages on /tf once subscribed."""
+    from websockets.sync.client import connect
+
+    facts = {}
+    for name in ["foxglove.sdk.v1", "foxglove.websocket.v1"]:
+        deadline = time.monotonic() + 60
+        with connect(f"ws://{addr}", subprotocols=[name], open_timeout=10,
+                     max_size=None) as ws:
+            channels = {}
+            while len(channels) < 11 and time.monotonic() < deadline:
+                m = ws.recv(timeout=10)
+                if isinstance(m, str) and json.loads(m).get("op") == "advertise":
+                    for c in json.loads(m)["channels"]:
+                        channels[c["topic"]] = [c["id"], c["schemaName"], c["encoding"]]
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                {"id": 1, "channelId": channels["/tf"][0]}]}))
+            tf = 0
+            while tf < 3 and time.monotonic() < deadline:
+                m = ws.recv(timeout=10)
+                if isinstance(m, bytes) and m[0] == 1 and struct.unpack_from("<I", m, 1)[0] == 1:
+                    tf += 1
+            facts[name] = {"subprotocol": ws.subprotocol, "tf": tf,
+                           "channels": {t: c[1:] for t, c in channels.items()}}
+    return facts
+
+
 def main():
     mode = sys.argv[1]
     if mode == "mcap":
@@ -212,6 +242,8 @@ def main():
         facts = facts_of_rerun(sys.argv[2], sys.argv[3])
     elif mode == "live":
         facts = facts_of_live(sys.argv[2], int(sys.argv[3]))
+    elif mode == "names":
+        facts = facts_of_names(sys.argv[2])
     else:
         raise SystemExit(__doc__)
     print(json.dumps(facts))
