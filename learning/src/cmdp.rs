@@ -58,6 +58,14 @@ pub enum CmdpError {
     /// A reward is NaN or infinite.
     #[error("the reward for entering state {0} is not finite")]
     BadReward(usize),
+    /// A step's reward ([`CmdpStructure::with_step_rewards`]) is NaN or infinite.
+    #[error("the reward of effect {effect} in state {state} is not finite")]
+    BadStepReward {
+        /// State.
+        state: usize,
+        /// Effect.
+        effect: usize,
+    },
     /// A state's features are out of range or unsorted.
     #[error("state {state}: {source}")]
     BadFeatures {
@@ -268,6 +276,35 @@ impl CmdpStructure {
     #[inline]
     pub fn reward(&self, s: usize) -> f64 {
         self.reward[s]
+    }
+
+    /// The reward of a step from `s` with effect `e`: the [`reward`](Self::reward) for
+    /// entering where it leads, unless [`with_step_rewards`](Self::with_step_rewards) set it.
+    #[inline]
+    pub fn step_reward(&self, s: usize, e: usize) -> f64 {
+        self.steps[s * self.n_effects + e].reward
+    }
+
+    /// The same structure with each step's reward decided by the state it starts in and the
+    /// effect it has, `reward(s, e)`, instead of by the state it enters alone: an effect can
+    /// then carry a reward of its own (a refused pick-up that stays put at a cost, beside a
+    /// bump into a wall that stays put at another) without a second copy of the state. The
+    /// planner backs up `reward(s, e) + γ V(next_state(s, e))`; [`reward`](Self::reward)
+    /// still reports the entering rewards the structure was built with.
+    pub fn with_step_rewards(
+        mut self,
+        reward: impl Fn(usize, usize) -> f64,
+    ) -> Result<Self, CmdpError> {
+        let n_effects = self.n_effects;
+        for (i, step) in self.steps.iter_mut().enumerate() {
+            let (state, effect) = (i / n_effects, i % n_effects);
+            let r = reward(state, effect);
+            if !r.is_finite() {
+                return Err(CmdpError::BadStepReward { state, effect });
+            }
+            step.reward = r;
+        }
+        Ok(self)
     }
 
     /// Whether an episode ends on entering `s`.
@@ -882,6 +919,51 @@ pub mod examples {
 mod tests {
     use super::examples::corridor;
     use super::*;
+
+    /// Two effects that enter the same state with different step rewards: the planner
+    /// backs up each step's own reward and takes the action whose effect pays.
+    #[test]
+    fn step_rewards_are_what_the_planner_backs_up() {
+        use crate::plan::{PlannerParams, ValueIteration};
+        let no_features: &[u32] = &[];
+        let c = CmdpStructure::new(
+            2,
+            2,
+            2,
+            0,
+            |s, _| if s == 0 { 1 } else { 1 },
+            vec![0.0, 0.0],
+            vec![false, true],
+            |_| no_features,
+        )
+        .unwrap();
+        assert_eq!(c.step_reward(0, 1), c.reward(1));
+        let paid = c
+            .clone()
+            .with_step_rewards(|s, e| if (s, e) == (0, 1) { 1.0 } else { -1.0 })
+            .unwrap();
+        assert_eq!(
+            (paid.step_reward(0, 0), paid.step_reward(0, 1)),
+            (-1.0, 1.0)
+        );
+        assert_eq!(paid.reward(1), 0.0);
+        let mut table = EffectTable::uniform(&paid);
+        table.set(0, 0, &[1.0, 0.0]);
+        table.set(1, 0, &[0.0, 1.0]);
+        let mut planner = ValueIteration::new(&paid, PlannerParams::default()).unwrap();
+        planner.plan(&paid, &table);
+        assert_eq!(planner.policy()[0], 1);
+        assert_eq!(planner.q_value(&paid, &table, 0, 1), 1.0);
+        assert_eq!(planner.q_value(&paid, &table, 0, 0), -1.0);
+        let refused = c.with_step_rewards(|_, _| f64::NAN).unwrap_err();
+        assert_eq!(
+            refused,
+            CmdpError::BadStepReward {
+                state: 0,
+                effect: 0
+            }
+        );
+    }
 
     #[test]
     fn structure_answers_what_it_was_given() {

@@ -122,7 +122,7 @@ impl ValueIteration {
                 } else {
                     gamma * self.values[next]
                 };
-                p * (structure.reward(next) + future)
+                p * (structure.step_reward(s, e) + future)
             })
             .sum()
     }
