@@ -10,9 +10,11 @@ environments*, AIJ 2017).
   import (:mod:`tes.envs`).
 
 >>> import numpy as np, tes
->>> model = tes.Mdagl(n_features=4, n_classes=2)
->>> model.partial_fit(np.eye(4), np.array([0, 1, 0, 1])).n_updates_
+>>> model = tes.Mdagl(lam=0.05, alpha=1.5)
+>>> model.partial_fit(np.eye(4), ["a", "b", "a", "b"], classes=["a", "b"]).n_updates_
 4
+>>> model.predict(np.eye(4)[:1]).tolist()
+['a']
 """
 
 import gymnasium as _gymnasium

@@ -16,7 +16,11 @@ The paper's agents learn only *which effect* an action has in a state; what each
 reward) -> int``
 ==========================================  ==================================================
 
-Optional: ``contexts(state) -> int`` (the factors ``FEpsG`` counts effects by; default:
+Optional: ``step_reward(state, effect) -> float`` — the reward of a step from ``state``
+with ``effect``, for rewards that depend on the step and not only on where it ends (Taxi's
+−10 for a refused pick-up beside −1 for a bump into a wall, both staying put: give each
+its own effect, and each effect its reward; the planner then uses these instead of
+``reward``); ``contexts(state) -> int`` (the factors ``FEpsG`` counts effects by; default:
 every state its own), ``name`` (stored in a view library), ``action_names`` and
 ``feature_names`` (stored too, shown by ``tes library show``), and ``native()`` returning a
 ready :class:`tes._tes.Structure` (our own worlds' adapters do, so nothing is rebuilt).
@@ -95,6 +99,12 @@ def compile(structure: Structure) -> _tes.Structure:  # noqa: A001 - the protoco
     contexts = None
     if callable(getattr(structure, "contexts", None)):
         contexts = np.array([structure.contexts(s) for s in range(n_states)], dtype=np.int64)
+    step_reward = None
+    if callable(getattr(structure, "step_reward", None)):
+        step_reward = np.array(
+            [[structure.step_reward(s, e) for e in range(n_effects)] for s in range(n_states)],
+            dtype=np.float64,
+        ).reshape(n_states, n_effects)
     return _tes.Structure(
         next_state,
         reward,
@@ -104,6 +114,8 @@ def compile(structure: Structure) -> _tes.Structure:  # noqa: A001 - the protoco
         int(structure.n_features),
         int(structure.n_actions),
         contexts,
+        None,
+        step_reward,
     )
 
 
