@@ -123,7 +123,7 @@ fn check_width(width: usize, features: usize) -> PyResult<()> {
         Ok(())
     } else {
         Err(PyValueError::new_err(format!(
-            "X has {width} columns but the model has {features} features"
+            "X has {width} features, but Mdagl is expecting {features} features as input"
         )))
     }
 }

@@ -37,6 +37,15 @@ def _setting(value: Any, name: str, positive: bool) -> float | None:
     return value
 
 
+def _plain(x: Any) -> bool:
+    """Whether ``x`` needs no conversion: a C-contiguous 2-D float64 NumPy array, or a SciPy
+    CSR matrix (scikit-learn's validation can then be skipped: the native model checks the
+    width, the values and the labels' count by the same rules)."""
+    if type(x) is np.ndarray:
+        return x.ndim == 2 and x.dtype == np.float64 and x.flags.c_contiguous
+    return _is_sparse(x) and getattr(x, "format", None) == "csr" and x.ndim == 2
+
+
 def _is_sparse(x: Any) -> bool:
     """Whether ``x`` is a SciPy sparse matrix or array."""
     return hasattr(x, "tocsr") and hasattr(x, "nnz")
@@ -143,6 +152,21 @@ class Mdagl(ClassifierMixin, BaseEstimator):
         first = not hasattr(self, "classes_")
         if first and classes is None:
             raise ValueError("the first partial_fit needs classes= (every label there will be)")
+        if not first and _plain(X):
+            # Row by row, scikit-learn's validation would cost more than learning the row; the
+            # native model checks the width, the values and the length by the same rules.
+            self._same_classes(classes)
+            y = np.asarray(y)
+            if y.ndim != 1:
+                raise ValueError(f"y must be 1-D (one label per row), got shape {y.shape}")
+            if len(y) != X.shape[0]:
+                raise ValueError(
+                    "Found input variables with inconsistent numbers of samples: "
+                    f"[{X.shape[0]}, {len(y)}]"
+                )
+            self._learn(X, self._encode(y), self._weighted_rows(len(y), sample_weight, X))
+            self.n_iter_ = 1
+            return self
         X, y = validate_data(
             self,
             X,
@@ -153,19 +177,24 @@ class Mdagl(ClassifierMixin, BaseEstimator):
             reset=first,
         )
         check_classification_targets(y)
-        if classes is not None:
-            given = np.unique(np.asarray(classes))
-            if first:
-                self._start(given, X.shape[1])
-            elif not np.array_equal(given, self.classes_):
-                raise ValueError(
-                    f"classes={given.tolist()} differs from the first call's "
-                    f"{self.classes_.tolist()}"
-                )
+        if first:
+            self._start(np.unique(np.asarray(classes)), X.shape[1])
+        else:
+            self._same_classes(classes)
         labels = self._encode(y)
         self._learn(X, labels, self._weighted_rows(len(y), sample_weight, X))
         self.n_iter_ = 1
         return self
+
+    def _same_classes(self, classes: Any) -> None:
+        """A later call's ``classes=``, if given, must be the first call's."""
+        if classes is None:
+            return
+        given = np.unique(np.asarray(classes))
+        if not np.array_equal(given, self.classes_):
+            raise ValueError(
+                f"classes={given.tolist()} differs from the first call's {self.classes_.tolist()}"
+            )
 
     def _start(self, classes: np.ndarray, n_features: int) -> None:
         if len(classes) < 2:
@@ -228,9 +257,11 @@ class Mdagl(ClassifierMixin, BaseEstimator):
     def predict_proba(self, X: Any) -> np.ndarray:
         """``P(class | x)`` for every row: ``(n_rows, n_classes)``, columns as ``classes_``."""
         check_is_fitted(self, "_model")
-        X = validate_data(
-            self, X, accept_sparse="csr", dtype=np.float64, ensure_all_finite=False, reset=False
-        )
+        if not _plain(X):
+            X = validate_data(
+                self, X, accept_sparse="csr", dtype=np.float64, ensure_all_finite=False,
+                reset=False,
+            )
         if _is_sparse(X):
             csr = _canonical(X)
             if _ones_only(csr):
@@ -302,7 +333,8 @@ class Mdagl(ClassifierMixin, BaseEstimator):
     # ---- copies and pickles -------------------------------------------------------------
 
     def __getstate__(self) -> dict[str, Any]:
-        state = super().__getstate__()
+        # A copy: the base class may hand back the live __dict__ itself.
+        state = dict(super().__getstate__())
         state.pop("_lock", None)
         return state
 

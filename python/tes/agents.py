@@ -44,7 +44,7 @@ __all__ = ["Agent", "LoreRL", "TES", "LWT", "FEpsG"]
 
 def _seed(seed: Any) -> int:
     """A seed as the native agents take it: a whole number from 0 to 2**64 - 1."""
-    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or not 0 <= seed < 2**64:
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or not 0 <= int(seed) < 2**64:
         raise ValueError(f"seed must be a whole number from 0 to 2**64 - 1, not {seed!r}")
     return int(seed)
 

@@ -142,6 +142,62 @@ def test_lore_rl_walks_the_cliff_edge_and_fepsg_learns_too():
     assert fepsg.name == "fEpsG" and rewards[-20:].mean() > rewards[:5].mean()
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_lore_rl_solves_taxi_within_50_episodes(seed):
+    """Taxi-v4 (Gymnasium's current name) with its structure declared by tes.adapters.taxi:
+    each step's reward is its effect's (a refused pick-up −10, a bump into a wall −1), with no
+    mirror states. The greedy policy delivers from every start within 200 steps."""
+    env = gymnasium.make("Taxi-v4")
+    table, start = env.unwrapped.P, env.unwrapped.initial_state_distrib
+    agent = tes.agents.LoreRL(tes.adapters.taxi(env), seed=seed, **TOY)
+    for episode in range(1, 51):
+        tes.run(env, agent, 1, seed=seed if episode == 1 else None)
+        success = success_probability(table, agent.greedy_policy(), start, 200)
+        if success == pytest.approx(1.0, abs=1e-12):
+            break
+    print(f"seed {seed}: greedy success 1.0 after {episode} episodes")
+    assert success == pytest.approx(1.0, abs=1e-12)
+
+
+def test_an_adapter_refuses_another_environment():
+    with pytest.raises(TypeError, match="frozen_lake takes a FrozenLakeEnv environment, not TaxiEnv"):
+        tes.adapters.frozen_lake(gymnasium.make("Taxi-v4"))
+    with pytest.raises(TypeError, match="taxi takes a TaxiEnv"):
+        tes.adapters.taxi(gymnasium.make("CliffWalking-v1"))
+    with pytest.raises(ValueError, match="is_rainy"):
+        tes.adapters.taxi(gymnasium.make("Taxi-v4", is_rainy=True))
+
+
+def test_a_step_reward_is_what_the_plan_pays():
+    """The Corridor with a toll on moving right from cell 2 that outweighs the exit: the plan
+    then goes nowhere near it (with entering rewards alone it would walk right)."""
+
+    class Tolled(Corridor):
+        def step_reward(self, state, effect):
+            if state == 2 and effect == 1:
+                return -50.0
+            return self.reward(self.next_state(state, effect))
+
+    native = tes.structure.compile(Tolled())
+    assert native.step_reward(2, 1) == -50.0 and native.step_reward(1, 1) == -0.1
+    assert native.reward(3) == -0.1
+    class CappedCorridorEnv(CorridorEnv):
+        """Cut off after 20 steps: a plan that keeps away from the exit never ends."""
+
+        def reset(self, seed=None):
+            self.steps = 0
+            return super().reset(seed)
+
+        def step(self, action):
+            self.steps += 1
+            obs, reward, terminated, _, info = super().step(action)
+            return obs, reward, terminated, self.steps >= 20, info
+
+    agent = tes.agents.LoreRL(Tolled(), seed=1)
+    tes.run(CappedCorridorEnv(), agent, episodes=30, seed=1)
+    assert agent.greedy_policy()[2] == 0
+
+
 def frozen_lake(map_seed: int, success_rate: float = 0.8):
     desc = generate_random_map(size=8, p=0.8, seed=map_seed)
     return gymnasium.make(

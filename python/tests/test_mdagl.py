@@ -142,11 +142,11 @@ def test_the_native_model_refuses_a_wrong_width_on_both_paths():
     indptr, indices = np.array([0, 1], dtype=np.int64), np.array([0], dtype=np.uint32)
     y = np.array([1], dtype=np.int64)
     for width in (3, 5):
-        with pytest.raises(ValueError, match=f"X has {width} columns but the model has 4"):
+        with pytest.raises(ValueError, match=f"X has {width} features, but Mdagl is expecting 4 features as input"):
             native.partial_fit_sparse(indptr, indices, width, y)
-        with pytest.raises(ValueError, match=f"X has {width} columns but the model has 4"):
+        with pytest.raises(ValueError, match=f"X has {width} features, but Mdagl is expecting 4 features as input"):
             native.predict_proba_sparse(indptr, indices, width)
-        with pytest.raises(ValueError, match=f"X has {width} columns but the model has 4"):
+        with pytest.raises(ValueError, match=f"X has {width} features, but Mdagl is expecting 4 features as input"):
             native.partial_fit_dense(np.zeros((1, width)), y)
     native.partial_fit_sparse(indptr, indices, 4, y)
     assert native.n_updates == 1
