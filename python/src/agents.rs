@@ -810,3 +810,26 @@ fn library_error(e: StoreError) -> PyErr {
         _ => LibraryFileError::new_err(e.to_string()),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::Step;
+
+    #[test]
+    fn a_log_decodes_to_the_steps_it_encoded() {
+        let steps = [
+            Step::Begin(3),
+            Step::Act(3),
+            Step::Observe(3, 1, u32::MAX),
+            Step::EndTask,
+        ];
+        let mut bytes = Vec::new();
+        steps.iter().for_each(|s| s.encode(&mut bytes));
+        assert_eq!(bytes.len(), 16 * steps.len());
+        assert_eq!(Step::decode(&bytes).ok(), Some(steps.to_vec()));
+        assert!(Step::decode(&bytes[..15]).is_err());
+        let mut unknown = bytes.clone();
+        unknown[0] = 9;
+        assert!(Step::decode(&unknown).is_err());
+    }
+}

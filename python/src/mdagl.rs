@@ -602,7 +602,14 @@ fn check(model: &Model, rows: Rows<'_>, width: usize) -> PyResult<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::check_indptr;
+    use super::{check_indptr, check_width};
+
+    #[test]
+    fn the_width_is_exact() {
+        assert!(check_width(4, 4).is_ok());
+        assert!(check_width(3, 4).is_err());
+        assert!(check_width(5, 4).is_err());
+    }
 
     #[test]
     fn row_pointers_are_checked() {
