@@ -297,6 +297,20 @@ impl Mdagl {
         self.read(py, |l| matches!(l, Learner::Race(_)))
     }
 
+    /// Ends the race, if racing: the leader goes on alone, as a fixed setting, from its state
+    /// now (what `fit` does after its first pass, the last one on which the race's
+    /// prequential losses are honest: later passes revisit rows the models have learned).
+    fn settle(&self, py: Python<'_>) -> PyResult<()> {
+        py.detach(|| {
+            let mut learner = lock(&self.learner)?;
+            if let Learner::Race(race) = &*learner {
+                let leader = race.model().clone();
+                *learner = Learner::Fixed(leader);
+            }
+            Ok(())
+        })
+    }
+
     /// The race's settings, best first: `(lam, alpha, mean_log_loss, rows, racing)` each (as
     /// `tes fit --json`'s `auto`); empty for a fixed setting.
     fn standings(&self, py: Python<'_>) -> PyResult<Vec<StandingRow>> {

@@ -91,7 +91,9 @@ class Mdagl(ClassifierMixin, BaseEstimator):
     intercept:
         Add an always-on, unregularised intercept column (default ``True``).
     max_iter:
-        Passes ``fit`` makes over its rows (default 200); ``partial_fit`` makes one.
+        Passes ``fit`` makes over its rows (default 200); ``partial_fit`` makes one. With
+        ``"auto"``, ``fit`` races on the first pass — the only one whose prequential losses
+        are honest — and the leader alone makes the rest.
     shuffle:
         Whether ``fit`` visits the rows in a new random order each pass (``random_state``).
     random_state:
@@ -137,9 +139,14 @@ class Mdagl(ClassifierMixin, BaseEstimator):
         order = self._weighted_rows(len(y), sample_weight, X)
         labels = np.searchsorted(self.classes_, y)
         rng = check_random_state(self.random_state) if self.shuffle else None
-        for _ in range(int(self.max_iter)):
+        for iteration in range(int(self.max_iter)):
             rows = order[rng.permutation(len(order))] if rng is not None else order
             self._learn(X, labels, rows)
+            if iteration == 0:
+                # The race's losses are prequential, so honest, on the first pass only; later
+                # passes revisit learned rows and would favour the least regularised setting.
+                self._standings = self._model.standings()
+                self._model.settle()
         self.n_iter_ = int(self.max_iter)
         return self
 
@@ -197,6 +204,7 @@ class Mdagl(ClassifierMixin, BaseEstimator):
             )
 
     def _start(self, classes: np.ndarray, n_features: int) -> None:
+        self._standings: list[tuple[float, float, float, int, bool]] = []
         if len(classes) < 2:
             raise ValueError(
                 f"mDAGL needs at least 2 classes; the data has {len(classes)} class"
@@ -328,7 +336,7 @@ class Mdagl(ClassifierMixin, BaseEstimator):
         """With ``"auto"``: every raced setting, best first, as ``(lam, alpha,
         mean_log_loss, rows, racing)``; empty for fixed settings."""
         check_is_fitted(self, "_model")
-        return self._model.standings()
+        return self._model.standings() or list(getattr(self, "_standings", []))
 
     # ---- copies and pickles -------------------------------------------------------------
 

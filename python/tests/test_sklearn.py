@@ -76,6 +76,22 @@ def test_defaults_reach_tuned_l1_logistic_regression_on_binarised_digits():
     assert ours <= 1.05 * theirs
 
 
+def test_defaults_find_the_few_relevant_features_of_2000():
+    """2 000 rare binary features, 3 of which decide the label: the paper's λ keeps none
+    (chance), the defaults keep those 3 and no other."""
+    rng = np.random.default_rng(0)
+    X = (rng.random((4000, 2000)) < 0.05).astype(np.float64)
+    logit = 3.0 * X[:, 7] - 3.0 * X[:, 1234] + 2.5 * X[:, 42] - 0.3
+    y = (rng.random(4000) < 1 / (1 + np.exp(-logit))).astype(int)
+    X_train, X_test, y_train, y_test = train_test_split(X, y, random_state=0)
+    majority = max(y_test.mean(), 1 - y_test.mean())
+    paper = tes.Mdagl(lam=0.05, alpha=1.5, intercept=False, max_iter=1).fit(X_train, y_train)
+    assert paper.selected_.tolist() == [] and paper.score(X_test, y_test) == majority
+    model = tes.Mdagl().fit(X_train, y_train)
+    assert model.selected_.tolist() == [7, 42, 1234]
+    assert model.score(X_test, y_test) > majority + 0.05
+
+
 def test_meta_estimators_take_it():
     X, y = binarised_digits()
     X, y = X[:600], y[:600]
