@@ -931,7 +931,7 @@ mod tests {
             2,
             2,
             0,
-            |s, _| if s == 0 { 1 } else { 1 },
+            |_, _| 1,
             vec![0.0, 0.0],
             vec![false, true],
             |_| no_features,

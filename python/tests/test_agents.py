@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pickle
 import subprocess
 
 import gymnasium
@@ -311,3 +312,21 @@ def test_the_module_examples_run(module):
 
     failures, tried = doctest.testmod(importlib.import_module(module))
     assert tried > 0 and failures == 0
+
+
+def test_a_bad_step_reward_table_is_refused():
+    class Bad(Corridor):
+        def __init__(self, value):
+            self.value = value
+
+        def step_reward(self, state, effect):
+            return self.value if (state, effect) == (1, 2) else -0.1
+
+    with pytest.raises(ValueError, match="reward of effect 2 in state 1 is not finite"):
+        tes.structure.compile(Bad(float("nan")))
+    good = tes.structure.compile(Bad(-1.0))
+    args = list(good.__reduce__()[1])
+    args[-1] = np.zeros((2, 3))
+    with pytest.raises(ValueError, match=r"step_reward is \(2, 3\) but the structure has 5 states"):
+        tes._tes.Structure(*args)
+    assert pickle.loads(pickle.dumps(good)).step_reward(1, 2) == -1.0
