@@ -4,8 +4,8 @@
 
 use std::sync::Arc;
 
-use numpy::ndarray::Array2;
-use numpy::{IntoPyArray, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::ndarray::{Array2, Array3};
+use numpy::{IntoPyArray, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
@@ -25,7 +25,7 @@ pub struct Structure {
     pub(crate) contexts: Contexts,
     /// The factor of each state and how many there are, as given (what a pickle carries).
     pub(crate) factors: Option<(Vec<u32>, usize)>,
-    /// Whether each step's reward was given by state and effect (`step_reward`).
+    /// Whether each step's reward was given by state, action and effect (`step_reward`).
     pub(crate) step_rewarded: bool,
 }
 
@@ -39,9 +39,10 @@ impl Structure {
     /// * `contexts` — optional `(n_states,)` int64: the factor each state belongs to, for
     ///   `FEpsG` (default: every state its own), and `n_contexts` how many factors there are
     ///   (default: one more than the largest id);
-    /// * `step_reward` — optional `(n_states, n_effects)` float64: the reward of each effect
-    ///   from each state, which the planner then uses instead of the reward for entering where
-    ///   the effect leads (a reward that depends on the step, not only on where it ends).
+    /// * `step_reward` — optional `(n_states, n_actions, n_effects)` float64: the reward of
+    ///   each action from each state when it has each effect (so leads to `next_state[s, e]`),
+    ///   which the planner then uses instead of the reward for entering where the step leads
+    ///   (a reward that depends on the action or the state left, not only on where it ends).
     #[new]
     #[pyo3(signature = (next_state, reward, terminal, feature_indptr, feature_indices, n_features, n_actions, contexts = None, n_contexts = None, step_reward = None))]
     #[allow(clippy::too_many_arguments)]
@@ -55,7 +56,7 @@ impl Structure {
         n_actions: usize,
         contexts: Option<PyReadonlyArray1<'_, i64>>,
         n_contexts: Option<usize>,
-        step_reward: Option<PyReadonlyArray2<'_, f64>>,
+        step_reward: Option<PyReadonlyArray3<'_, f64>>,
     ) -> PyResult<Self> {
         let next = next_state.as_array();
         let (n_states, n_effects) = next.dim();
@@ -103,7 +104,7 @@ impl Structure {
         py: Python<'py>,
     ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyTuple>)> {
         let c = &self.cmdp;
-        let (n, e) = (c.n_states(), c.n_effects());
+        let (n, a, e) = (c.n_states(), c.n_actions(), c.n_effects());
         let next = Array2::from_shape_fn((n, e), |(s, e)| c.next_state(s, e) as i64);
         let reward: Vec<f64> = (0..n).map(|s| c.reward(s)).collect();
         let terminal: Vec<bool> = (0..n).map(|s| c.is_terminal(s)).collect();
@@ -120,9 +121,9 @@ impl Structure {
             ),
             None => (None, None),
         };
-        let step_reward = self
-            .step_rewarded
-            .then(|| Array2::from_shape_fn((n, e), |(s, e)| c.step_reward(s, e)).into_pyarray(py));
+        let step_reward = self.step_rewarded.then(|| {
+            Array3::from_shape_fn((n, a, e), |(s, a, e)| c.step_reward(s, a, e)).into_pyarray(py)
+        });
         let args = PyTuple::new(
             py,
             [
@@ -186,11 +187,17 @@ impl Structure {
         Ok(self.cmdp.reward(state))
     }
 
-    /// The reward the planner counts for `effect` from `state`: the reward for entering where
-    /// it leads, unless the structure was given step rewards.
-    fn step_reward(&self, state: usize, effect: usize) -> PyResult<f64> {
+    /// The reward the planner counts for `action` in `state` when it has `effect`: the
+    /// reward for entering where that leads, unless the structure was given step rewards.
+    fn step_reward(&self, state: usize, action: usize, effect: usize) -> PyResult<f64> {
         self.next_state(state, effect)?;
-        Ok(self.cmdp.step_reward(state, effect))
+        if action >= self.cmdp.n_actions() {
+            return Err(PyValueError::new_err(format!(
+                "action {action} is out of range ({} actions)",
+                self.cmdp.n_actions()
+            )));
+        }
+        Ok(self.cmdp.step_reward(state, action, effect))
     }
 
     /// Whether entering `state` ends the episode.
@@ -301,21 +308,22 @@ fn factor_ids(
     Ok((ids, n))
 }
 
-/// `cmdp` with each step's reward from an `(n_states, n_effects)` table.
+/// `cmdp` with each step's reward from an `(n_states, n_actions, n_effects)` table.
 fn with_step_rewards(
     cmdp: CmdpStructure,
-    table: &PyReadonlyArray2<'_, f64>,
+    table: &PyReadonlyArray3<'_, f64>,
 ) -> PyResult<CmdpStructure> {
     let table = table.as_array();
-    let shape = (cmdp.n_states(), cmdp.n_effects());
+    let shape = (cmdp.n_states(), cmdp.n_actions(), cmdp.n_effects());
     if table.dim() != shape {
         return Err(PyValueError::new_err(format!(
-            "step_reward is {:?} but the structure has {} states and {} effects",
+            "step_reward is {:?} but the structure has {} states, {} actions and {} effects",
             table.dim(),
             shape.0,
-            shape.1
+            shape.1,
+            shape.2
         )));
     }
-    cmdp.with_step_rewards(|s, e| table[(s, e)])
+    cmdp.with_step_rewards(|s, a, e| table[(s, a, e)])
         .map_err(|e| PyValueError::new_err(format!("structure: {e}")))
 }

@@ -157,10 +157,11 @@ class TaxiStructure:
     north, east, west, pick up, drop off).
 
     Effects: 0–3 the taxi moved south, north, east, west; 4 the passenger got in; 5 the
-    passenger got out at the destination (+20, the end); 6 the passenger got out at another
-    stand; 7 the taxi stayed put (a wall, −1); 8 a pick-up or drop-off was refused (stayed
-    put, −10). Each step's reward is its effect's (``step_reward``): a refused pick-up and a
-    bump into a wall stay in the same state at different costs, with no copy of any state.
+    passenger got out at the destination (the end); 6 the passenger got out at another
+    stand; 7 the taxi stayed put. The rewards are Taxi's own, by state, action and next state
+    (``step_reward``): +20 for the delivery, −10 for a pick-up or drop-off that stays put (it
+    was refused), −1 for every other step — a bump into a wall stays put too, at −1, with no
+    effect or state of its own.
 
     Features, per state: the taxi's cell (25), which sides of it are walled (4), the
     passenger in the taxi, the taxi at the passenger's stand, at the destination, at any
@@ -169,7 +170,8 @@ class TaxiStructure:
     """
 
     MOVES = ((1, 0), (-1, 0), (0, 1), (0, -1))
-    PICKED_UP, DELIVERED, DROPPED, STAYED, REFUSED = 4, 5, 6, 7, 8
+    PICKED_UP, DELIVERED, DROPPED, STAYED = 4, 5, 6, 7
+    PICKUP, DROPOFF = 4, 5
 
     def __init__(self, env: Any):
         inner = _unwrap(env, "TaxiEnv", "taxi")
@@ -185,7 +187,7 @@ class TaxiStructure:
         self.nrow, self.ncol = inner.max_row + 1, inner.max_col + 1
         self.n_states = int(inner.observation_space.n)
         self.n_actions = int(inner.action_space.n)
-        self.n_effects = 9
+        self.n_effects = 8
         self.n_features = self.nrow * self.ncol + 4 + 4 + 3
         self.name = "Taxi"
         self.action_names = ["south", "north", "east", "west", "pickup", "dropoff"]
@@ -229,7 +231,7 @@ class TaxiStructure:
 
     def next_state(self, state: int, effect: int) -> int:
         row, col, passenger, destination = self._decode(state)
-        if self.terminal(state) or effect in (self.STAYED, self.REFUSED):
+        if self.terminal(state) or effect == self.STAYED:
             return state
         if effect < 4:
             dr, dc = self.MOVES[effect]
@@ -247,14 +249,16 @@ class TaxiStructure:
         ok = passenger == 4 and here in self.locs and self.locs[destination] != here
         return self._encode(row, col, self.locs.index(here), destination) if ok else state
 
-    def step_reward(self, state: int, effect: int) -> float:
-        if effect == self.DELIVERED and self.next_state(state, effect) != state:
+    def step_reward(self, state: int, action: int, next_state: int) -> float:
+        if next_state != state and self.terminal(next_state):
             return 20.0
-        return -10.0 if effect == self.REFUSED else -1.0
+        if next_state == state and action in (self.PICKUP, self.DROPOFF):
+            return -10.0
+        return -1.0
 
     def reward(self, state: int) -> float:
         """The reward for entering ``state`` (+20 for the delivered states; the planner reads
-        ``step_reward``)."""
+        ``step_reward``, which also knows the action)."""
         return 20.0 if self.terminal(state) else -1.0
 
     def terminal(self, state: int) -> bool:
@@ -263,7 +267,7 @@ class TaxiStructure:
 
     def effect(self, state: int, action: int, next_state: int, reward: float) -> int:
         if next_state == state:
-            return self.REFUSED if reward <= -10 else self.STAYED
+            return self.STAYED
         row, col, passenger, _ = self._decode(state)
         row2, col2, passenger2, destination = self._decode(next_state)
         if passenger2 != passenger:
