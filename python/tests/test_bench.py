@@ -25,7 +25,10 @@ def test_the_bench_reports_every_figure():
 
 
 def test_the_rl_bench_reports_every_method_on_every_toy_text():
-    """`python -m tes.bench --rl` on a sliver of its budgets, one seed."""
+    """`python -m tes.bench --rl` on a sliver of its budgets, one seed: every method on every
+    toy text, Stable-Baselines3's DQN too where it imports, and where it does not, why."""
+    from tes._rl_bench import DQN, dqn_absent
+
     out = subprocess.run(
         [sys.executable, "-m", "tes.bench", "--rl", "--seeds", "1", "--scale", "0.005", "--json"],
         capture_output=True, text=True, check=True,
@@ -33,11 +36,35 @@ def test_the_rl_bench_reports_every_method_on_every_toy_text():
     figures = json.loads(out.stdout)
     runs = {(r["task"], r["method"]) for r in figures["results"]}
     tasks = {"FrozenLake 4x4", "FrozenLake 8x8", "CliffWalking", "Taxi"}
-    assert runs == {(t, m) for t in tasks for m in ("loreRL", "fEpsG", "Q-learning")}
+    methods = {"loreRL", "fEpsG", "Q-learning"}
+    absent = dqn_absent()
+    if absent:
+        assert figures["absent"] == {DQN: absent} and absent in out.stderr
+        assert "Stable-Baselines3 does not import" in absent
+    else:
+        methods.add(DQN)
+    assert runs == {(t, m) for t in tasks for m in methods}
     for r in figures["results"]:
         assert 0 <= r["final_success"] <= r["optimum"] + 1e-9 <= 1 + 1e-9, r
         budget = figures["budgets"][r["task"]]
         assert r["episodes_to_90"] is None or 1 <= r["episodes_to_90"] <= budget, r
+
+
+def test_the_dqn_row_sees_the_state_one_hot():
+    """What the DQN row's network is given: each state as a one-hot vector, and every state's
+    at once for judging its greedy policy."""
+    import gymnasium
+    import numpy as np
+
+    from tes._rl_bench import OneHot
+
+    env = OneHot(gymnasium.make("Taxi-v4"))
+    obs, _ = env.reset(seed=3)
+    state = int(env.unwrapped.s)
+    assert obs.shape == (500,) and obs.dtype == np.float32
+    assert obs[state] == 1.0 and obs.sum() == 1.0
+    assert np.array_equal(env.all_states()[state], obs)
+    assert env.observation_space.contains(env.step(0)[0])
 
 
 def test_the_bench_says_where_it_looked_for_tes(tmp_path, monkeypatch):
