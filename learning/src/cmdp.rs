@@ -296,6 +296,12 @@ impl CmdpStructure {
         }
     }
 
+    /// Whether [`with_step_rewards`](Self::with_step_rewards) gave the steps their rewards.
+    #[inline]
+    pub fn has_step_rewards(&self) -> bool {
+        self.step_rewards.is_some()
+    }
+
     /// The rewards of one state's steps, `[a * E + e]`, when the structure has step rewards.
     #[inline]
     pub(crate) fn step_rewards_of(&self, s: usize) -> Option<&[f64]> {

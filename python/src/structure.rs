@@ -25,8 +25,6 @@ pub struct Structure {
     pub(crate) contexts: Contexts,
     /// The factor of each state and how many there are, as given (what a pickle carries).
     pub(crate) factors: Option<(Vec<u32>, usize)>,
-    /// Whether each step's reward was given by state, action and effect (`step_reward`).
-    pub(crate) step_rewarded: bool,
 }
 
 #[pymethods]
@@ -76,7 +74,6 @@ impl Structure {
             |s| &indices[offsets[s]..offsets[s + 1]],
         )
         .map_err(|e| PyValueError::new_err(format!("structure: {e}")))?;
-        let step_rewarded = step_reward.is_some();
         let cmdp = match step_reward {
             None => cmdp,
             Some(table) => with_step_rewards(cmdp, &table)?,
@@ -94,7 +91,6 @@ impl Structure {
             cmdp: Arc::new(cmdp),
             contexts,
             factors,
-            step_rewarded,
         })
     }
 
@@ -121,7 +117,7 @@ impl Structure {
             ),
             None => (None, None),
         };
-        let step_reward = self.step_rewarded.then(|| {
+        let step_reward = c.has_step_rewards().then(|| {
             Array3::from_shape_fn((n, a, e), |(s, a, e)| c.step_reward(s, a, e)).into_pyarray(py)
         });
         let args = PyTuple::new(

@@ -215,7 +215,6 @@ impl GridWorld {
             cmdp: Arc::new(cmdp),
             contexts,
             factors: Some((of_state, task.n_oracle_contexts())),
-            step_rewarded: false,
         })
     }
 
@@ -482,7 +481,6 @@ impl ArenaWorld {
             cmdp: Arc::new(cmdp),
             contexts,
             factors: Some((of_state, out + 1)),
-            step_rewarded: false,
         })
     }
 

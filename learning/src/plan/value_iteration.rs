@@ -256,8 +256,8 @@ impl ValueIteration {
         let zero: f64 = std::iter::empty::<f64>().sum();
         // Rewards that depend on the action are added per action, which the lanes (one shared
         // `R + γV` per effect) do not do.
-        let has_step_rewards = structure.step_rewards_of(0).is_some();
-        let by_lanes = optimism.is_none() && !table.lanes.is_empty() && !has_step_rewards;
+        let by_lanes =
+            optimism.is_none() && !table.lanes.is_empty() && !structure.has_step_rewards();
         let Self {
             values,
             policy,
