@@ -139,7 +139,7 @@ METHODS = ("loreRL", "fEpsG", "Q-learning")
 def dqn_absent() -> str | None:
     """Why Stable-Baselines3's DQN cannot run here, or None when it can."""
     try:
-        import stable_baselines3  # noqa: F401
+        import stable_baselines3  # type: ignore[import-not-found, unused-ignore]  # noqa: F401
     except ImportError as error:
         return (f"Stable-Baselines3 does not import ({error}): its DQN is not in this table "
                 "(pip install stable-baselines3, which needs PyTorch)")
@@ -151,7 +151,10 @@ class OneHot(gymnasium.ObservationWrapper):
 
     def __init__(self, env: gymnasium.Env):
         super().__init__(env)
-        self.n_states = int(env.observation_space.n)
+        space = env.observation_space
+        if not isinstance(space, gymnasium.spaces.Discrete):
+            raise TypeError(f"OneHot takes a Discrete observation space, not {space}")
+        self.n_states = int(space.n)
         self.observation_space = gymnasium.spaces.Box(0.0, 1.0, (self.n_states,), np.float32)
         self._rows = np.eye(self.n_states, dtype=np.float32)
 
@@ -166,8 +169,10 @@ class OneHot(gymnasium.ObservationWrapper):
 def run_dqn(task: Task, seed: int, judge: Judge, best: float) -> tuple[int | None, float]:
     """Stable-Baselines3's DQN for ``task.episodes`` episodes, its greedy policy judged after
     each: the episode it first reached 90 % of ``best``, and its final success."""
-    from stable_baselines3 import DQN as SB3DQN
-    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3 import DQN as SB3DQN  # type: ignore[import-not-found, unused-ignore]
+    from stable_baselines3.common.callbacks import (  # type: ignore[import-not-found, unused-ignore]
+        BaseCallback,
+    )
 
     env = OneHot(gymnasium.make(task.env_id, **task.kwargs))
     states = env.all_states()
@@ -181,7 +186,8 @@ def run_dqn(task: Task, seed: int, judge: Judge, best: float) -> tuple[int | Non
 
         def __init__(self) -> None:
             super().__init__()
-            self.episodes, self.reached = 0, None
+            self.episodes = 0
+            self.reached: int | None = None
 
         def _on_step(self) -> bool:
             for done in self.locals["dones"]:
