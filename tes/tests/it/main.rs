@@ -18,6 +18,7 @@ mod library_facts;
 mod multi_host;
 mod recording;
 mod run_folder;
+mod shutdown;
 mod status;
 mod tui;
 mod viewers;
