@@ -86,6 +86,9 @@ pub enum LaunchError {
         .0.display()
     )]
     NoBrick(PathBuf),
+    /// The view library file cannot be used (corrupt, foreign, for another world).
+    #[error("{0}; nothing was started (move the file away to start from an empty library)")]
+    Library(tes_learning::library::store::StoreError),
 }
 
 /// How a supervisor starts children and when it stops.
@@ -150,6 +153,9 @@ pub struct Supervisor {
     last_steps: Option<u64>,
     stall_deadline: Instant,
     progress_seen: [u64; 3],
+    /// The most episodes the episode-counting roles (perception, controller) reported,
+    /// the count of a group side that plays neither.
+    reported_episodes: u64,
     ending: Option<Ending>,
     // Declared last: dropped after the ports of the watch and the link.
     _node: iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>,
@@ -164,6 +170,7 @@ impl Supervisor {
         observer: &mut dyn Observer,
     ) -> Result<Self, LaunchError> {
         refuse_a_missing_brick(file)?;
+        refuse_a_bad_library(file)?;
         // A refusal from here until the children run removes the new run folder (`prepared`'s
         // drop) and leaves `runs/latest` as it was.
         let mut prepared = prepare(file)?;
@@ -247,6 +254,7 @@ impl Supervisor {
             last_steps: None,
             stall_deadline,
             progress_seen: [0; 3],
+            reported_episodes: 0,
             ending: None,
             _node: node,
         })
@@ -294,11 +302,29 @@ impl Supervisor {
             reason: Some("the group stopped".into()),
         });
         self.tell_peers(&ending);
+        // The last reports before the group goes: a side without the controller counts its
+        // episodes from them.
+        if self.watch.poll().is_ok() {
+            self.emit_progress(observer);
+        }
         let grace = Duration::from_millis(self.file.launch.grace_ms);
         let mut processes: Vec<&mut children::Process> =
             self.children.iter_mut().map(|c| &mut c.process).collect();
-        for escalation in children::shutdown(&mut processes, grace) {
+        // A controller still saving the library (its marker beside its report) is waited
+        // for before SIGKILL.
+        let marker = self
+            .report
+            .as_deref()
+            .map(tes_controller::process::saving_marker);
+        let saving = |p: &children::Process| {
+            p.name == Role::Controller.name() && marker.as_deref().is_some_and(Path::exists)
+        };
+        let shutdown = children::shutdown_saving(&mut processes, grace, &saving);
+        for escalation in shutdown.escalations {
             observer.event(&Event::Escalated(escalation));
+        }
+        for wait in shutdown.save_waits {
+            observer.event(&Event::WaitedForSave(wait));
         }
         self.take_last_lines(observer);
         if let Some(mut link) = self.link.take() {
@@ -321,12 +347,22 @@ impl Supervisor {
             .and_then(|report| library::read_report(Some(report)));
         self.say_what_became_of_the_library(summary.as_ref(), observer);
         let verdict = Verdict {
-            episodes: self.relay.episodes,
+            episodes: self.episodes_taken_part_in(),
             unfinished_steps: summary.map_or(0, |s| s.unfinished_steps),
             failures,
         };
         observer.event(&Event::Verdict(verdict.clone()));
         verdict
+    }
+
+    /// The episodes this side of the group took part in: the controller's lines where it
+    /// plays the controller, else the most its peers' progress reports counted.
+    fn episodes_taken_part_in(&self) -> u32 {
+        if self.plays(Role::Controller) {
+            self.relay.episodes
+        } else {
+            u32::try_from(self.reported_episodes).unwrap_or(u32::MAX)
+        }
     }
 
     /// Takes every line the children wrote since the last step.
@@ -528,7 +564,7 @@ impl Supervisor {
         if let Err(e) = channel::clean_stale_resources() {
             observer.event(&Event::Warning(e.to_string()));
         }
-        let child = children::spawn(&self.options.command, &self.children[i].spec)?;
+        let child = children::respawn(&self.options.command, &self.children[i].spec)?;
         observer.event(&Event::ProcessStarted {
             role,
             pid: child.id(),
@@ -575,6 +611,9 @@ impl Supervisor {
                 && p.stamp_ns != self.progress_seen[i]
             {
                 self.progress_seen[i] = p.stamp_ns;
+                if role != Role::Bridge {
+                    self.reported_episodes = self.reported_episodes.max(p.episodes);
+                }
                 observer.event(&Event::Progress { role, progress: *p });
             }
         }
@@ -801,6 +840,39 @@ fn clean_stale_resources(observer: &mut dyn Observer) {
         Ok(processes) => observer.event(&Event::StaleResourcesRemoved { processes }),
         Err(e) => observer.event(&Event::Warning(e.to_string())),
     }
+}
+
+/// Refuses a library file the controller would refuse, before anything starts: a launch
+/// that plays the controller checks the file (if there is one) as the controller will load
+/// it, for the world perception publishes.
+fn refuse_a_bad_library(file: &LaunchFile) -> Result<(), LaunchError> {
+    if file
+        .roles()
+        .is_some_and(|local| !local.contains(&Role::Controller))
+    {
+        return Ok(());
+    }
+    let path = file.controller.library_path();
+    if std::fs::symlink_metadata(&path).is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound) {
+        return Ok(());
+    }
+    let checked = match tes_perception_sim::arena::ArenaId::from_number(file.arena()) {
+        Ok(id) => {
+            let arena = tes_perception_sim::arena::Arena::new(id);
+            match tes_perception_sim::process::world_map(&arena) {
+                Ok(map) => tes_learning::library::store::load_for(
+                    &path,
+                    map.n_actions as usize,
+                    map.n_effects as usize,
+                    map.n_features as usize,
+                ),
+                Err(_) => tes_learning::library::store::load(&path),
+            }
+        }
+        // A bad arena number is the launch file's error, said by its own check.
+        Err(_) => tes_learning::library::store::load(&path),
+    };
+    checked.map(|_| ()).map_err(LaunchError::Library)
 }
 
 /// Refuses a prefix a running group uses. A group is there if its processes' progress

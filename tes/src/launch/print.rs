@@ -83,6 +83,7 @@ pub(crate) fn lines_of(event: &Event, echo: bool) -> Vec<(To, String)> {
         Event::ProcessExited { .. }
         | Event::Stalled { .. }
         | Event::Escalated(_)
+        | Event::WaitedForSave(_)
         | Event::StopRequested
         | Event::Log { .. } => process_line(event),
         _ => run_line(event),
@@ -204,6 +205,18 @@ fn process_line(event: &Event) -> Option<Said> {
         Event::Escalated(e) => warn(format!(
             "launch: {} did not stop within {:?} of {}; escalating",
             e.process, e.grace, e.signal
+        )),
+        Event::WaitedForSave(w) if w.done => note(format!(
+            "launch: waited {:.1} s for the {} to save the library (at most {} s)",
+            w.waited.as_secs_f64(),
+            w.process,
+            w.bound.as_secs()
+        )),
+        Event::WaitedForSave(w) => warn(format!(
+            "launch: the {} was still saving the library after {} s; killed (the previous \
+             library file is intact)",
+            w.process,
+            w.bound.as_secs()
         )),
         _ => None,
     }

@@ -19,6 +19,7 @@ mod live_view;
 mod multi_host;
 mod recording;
 mod run_folder;
+mod shutdown;
 mod status;
 mod tui;
 mod viewers;
