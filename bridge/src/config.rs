@@ -145,7 +145,7 @@ pub fn check_serial_device(path: &Path) -> Result<(), SerialDeviceError> {
     if is_terminal {
         Ok(())
     } else {
-        not_a_terminal("a character device that is not a terminal")
+        not_a_terminal("a character device")
     }
 }
 
@@ -1226,8 +1226,14 @@ mod tests {
         let file = dir.path().join("file");
         std::fs::write(&file, "").expect("file");
         for (path, kind) in [
-            (Path::new("/dev/null"), "a character device that is not a terminal"),
-            (Path::new("/dev/zero"), "a character device that is not a terminal"),
+            (
+                Path::new("/dev/null"),
+                "a character device that is not a terminal",
+            ),
+            (
+                Path::new("/dev/zero"),
+                "a character device that is not a terminal",
+            ),
             (fifo.as_path(), "a FIFO"),
             (file.as_path(), "a regular file"),
             (dir.path(), "a directory"),
@@ -1236,7 +1242,10 @@ mod tests {
             let e = transport.check_device().expect_err("not a terminal");
             let text = e.to_string();
             assert!(
-                text.starts_with(&format!("{} is {kind}, not a terminal device", path.display())),
+                text.starts_with(&format!(
+                    "{} is {kind}, not a terminal device",
+                    path.display()
+                )),
                 "{text}"
             );
             assert!(text.contains("`rfcomm bind`"), "{text}");
@@ -1246,7 +1255,9 @@ mod tests {
         assert!(e.to_string().contains("does not exist"), "{e}");
         let pty = nix::pty::openpty(None, None).expect("a pseudo-terminal");
         let slave = nix::unistd::ttyname(&pty.slave).expect("its name");
-        TransportKind::Serial(slave).check_device().expect("a terminal");
+        TransportKind::Serial(slave)
+            .check_device()
+            .expect("a terminal");
         TransportKind::Sim.check_device().expect("no device");
     }
 }

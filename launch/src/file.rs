@@ -701,9 +701,11 @@ pub const MAX_LAUNCH_FILE_BYTES: u64 = 1 << 20;
 /// directory is refused without blocking or reading from it, and a file over
 /// [`MAX_LAUNCH_FILE_BYTES`] without reading it.
 pub fn read_launch_file(path: &Path) -> Result<LaunchFile, LaunchFileError> {
-    let text = tes_files::read_text(path, MAX_LAUNCH_FILE_BYTES).map_err(|error| LaunchFileError::Read {
-        path: path.to_owned(),
-        error,
+    let text = tes_files::read_text(path, MAX_LAUNCH_FILE_BYTES).map_err(|error| {
+        LaunchFileError::Read {
+            path: path.to_owned(),
+            error,
+        }
     })?;
     LaunchFile::from_toml(&text, Origin::File(path.to_owned())).map_err(LaunchFileError::Setting)
 }
@@ -1300,7 +1302,10 @@ mod tests {
             .expect("a sparse file");
         for (path, reason) in [
             (fifo.as_path(), "is a FIFO, not a regular file"),
-            (Path::new("/dev/zero"), "is a character device, not a regular file"),
+            (
+                Path::new("/dev/zero"),
+                "is a character device, not a regular file",
+            ),
             (dir.path(), "is a directory, not a regular file"),
             (huge.as_path(), "more than the 1048576 bytes"),
         ] {

@@ -81,7 +81,7 @@ pub enum LaunchError {
     Poll(#[source] std::io::Error),
     /// The bridge's serial device does not exist or is not a terminal device.
     #[error("[bridge] transport: {0}; nothing was started")]
-    NoBrick(#[source] tes_bridge::config::SerialDeviceError),
+    NoBrick(tes_bridge::config::SerialDeviceError),
 }
 
 /// How a supervisor starts children and when it stops.

@@ -367,7 +367,10 @@ pub fn check_tls_files(ca: &Path, cert: &Path, key: &Path) -> Result<(), TlsFile
     for (file, path) in [(TlsFile::Authority, ca), (TlsFile::Certificate, cert)] {
         let dir = tes_files::parent_dir(path);
         if let Err(e) = tes_files::check_dir_not_writable_by_others(&dir) {
-            return refuse(file, format!("{} (holding {}) {e}", dir.display(), path.display()));
+            return refuse(
+                file,
+                format!("{} (holding {}) {e}", dir.display(), path.display()),
+            );
         }
     }
     if !authority.is_ca {
@@ -841,10 +844,25 @@ mod tests {
 
     #[test]
     fn addresses_are_ip_addresses_or_dns_names() {
-        for good in ["192.168.1.20", "fd00::20", "robot", "robot.local", "a-b.c1.example"] {
+        for good in [
+            "192.168.1.20",
+            "fd00::20",
+            "robot",
+            "robot.local",
+            "a-b.c1.example",
+        ] {
             assert!(is_address(good), "{good}");
         }
-        for bad in ["", "a b", "x\"]", "robot.local.", "-a", "a-", "1.2.3", "é.local"] {
+        for bad in [
+            "",
+            "a b",
+            "x\"]",
+            "robot.local.",
+            "-a",
+            "a-",
+            "1.2.3",
+            "é.local",
+        ] {
             assert!(!is_address(bad), "{bad}");
         }
     }
@@ -854,7 +872,9 @@ mod tests {
         let dir = tempfile::tempdir().expect("temp dir");
         let keys = dir.path().join("odd \"dir\"\n");
         let hosts = vec![
-            "robot=perception-sim,bridge@fd00::20".parse().expect("host"),
+            "robot=perception-sim,bridge@fd00::20"
+                .parse()
+                .expect("host"),
             "learner=controller".parse().expect("host"),
         ];
         let set = keygen(&keys, &hosts, DEFAULT_PORT).expect("keys");
@@ -867,7 +887,14 @@ mod tests {
         // Every line is a comment, a table, a key, or empty: nothing a path or an address
         // holds starts a line of its own.
         for line in lines.lines() {
-            let starts = ["#", "[launch]", "[launch.link]", "roles =", "listen =", "connect ="];
+            let starts = [
+                "#",
+                "[launch]",
+                "[launch.link]",
+                "roles =",
+                "listen =",
+                "connect =",
+            ];
             let tls = ["tls_ca =", "tls_cert =", "tls_key ="];
             assert!(
                 line.is_empty() || starts.iter().chain(&tls).any(|s| line.starts_with(s)),
@@ -889,7 +916,11 @@ mod tests {
             text.contains(&format!("run `chmod 700 {}`", open.display())),
             "{text}"
         );
-        assert_eq!(fs::read_dir(&open).expect("dir").count(), 0, "nothing written");
+        assert_eq!(
+            fs::read_dir(&open).expect("dir").count(),
+            0,
+            "nothing written"
+        );
         let mode = fs::metadata(&open).expect("dir").permissions().mode();
         assert_eq!(mode & 0o777, 0o777, "left as it was");
         fs::set_permissions(&open, fs::Permissions::from_mode(0o700)).expect("chmod");
@@ -929,7 +960,8 @@ mod tests {
         let e = check_tls_files(&ca, &cert, &key).expect_err("world-readable key");
         assert_eq!(e.file, TlsFile::Key);
         assert!(
-            e.reason.contains(&format!("run `chmod 600 {}`", key.display())),
+            e.reason
+                .contains(&format!("run `chmod 600 {}`", key.display())),
             "{e}"
         );
         fs::set_permissions(&key, fs::Permissions::from_mode(0o600)).expect("chmod");
@@ -937,7 +969,8 @@ mod tests {
         let e = check_tls_files(&ca, &cert, &key).expect_err("open directory");
         assert_eq!(e.file, TlsFile::Key);
         assert!(
-            e.reason.contains(&format!("run `chmod 700 {}`", keys.display())),
+            e.reason
+                .contains(&format!("run `chmod 700 {}`", keys.display())),
             "{e}"
         );
         fs::set_permissions(&keys, fs::Permissions::from_mode(0o700)).expect("chmod");
@@ -975,7 +1008,11 @@ mod tests {
         ] {
             let e = check_tls_files(a, c, k).expect_err("/dev/zero");
             assert_eq!(e.file, file);
-            assert!(e.reason.contains("is a character device, not a regular file"), "{e}");
+            assert!(
+                e.reason
+                    .contains("is a character device, not a regular file"),
+                "{e}"
+            );
         }
         let big = dir.path().join("k").join("big.pem");
         fs::File::create(&big)
@@ -992,14 +1029,18 @@ mod tests {
         let e = check_tls_files(&set.hosts[1].cert, &cert, &key).expect_err("host as CA");
         assert_eq!(e.file, TlsFile::Authority);
         assert!(
-            e.reason.contains("is not an authority's certificate but a host's"),
+            e.reason
+                .contains("is not an authority's certificate but a host's"),
             "{e}"
         );
         let e = check_tls_files(&ca, &ca, &key).expect_err("CA as host");
         assert_eq!(e.file, TlsFile::Certificate);
         let (other_ca, ..) = tls_files(&dir.path().join("other"));
         let e = check_tls_files(&other_ca, &cert, &key).expect_err("another group's CA");
-        assert!(e.reason.contains("was not issued by the authority in"), "{e}");
+        assert!(
+            e.reason.contains("was not issued by the authority in"),
+            "{e}"
+        );
         let e = check_tls_files(&ca, &cert, &cert).expect_err("a certificate as the key");
         assert_eq!(e.file, TlsFile::Key);
         assert!(e.reason.contains("not a private key"), "{e}");

@@ -69,9 +69,7 @@ enum Walked {
     /// To the footer (and the closing magic, or part of it).
     ToTheFooter,
     /// To the end of the bytes without a footer; `last` is where the last record began.
-    ToTheEnd {
-        last: usize,
-    },
+    ToTheEnd { last: usize },
 }
 
 /// The walk of [`check`], every break a cut unless a checksum says otherwise.

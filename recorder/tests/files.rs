@@ -276,11 +276,18 @@ fn a_flipped_byte_is_corruption_not_a_cut() {
 fn open_refuses_what_is_not_a_recording_file_before_reading_it() {
     let dir = tempfile::tempdir().unwrap();
     let e = Recording::open(Path::new("/dev/zero")).unwrap_err();
-    assert!(e.to_string().contains("is a character device, not a regular file"), "{e}");
+    assert!(
+        e.to_string()
+            .contains("is a character device, not a regular file"),
+        "{e}"
+    );
     let fifo = dir.path().join("fifo.mcap");
     nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::S_IRWXU).unwrap();
     let e = Recording::open(&fifo).unwrap_err();
-    assert!(e.to_string().contains("is a FIFO, not a regular file"), "{e}");
+    assert!(
+        e.to_string().contains("is a FIFO, not a regular file"),
+        "{e}"
+    );
     let sparse = |name: &str, start: &[u8]| {
         let path = dir.path().join(name);
         std::fs::write(&path, start).unwrap();

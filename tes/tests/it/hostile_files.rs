@@ -48,9 +48,25 @@ fn finish(mut command: Command, args: &[&str]) -> Output {
             bytes
         })
     };
-    let stdout = drain(child.0.stdout.take().map(|p| Box::new(p) as Box<dyn Read + Send>));
-    let stderr = drain(child.0.stderr.take().map(|p| Box::new(p) as Box<dyn Read + Send>));
-    let status = wait_exit(&mut child.0, EXIT_WITHIN, &format!("tes {}", args.join(" ")));
+    let stdout = drain(
+        child
+            .0
+            .stdout
+            .take()
+            .map(|p| Box::new(p) as Box<dyn Read + Send>),
+    );
+    let stderr = drain(
+        child
+            .0
+            .stderr
+            .take()
+            .map(|p| Box::new(p) as Box<dyn Read + Send>),
+    );
+    let status = wait_exit(
+        &mut child.0,
+        EXIT_WITHIN,
+        &format!("tes {}", args.join(" ")),
+    );
     Output {
         status,
         stdout: stdout.join().expect("read"),
@@ -274,7 +290,11 @@ fn tls_files_are_checked_before_anything_is_made() {
     let dir = tempfile::tempdir().expect("temp dir");
     let keys = dir.path().join("keys");
     let out = tes_limited(&["link", "keygen", text(&keys)], None);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let (ca, cert, key) = (
         keys.join("ca.pem"),
         keys.join("learner.pem"),
@@ -293,7 +313,10 @@ fn tls_files_are_checked_before_anything_is_made() {
         dir.path(),
         &tls_launch_file(dir.path(), &host_as_ca, &cert, &key),
     );
-    assert!(err.contains("not an authority's certificate but a host's"), "{err}");
+    assert!(
+        err.contains("not an authority's certificate but a host's"),
+        "{err}"
+    );
     fs::set_permissions(&key, fs::Permissions::from_mode(0o644)).expect("chmod");
     let err = launch_refused(dir.path(), &tls_launch_file(dir.path(), &ca, &cert, &key));
     assert!(
@@ -309,8 +332,15 @@ fn keygen_refuses_an_open_directory_and_addresses_that_are_not_addresses() {
     fs::create_dir(&open).expect("dir");
     fs::set_permissions(&open, fs::Permissions::from_mode(0o777)).expect("chmod");
     let err = refused(&tes_limited(&["link", "keygen", text(&open)], None));
-    assert!(err.contains(&format!("chmod 700 {}", open.display())), "{err}");
-    assert_eq!(fs::read_dir(&open).expect("dir").count(), 0, "nothing written");
+    assert!(
+        err.contains(&format!("chmod 700 {}", open.display())),
+        "{err}"
+    );
+    assert_eq!(
+        fs::read_dir(&open).expect("dir").count(),
+        0,
+        "nothing written"
+    );
     let injected = "robot=perception-sim,bridge@x\"]\ninsecure = true";
     let keys = dir.path().join("keys");
     let out = tes_limited(
