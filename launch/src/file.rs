@@ -614,8 +614,8 @@ pub enum LaunchFileError {
     Read {
         /// The file.
         path: PathBuf,
-        /// Why.
-        error: tes_files::FileProblem,
+        /// Why (boxed: it is rare, and keeps the error small).
+        error: Box<tes_files::FileProblem>,
     },
     /// A key is unknown, of the wrong type, repeated or out of range, the settings contradict
     /// each other, or the text is not TOML: placed in the file (its origin, line, table and
@@ -704,7 +704,7 @@ pub fn read_launch_file(path: &Path) -> Result<LaunchFile, LaunchFileError> {
     let text = tes_files::read_text(path, MAX_LAUNCH_FILE_BYTES).map_err(|error| {
         LaunchFileError::Read {
             path: path.to_owned(),
-            error,
+            error: Box::new(error),
         }
     })?;
     LaunchFile::from_toml(&text, Origin::File(path.to_owned())).map_err(LaunchFileError::Setting)
