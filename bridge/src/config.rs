@@ -53,6 +53,111 @@ impl TransportKind {
     pub fn is_real(&self) -> bool {
         !matches!(self, TransportKind::Sim)
     }
+
+    /// For `serial:PATH`, that PATH is a terminal device ([`check_serial_device`]); every
+    /// other transport passes. Run where the bridge runs, before it starts: the settings'
+    /// own check ([`BridgeSettings::check`]) does not look at devices, as a host that does
+    /// not play the bridge checks them too.
+    pub fn check_device(&self) -> Result<(), SerialDeviceError> {
+        match self {
+            TransportKind::Serial(path) => check_serial_device(path),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// The fix said with every refused serial device.
+const SERIAL_FIX: &str = "give the brick's serial device (`serial:/dev/rfcomm0` bound by \
+    `rfcomm bind` to a paired brick), or `transport = \"bluetooth:ADDR\"` (no rfcomm device \
+    needed), `\"usb\"`, or `\"sim\"` for the simulated brick";
+
+/// Why `transport = "serial:PATH"` cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum SerialDeviceError {
+    /// Nothing is at the path.
+    #[error(
+        "{} does not exist (is the brick paired and its rfcomm device bound? `transport = \
+         \"sim\"` uses the simulated brick)",
+        .0.display()
+    )]
+    Missing(PathBuf),
+    /// Something is there, but not a terminal: `/dev/null`, `/dev/zero`, a FIFO, a file, a
+    /// directory. Nothing was opened (a terminal only if the kernel could not say).
+    #[error("{} is {kind}, not a terminal device: {SERIAL_FIX}", path.display())]
+    NotATerminal {
+        /// The path.
+        path: PathBuf,
+        /// What it is instead.
+        kind: &'static str,
+    },
+    /// The path cannot be looked at.
+    #[error("cannot look at {}: {error}", path.display())]
+    Io {
+        /// The path.
+        path: PathBuf,
+        /// Why.
+        error: std::io::Error,
+    },
+}
+
+/// The majors of Unix 98 pseudo-terminal slaves (`/dev/pts/N`), which sysfs does not list.
+const PTY_SLAVE_MAJORS: std::ops::RangeInclusive<u64> = 136..=143;
+
+/// Refuses a serial path that is not a terminal device, without opening it where the kernel
+/// says what the device is (`/sys/dev/char/MAJOR:MINOR/subsystem` is `tty` for a terminal;
+/// a pseudo-terminal's slave is told by its major): opening a serial device may connect
+/// (rfcomm) or reset what is on the other end.
+pub fn check_serial_device(path: &Path) -> Result<(), SerialDeviceError> {
+    use std::os::unix::fs::{FileTypeExt, MetadataExt};
+    let meta = match std::fs::metadata(path) {
+        Ok(meta) => meta,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(SerialDeviceError::Missing(path.to_owned()));
+        }
+        Err(error) => {
+            return Err(SerialDeviceError::Io {
+                path: path.to_owned(),
+                error,
+            });
+        }
+    };
+    let not_a_terminal = |kind| {
+        Err(SerialDeviceError::NotATerminal {
+            path: path.to_owned(),
+            kind,
+        })
+    };
+    if !meta.file_type().is_char_device() {
+        return not_a_terminal(tes_files::kind_of(meta.file_type()));
+    }
+    let (major, minor) = (
+        nix::sys::stat::major(meta.rdev()),
+        nix::sys::stat::minor(meta.rdev()),
+    );
+    let subsystem = std::fs::read_link(format!("/sys/dev/char/{major}:{minor}/subsystem"));
+    let is_terminal = match subsystem {
+        Ok(class) => class.file_name().is_some_and(|name| name == "tty"),
+        Err(_) if PTY_SLAVE_MAJORS.contains(&major) => true,
+        // Neither sysfs nor the major says: ask the device itself, opened without blocking
+        // and without becoming this process's terminal.
+        Err(_) => opens_as_terminal(path),
+    };
+    if is_terminal {
+        Ok(())
+    } else {
+        not_a_terminal("a character device")
+    }
+}
+
+/// Whether `path` opens (without blocking, not as the controlling terminal) as a terminal.
+fn opens_as_terminal(path: &Path) -> bool {
+    use std::io::IsTerminal;
+    use std::os::unix::fs::OpenOptionsExt;
+    std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK | libc::O_NOCTTY)
+        .open(path)
+        .is_ok_and(|file| file.is_terminal())
 }
 
 /// The forms a `transport` takes, for messages.
@@ -1109,5 +1214,50 @@ mod tests {
             assert_eq!(back.check(), settings.check());
             assert!(settings.check().is_ok());
         }
+    }
+
+    /// `/dev/null`, `/dev/zero`, a FIFO, a file and a directory are refused as no terminal,
+    /// with the fix; a missing path says it does not exist; a pseudo-terminal passes.
+    #[test]
+    fn serial_paths_that_are_not_terminals_are_refused_with_the_fix() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let fifo = dir.path().join("fifo");
+        nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::S_IRWXU).expect("mkfifo");
+        let file = dir.path().join("file");
+        std::fs::write(&file, "").expect("file");
+        for (path, kind) in [
+            (
+                Path::new("/dev/null"),
+                "a character device that is not a terminal",
+            ),
+            (
+                Path::new("/dev/zero"),
+                "a character device that is not a terminal",
+            ),
+            (fifo.as_path(), "a FIFO"),
+            (file.as_path(), "a regular file"),
+            (dir.path(), "a directory"),
+        ] {
+            let transport = TransportKind::Serial(path.to_owned());
+            let e = transport.check_device().expect_err("not a terminal");
+            let text = e.to_string();
+            assert!(
+                text.starts_with(&format!(
+                    "{} is {kind}, not a terminal device",
+                    path.display()
+                )),
+                "{text}"
+            );
+            assert!(text.contains("`rfcomm bind`"), "{text}");
+        }
+        let missing = TransportKind::Serial(dir.path().join("rfcomm9"));
+        let e = missing.check_device().expect_err("missing");
+        assert!(e.to_string().contains("does not exist"), "{e}");
+        let pty = nix::pty::openpty(None, None).expect("a pseudo-terminal");
+        let slave = nix::unistd::ttyname(&pty.slave).expect("its name");
+        TransportKind::Serial(slave)
+            .check_device()
+            .expect("a terminal");
+        TransportKind::Sim.check_device().expect("no device");
     }
 }

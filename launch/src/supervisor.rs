@@ -79,13 +79,9 @@ pub enum LaunchError {
     /// A child cannot be polled.
     #[error("cannot poll a child")]
     Poll(#[source] std::io::Error),
-    /// The bridge's serial device does not exist.
-    #[error(
-        "[bridge] transport: {} does not exist (is the brick paired and its rfcomm device \
-         bound? `transport = \"sim\"` uses the simulated brick); nothing was started",
-        .0.display()
-    )]
-    NoBrick(PathBuf),
+    /// The bridge's serial device does not exist or is not a terminal device.
+    #[error("[bridge] transport: {0}; nothing was started")]
+    NoBrick(tes_bridge::config::SerialDeviceError),
     /// The view library file cannot be used (corrupt, foreign, for another world).
     #[error("{0}; nothing was started (move the file away to start from an empty library)")]
     Library(tes_learning::library::store::StoreError),
@@ -887,14 +883,16 @@ fn refuse_a_prefix_in_use(prefix: &str) -> Result<(), LaunchError> {
     }
 }
 
-/// Refuses a launch whose bridge would talk to a serial device that is not there: the link
-/// could never come up, and a run that cannot happen must not start.
+/// Refuses a launch whose bridge would talk to a serial device that is not there, or is no
+/// terminal (`/dev/null`, a FIFO, a file): the link could never come up, and a run that
+/// cannot happen must not start.
 fn refuse_a_missing_brick(file: &LaunchFile) -> Result<(), LaunchError> {
     let plays_bridge = file.launch.roles.is_empty() || file.launch.roles.contains(&Role::Bridge);
-    if let (true, TransportKind::Serial(path)) = (plays_bridge, &file.bridge.transport)
-        && std::fs::metadata(path).is_err()
-    {
-        return Err(LaunchError::NoBrick(path.clone()));
+    if plays_bridge {
+        file.bridge
+            .transport
+            .check_device()
+            .map_err(LaunchError::NoBrick)?;
     }
     Ok(())
 }

@@ -361,7 +361,7 @@ impl LinkSection {
         self.tls_ca.is_some() && self.tls_cert.is_some() && self.tls_key.is_some()
     }
 
-    /// The TLS files: none or all three, each a readable file.
+    /// The TLS files: none or all three, as [`keys::check_tls_files`] wants them.
     fn check_tls_files(&self) -> Result<(), SettingError> {
         let files = [
             ("link.tls_ca", &self.tls_ca),
@@ -371,25 +371,19 @@ impl LinkSection {
         if files.iter().all(|(_, f)| f.is_none()) {
             return Ok(());
         }
-        for (key, file) in files {
-            let Some(path) = file else {
-                return Err(SettingError::new(
-                    PROCESS,
-                    key,
-                    "link.tls_ca, link.tls_cert and link.tls_key go together: set all three \
-                     (`tes link keygen DIR` prints them)"
-                        .to_owned(),
-                ));
-            };
-            if let Err(e) = std::fs::File::open(path) {
-                return Err(SettingError::new(
-                    PROCESS,
-                    key,
-                    format!("cannot read {}: {e}", path.display()),
-                ));
-            }
-        }
-        Ok(())
+        let (Some(ca), Some(cert), Some(key)) = (&self.tls_ca, &self.tls_cert, &self.tls_key)
+        else {
+            let (key, _) = files.iter().find(|(_, f)| f.is_none()).unwrap_or(&files[0]);
+            return Err(SettingError::new(
+                PROCESS,
+                *key,
+                "link.tls_ca, link.tls_cert and link.tls_key go together: set all three \
+                 (`tes link keygen DIR` prints them)"
+                    .to_owned(),
+            ));
+        };
+        keys::check_tls_files(ca, cert, key)
+            .map_err(|e| SettingError::new(PROCESS, e.file.setting(), e.reason))
     }
 
     /// The Zenoh configuration: mode, endpoints, scouting; with TLS, mutual authentication

@@ -13,6 +13,7 @@ mod cli;
 mod common;
 mod config_reference;
 mod faults;
+mod hostile_files;
 mod launch;
 mod library_facts;
 mod live_view;
