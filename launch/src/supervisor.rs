@@ -1042,11 +1042,13 @@ fn wait_for_peers(
             )));
         }
         if said.is_none_or(|at| at.elapsed() >= WAITING_SAID_EVERY) {
+            // Zero the first time: the launch says whom it waits for; then how long.
+            let waited = said.map_or(Duration::ZERO, |_| start.elapsed());
             said = Some(Instant::now());
             observer.event(&Event::LinkWaiting {
                 missing,
                 group: settings.group.clone(),
-                waited: start.elapsed(),
+                waited,
                 timeout,
             });
         }

@@ -1,13 +1,13 @@
 """An independent Zenoh client (PyPI's eclipse-zenoh) that tries to join a TES group.
 
     python3 zenoh_stranger.py ENDPOINT GROUP SECONDS [--ca CA] [--cert CERT --key KEY]
-        [--payload HEX] [--no-token] [--sender own|controller|none]
+        [--payload HEX] [--no-token] [--sender own|controller|none|ID]
 
 It connects to ENDPOINT as a peer with whatever credentials it is given (none, another
 authority's, a member's), announces itself as the group's controller (unless --no-token), and
 publishes on the group's command key for SECONDS: PAYLOAD's bytes (64 zero bytes by default),
 each with the sender's id the link's own forwarding attaches — its own session's, the
-controller's it reads off the group's member tokens (a forgery), or none. It prints one JSON
+controller's it reads off the group's member tokens or is given (a forgery), or none. It prints one JSON
 object: how many peers it reached (a refused connection reaches none), how many commands it
 sent, its session id and the controller's id it found.
 """
@@ -40,7 +40,7 @@ def main():
     parser.add_argument("--key")
     parser.add_argument("--payload", default="00" * 64)
     parser.add_argument("--no-token", action="store_true")
-    parser.add_argument("--sender", choices=["own", "controller", "none"], default="own")
+    parser.add_argument("--sender", default="own", help="own, controller, none, or an id")
     args = parser.parse_args()
 
     conf = zenoh.Config()
@@ -63,7 +63,7 @@ def main():
     if not args.no_token:
         token = session.liveliness().declare_token(f"{args.group}/member/controller/{zid}")
     found = controller_zid(session, args.group) if args.sender == "controller" else None
-    sender = {"own": zid, "controller": found, "none": None}[args.sender]
+    sender = {"own": zid, "controller": found, "none": None}.get(args.sender, args.sender)
     payload = bytes.fromhex(args.payload)
     publisher = session.declare_publisher(f"{args.group}/command")
     sent, peers = 0, set()
