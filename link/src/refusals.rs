@@ -152,9 +152,12 @@ impl<S: Subscriber> Layer<S> for DenialLayer {
             }
             // Zenoh weighs each subject a peer matches in turn and logs each verdict; the
             // message passes if any allows it. A subject's refusal is only pending until
-            // the next subject's verdict on the same message.
+            // the next subject's verdict on the same message. A sample's uncached verdicts
+            // read the same as those Zenoh weighs in advance for a declared key (no sample
+            // came): only its cached, final verdict is told.
             (false, false) => {
-                if let Some(denial) = decision.denial()
+                if !decision.what.starts_with("Put")
+                    && let Some(denial) = decision.denial()
                     && let Ok(mut pending) = PENDING.lock()
                     && pending.len() < TOLD_MAX
                 {
@@ -235,10 +238,12 @@ struct AclDecision {
 
 impl AclDecision {
     /// The denial to tell, if the message is one that came in (a sample or a member
-    /// token): what this host would not send (egress) and the kinds Zenoh weighs in advance
-    /// for every declared key are left out.
+    /// token): what this host would not send (egress) is left out, and so are the verdicts
+    /// Zenoh weighs in advance for every kind of message on each key a peer declares
+    /// (`Declare/Undeclare …`: no such message came).
     fn denial(&self) -> Option<Denial> {
         let came_in = self.what.ends_with("(ingress)")
+            && !self.what.starts_with("Declare/Undeclare")
             && (self.what.starts_with("Put") || self.what.contains("Liveliness Token"));
         came_in.then(|| Denial::Message {
             peer: self.peer.clone(),
@@ -371,12 +376,13 @@ mod tests {
             })
         );
         let token = acl_refusal(
-            "6e38 on Interface(lo)+CertCommonName(bridge) is unauthorized to Declare/Undeclare \
-             Liveliness Token (ingress) on lab/member/controller/6e38",
+            "6e38 on Interface(lo)+CertCommonName(bridge) is unauthorized to Liveliness Token \
+             (ingress) on lab/member/controller/6e38",
         );
         assert!(matches!(token, Some(Denial::Message { peer, .. }) if peer == "6e38"));
         for quiet in [
             "6e38 on lo is unauthorized to Delete (ingress) on lab/command",
+            "6e38 on lo is unauthorized to Declare/Undeclare Liveliness Token (ingress) on lab/stop",
             "6e38 on lo is unauthorized to Put (egress) on lab/command",
             "Using cached result: 4c29 is authorized to Put (ingress) on lab/stop",
         ] {
@@ -439,20 +445,24 @@ mod tests {
                 tracing::trace!(
                     target: ACL_TARGET,
                     "aa11 on Interface(lo)+CertCommonName(perception-sim+bridge) is \
-                     unauthorized to Declare/Undeclare Liveliness Token (ingress) on \
-                     lab/member/bridge/aa11"
+                     unauthorized to Liveliness Token (ingress) on lab/member/bridge/aa11"
                 );
                 tracing::trace!(
                     target: ACL_TARGET,
                     "aa11 on Interface(lo)+CertCommonName(perception-sim+bridge) is \
-                     authorized to Declare/Undeclare Liveliness Token (ingress) on \
-                     lab/member/bridge/aa11"
+                     authorized to Liveliness Token (ingress) on lab/member/bridge/aa11"
                 );
             }
             for _ in 0..3 {
+                // Weighed in advance for a declared key, or a sample: not told.
                 tracing::trace!(
                     target: ACL_TARGET,
                     "bb22 on Interface(lo) is unauthorized to Put (ingress) on lab/command"
+                );
+                tracing::trace!(
+                    target: ACL_TARGET,
+                    "dd44 on Interface(lo) is unauthorized to Liveliness Token (ingress) on \
+                     lab/member/controller/dd44"
                 );
                 tracing::trace!(
                     target: ACL_TARGET,
@@ -468,7 +478,7 @@ mod tests {
                 _ => None,
             })
             .collect();
-        assert_eq!(peers, ["cc33", "bb22"]);
+        assert_eq!(peers, ["cc33", "dd44"]);
     }
 
     #[test]

@@ -953,7 +953,7 @@ fn strangers_are_kept_out_and_a_wrong_role_cannot_command() {
     );
     assert!(
         said.contains(&format!(
-            "refused peer {}'s Declare/Undeclare Liveliness Token (ingress) on {group}/member/controller/",
+            "refused peer {}'s Liveliness Token (ingress) on {group}/member/controller/",
             impostor.zid
         )),
         "{said}"
