@@ -75,6 +75,8 @@ pub enum Event {
         missing: Vec<Role>,
         /// The group's name on Zenoh.
         group: String,
+        /// How long it has waited so far (zero the first time it says so).
+        waited: Duration,
         /// When the launch gives up.
         timeout: Duration,
     },

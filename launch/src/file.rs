@@ -957,12 +957,12 @@ mod tests {
             (
                 "roles = [\"bridge\"]\n[launch.link]\nconnect = [\"udp/10.0.0.1:7447\"]\n",
                 "link.connect",
-                "is not a QUIC or TCP endpoint",
+                "is not a QUIC, TCP or Unix socket endpoint",
             ),
             (
                 "roles = [\"bridge\"]\n[launch.link]\nlisten = [\"tcp/10.0.0.1:7447\"]\n",
                 "link.listen",
-                "plain TCP on an address other hosts can reach",
+                "is plain TCP, with no authentication: it is reachable from other hosts",
             ),
             (
                 "roles = [\"bridge\"]\n[launch.link]\npeer_timeout_ms = 5\n",

@@ -42,8 +42,9 @@ const LAST_WORDS: usize = 3;
 /// How often the supervisor reads the trajectory perception writes.
 const RECORD_POLL: Duration = Duration::from_millis(250);
 
-/// How often a launch waiting for its peers says so.
-const WAITING_SAID_EVERY: Duration = Duration::from_secs(5);
+/// How often a launch waiting for its peers reminds that it still waits (said once at
+/// first, then this often, with the time waited).
+const WAITING_SAID_EVERY: Duration = Duration::from_secs(10);
 
 /// A launch that cannot start or cannot go on.
 #[derive(Debug, thiserror::Error)]
@@ -148,6 +149,10 @@ pub struct Supervisor {
     record_polled: Instant,
     last_steps: Option<u64>,
     stall_deadline: Instant,
+    /// The payloads the link has delivered from peers (observations, commands, motor
+    /// states), and when the group stalls if that does not grow.
+    link_delivered: u64,
+    link_deadline: Instant,
     progress_seen: [u64; 3],
     /// The most episodes the episode-counting roles (perception, controller) reported,
     /// the count of a group side that plays neither.
@@ -249,6 +254,8 @@ impl Supervisor {
             record_polled: Instant::now(),
             last_steps: None,
             stall_deadline,
+            link_delivered: 0,
+            link_deadline: stall_deadline,
             progress_seen: [0; 3],
             reported_episodes: 0,
             ending: None,
@@ -467,6 +474,7 @@ impl Supervisor {
             self.watch.forget(role);
             self.stall_deadline =
                 Instant::now() + self.options.start_allowance + stall_timeout(&self.file);
+            self.link_deadline = self.stall_deadline;
         }
         Ok(())
     }
@@ -597,7 +605,51 @@ impl Supervisor {
         } else if Instant::now() > self.stall_deadline {
             self.stalled(timeout, observer);
         }
+        self.watch_link(timeout, observer);
         Ok(())
+    }
+
+    /// The stall watch of a split group's link: the controller may go on deciding (its
+    /// steps grow) while what it sends stops reaching the robot's host — every command
+    /// refused, or the link wedged — and the robot's observations stop reaching it. A link
+    /// that delivers no observation, command or motor state for `stall_timeout_ms` stops
+    /// the group, saying what it refused; restarting a process would not mend it.
+    fn watch_link(&mut self, timeout: Duration, observer: &mut dyn Observer) {
+        let Some(link) = &self.link else { return };
+        let counts = link.counts();
+        let data = |t: &tes_link::Topic| {
+            !matches!(t, tes_link::Topic::Progress(_) | tes_link::Topic::WorldMap)
+                && t.comes_in(&self.file.launch.roles)
+        };
+        let delivered: u64 = counts
+            .by_topic
+            .iter()
+            .filter(|(t, _, _)| data(t))
+            .map(|(_, taken, _)| taken)
+            .sum();
+        if delivered != self.link_delivered {
+            self.link_delivered = delivered;
+            self.link_deadline = Instant::now() + timeout;
+            return;
+        }
+        if self.ending.is_some() || Instant::now() <= self.link_deadline {
+            return;
+        }
+        let Some((topic, _, _)) = counts.by_topic.iter().find(|(t, _, _)| data(t)) else {
+            return;
+        };
+        let why = format!(
+            "sent no {topic} that this host took for {:.1} s (link: {counts})",
+            timeout.as_secs_f64()
+        );
+        observer.event(&Event::Stalled {
+            silent_for: timeout,
+            holder: topic.writer(),
+            why: why.clone(),
+            restarting: false,
+        });
+        let silent = format!("the link stalled: the {} {why}", topic.writer().name());
+        self.end(Some(silent.clone()), Some(silent));
     }
 
     /// Tells each new progress report.
@@ -1016,8 +1068,8 @@ fn open_link(
         group: settings.group.clone(),
         mode: settings.mode,
         zid: link.zid().to_owned(),
-        listen: settings.listen.clone(),
-        connect: settings.connect.clone(),
+        listen: link.endpoints().listen.clone(),
+        connect: link.endpoints().connect.clone(),
         security: settings.security(),
     });
     wait_for_peers(&link, file, stop, observer)?;
@@ -1060,10 +1112,13 @@ fn wait_for_peers(
             )));
         }
         if said.is_none_or(|at| at.elapsed() >= WAITING_SAID_EVERY) {
+            // Zero the first time: the launch says whom it waits for; then how long.
+            let waited = said.map_or(Duration::ZERO, |_| start.elapsed());
             said = Some(Instant::now());
             observer.event(&Event::LinkWaiting {
                 missing,
                 group: settings.group.clone(),
+                waited,
                 timeout,
             });
         }
