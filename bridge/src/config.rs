@@ -236,8 +236,8 @@ pub enum ConfigError {
     Read {
         /// The file.
         path: PathBuf,
-        /// The error (part of the message, so not also chained as a source).
-        error: std::io::Error,
+        /// What is wrong with it (part of the message, so not also chained as a source).
+        error: tes_files::FileProblem,
     },
     /// A key is unknown, of the wrong type or out of range, or the TOML is malformed: the
     /// error every process reports for a bad key (with the file and line when read from
@@ -810,10 +810,16 @@ impl BridgeSettings {
     }
 }
 
+/// The largest bridge settings file read (a settings file is a few KiB).
+pub const MAX_CONFIG_FILE_BYTES: u64 = 1 << 20;
+
 impl BridgeConfig {
     /// Reads and validates a TOML file; an error names the file, the line and the key.
+    ///
+    /// The file is read as every TES file is ([`tes_files::read_text`]): a FIFO, a device or
+    /// a file over [`MAX_CONFIG_FILE_BYTES`] is refused without being read.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Read {
+        let text = tes_files::read_text(path, MAX_CONFIG_FILE_BYTES).map_err(|error| ConfigError::Read {
             path: path.to_owned(),
             error,
         })?;
@@ -952,6 +958,27 @@ mod tests {
         assert_eq!(cfg.actions.config().motors.power, 50);
         assert_eq!(cfg.ipc.service_prefix, "test/");
         assert_eq!(cfg.brick.speed_noise, 0.0);
+    }
+
+    #[test]
+    fn a_settings_file_that_is_a_fifo_or_a_device_is_refused_unread() {
+        let dir = tempfile::tempdir().expect("temporary directory");
+        let fifo = dir.path().join("bridge.toml");
+        nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::S_IRWXU).expect("mkfifo");
+        for (path, kind) in [
+            (fifo.as_path(), "a FIFO"),
+            (Path::new("/dev/zero"), "a character device"),
+        ] {
+            let message = BridgeConfig::load(path).expect_err("refused").to_string();
+            assert!(message.contains(&format!("is {kind}, not a regular file")), "{message}");
+            assert!(message.contains(&path.display().to_string()), "{message}");
+        }
+        let big = dir.path().join("big.toml");
+        std::fs::File::create(&big)
+            .and_then(|f| f.set_len(MAX_CONFIG_FILE_BYTES + 1))
+            .expect("sparse file");
+        let message = BridgeConfig::load(&big).expect_err("refused").to_string();
+        assert!(message.contains("more than the 1048576 bytes"), "{message}");
     }
 
     #[test]

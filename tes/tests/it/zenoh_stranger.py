@@ -48,6 +48,9 @@ def main():
     conf.insert_json5("connect/endpoints", json.dumps([args.endpoint]))
     conf.insert_json5("listen/endpoints", "[]")
     conf.insert_json5("scouting/multicast/enabled", "false")
+    # PyPI's client makes a shared-memory segment per session (`/dev/shm/*.zenoh`), which a
+    # killed stranger leaves behind; the link does not use shared memory, so neither does it.
+    conf.insert_json5("transport/shared_memory/enabled", "false")
     tls = "transport/link/tls/"
     if args.ca:
         conf.insert_json5(tls + "root_ca_certificate", json.dumps(args.ca))
