@@ -180,14 +180,14 @@ fn launch(file: &LaunchFile, what: &'static str, harness: &mut Harness<'_>) -> R
     let verdict =
         tes_launch::run(file, options, &mut *harness.observer).map_err(|e| BenchError::Group {
             what,
-            cause: e.into(),
+            cause: Box::new(e.into()),
         })?;
     if verdict.success() {
         Ok(())
     } else {
         Err(BenchError::Group {
             what,
-            cause: GroupFailure::Failed(verdict.failures),
+            cause: Box::new(GroupFailure::Failed(verdict.failures)),
         })
     }
 }
