@@ -819,9 +819,11 @@ impl BridgeConfig {
     /// The file is read as every TES file is ([`tes_files::read_text`]): a FIFO, a device or
     /// a file over [`MAX_CONFIG_FILE_BYTES`] is refused without being read.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = tes_files::read_text(path, MAX_CONFIG_FILE_BYTES).map_err(|error| ConfigError::Read {
-            path: path.to_owned(),
-            error,
+        let text = tes_files::read_text(path, MAX_CONFIG_FILE_BYTES).map_err(|error| {
+            ConfigError::Read {
+                path: path.to_owned(),
+                error,
+            }
         })?;
         Self::from_toml_in(&text, Origin::File(path.to_owned()))
     }
@@ -970,7 +972,10 @@ mod tests {
             (Path::new("/dev/zero"), "a character device"),
         ] {
             let message = BridgeConfig::load(path).expect_err("refused").to_string();
-            assert!(message.contains(&format!("is {kind}, not a regular file")), "{message}");
+            assert!(
+                message.contains(&format!("is {kind}, not a regular file")),
+                "{message}"
+            );
             assert!(message.contains(&path.display().to_string()), "{message}");
         }
         let big = dir.path().join("big.toml");
