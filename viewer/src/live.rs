@@ -10,7 +10,7 @@
 //! the loop's; decisions, episode ends and log lines all go out. Requests it cannot serve
 //! (malformed, an unknown channel) are answered by the server with a status message.
 //!
-//! Viewers reach the crate's server through a front door of ours ([`door`]), which bounds
+//! Viewers reach the crate's server through a front door of ours (`door`), which bounds
 //! what they can make the launcher hold: [`CONNECTIONS_MAX`] connections, each with
 //! [`HANDSHAKE_DEADLINE`] to finish its upgrade, a request head of at most
 //! [`REQUEST_HEAD_MAX`] bytes and messages of at most [`CLIENT_MESSAGE_MAX`] bytes; it keeps
