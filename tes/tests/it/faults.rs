@@ -7,6 +7,7 @@
 //! resources even when the test fails.
 
 use std::io::BufRead;
+use std::os::fd::AsRawFd as _;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -66,10 +67,12 @@ fn a_failed_link_launch(dir: &Path, bridge: &str, library: &Path, before: &[u8])
 fn a_dead_link_stops_the_launch_and_leaves_the_library_as_it_was() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (library, before) = library_from_a_good_run(dir.path());
-    // A device that is there but is no brick (a device that is not there at all is refused
-    // before anything starts: see `run_folder::a_refused_launch_leaves_…`).
-    let device = dir.path().join("not-a-brick");
-    std::fs::write(&device, b"").expect("a file where the device should be");
+    // A terminal that is there but no brick answers on: a pseudo-terminal whose other end
+    // nobody reads (a path that is not there, or is no terminal, is refused before anything
+    // starts: see `run_folder::a_refused_launch_leaves_…` and `hostile_files::`).
+    let pty = nix::pty::openpty(None, None).expect("a pseudo-terminal");
+    let device = std::fs::read_link(format!("/proc/self/fd/{}", pty.slave.as_raw_fd()))
+        .expect("the pseudo-terminal's path");
     let transport = format!("transport = \"serial:{}\"\n", device.display());
     let said = a_failed_link_launch(dir.path(), &transport, &library, &before);
     assert!(
@@ -79,6 +82,7 @@ fn a_dead_link_stops_the_launch_and_leaves_the_library_as_it_was() {
         )),
         "{said}"
     );
+    drop(pty);
 }
 
 /// A brick's own links on a machine that lacks them (this build machine has no Bluetooth in
