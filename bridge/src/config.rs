@@ -1258,14 +1258,8 @@ mod tests {
         let file = dir.path().join("file");
         std::fs::write(&file, "").expect("file");
         for (path, kind) in [
-            (
-                Path::new("/dev/null"),
-                "a character device that is not a terminal",
-            ),
-            (
-                Path::new("/dev/zero"),
-                "a character device that is not a terminal",
-            ),
+            (Path::new("/dev/null"), "a character device"),
+            (Path::new("/dev/zero"), "a character device"),
             (fifo.as_path(), "a FIFO"),
             (file.as_path(), "a regular file"),
             (dir.path(), "a directory"),
