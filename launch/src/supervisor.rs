@@ -80,9 +80,10 @@ pub enum LaunchError {
     /// A child cannot be polled.
     #[error("cannot poll a child")]
     Poll(#[source] std::io::Error),
-    /// The bridge's serial device does not exist or is not a terminal device.
+    /// The bridge's link cannot exist here: a serial device missing or no terminal, no USB
+    /// bus, no Bluetooth.
     #[error("[bridge] transport: {0}; nothing was started")]
-    NoBrick(tes_bridge::config::SerialDeviceError),
+    NoBrick(tes_bridge::config::DeviceError),
     /// The view library file cannot be used (corrupt, foreign, for another world).
     #[error("{0}; nothing was started (move the file away to start from an empty library)")]
     Library(tes_learning::library::store::StoreError),
@@ -936,8 +937,9 @@ fn refuse_a_prefix_in_use(prefix: &str) -> Result<(), LaunchError> {
 }
 
 /// Refuses a launch whose bridge would talk to a serial device that is not there, or is no
-/// terminal (`/dev/null`, a FIFO, a file): the link could never come up, and a run that
-/// cannot happen must not start.
+/// terminal (`/dev/null`, a FIFO, a file), or to a USB or Bluetooth brick on a machine with
+/// no USB bus or no Bluetooth: the link could never come up, and a run that cannot happen
+/// must not start (said once, before any process could say it again).
 fn refuse_a_missing_brick(file: &LaunchFile) -> Result<(), LaunchError> {
     let plays_bridge = file.launch.roles.is_empty() || file.launch.roles.contains(&Role::Bridge);
     if plays_bridge {
