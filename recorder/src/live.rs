@@ -17,22 +17,30 @@
 //!   memory that allocates nothing and notifies nobody), which the recorder reads;
 //! * the world map is published with history, so it reaches the recorder whenever it joins.
 //!
-//! The thread runs under `SCHED_IDLE` (else nice +19): formatting and writing take only time
-//! the group's processes do not want, and a waking process preempts it at once, so the
-//! recorder costs the acting path no wake-up delay. Nothing is formatted or written on the
-//! controller's side. A sample the recorder could not
+//! The thread runs under `SCHED_IDLE`: formatting and writing take only time the group's
+//! processes do not want, and a waking process preempts it at once, so the recorder costs
+//! the acting path no wake-up delay. On a machine whose cores are all busy at normal priority
+//! such a thread gets almost no CPU, and a recorder that does not drain the services while
+//! the group runs loses what they held: a subscriber's queued samples go with their publisher
+//! when it exits (perception at the end of its episodes), so a run recorded under full load
+//! came out with no observation and no world map. A watcher at normal priority
+//! ([`LAG_LIMIT`]) raises the recorder back to normal scheduling, for the rest of the run, once
+//! it has not drained for that long; where this process cannot undo `SCHED_IDLE` (no
+//! `CAP_SYS_NICE`), the recorder keeps normal priority from the start. Nothing is formatted or
+//! written on the controller's side. A sample the recorder could not
 //! take in time (a machine that kept it from running for a whole buffer's worth of actions)
 //! is counted from the gaps in the sequence numbers and written in the file's end record.
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
+use tes_controller::priority::Background;
 use tes_runtime::channel::{self, IpcError};
 use tes_runtime::ipc::RECORDER_BUFFER;
 use tes_runtime::ring::RingReader;
@@ -108,12 +116,61 @@ const LOOK_EVERY: Duration = Duration::from_micros(500);
 /// fastest real-time factor (`RECORDER_BUFFER` samples; about 17 motor states per action).
 const DRAIN_AT_LEAST: Duration = Duration::from_millis(20);
 
+/// How long the recorder may go without draining the services before the watcher raises it
+/// to normal priority: five times [`DRAIN_AT_LEAST`], far less than a buffer's worth of
+/// actions, and far more than a healthy recorder on an idle machine ever lags.
+pub const LAG_LIMIT: Duration = Duration::from_millis(100);
+
+/// How often the watcher looks at the recorder's last drain.
+const WATCH_EVERY: Duration = Duration::from_millis(10);
+
+/// What the recorder thread and its watcher share: the recorder's scheduling and when it
+/// last drained the services.
+#[derive(Debug, Default)]
+struct Pace {
+    background: Background,
+    /// Monotonic ns of the last drain (0: none yet).
+    last_drain_ns: AtomicU64,
+}
+
+impl Pace {
+    fn drained(&self) {
+        self.last_drain_ns
+            .store(tes_runtime::clock::monotonic_ns(), Ordering::Relaxed);
+    }
+
+    /// How long since the last drain (or since `since_ns`, before the first).
+    fn lag(&self, since_ns: u64) -> Duration {
+        let last = self.last_drain_ns.load(Ordering::Relaxed).max(since_ns);
+        Duration::from_nanos(tes_runtime::clock::monotonic_ns().saturating_sub(last))
+    }
+}
+
+/// The watcher: raises the recorder to normal priority once it lags by [`LAG_LIMIT`] (for
+/// the rest of the run: the machine has shown it is busy), and ends then or at the stop.
+fn watch(pace: &Pace, stop: &AtomicBool) {
+    let since_ns = tes_runtime::clock::monotonic_ns();
+    while !stop.load(Ordering::SeqCst) {
+        std::thread::sleep(WATCH_EVERY);
+        if pace.lag(since_ns) >= LAG_LIMIT {
+            let raised = pace.background.restore();
+            tracing::debug!(
+                raised,
+                "the recorder had not drained the services for {LAG_LIMIT:?} (a busy \
+                 machine): it runs at normal priority from now on"
+            );
+            return;
+        }
+    }
+}
+
 /// A running recorder (a file, a live Foxglove server, or both); [`stop`](Self::stop)
 /// finishes the file.
 #[derive(Debug)]
 pub struct Recorder {
     stop: Arc<AtomicBool>,
     handle: Option<std::thread::JoinHandle<Result<RecordCounts, RecordError>>>,
+    watcher: Option<std::thread::JoinHandle<()>>,
     path: Option<PathBuf>,
     foxglove: Option<SocketAddr>,
     lines: mpsc::Sender<LogLine>,
@@ -198,18 +255,34 @@ impl Recorder {
         let (lines, line_rx) = mpsc::channel();
         let path = outputs.file.as_ref().map(|(p, _)| p.clone());
         let (prefix, flag) = (service_prefix.to_owned(), stop.clone());
+        let pace = Arc::new(Pace::default());
+        let recorder_pace = pace.clone();
         let handle = std::thread::Builder::new()
             .name("recorder".into())
-            .spawn(move || record(&prefix, outputs, &flag, &line_rx, ready_tx))
+            .spawn(move || {
+                let pace = recorder_pace;
+                record(&prefix, outputs, &flag, &line_rx, ready_tx, &pace)
+            })
             .map_err(|_| RecordError::Thread("could not start"))?;
         match ready.recv() {
-            Ok(Ok(foxglove)) => Ok(Self {
-                stop,
-                handle: Some(handle),
-                path,
-                foxglove,
-                lines,
-            }),
+            Ok(Ok(foxglove)) => {
+                let mut recorder = Self {
+                    stop,
+                    handle: Some(handle),
+                    watcher: None,
+                    path,
+                    foxglove,
+                    lines,
+                };
+                let flag = recorder.stop.clone();
+                // A recorder without its watcher is stopped (by the drop) and refused.
+                let watcher = std::thread::Builder::new()
+                    .name("recorder-watch".into())
+                    .spawn(move || watch(&pace, &flag))
+                    .map_err(|_| RecordError::Thread("could not start its watcher"))?;
+                recorder.watcher = Some(watcher);
+                Ok(recorder)
+            }
             Ok(Err(e)) => {
                 let _ = handle.join();
                 Err(e)
@@ -239,6 +312,9 @@ impl Recorder {
     /// Takes what is still queued, finishes the file and returns what was written and missed.
     pub fn stop(mut self) -> Result<RecordCounts, RecordError> {
         self.stop.store(true, Ordering::SeqCst);
+        if let Some(watcher) = self.watcher.take() {
+            let _ = watcher.join();
+        }
         match self.handle.take().map(|h| h.join()) {
             Some(Ok(result)) => result,
             _ => Err(RecordError::Thread("panicked")),
@@ -249,6 +325,9 @@ impl Recorder {
 impl Drop for Recorder {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::SeqCst);
+        if let Some(watcher) = self.watcher.take() {
+            let _ = watcher.join();
+        }
         if let Some(h) = self.handle.take() {
             let _ = h.join();
         }
@@ -388,9 +467,14 @@ fn record(
     stop: &AtomicBool,
     lines: &mpsc::Receiver<LogLine>,
     ready: mpsc::Sender<Result<Option<SocketAddr>, RecordError>>,
+    pace: &Pace,
 ) -> Result<RecordCounts, RecordError> {
-    // Recording works at any priority, at some cost to the group's latency.
-    tes_runtime::affinity::make_this_a_background_thread("the recorder");
+    // Recording works at any priority, at some cost to the group's latency; a lowering the
+    // watcher could not undo would lose the run on a busy machine.
+    pace.background.lower_if_restorable();
+    if let Err(e) = tes_runtime::affinity::pin_off_the_acting_cpu() {
+        tracing::debug!("the recorder stays unpinned: {e}");
+    }
     let scene = Scene::new(outputs.scene);
     let opened = (|| -> Result<_, RecordError> {
         let ports = open_ports(prefix)?;
@@ -431,6 +515,7 @@ fn record(
         }
         last_drain = Instant::now();
         tap.drain(&mut ports, lines, stopping)?;
+        pace.drained();
         if stopping {
             break;
         }

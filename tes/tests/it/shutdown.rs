@@ -4,41 +4,12 @@
 //! priority, and the launcher waits (bounded) for a controller still saving instead of
 //! killing it.
 
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use nix::sys::signal::Signal;
 use nix::unistd::Pid;
 
 use crate::common::*;
-
-/// Busy processes at normal priority, two per core, killed on drop.
-struct CpuHogs(Vec<Child>);
-
-impl CpuHogs {
-    fn two_per_core() -> Self {
-        let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
-        let hogs = (0..2 * cores)
-            .map(|_| {
-                Command::new("sh")
-                    .args(["-c", "while :; do :; done"])
-                    .stdin(Stdio::null())
-                    .spawn()
-                    .expect("a busy shell starts")
-            })
-            .collect();
-        Self(hogs)
-    }
-}
-
-impl Drop for CpuHogs {
-    fn drop(&mut self) {
-        for hog in &mut self.0 {
-            let _ = hog.kill();
-            let _ = hog.wait();
-        }
-    }
-}
 
 /// When, and how, a launch is stopped.
 #[derive(Debug, Clone, Copy)]
