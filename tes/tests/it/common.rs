@@ -200,6 +200,18 @@ impl Group {
         Self::launch_with(dir, Some(&config), episodes, args, env)
     }
 
+    /// Launches the launch file `config` with `args` and `env`, its data directory
+    /// `dir/data` (which launches given the same `dir` share).
+    pub fn start_with_config(
+        dir: &Path,
+        config: &Path,
+        episodes: u32,
+        args: &[&str],
+        env: &[(&str, &str)],
+    ) -> Self {
+        Self::launch_with(dir, Some(config), episodes, args, env)
+    }
+
     fn launch_with(
         dir: &Path,
         config: Option<&Path>,
