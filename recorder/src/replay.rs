@@ -150,18 +150,15 @@ impl std::fmt::Display for ReplayOutcome {
             Some(d) => write!(f, "{d}; {} commands identical before it", self.identical)?,
         }
         if self.unanswerable > 0 {
+            let (commands, answer) = if self.unanswerable == 1 {
+                ("command answers", "an observation")
+            } else {
+                ("commands answer", "observations")
+            };
             write!(
                 f,
-                "; {} recorded {} the observation {} answer{}, which the recording does not \
-                 hold (not compared)",
-                self.unanswerable,
-                if self.unanswerable == 1 {
-                    "command"
-                } else {
-                    "commands"
-                },
-                if self.unanswerable == 1 { "it" } else { "they" },
-                if self.unanswerable == 1 { "s" } else { "" },
+                "; {} recorded {commands} {answer} the recording does not hold (not compared)",
+                self.unanswerable
             )?;
         }
         Ok(())
@@ -380,4 +377,32 @@ fn decide(
         }
         Step::EpisodeEnded { .. } | Step::Refused(_) => None,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Commands whose observations the recording lacks are said, singular and plural.
+    #[test]
+    fn commands_without_their_observation_are_said() {
+        let outcome = |unanswerable| ReplayOutcome {
+            compared: 0,
+            identical: 0,
+            divergence: None,
+            observations: 0,
+            unanswerable,
+        };
+        assert_eq!(outcome(0).to_string(), "0 of 0 commands identical");
+        assert_eq!(
+            outcome(1).to_string(),
+            "0 of 0 commands identical; 1 recorded command answers an observation the \
+             recording does not hold (not compared)"
+        );
+        assert_eq!(
+            outcome(95).to_string(),
+            "0 of 0 commands identical; 95 recorded commands answer observations the \
+             recording does not hold (not compared)"
+        );
+    }
 }
