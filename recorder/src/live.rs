@@ -36,7 +36,7 @@ use iceoryx2::prelude::*;
 use tes_runtime::channel::{self, IpcError};
 use tes_runtime::ipc::RECORDER_BUFFER;
 use tes_runtime::ring::RingReader;
-use tes_topics::{Command, MotorState, Observation, ServiceNames, WorldMap};
+use tes_topics::{Command, MotorState, Observation, ServiceNames, WorldMap, WorldPose};
 use tes_viewer::canvas::{Canvas, Drawing};
 use tes_viewer::live::{LiveError, LiveServer};
 use tes_viewer::scene::{Scene, SceneSettings};
@@ -281,6 +281,7 @@ struct Ports {
     maps: Sub<WorldMap>,
     observations: Sub<Observation>,
     motor_states: Sub<MotorState>,
+    world_poses: Sub<WorldPose>,
     commands: RingReader<Command>,
 }
 
@@ -291,6 +292,7 @@ fn open_ports(prefix: &str) -> Result<Ports, RecordError> {
         maps: subscriber::<WorldMap>(&node, &names.world_map, 1, 1)?,
         observations: subscriber::<Observation>(&node, &names.observation, 0, RECORDER_BUFFER)?,
         motor_states: subscriber::<MotorState>(&node, &names.motor_state, 0, RECORDER_BUFFER)?,
+        world_poses: subscriber::<WorldPose>(&node, &names.world_pose, 0, RECORDER_BUFFER)?,
         commands: RingReader::<Command>::open(&node, &names.command_log)?,
         _node: node,
     })
@@ -303,6 +305,14 @@ struct Tap {
     scene: Scene,
     seen: [Gaps; 3],
     have_map: bool,
+    /// The observations of a drain (kept to reuse its room).
+    observations: Vec<Observation>,
+    /// Commands taken but not yet written: each waits for the observation it answers.
+    commands: Vec<Command>,
+    /// The newest observation taken.
+    newest_observation: u64,
+    /// The world's poses of a drain (kept to reuse its room).
+    world_poses: Vec<WorldPose>,
 }
 
 impl Tap {
@@ -316,8 +326,8 @@ impl Tap {
         )
     }
 
-    /// Takes everything queued: in the order of the loop, observations, the commands
-    /// answering them, the motion; then the log lines.
+    /// Takes everything queued: the observations and the commands answering them in the
+    /// order they were published, then the motion, then the log lines.
     fn drain(
         &mut self,
         ports: &mut Ports,
@@ -331,27 +341,16 @@ impl Tap {
             let (scene, mut canvas) = self.canvas();
             scene.redraw(tes_runtime::clock::monotonic_ns(), &mut canvas)?;
         }
-        drain(&ports.observations, |o| {
-            self.seen[0].see(o.seq);
-            if let Some(file) = &mut self.file {
-                file.observation(&o)?;
-            }
-            let (scene, mut canvas) = self.canvas();
-            Ok(scene.observation(&o, &mut canvas)?)
+        self.take_in_order(ports, stopping)?;
+        // The world's poses before the motor reports: each comes after the whole motion it
+        // ends, so every report of that motion is taken below, and the scene draws the
+        // motion from them.
+        let mut world_poses = std::mem::take(&mut self.world_poses);
+        world_poses.clear();
+        drain(&ports.world_poses, |w| {
+            world_poses.push(w);
+            Ok(())
         })?;
-        let new_commands = if stopping {
-            ports.commands.take_new_scanning()
-        } else {
-            ports.commands.take_new()
-        };
-        for c in new_commands {
-            self.seen[1].see(c.seq);
-            if let Some(file) = &mut self.file {
-                file.command(c)?;
-            }
-            let (scene, mut canvas) = self.canvas();
-            scene.command(c, &mut canvas)?;
-        }
         drain(&ports.motor_states, |m| {
             self.seen[2].see(m.seq);
             if let Some(file) = &mut self.file {
@@ -360,11 +359,87 @@ impl Tap {
             let (scene, mut canvas) = self.canvas();
             Ok(scene.motor_state(&m, &mut canvas)?)
         })?;
+        for w in &world_poses {
+            let (scene, mut canvas) = self.canvas();
+            scene.world_pose(w, &mut canvas)?;
+        }
+        self.world_poses = world_poses;
         while let Ok(line) = lines.try_recv() {
             let (scene, mut canvas) = self.canvas();
             scene.log_line(line.role, &line.text, line.stamp_ns, &mut canvas)?;
         }
         Ok(())
+    }
+
+    /// The queued observations and the new commands, merged by their publish times (one
+    /// monotonic clock for the whole host), so that each decision is drawn after the
+    /// observation it answers and before the one its motion led to. A command answering an
+    /// observation still on its way (published between the two reads) waits for the next
+    /// drain, with every command after it; at the stop nothing waits.
+    fn take_in_order(&mut self, ports: &mut Ports, stopping: bool) -> Result<(), RecordError> {
+        let mut observations = std::mem::take(&mut self.observations);
+        observations.clear();
+        drain(&ports.observations, |o| {
+            observations.push(o);
+            Ok(())
+        })?;
+        let new_commands = if stopping {
+            ports.commands.take_new_scanning()
+        } else {
+            ports.commands.take_new()
+        };
+        self.commands.extend_from_slice(new_commands);
+        if let Some(o) = observations.last() {
+            self.newest_observation = o.seq;
+        }
+        let ready = if stopping {
+            self.commands.len()
+        } else {
+            self.commands
+                .iter()
+                .position(|c| {
+                    c.action != tes_topics::KEEP_ALIVE_ACTION && c.answers > self.newest_observation
+                })
+                .unwrap_or(self.commands.len())
+        };
+        let commands: Vec<Command> = self.commands.drain(..ready).collect();
+        let (mut o, mut c) = (observations.iter().peekable(), commands.iter().peekable());
+        loop {
+            let observation_first = match (o.peek(), c.peek()) {
+                (Some(a), Some(b)) => a.stamp_ns <= b.stamp_ns,
+                (Some(_), None) => true,
+                (None, Some(_)) => false,
+                (None, None) => break,
+            };
+            if observation_first {
+                let next = o.next().copied();
+                if let Some(next) = next {
+                    self.observation(&next)?;
+                }
+            } else if let Some(next) = c.next() {
+                self.command(next)?;
+            }
+        }
+        self.observations = observations;
+        Ok(())
+    }
+
+    fn observation(&mut self, o: &Observation) -> Result<(), RecordError> {
+        self.seen[0].see(o.seq);
+        if let Some(file) = &mut self.file {
+            file.observation(o)?;
+        }
+        let (scene, mut canvas) = self.canvas();
+        Ok(scene.observation(o, &mut canvas)?)
+    }
+
+    fn command(&mut self, c: &Command) -> Result<(), RecordError> {
+        self.seen[1].see(c.seq);
+        if let Some(file) = &mut self.file {
+            file.command(c)?;
+        }
+        let (scene, mut canvas) = self.canvas();
+        Ok(scene.command(c, &mut canvas)?)
     }
 
     fn world_map(&mut self, map: &WorldMap) -> Result<(), RecordError> {
@@ -418,6 +493,10 @@ fn record(
         scene,
         seen: [Gaps::default(); 3],
         have_map: false,
+        observations: Vec::with_capacity(RECORDER_BUFFER),
+        commands: Vec::new(),
+        newest_observation: 0,
+        world_poses: Vec::with_capacity(RECORDER_BUFFER),
     };
     let (mut last_flush, mut last_drain) = (Instant::now(), Instant::now());
     loop {
@@ -432,6 +511,8 @@ fn record(
         last_drain = Instant::now();
         tap.drain(&mut ports, lines, stopping)?;
         if stopping {
+            let (scene, mut canvas) = tap.canvas();
+            scene.finish(&mut canvas)?;
             break;
         }
         if last_flush.elapsed() >= FLUSH_EVERY

@@ -73,13 +73,16 @@ fn a_short_episode_draws_the_arena_the_robot_its_path_decisions_and_reward() {
         ok(scene.motor_state(&m, &mut drawn));
     }
     ok(scene.observation(
-        &observation(
-            2,
-            0,
-            1,
-            StateAttributes::at(3, 2, 0),
-            observation_flags::TERMINAL,
-        ),
+        &Observation {
+            after_command: forward.seq,
+            ..observation(
+                2,
+                0,
+                1,
+                StateAttributes::at(3, 2, 0),
+                observation_flags::TERMINAL,
+            )
+        },
         &mut drawn,
     ));
 
@@ -162,6 +165,70 @@ struct EpisodeTwin {
     actions: u32,
     #[prost(string, tag = "4")]
     outcome: String,
+}
+
+/// The recorder may hand over a command before the observation it answers (or several
+/// observations before their commands): each decision is labelled with its own observation,
+/// and each text with the action whose motion led to its observation.
+#[test]
+fn decisions_are_labelled_by_the_observation_they_answer_whatever_the_order() {
+    let mut scene = Scene::new(SceneSettings::default());
+    let mut drawn = Collected::default();
+    let ok = |r: Result<(), std::convert::Infallible>| r.unwrap_or_else(|e| match e {});
+    ok(scene.world_map(&arena_map(3), 1, &mut drawn));
+    let at = |x| StateAttributes::at(x, 2, 0);
+    let command = |seq, answers, action| Command {
+        seq,
+        answers,
+        stamp_ns: answers * 1_000_000 + 500,
+        observed_ns: answers * 1_000_000,
+        action,
+        ..Command::default()
+    };
+    // Observations 1 and 2 before the command answering 1; the one answering 3 before 3.
+    ok(scene.observation(
+        &observation(1, 4, 0, at(2), observation_flags::EPISODE_START),
+        &mut drawn,
+    ));
+    let second = Observation {
+        after_command: 1,
+        ..observation(2, 4, 1, at(3), 0)
+    };
+    ok(scene.observation(&second, &mut drawn));
+    ok(scene.command(&command(1, 1, 0), &mut drawn));
+    ok(scene.command(&command(2, 2, 1), &mut drawn));
+    ok(scene.command(&command(3, 3, 2), &mut drawn));
+    let third = Observation {
+        after_command: 2,
+        ..observation(3, 4, 2, at(3), 0)
+    };
+    ok(scene.observation(&third, &mut drawn));
+    let decisions: Vec<DecisionTwin> = decoded(&drawn, DECISION);
+    let labels: Vec<(u32, u32, String)> = decisions
+        .iter()
+        .map(|d| (d.episode, d.step, d.action_name.clone()))
+        .collect();
+    assert_eq!(
+        labels,
+        [
+            (4, 0, "forward".to_owned()),
+            (4, 1, "spin".to_owned()),
+            (4, 2, "pivot".to_owned())
+        ]
+    );
+    let texts: Vec<String> = decoded::<SceneUpdate>(&drawn, ROBOT)
+        .iter()
+        .flat_map(|u| u.entities.iter())
+        .filter(|e| e.id == "decision")
+        .map(|e| e.texts[0].text.clone())
+        .collect();
+    // The second observation was drawn before its command was taken: its action is not
+    // known yet, and no other action is put in its place; the third names the spin.
+    assert_eq!(texts[0], "episode 4 step 0");
+    assert!(
+        texts[2].starts_with("episode 4 step 2: spin → "),
+        "{texts:?}"
+    );
 }
 
 #[test]
