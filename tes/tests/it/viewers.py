@@ -2,6 +2,10 @@
 
     viewers.py mcap FILE.mcap        PyPI's mcap and Foxglove's Protobuf schemas read a recording
     viewers.py rerun FILE.mcap RRD   Rerun converts it, checks it and reads the result back
+    viewers.py native FILE.mcap RRD  python/tes/rerun_view.py draws it with Rerun's own
+                                     archetypes; rerun-sdk's reader reads the .rrd back
+    viewers.py native-live HOST:PORT RRD SECONDS
+                                     the same, following a live group
     viewers.py live HOST:PORT N      a Foxglove WebSocket client follows a live group for N episodes
 
 Each prints one JSON object of facts for the Rust test to judge.
@@ -100,6 +104,56 @@ def facts_of_rerun(mcap_path, rrd_path):
     facts["log_rows"] = len(values["/log"])
     facts["latencies"] = values["/tes/decision"]
     return facts
+
+
+def rerun_view():
+    """python/tes/rerun_view.py, as a script (it needs nothing of the compiled package)."""
+    import os
+    here = os.path.dirname(os.path.abspath(__file__))
+    return os.path.join(here, "..", "..", "..", "python", "tes", "rerun_view.py")
+
+
+def facts_of_rrd(rrd_path):
+    """Each entity's archetype columns and rows, the boxes' sizes and the texts, as
+    rerun-sdk's own reader reads them back."""
+    import rerun.chunk as chunk
+    rows, boxes, texts, said = {}, [], {}, []
+    for c in chunk.RrdReader(rrd_path).stream():
+        batch = c.to_record_batch()
+        for name in batch.schema.names:
+            if ":" in name and not name.startswith("rerun."):
+                key = f"{c.entity_path} {name}"
+                rows[key] = rows.get(key, 0) + batch.num_rows
+        if "Boxes3D:half_sizes" in batch.schema.names and c.entity_path.startswith("/arena/arena"):
+            for sizes in batch.column("Boxes3D:half_sizes").to_pylist():
+                boxes.extend(sizes or [])
+        if "TextLog:text" in batch.schema.names:
+            texts.setdefault(c.entity_path, []).extend(
+                t[0] for t in batch.column("TextLog:text").to_pylist() if t)
+        if "Points3D:labels" in batch.schema.names:
+            said.extend(t[0] for t in batch.column("Points3D:labels").to_pylist() if t)
+    return {"rows": rows, "arena_boxes": len(boxes),
+            "largest_box_m": max((2 * max(b) for b in boxes), default=0.0),
+            "texts": {k: v[:5] + v[-2:] for k, v in texts.items()},
+            "text_rows": {k: len(v) for k, v in texts.items()}, "said": said[:3]}
+
+
+def facts_of_native(mcap_path, rrd_path):
+    run = subprocess.run([sys.executable, rerun_view(), mcap_path, "-o", rrd_path],
+                         capture_output=True, text=True, env={"RERUN_ANALYTICS": "0",
+                                                              "PATH": "/usr/bin:/bin"})
+    if run.returncode != 0:
+        raise SystemExit(f"rerun_view.py failed: {run.stderr}")
+    return facts_of_rrd(rrd_path)
+
+
+def facts_of_native_live(addr, rrd_path, seconds):
+    run = subprocess.run([sys.executable, rerun_view(), "--live", addr, "-o", rrd_path,
+                          "--seconds", seconds], capture_output=True, text=True,
+                         env={"RERUN_ANALYTICS": "0", "PATH": "/usr/bin:/bin"})
+    if run.returncode != 0:
+        raise SystemExit(f"rerun_view.py --live failed: {run.stderr}")
+    return facts_of_rrd(rrd_path)
 
 
 def facts_of_live(addr, episodes):
@@ -212,6 +266,10 @@ def main():
         facts = facts_of_rerun(sys.argv[2], sys.argv[3])
     elif mode == "live":
         facts = facts_of_live(sys.argv[2], int(sys.argv[3]))
+    elif mode == "native":
+        facts = facts_of_native(sys.argv[2], sys.argv[3])
+    elif mode == "native-live":
+        facts = facts_of_native_live(sys.argv[2], sys.argv[3], sys.argv[4])
     else:
         raise SystemExit(__doc__)
     print(json.dumps(facts))
