@@ -292,7 +292,9 @@ fn open_ports(prefix: &str) -> Result<Ports, RecordError> {
         maps: subscriber::<WorldMap>(&node, &names.world_map, 1, 1)?,
         observations: subscriber::<Observation>(&node, &names.observation, 0, RECORDER_BUFFER)?,
         motor_states: subscriber::<MotorState>(&node, &names.motor_state, 0, RECORDER_BUFFER)?,
-        world_poses: subscriber::<WorldPose>(&node, &names.world_pose, 0, RECORDER_BUFFER)?,
+        // One a decision, drained at every decision: the group's own buffer rides out
+        // sixteen decisions in which the recorder gets no time.
+        world_poses: subscriber::<WorldPose>(&node, &names.world_pose, 0, channel::BUFFER)?,
         commands: RingReader::<Command>::open(&node, &names.command_log)?,
         _node: node,
     })

@@ -168,6 +168,11 @@ struct EpisodeTrack {
     last_state: Option<usize>,
 }
 
+/// Observations after which a world that has sent no pose is taken to send none (its
+/// perception runs on another host): its pose follows the first observation's, so waiting
+/// for it any longer than this never draws the belief as `robot` for a world that has one.
+const WORLD_SILENT_AFTER: u32 = 2;
+
 /// How many recent observations and decisions the scene remembers to label what answers or
 /// follows them: far more than come between two drains of the recorder at the fastest pace.
 const REMEMBERED: usize = 64;
@@ -305,6 +310,9 @@ pub struct Scene {
     /// The world's last pose of the robot: `None` until perception's first (a group whose
     /// perception runs on another host never sends one; the belief is drawn as `robot` then).
     world_pose: Option<FloorPose>,
+    /// Observations drawn while the world has said nothing: past [`WORLD_SILENT_AFTER`],
+    /// the world's pose is taken not to come, and the belief is drawn as `robot`.
+    unseen_world: u32,
     /// The time of the last `arena → robot` transform: the world's motion is drawn after
     /// the fact, and never back in time.
     world_drawn_ns: u64,
@@ -335,6 +343,7 @@ impl Scene {
             odometry: Odometry::default(),
             world: WorldMotion::default(),
             world_pose: None,
+            unseen_world: 0,
             world_drawn_ns: 0,
             world_after: 0,
             observed_ns: 0,
@@ -459,7 +468,7 @@ impl Scene {
             Delivery::Motion,
             canvas,
         )?;
-        if self.world_pose.is_none() {
+        if self.world_pose.is_none() && self.unseen_world > WORLD_SILENT_AFTER {
             self.draw_world(pose, stamp_ns, canvas)?;
         }
         Ok(())
@@ -492,6 +501,9 @@ impl Scene {
         }
         let effect = self.effect_of_last_decision(state, o.flags);
         self.episode.last_state = state;
+        if self.world_pose.is_none() {
+            self.unseen_world = self.unseen_world.saturating_add(1);
+        }
         self.observed.remember(
             o.seq,
             Observed {
