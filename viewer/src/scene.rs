@@ -168,10 +168,11 @@ struct EpisodeTrack {
     last_state: Option<usize>,
 }
 
-/// Observations after which a world that has sent no pose is taken to send none (its
-/// perception runs on another host): its pose follows the first observation's, so waiting
-/// for it any longer than this never draws the belief as `robot` for a world that has one.
-const WORLD_SILENT_AFTER: u32 = 2;
+/// How long after the first observation a world that has sent no pose is taken to send none
+/// (its perception runs on another host), ns. Its poses follow each observation at once, but
+/// the recorder takes a whole batch of observations before their poses, so a count of
+/// observations would give up on a world that has one.
+const WORLD_SILENT_NS: u64 = 1_000_000_000;
 
 /// How many recent observations and decisions the scene remembers to label what answers or
 /// follows them: far more than come between two drains of the recorder at the fastest pace.
@@ -310,9 +311,9 @@ pub struct Scene {
     /// The world's last pose of the robot: `None` until perception's first (a group whose
     /// perception runs on another host never sends one; the belief is drawn as `robot` then).
     world_pose: Option<FloorPose>,
-    /// Observations drawn while the world has said nothing: past [`WORLD_SILENT_AFTER`],
-    /// the world's pose is taken not to come, and the belief is drawn as `robot`.
-    unseen_world: u32,
+    /// When the first observation was published: a world that has sent no pose
+    /// [`WORLD_SILENT_NS`] after it is taken to send none, and the belief is drawn as `robot`.
+    first_observed_ns: Option<u64>,
     /// The time of the last `arena → robot` transform: the world's motion is drawn after
     /// the fact, and never back in time.
     world_drawn_ns: u64,
@@ -343,7 +344,7 @@ impl Scene {
             odometry: Odometry::default(),
             world: WorldMotion::default(),
             world_pose: None,
-            unseen_world: 0,
+            first_observed_ns: None,
             world_drawn_ns: 0,
             world_after: 0,
             observed_ns: 0,
@@ -468,7 +469,10 @@ impl Scene {
             Delivery::Motion,
             canvas,
         )?;
-        if self.world_pose.is_none() && self.unseen_world > WORLD_SILENT_AFTER {
+        let silent = self
+            .first_observed_ns
+            .is_some_and(|first| stamp_ns > first + WORLD_SILENT_NS);
+        if self.world_pose.is_none() && silent {
             self.draw_world(pose, stamp_ns, canvas)?;
         }
         Ok(())
@@ -501,9 +505,7 @@ impl Scene {
         }
         let effect = self.effect_of_last_decision(state, o.flags);
         self.episode.last_state = state;
-        if self.world_pose.is_none() {
-            self.unseen_world = self.unseen_world.saturating_add(1);
-        }
+        self.first_observed_ns.get_or_insert(o.stamp_ns);
         self.observed.remember(
             o.seq,
             Observed {

@@ -477,9 +477,6 @@ fn a_default_recording_has_a_log_and_data_for_every_panel_of_the_layout() {
 /// where the observed cell snapped it by up to 0.26 m.
 /// The belief (`arena → belief`) is drawn beside it.
 #[test]
-#[ignore = "fails: at a run's start the recorder receives perception's first world poses late \
-            (in one burst after the next episode began), so the belief stands in and the \
-            late motions are drawn clamped to one instant; see the report"]
 fn the_robot_moves_as_far_as_its_wheels_turned() {
     use prost::Message;
     use tes_recorder::schema::{decode_motor_state, decode_observation};
