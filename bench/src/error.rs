@@ -23,9 +23,9 @@ pub enum BenchError {
     Group {
         /// Which launch.
         what: &'static str,
-        /// Why.
+        /// Why (boxed: a launch error is large, and every bench result carries this type).
         #[source]
-        cause: GroupFailure,
+        cause: Box<GroupFailure>,
     },
     /// The starting view library cannot be trained.
     #[error(transparent)]

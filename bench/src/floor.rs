@@ -163,6 +163,8 @@ fn floor_map() -> Result<Box<WorldMap>> {
 fn floor_link_settings(group: &str, listen: Vec<String>, connect: Vec<String>) -> LinkSection {
     LinkSection {
         group: group.to_owned(),
+        // Plain TCP is what `--via zenoh` measures: unauthenticated, so said as such.
+        insecure: listen.iter().chain(&connect).any(|e| e.starts_with("tcp/")),
         listen,
         connect,
         multicast_scouting: Some(false),

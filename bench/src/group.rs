@@ -180,14 +180,14 @@ fn launch(file: &LaunchFile, what: &'static str, harness: &mut Harness<'_>) -> R
     let verdict =
         tes_launch::run(file, options, &mut *harness.observer).map_err(|e| BenchError::Group {
             what,
-            cause: e.into(),
+            cause: Box::new(e.into()),
         })?;
     if verdict.success() {
         Ok(())
     } else {
         Err(BenchError::Group {
             what,
-            cause: GroupFailure::Failed(verdict.failures),
+            cause: Box::new(GroupFailure::Failed(verdict.failures)),
         })
     }
 }
@@ -274,6 +274,8 @@ fn split(file: &LaunchFile, port: u16, dir: &Path, carrier: &Carrier) -> (Launch
     link.listen = vec![carrier.endpoint(port)];
     link.connect = Vec::new();
     link.multicast_scouting = Some(false);
+    // Plain TCP is what `--via zenoh` measures: unauthenticated, so said as such.
+    link.insecure = matches!(carrier, Carrier::Tcp);
     // One machine, one clock: the latency is measured across the link.
     link.restamp = false;
     carrier.keys_into(link, Carrier::ROBOT);

@@ -53,6 +53,111 @@ impl TransportKind {
     pub fn is_real(&self) -> bool {
         !matches!(self, TransportKind::Sim)
     }
+
+    /// For `serial:PATH`, that PATH is a terminal device ([`check_serial_device`]); every
+    /// other transport passes. Run where the bridge runs, before it starts: the settings'
+    /// own check ([`BridgeSettings::check`]) does not look at devices, as a host that does
+    /// not play the bridge checks them too.
+    pub fn check_device(&self) -> Result<(), SerialDeviceError> {
+        match self {
+            TransportKind::Serial(path) => check_serial_device(path),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// The fix said with every refused serial device.
+const SERIAL_FIX: &str = "give the brick's serial device (`serial:/dev/rfcomm0` bound by \
+    `rfcomm bind` to a paired brick), or `transport = \"bluetooth:ADDR\"` (no rfcomm device \
+    needed), `\"usb\"`, or `\"sim\"` for the simulated brick";
+
+/// Why `transport = "serial:PATH"` cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum SerialDeviceError {
+    /// Nothing is at the path.
+    #[error(
+        "{} does not exist (is the brick paired and its rfcomm device bound? `transport = \
+         \"sim\"` uses the simulated brick)",
+        .0.display()
+    )]
+    Missing(PathBuf),
+    /// Something is there, but not a terminal: `/dev/null`, `/dev/zero`, a FIFO, a file, a
+    /// directory. Nothing was opened (a terminal only if the kernel could not say).
+    #[error("{} is {kind}, not a terminal device: {SERIAL_FIX}", path.display())]
+    NotATerminal {
+        /// The path.
+        path: PathBuf,
+        /// What it is instead.
+        kind: &'static str,
+    },
+    /// The path cannot be looked at.
+    #[error("cannot look at {}: {error}", path.display())]
+    Io {
+        /// The path.
+        path: PathBuf,
+        /// Why.
+        error: std::io::Error,
+    },
+}
+
+/// The majors of Unix 98 pseudo-terminal slaves (`/dev/pts/N`), which sysfs does not list.
+const PTY_SLAVE_MAJORS: std::ops::RangeInclusive<u64> = 136..=143;
+
+/// Refuses a serial path that is not a terminal device, without opening it where the kernel
+/// says what the device is (`/sys/dev/char/MAJOR:MINOR/subsystem` is `tty` for a terminal;
+/// a pseudo-terminal's slave is told by its major): opening a serial device may connect
+/// (rfcomm) or reset what is on the other end.
+pub fn check_serial_device(path: &Path) -> Result<(), SerialDeviceError> {
+    use std::os::unix::fs::{FileTypeExt, MetadataExt};
+    let meta = match std::fs::metadata(path) {
+        Ok(meta) => meta,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(SerialDeviceError::Missing(path.to_owned()));
+        }
+        Err(error) => {
+            return Err(SerialDeviceError::Io {
+                path: path.to_owned(),
+                error,
+            });
+        }
+    };
+    let not_a_terminal = |kind| {
+        Err(SerialDeviceError::NotATerminal {
+            path: path.to_owned(),
+            kind,
+        })
+    };
+    if !meta.file_type().is_char_device() {
+        return not_a_terminal(tes_files::kind_of(meta.file_type()));
+    }
+    let (major, minor) = (
+        nix::sys::stat::major(meta.rdev()),
+        nix::sys::stat::minor(meta.rdev()),
+    );
+    let subsystem = std::fs::read_link(format!("/sys/dev/char/{major}:{minor}/subsystem"));
+    let is_terminal = match subsystem {
+        Ok(class) => class.file_name().is_some_and(|name| name == "tty"),
+        Err(_) if PTY_SLAVE_MAJORS.contains(&major) => true,
+        // Neither sysfs nor the major says: ask the device itself, opened without blocking
+        // and without becoming this process's terminal.
+        Err(_) => opens_as_terminal(path),
+    };
+    if is_terminal {
+        Ok(())
+    } else {
+        not_a_terminal("a character device")
+    }
+}
+
+/// Whether `path` opens (without blocking, not as the controlling terminal) as a terminal.
+fn opens_as_terminal(path: &Path) -> bool {
+    use std::io::IsTerminal;
+    use std::os::unix::fs::OpenOptionsExt;
+    std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK | libc::O_NOCTTY)
+        .open(path)
+        .is_ok_and(|file| file.is_terminal())
 }
 
 /// The forms a `transport` takes, for messages.
@@ -131,8 +236,8 @@ pub enum ConfigError {
     Read {
         /// The file.
         path: PathBuf,
-        /// The error (part of the message, so not also chained as a source).
-        error: std::io::Error,
+        /// What is wrong with it (part of the message, so not also chained as a source).
+        error: tes_files::FileProblem,
     },
     /// A key is unknown, of the wrong type or out of range, or the TOML is malformed: the
     /// error every process reports for a bad key (with the file and line when read from
@@ -705,12 +810,20 @@ impl BridgeSettings {
     }
 }
 
+/// The largest bridge settings file read (a settings file is a few KiB).
+pub const MAX_CONFIG_FILE_BYTES: u64 = 1 << 20;
+
 impl BridgeConfig {
     /// Reads and validates a TOML file; an error names the file, the line and the key.
+    ///
+    /// The file is read as every TES file is ([`tes_files::read_text`]): a FIFO, a device or
+    /// a file over [`MAX_CONFIG_FILE_BYTES`] is refused without being read.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Read {
-            path: path.to_owned(),
-            error,
+        let text = tes_files::read_text(path, MAX_CONFIG_FILE_BYTES).map_err(|error| {
+            ConfigError::Read {
+                path: path.to_owned(),
+                error,
+            }
         })?;
         Self::from_toml_in(&text, Origin::File(path.to_owned()))
     }
@@ -847,6 +960,30 @@ mod tests {
         assert_eq!(cfg.actions.config().motors.power, 50);
         assert_eq!(cfg.ipc.service_prefix, "test/");
         assert_eq!(cfg.brick.speed_noise, 0.0);
+    }
+
+    #[test]
+    fn a_settings_file_that_is_a_fifo_or_a_device_is_refused_unread() {
+        let dir = tempfile::tempdir().expect("temporary directory");
+        let fifo = dir.path().join("bridge.toml");
+        nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::S_IRWXU).expect("mkfifo");
+        for (path, kind) in [
+            (fifo.as_path(), "a FIFO"),
+            (Path::new("/dev/zero"), "a character device"),
+        ] {
+            let message = BridgeConfig::load(path).expect_err("refused").to_string();
+            assert!(
+                message.contains(&format!("is {kind}, not a regular file")),
+                "{message}"
+            );
+            assert!(message.contains(&path.display().to_string()), "{message}");
+        }
+        let big = dir.path().join("big.toml");
+        std::fs::File::create(&big)
+            .and_then(|f| f.set_len(MAX_CONFIG_FILE_BYTES + 1))
+            .expect("sparse file");
+        let message = BridgeConfig::load(&big).expect_err("refused").to_string();
+        assert!(message.contains("more than the 1048576 bytes"), "{message}");
     }
 
     #[test]
@@ -1109,5 +1246,44 @@ mod tests {
             assert_eq!(back.check(), settings.check());
             assert!(settings.check().is_ok());
         }
+    }
+
+    /// `/dev/null`, `/dev/zero`, a FIFO, a file and a directory are refused as no terminal,
+    /// with the fix; a missing path says it does not exist; a pseudo-terminal passes.
+    #[test]
+    fn serial_paths_that_are_not_terminals_are_refused_with_the_fix() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let fifo = dir.path().join("fifo");
+        nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::S_IRWXU).expect("mkfifo");
+        let file = dir.path().join("file");
+        std::fs::write(&file, "").expect("file");
+        for (path, kind) in [
+            (Path::new("/dev/null"), "a character device"),
+            (Path::new("/dev/zero"), "a character device"),
+            (fifo.as_path(), "a FIFO"),
+            (file.as_path(), "a regular file"),
+            (dir.path(), "a directory"),
+        ] {
+            let transport = TransportKind::Serial(path.to_owned());
+            let e = transport.check_device().expect_err("not a terminal");
+            let text = e.to_string();
+            assert!(
+                text.starts_with(&format!(
+                    "{} is {kind}, not a terminal device",
+                    path.display()
+                )),
+                "{text}"
+            );
+            assert!(text.contains("`rfcomm bind`"), "{text}");
+        }
+        let missing = TransportKind::Serial(dir.path().join("rfcomm9"));
+        let e = missing.check_device().expect_err("missing");
+        assert!(e.to_string().contains("does not exist"), "{e}");
+        let pty = nix::pty::openpty(None, None).expect("a pseudo-terminal");
+        let slave = nix::unistd::ttyname(&pty.slave).expect("its name");
+        TransportKind::Serial(slave)
+            .check_device()
+            .expect("a terminal");
+        TransportKind::Sim.check_device().expect("no device");
     }
 }

@@ -8,6 +8,7 @@
 //! ```
 
 use std::path::{Path, PathBuf};
+use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
@@ -28,6 +29,9 @@ use tes_bridge::transport::LinkDelay;
     about = "TES bridge: controller commands to LEGO NXT direct commands"
 )]
 struct Cli {
+    /// On an error, print where it arose (a backtrace) as well as the message.
+    #[arg(long, global = true)]
+    backtrace: bool,
     #[command(subcommand)]
     command: Cmd,
 }
@@ -76,9 +80,34 @@ fn load(config: Option<&Path>) -> anyhow::Result<BridgeConfig> {
     }
 }
 
-fn main() -> anyhow::Result<()> {
+/// Errors are said as `tes` says them: one line, `error: what: why: …`, exit status 1; a
+/// backtrace only with `--backtrace` (not whenever `RUST_BACKTRACE` happens to be set).
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    if cli.backtrace {
+        // SAFETY: no other thread exists yet; anyhow reads the variable when an error is
+        // made.
+        unsafe { std::env::set_var("RUST_LIB_BACKTRACE", "1") };
+    } else {
+        // SAFETY: as above.
+        unsafe { std::env::set_var("RUST_LIB_BACKTRACE", "0") };
+    }
     tes_runtime::logging::init("info");
-    match Cli::parse().command {
+    match execute(cli.command) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) if cli.backtrace => {
+            eprintln!("error: {err:#}\n\n{}", err.backtrace());
+            ExitCode::FAILURE
+        }
+        Err(err) => {
+            eprintln!("error: {err:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn execute(command: Cmd) -> anyhow::Result<()> {
+    match command {
         Cmd::Run { config, time_scale } => {
             let mut cfg = load(config.as_deref())?;
             if let Some(k) = time_scale {

@@ -73,6 +73,9 @@ pub enum ProcessError {
     /// The link to a real brick could not be set up.
     #[error("the link to the brick: {0}")]
     Link(#[from] TransportError),
+    /// `transport = "serial:PATH"` names no terminal device.
+    #[error("transport: {0}")]
+    Device(#[from] crate::config::SerialDeviceError),
     /// The latency report could not be written.
     #[error("cannot write the latency report {}: {error}", path.display())]
     Report {
@@ -190,6 +193,9 @@ pub const LINK_DOWN_EXIT_STATUS: i32 = 3;
 /// is not finite and > 0 set in code included) or iceoryx2 fails; a link that cannot be
 /// opened is retried until `link_timeout_ms`, not an error at once.
 pub fn run(cfg: &BridgeConfig, opts: &RunOptions) -> Result<RunSummary, ProcessError> {
+    // A serial path that is no terminal can never carry the link: refused before anything
+    // starts, not after the link's timeout.
+    cfg.transport.check_device()?;
     let sim = matches!(cfg.transport, TransportKind::Sim);
     let clock = ScaledClock::new(if sim { cfg.brick.time_scale } else { 1.0 });
     if !sim && cfg.brick.time_scale != 1.0 {

@@ -240,7 +240,47 @@ pub fn run(
         acting_thread_cpu: CpuMeter::this_thread(),
     };
     shell.serve(stop, &mut on_episode)?;
-    Ok(shell.finish(config, &checked, &mut on_episode))
+    // The launcher gives a controller still saving the library more time before SIGKILL;
+    // this file tells it so.
+    let saving = config.report.as_deref().map(SavingMarker::create);
+    let summary = shell.finish(config, &checked, &mut on_episode);
+    drop(saving);
+    Ok(summary)
+}
+
+/// The file beside the controller's report that says the controller is finishing its run
+/// (the final library save): `REPORT.saving`. The launcher waits for a controller while it
+/// exists, within a bound, before it sends SIGKILL.
+pub fn saving_marker(report: &std::path::Path) -> PathBuf {
+    let mut name = report.as_os_str().to_owned();
+    name.push(".saving");
+    PathBuf::from(name)
+}
+
+/// The [`saving_marker`] of a controller that is finishing its run, removed when dropped.
+struct SavingMarker(Option<PathBuf>);
+
+impl SavingMarker {
+    /// Creates the marker for `report`; a marker that cannot be written only costs the
+    /// launcher's patience (said at debug level).
+    fn create(report: &std::path::Path) -> Self {
+        let path = saving_marker(report);
+        match std::fs::write(&path, format!("{}\n", std::process::id())) {
+            Ok(()) => Self(Some(path)),
+            Err(e) => {
+                tracing::debug!(error = %e, file = %path.display(), "cannot mark the final save");
+                Self(None)
+            }
+        }
+    }
+}
+
+impl Drop for SavingMarker {
+    fn drop(&mut self) {
+        if let Some(path) = self.0.take() {
+            let _ = std::fs::remove_file(path);
+        }
+    }
 }
 
 /// Says where the threads run, and warns of a spinning acting loop that would starve a

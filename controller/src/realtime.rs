@@ -50,10 +50,10 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use crossbeam::channel::{self, Receiver, RecvTimeoutError, Sender, TryRecvError};
-use tes_runtime::affinity::{
-    AffinityError, check_cpu, lower_this_threads_priority, pin_this_thread,
-};
+use tes_runtime::affinity::{AffinityError, check_cpu, pin_this_thread};
 use thiserror::Error;
+
+use crate::priority::Background;
 
 use tes_learning::cmdp::{CmdpError, CmdpStructure};
 use tes_learning::plan::{
@@ -138,6 +138,8 @@ pub struct PlannerThread {
     /// A finished plan received by [`settle`](Self::settle), not yet adopted.
     ready: Option<Box<PlanJob>>,
     handle: Option<JoinHandle<()>>,
+    /// The thread's priority, raised back to normal when it is dropped.
+    priority: Arc<Background>,
     plans: u64,
 }
 
@@ -193,6 +195,8 @@ impl PlannerThread {
         });
         let (to_planner, jobs) = channel::bounded::<Box<PlanJob>>(1);
         let (done, from_planner) = channel::bounded::<Box<PlanJob>>(1);
+        let priority = Arc::new(Background::new());
+        let lowered = priority.clone();
         let handle = std::thread::Builder::new()
             .name("planner".into())
             .spawn(move || {
@@ -202,7 +206,7 @@ impl PlannerThread {
                     tracing::warn!(error = %e, "the planner thread runs unpinned");
                 }
                 // Polling at a priority above SCHED_IDLE would take time from others.
-                let idle_spin = if lower_this_threads_priority() {
+                let idle_spin = if lowered.lower() {
                     idle_spin
                 } else {
                     Duration::ZERO
@@ -235,6 +239,7 @@ impl PlannerThread {
             spare: Some(job),
             ready: None,
             handle: Some(handle),
+            priority,
             plans: 0,
         })
     }
@@ -627,9 +632,15 @@ impl Planner {
 
 impl Drop for PlannerThread {
     fn drop(&mut self) {
-        // Closing the channel ends the thread after its current plan.
+        // Closing the channel ends the thread after its current plan. Under SCHED_IDLE on a
+        // busy machine that plan could take seconds, and the run's end (the final library
+        // save) would wait for it: the thread is raised back to normal priority first, and
+        // left to end on its own where it cannot be (its plan is no longer wanted).
         self.to_planner = None;
-        if let Some(handle) = self.handle.take() {
+        let raised = self.priority.restore();
+        if let Some(handle) = self.handle.take()
+            && raised
+        {
             let _ = handle.join();
         }
     }

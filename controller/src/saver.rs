@@ -9,6 +9,7 @@ use tes_learning::library::store::{self, StoreError, StoredLibrary};
 use tes_topics::WorldMap;
 use thiserror::Error;
 
+use crate::priority::Background;
 use crate::summary::LibraryCounts;
 
 /// Why the library could not be saved.
@@ -90,6 +91,8 @@ pub fn save_library(
 pub struct Saver {
     jobs: Option<crossbeam::channel::Sender<Box<Tes>>>,
     failures: Arc<std::sync::atomic::AtomicU64>,
+    /// The saver thread's priority, raised back to normal when the run ends.
+    priority: Arc<Background>,
     handle: Option<std::thread::JoinHandle<()>>,
 }
 
@@ -99,11 +102,14 @@ impl Saver {
         let (jobs, queue) = crossbeam::channel::bounded::<Box<Tes>>(1);
         let failures = Arc::new(std::sync::atomic::AtomicU64::new(0));
         let failed = failures.clone();
+        let priority = Arc::new(Background::new());
+        let lowered = priority.clone();
         let handle = std::thread::Builder::new()
             .name("library-saver".into())
             .spawn(move || {
-                // Best effort: saving works at any priority.
-                let _ = tes_runtime::affinity::lower_this_threads_priority();
+                // Lowered only where the shutdown can raise it back: the final save waits for
+                // a save in progress, which SCHED_IDLE could starve on a busy machine.
+                lowered.lower_if_restorable();
                 while let Ok(agent) = queue.recv() {
                     if let Err(e) = save_library(*agent, &path, &names) {
                         failed.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
@@ -115,6 +121,7 @@ impl Saver {
         Ok(Self {
             jobs: Some(jobs),
             failures,
+            priority,
             handle: Some(handle),
         })
     }
@@ -127,8 +134,14 @@ impl Saver {
         }
     }
 
-    /// Waits for the queued saves; returns how many failed.
+    /// Waits for the queued saves, the saver thread back at normal priority so that a busy
+    /// machine cannot starve a save in progress; returns how many failed.
     pub fn finish(mut self) -> u64 {
+        if !self.priority.restore() {
+            tracing::warn!(
+                "the library saver stays at SCHED_IDLE; a save in progress may be slow to finish"
+            );
+        }
         self.jobs = None;
         if let Some(h) = self.handle.take() {
             let _ = h.join();

@@ -172,15 +172,36 @@ impl std::fmt::Display for LibraryFacts {
     }
 }
 
+/// `n` and `noun`, plural unless `n` is 1: "1 step", "20 steps".
+pub fn count(n: u64, noun: &str) -> String {
+    match n {
+        1 => format!("1 {noun}"),
+        _ => format!("{n} {noun}s"),
+    }
+}
+
 impl std::fmt::Display for ControllerSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.actions == 0 {
+            // No decision was made (no world map or no observation came): no latency,
+            // budget or planner to speak of.
+            return write!(
+                f,
+                "{}, 0 actions: no decision was made{}",
+                count(self.episodes, "episode"),
+                match self.refused {
+                    0 => String::new(),
+                    n => format!(" ({} refused)", count(n, "observation")),
+                }
+            );
+        }
         let l = &self.latency;
         write!(
             f,
-            "{} episodes, {} actions{}, decision latency p50 {} us p99 {} us max {} us, {} over the {} us budget \
+            "{}, {}{}, decision latency p50 {} us p99 {} us max {} us, {} over the {} us budget \
              (wake-up p50 {} p99 {} max {} us; compute p50 {} p99 {} max {} us, {} over), ",
-            self.episodes,
-            self.actions,
+            count(self.episodes, "episode"),
+            count(self.actions, "action"),
             match self.unfinished_steps {
                 0 => String::new(),
                 n => format!(" ({n} in the unfinished episode)"),
@@ -201,25 +222,29 @@ impl std::fmt::Display for ControllerSummary {
         if self.learn.count > 0 {
             write!(
                 f,
-                "learning after the command p50 {} p99 {} max {} us, {} observations waited for it, ",
-                self.learn.p50_us, self.learn.p99_us, self.learn.max_us, self.learning_overran
+                "learning after the command p50 {} p99 {} max {} us, {} waited for it, ",
+                self.learn.p50_us,
+                self.learn.p99_us,
+                self.learn.max_us,
+                count(self.learning_overran, "observation")
             )?;
         }
         match self.allocations {
             Some(n) => write!(
                 f,
-                "{n} allocations on the acting path ({} inside iceoryx2's send), ",
+                "{} on the acting path ({} inside iceoryx2's send), ",
+                count(n, "allocation"),
                 self.ipc_allocations.unwrap_or(0)
             )?,
             None => f.write_str("allocations not counted, ")?,
         }
         write!(
             f,
-            "{} observations refused, {} plans ({}), {} keep-alives; acting thread {}, planner {}",
-            self.refused,
-            self.plans,
+            "{} refused, {} ({}), {}; acting thread {}, planner {}",
+            count(self.refused, "observation"),
+            count(self.plans, "plan"),
             self.planning,
-            self.keepalives,
+            count(self.keepalives, "keep-alive"),
             on_cpu(self.placement.acting),
             on_cpu(self.placement.planner),
         )
@@ -254,11 +279,11 @@ impl std::fmt::Display for EpisodeLine {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "episode {}: reward {:.2}, {} steps, decision latency p50 {} us p99 {} us max {} us, \
+            "episode {}: reward {:.2}, {}, decision latency p50 {} us p99 {} us max {} us, \
              {} over budget",
             self.episode,
             self.reward,
-            self.steps,
+            count(u64::from(self.steps), "step"),
             self.p50_us,
             self.p99_us,
             self.max_us,
@@ -282,7 +307,10 @@ impl EpisodeLine {
         let rest = text.strip_prefix("episode ")?;
         let (episode, rest) = rest.split_once(": reward ")?;
         let (reward, rest) = rest.split_once(", ")?;
-        let (steps, rest) = rest.split_once(" steps, decision latency p50 ")?;
+        let (steps, rest) = rest.split_once(", decision latency p50 ")?;
+        let steps = steps
+            .strip_suffix(" steps")
+            .or_else(|| steps.strip_suffix(" step"))?;
         let (p50, rest) = rest.split_once(" us p99 ")?;
         let (p99, rest) = rest.split_once(" us max ")?;
         let (max, rest) = rest.split_once(" us, ")?;
@@ -316,6 +344,39 @@ mod tests {
             let back = EpisodeLine::parse(&line.to_string()).expect("reads back");
             proptest::prop_assert_eq!(back, line);
         }
+    }
+
+    /// A run that decided nothing (a brick that never answered) says so, with no latency,
+    /// budget or planner of a decision that never was; one of anything is singular.
+    #[test]
+    fn a_summary_without_decisions_says_so_and_counts_are_singular_for_one() {
+        let nothing = ControllerSummary::default().to_string();
+        assert_eq!(nothing, "0 episodes, 0 actions: no decision was made");
+        let one = ControllerSummary {
+            episodes: 1,
+            actions: 1,
+            plans: 1,
+            refused: 1,
+            keepalives: 1,
+            planning: "thread".into(),
+            ..ControllerSummary::default()
+        }
+        .to_string();
+        assert!(one.starts_with("1 episode, 1 action, "), "{one}");
+        assert!(
+            one.contains("1 observation refused, 1 plan (thread), 1 keep-alive;"),
+            "{one}"
+        );
+        let line = EpisodeLine {
+            episode: 0,
+            reward: 1.0,
+            steps: 1,
+            p50_us: 1,
+            p99_us: 1,
+            max_us: 1,
+            misses: 0,
+        };
+        assert!(line.to_string().contains(", 1 step, "), "{line}");
     }
 
     fn facts(started_empty: bool, end: LibraryEnd) -> LibraryFacts {

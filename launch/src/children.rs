@@ -114,10 +114,30 @@ pub fn spawn(command: &ChildCommand, spec: &ChildSpec) -> Result<Child, SpawnErr
     spawn_as(command, spec.role.name(), &spec.config)
 }
 
+/// The environment variable a respawned child finds set to `1`: it goes on with the run
+/// its predecessor started (perception continues the episode numbers and budget) instead
+/// of starting one.
+pub const RESUME_ENV: &str = "TES_RESUME";
+
+/// Starts a child again in the role of `spec` after it died: [`spawn`] with [`RESUME_ENV`]
+/// set.
+pub fn respawn(command: &ChildCommand, spec: &ChildSpec) -> Result<Child, SpawnError> {
+    spawn_with(command, spec.role.name(), &spec.config, true)
+}
+
 /// Starts `command` as `NAME --config CONFIG`, dying with this process, its output in
 /// `NAME.out` and `NAME.log` beside `config`: a child of the group ([`spawn`]) or any other
 /// process a harness starts the same way.
 pub fn spawn_as(command: &ChildCommand, name: &str, config: &Path) -> Result<Child, SpawnError> {
+    spawn_with(command, name, config, false)
+}
+
+fn spawn_with(
+    command: &ChildCommand,
+    name: &str,
+    config: &Path,
+    resume: bool,
+) -> Result<Child, SpawnError> {
     let failed = |e: &std::io::Error| SpawnError {
         what: name.to_owned(),
         cause: tes_runtime::cause::explain(e),
@@ -128,6 +148,11 @@ pub fn spawn_as(command: &ChildCommand, name: &str, config: &Path) -> Result<Chi
     cmd.stdin(Stdio::null())
         .stdout(Stdio::from(out))
         .stderr(Stdio::from(log));
+    if resume {
+        cmd.env(RESUME_ENV, "1");
+    } else {
+        cmd.env_remove(RESUME_ENV);
+    }
     die_with_parent(&mut cmd);
     cmd.spawn().map_err(|e| failed(&e))
 }
@@ -163,31 +188,113 @@ pub struct Escalation {
     pub grace: Duration,
 }
 
+/// How long the launcher waits, beyond its grace, for a child that is still saving what the
+/// run learned (the controller's final library save) before it sends SIGKILL. A save takes
+/// well under a second at normal priority; the bound only keeps a hung child from holding
+/// the launcher forever.
+pub const SAVE_PATIENCE: Duration = Duration::from_secs(60);
+
+/// A child the shutdown waited for while it saved, before SIGKILL.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SaveWait {
+    /// The process.
+    pub process: String,
+    /// How long it was waited for.
+    pub waited: Duration,
+    /// The most it would have been waited for ([`SAVE_PATIENCE`]).
+    pub bound: Duration,
+    /// Whether it was done saving within the bound (false: it was killed).
+    pub done: bool,
+}
+
+/// What stopping the children took beyond SIGINT.
+#[derive(Debug, Default)]
+pub struct Shutdown {
+    /// The children that needed a harder signal.
+    pub escalations: Vec<Escalation>,
+    /// The children waited for while they saved, before SIGKILL.
+    pub save_waits: Vec<SaveWait>,
+}
+
 /// Stops `children` as ROS 2 launch does: SIGINT, then SIGTERM after `grace`, then SIGKILL
 /// after `grace`; waits for every child. Returns the children that needed a harder signal.
 pub fn shutdown(children: &mut [&mut Process], grace: Duration) -> Vec<Escalation> {
-    let mut escalations = Vec::new();
+    shutdown_saving(children, grace, &|_| false).escalations
+}
+
+/// [`shutdown`], but a child that `saving` says is still saving is given up to
+/// [`SAVE_PATIENCE`] more before SIGKILL (a kill then would lose what the run learned).
+pub fn shutdown_saving(
+    children: &mut [&mut Process],
+    grace: Duration,
+    saving: &dyn Fn(&Process) -> bool,
+) -> Shutdown {
+    let mut shutdown = Shutdown::default();
     for signal in [Signal::SIGINT, Signal::SIGTERM, Signal::SIGKILL] {
+        if signal == Signal::SIGKILL {
+            shutdown.save_waits = wait_for_saves(children, saving, SAVE_PATIENCE);
+        }
         if !signal_the_living(children, signal) {
             break;
         }
         if wait_for_all(children, grace) {
-            return escalations;
+            return shutdown;
         }
         if signal != Signal::SIGKILL {
-            escalations.extend(children.iter().filter(|c| c.status.is_none()).map(|c| {
-                Escalation {
-                    process: c.name.clone(),
-                    signal: signal.as_str(),
-                    grace,
-                }
-            }));
+            shutdown
+                .escalations
+                .extend(
+                    children
+                        .iter()
+                        .filter(|c| c.status.is_none())
+                        .map(|c| Escalation {
+                            process: c.name.clone(),
+                            signal: signal.as_str(),
+                            grace,
+                        }),
+                );
         }
     }
     for c in children.iter_mut().filter(|c| c.status.is_none()) {
         c.status = c.child.wait().ok();
     }
-    escalations
+    shutdown
+}
+
+/// Waits, up to `bound`, for the living children that `saving` says are saving to end (or
+/// to stop saving); one [`SaveWait`] per child waited for.
+fn wait_for_saves(
+    children: &mut [&mut Process],
+    saving: &dyn Fn(&Process) -> bool,
+    bound: Duration,
+) -> Vec<SaveWait> {
+    let start = Instant::now();
+    let mut waits = Vec::new();
+    for c in children.iter_mut() {
+        if c.status.is_some() || !saving(c) {
+            continue;
+        }
+        let done = loop {
+            if let Ok(Some(s)) = c.child.try_wait() {
+                c.status = Some(s);
+                break true;
+            }
+            if !saving(c) {
+                break true;
+            }
+            if start.elapsed() >= bound {
+                break false;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        };
+        waits.push(SaveWait {
+            process: c.name.clone(),
+            waited: start.elapsed(),
+            bound,
+            done,
+        });
+    }
+    waits
 }
 
 /// Sends `signal` to every child still running; whether any was.

@@ -12,7 +12,7 @@ use tes_runtime::channel::WaitStrategy;
 use tes_topics::wire::Refusal;
 use tes_topics::{Progress, Role};
 
-use crate::children::Escalation;
+use crate::children::{Escalation, SaveWait};
 use crate::file::Restart;
 use crate::library::LibraryOutcome;
 use crate::recording::Recorded;
@@ -75,6 +75,8 @@ pub enum Event {
         missing: Vec<Role>,
         /// The group's name on Zenoh.
         group: String,
+        /// How long it has waited so far (zero the first time it says so).
+        waited: Duration,
         /// When the launch gives up.
         timeout: Duration,
     },
@@ -211,6 +213,9 @@ pub enum Event {
     },
     /// A child needed a harder signal to stop.
     Escalated(Escalation),
+    /// A child still saving (the controller's final library save) was waited for before
+    /// SIGKILL.
+    WaitedForSave(SaveWait),
     /// The link is closed: what passed through it.
     LinkClosed(LinkCounts),
     /// The recording is complete.

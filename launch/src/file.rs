@@ -608,12 +608,14 @@ pub const FASTEST_TIME_SCALE: f64 = 200.0;
 /// A launch file that cannot be used; when one is refused, nothing is started.
 #[derive(Debug)]
 pub enum LaunchFileError {
-    /// It cannot be read: missing, unreadable, or not UTF-8 text.
+    /// It cannot be read: missing, unreadable, not UTF-8 text, not a regular file (a FIFO, a
+    /// device, a directory: refused without reading from it) or larger than
+    /// [`MAX_LAUNCH_FILE_BYTES`].
     Read {
         /// The file.
         path: PathBuf,
-        /// Why.
-        error: std::io::Error,
+        /// Why (boxed: it is rare, and keeps the error small).
+        error: Box<tes_files::FileProblem>,
     },
     /// A key is unknown, of the wrong type, repeated or out of range, the settings contradict
     /// each other, or the text is not TOML: placed in the file (its origin, line, table and
@@ -690,11 +692,20 @@ impl std::fmt::Display for LaunchFileError {
 
 impl std::error::Error for LaunchFileError {}
 
+/// The largest launch file read, in bytes: every key of every table, commented, is some
+/// 20 KiB.
+pub const MAX_LAUNCH_FILE_BYTES: u64 = 1 << 20;
+
 /// Reads and parses a launch file; a problem is reported with the file, the line and the key.
+/// The file is read as every TES file is ([`tes_files::read_text`]): a FIFO, a device or a
+/// directory is refused without blocking or reading from it, and a file over
+/// [`MAX_LAUNCH_FILE_BYTES`] without reading it.
 pub fn read_launch_file(path: &Path) -> Result<LaunchFile, LaunchFileError> {
-    let text = std::fs::read_to_string(path).map_err(|error| LaunchFileError::Read {
-        path: path.to_owned(),
-        error,
+    let text = tes_files::read_text(path, MAX_LAUNCH_FILE_BYTES).map_err(|error| {
+        LaunchFileError::Read {
+            path: path.to_owned(),
+            error: Box::new(error),
+        }
     })?;
     LaunchFile::from_toml(&text, Origin::File(path.to_owned())).map_err(LaunchFileError::Setting)
 }
@@ -946,12 +957,12 @@ mod tests {
             (
                 "roles = [\"bridge\"]\n[launch.link]\nconnect = [\"udp/10.0.0.1:7447\"]\n",
                 "link.connect",
-                "is not a QUIC or TCP endpoint",
+                "is not a QUIC, TCP or Unix socket endpoint",
             ),
             (
                 "roles = [\"bridge\"]\n[launch.link]\nlisten = [\"tcp/10.0.0.1:7447\"]\n",
                 "link.listen",
-                "plain TCP on an address other hosts can reach",
+                "is plain TCP, with no authentication: it is reachable from other hosts",
             ),
             (
                 "roles = [\"bridge\"]\n[launch.link]\npeer_timeout_ms = 5\n",
@@ -1275,6 +1286,34 @@ mod tests {
             let (text, origin) = read("perception-sim");
             let perception = PerceptionConfig::from_toml_in(&text, origin).expect("perception");
             assert_eq!(perception, children.perception, "{text}");
+        }
+    }
+
+    /// A launch file that is a FIFO, a device or a huge file is refused with its reason,
+    /// without blocking or reading it.
+    #[test]
+    fn launch_files_that_are_not_regular_files_are_refused_without_reading() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let fifo = dir.path().join("fifo.toml");
+        nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::S_IRWXU).expect("mkfifo");
+        let huge = dir.path().join("huge.toml");
+        std::fs::File::create(&huge)
+            .and_then(|f| f.set_len(2 << 30))
+            .expect("a sparse file");
+        for (path, reason) in [
+            (fifo.as_path(), "is a FIFO, not a regular file"),
+            (
+                Path::new("/dev/zero"),
+                "is a character device, not a regular file",
+            ),
+            (dir.path(), "is a directory, not a regular file"),
+            (huge.as_path(), "more than the 1048576 bytes"),
+        ] {
+            let e = read_launch_file(path).expect_err("refused");
+            let text = e.to_string();
+            assert!(text.contains(reason), "{text}");
+            assert!(text.starts_with("cannot read the launch file"), "{text}");
+            assert!(text.ends_with("nothing was started"), "{text}");
         }
     }
 }

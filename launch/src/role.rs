@@ -74,12 +74,21 @@ pub fn run_role(role: Role, config: &Path) -> Result<(), RoleError> {
         Role::Perception => {
             let cfg =
                 PerceptionConfig::from_toml_in(&text, origin).map_err(|e| settings(e.into()))?;
-            tes_perception_sim::process::run(&cfg, &stop)
+            // A respawned perception goes on with the run's episodes.
+            let resume = std::env::var_os(crate::children::RESUME_ENV).is_some_and(|v| v == "1");
+            tes_perception_sim::process::run_resuming(&cfg, &stop, resume)
                 .map(|_| ())
                 .map_err(|e| RoleError::Failed(e.into()))
         }
         Role::Bridge => {
-            let cfg = BridgeConfig::from_toml_in(&text, origin).map_err(|e| settings(e.into()))?;
+            let mut cfg =
+                BridgeConfig::from_toml_in(&text, origin).map_err(|e| settings(e.into()))?;
+            // The launcher writes the simulated brick's pace from the run's real-time factor
+            // whatever the transport; a real brick runs in physical time, so the bridge need
+            // not warn that the scale is ignored (the user never wrote it).
+            if cfg.transport != tes_bridge::config::TransportKind::Sim {
+                cfg.brick.time_scale = 1.0;
+            }
             let opts = tes_bridge::ipc::RunOptions {
                 handle_signals: false,
                 stop: Some(stop),

@@ -198,6 +198,14 @@ impl RunRecord {
             (Some(x), Some(y)) => Some(DVec2::new(x, y)),
             _ => None,
         };
+        // An episode run again after perception restarted starts its path over.
+        if step == 0
+            && let Some((e, path)) = self.paths.back_mut()
+            && *e == episode
+        {
+            path.clear();
+            path.extend(point("x_cm", "y_cm"));
+        }
         if self.paths.back().is_none_or(|(e, _)| *e != episode) {
             if self.paths.len() == PATHS_DRAWN {
                 self.paths.pop_front();

@@ -61,6 +61,10 @@ pub struct Status {
     /// iceoryx2 domains other than the default (a latency bench's, a test host's) removed
     /// first because every process in them had ended (`None` when nothing was cleaned).
     pub domains_cleaned: Option<usize>,
+    /// What the clean-up could not remove, each named with why (empty when it removed
+    /// everything, or nothing was cleaned).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub not_cleaned: Vec<String>,
 }
 
 impl Status {
@@ -72,16 +76,23 @@ impl Status {
     ///
     /// [`StatusError`] when the clean-up, the node registry or this process's own node fails.
     pub fn read(clean: bool, wait: Duration) -> Result<Self, StatusError> {
-        let (cleaned, domains_cleaned) = if clean {
-            (Some(clean_stale_resources()?), Some(clean_stale_domains()?))
-        } else {
-            (None, None)
-        };
+        let (mut cleaned, mut domains_cleaned, mut not_cleaned) = (None, None, Vec::new());
+        if clean {
+            // Everything that can be removed is, whatever could not be: each failure is
+            // named, not the first one made the end of the clean-up.
+            let nodes = channel::clean_every_stale_resource().map_err(StatusError::Clean)?;
+            let domains = channel::clean_every_stale_domain();
+            cleaned = Some(nodes.removed);
+            domains_cleaned = Some(domains.removed);
+            not_cleaned = nodes.not_removed;
+            not_cleaned.extend(domains.not_removed);
+        }
         let groups = running_groups(wait)?;
         Ok(Self {
             groups,
             cleaned,
             domains_cleaned,
+            not_cleaned,
         })
     }
 }
@@ -504,6 +515,7 @@ mod tests {
             groups: group_nodes(&[named("g/", BRIDGE, 5, Dead)]),
             cleaned: Some(0),
             domains_cleaned: Some(0),
+            not_cleaned: Vec::new(),
         };
         let json: serde_json::Value =
             serde_json::from_str(&serde_json::to_string(&status).expect("json")).expect("parse");
@@ -531,6 +543,7 @@ mod tests {
             groups,
             cleaned: None,
             domains_cleaned: None,
+            not_cleaned: Vec::new(),
         };
         assert_eq!(
             serde_json::to_string(&status).expect("json"),

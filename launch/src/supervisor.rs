@@ -42,8 +42,9 @@ const LAST_WORDS: usize = 3;
 /// How often the supervisor reads the trajectory perception writes.
 const RECORD_POLL: Duration = Duration::from_millis(250);
 
-/// How often a launch waiting for its peers says so.
-const WAITING_SAID_EVERY: Duration = Duration::from_secs(5);
+/// How often a launch waiting for its peers reminds that it still waits (said once at
+/// first, then this often, with the time waited).
+const WAITING_SAID_EVERY: Duration = Duration::from_secs(10);
 
 /// A launch that cannot start or cannot go on.
 #[derive(Debug, thiserror::Error)]
@@ -79,13 +80,12 @@ pub enum LaunchError {
     /// A child cannot be polled.
     #[error("cannot poll a child")]
     Poll(#[source] std::io::Error),
-    /// The bridge's serial device does not exist.
-    #[error(
-        "[bridge] transport: {} does not exist (is the brick paired and its rfcomm device \
-         bound? `transport = \"sim\"` uses the simulated brick); nothing was started",
-        .0.display()
-    )]
-    NoBrick(PathBuf),
+    /// The bridge's serial device does not exist or is not a terminal device.
+    #[error("[bridge] transport: {0}; nothing was started")]
+    NoBrick(tes_bridge::config::SerialDeviceError),
+    /// The view library file cannot be used (corrupt, foreign, for another world).
+    #[error("{0}; nothing was started (move the file away to start from an empty library)")]
+    Library(tes_learning::library::store::StoreError),
 }
 
 /// How a supervisor starts children and when it stops.
@@ -149,7 +149,14 @@ pub struct Supervisor {
     record_polled: Instant,
     last_steps: Option<u64>,
     stall_deadline: Instant,
+    /// The payloads the link has delivered from peers (observations, commands, motor
+    /// states), and when the group stalls if that does not grow.
+    link_delivered: u64,
+    link_deadline: Instant,
     progress_seen: [u64; 3],
+    /// The most episodes the episode-counting roles (perception, controller) reported,
+    /// the count of a group side that plays neither.
+    reported_episodes: u64,
     ending: Option<Ending>,
     // Declared last: dropped after the ports of the watch and the link.
     _node: iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>,
@@ -164,6 +171,7 @@ impl Supervisor {
         observer: &mut dyn Observer,
     ) -> Result<Self, LaunchError> {
         refuse_a_missing_brick(file)?;
+        refuse_a_bad_library(file)?;
         // A refusal from here until the children run removes the new run folder (`prepared`'s
         // drop) and leaves `runs/latest` as it was.
         let mut prepared = prepare(file)?;
@@ -249,7 +257,10 @@ impl Supervisor {
             record_polled: Instant::now(),
             last_steps: None,
             stall_deadline,
+            link_delivered: 0,
+            link_deadline: stall_deadline,
             progress_seen: [0; 3],
+            reported_episodes: 0,
             ending: None,
             _node: node,
         })
@@ -297,11 +308,29 @@ impl Supervisor {
             reason: Some("the group stopped".into()),
         });
         self.tell_peers(&ending);
+        // The last reports before the group goes: a side without the controller counts its
+        // episodes from them.
+        if self.watch.poll().is_ok() {
+            self.emit_progress(observer);
+        }
         let grace = Duration::from_millis(self.file.launch.grace_ms);
         let mut processes: Vec<&mut children::Process> =
             self.children.iter_mut().map(|c| &mut c.process).collect();
-        for escalation in children::shutdown(&mut processes, grace) {
+        // A controller still saving the library (its marker beside its report) is waited
+        // for before SIGKILL.
+        let marker = self
+            .report
+            .as_deref()
+            .map(tes_controller::process::saving_marker);
+        let saving = |p: &children::Process| {
+            p.name == Role::Controller.name() && marker.as_deref().is_some_and(Path::exists)
+        };
+        let shutdown = children::shutdown_saving(&mut processes, grace, &saving);
+        for escalation in shutdown.escalations {
             observer.event(&Event::Escalated(escalation));
+        }
+        for wait in shutdown.save_waits {
+            observer.event(&Event::WaitedForSave(wait));
         }
         self.take_last_lines(observer);
         if let Some(mut link) = self.link.take() {
@@ -332,12 +361,22 @@ impl Supervisor {
             .and_then(|report| library::read_report(Some(report)));
         self.say_what_became_of_the_library(summary.as_ref(), observer);
         let verdict = Verdict {
-            episodes: self.relay.episodes,
+            episodes: self.episodes_taken_part_in(),
             unfinished_steps: summary.map_or(0, |s| s.unfinished_steps),
             failures,
         };
         observer.event(&Event::Verdict(verdict.clone()));
         verdict
+    }
+
+    /// The episodes this side of the group took part in: the controller's lines where it
+    /// plays the controller, else the most its peers' progress reports counted.
+    fn episodes_taken_part_in(&self) -> u32 {
+        if self.plays(Role::Controller) {
+            self.relay.episodes
+        } else {
+            u32::try_from(self.reported_episodes).unwrap_or(u32::MAX)
+        }
     }
 
     /// Takes every line the children wrote since the last step.
@@ -446,6 +485,7 @@ impl Supervisor {
             self.watch.forget(role);
             self.stall_deadline =
                 Instant::now() + self.options.start_allowance + stall_timeout(&self.file);
+            self.link_deadline = self.stall_deadline;
         }
         Ok(())
     }
@@ -549,7 +589,7 @@ impl Supervisor {
         if let Err(e) = channel::clean_stale_resources() {
             observer.event(&Event::Warning(e.to_string()));
         }
-        let child = children::spawn(&self.options.command, &self.children[i].spec)?;
+        let child = children::respawn(&self.options.command, &self.children[i].spec)?;
         observer.event(&Event::ProcessStarted {
             role,
             pid: child.id(),
@@ -586,7 +626,51 @@ impl Supervisor {
         } else if Instant::now() > self.stall_deadline {
             self.stalled(timeout, observer);
         }
+        self.watch_link(timeout, observer);
         Ok(())
+    }
+
+    /// The stall watch of a split group's link: the controller may go on deciding (its
+    /// steps grow) while what it sends stops reaching the robot's host — every command
+    /// refused, or the link wedged — and the robot's observations stop reaching it. A link
+    /// that delivers no observation, command or motor state for `stall_timeout_ms` stops
+    /// the group, saying what it refused; restarting a process would not mend it.
+    fn watch_link(&mut self, timeout: Duration, observer: &mut dyn Observer) {
+        let Some(link) = &self.link else { return };
+        let counts = link.counts();
+        let data = |t: &tes_link::Topic| {
+            !matches!(t, tes_link::Topic::Progress(_) | tes_link::Topic::WorldMap)
+                && t.comes_in(&self.file.launch.roles)
+        };
+        let delivered: u64 = counts
+            .by_topic
+            .iter()
+            .filter(|(t, _, _)| data(t))
+            .map(|(_, taken, _)| taken)
+            .sum();
+        if delivered != self.link_delivered {
+            self.link_delivered = delivered;
+            self.link_deadline = Instant::now() + timeout;
+            return;
+        }
+        if self.ending.is_some() || Instant::now() <= self.link_deadline {
+            return;
+        }
+        let Some((topic, _, _)) = counts.by_topic.iter().find(|(t, _, _)| data(t)) else {
+            return;
+        };
+        let why = format!(
+            "sent no {topic} that this host took for {:.1} s (link: {counts})",
+            timeout.as_secs_f64()
+        );
+        observer.event(&Event::Stalled {
+            silent_for: timeout,
+            holder: topic.writer(),
+            why: why.clone(),
+            restarting: false,
+        });
+        let silent = format!("the link stalled: the {} {why}", topic.writer().name());
+        self.end(Some(silent.clone()), Some(silent));
     }
 
     /// Tells each new progress report.
@@ -596,6 +680,9 @@ impl Supervisor {
                 && p.stamp_ns != self.progress_seen[i]
             {
                 self.progress_seen[i] = p.stamp_ns;
+                if role != Role::Bridge {
+                    self.reported_episodes = self.reported_episodes.max(p.episodes);
+                }
                 observer.event(&Event::Progress { role, progress: *p });
             }
         }
@@ -852,6 +939,39 @@ fn clean_stale_resources(observer: &mut dyn Observer) {
     }
 }
 
+/// Refuses a library file the controller would refuse, before anything starts: a launch
+/// that plays the controller checks the file (if there is one) as the controller will load
+/// it, for the world perception publishes.
+fn refuse_a_bad_library(file: &LaunchFile) -> Result<(), LaunchError> {
+    if file
+        .roles()
+        .is_some_and(|local| !local.contains(&Role::Controller))
+    {
+        return Ok(());
+    }
+    let path = file.controller.library_path();
+    if std::fs::symlink_metadata(&path).is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound) {
+        return Ok(());
+    }
+    let checked = match tes_perception_sim::arena::ArenaId::from_number(file.arena()) {
+        Ok(id) => {
+            let arena = tes_perception_sim::arena::Arena::new(id);
+            match tes_perception_sim::process::world_map(&arena) {
+                Ok(map) => tes_learning::library::store::load_for(
+                    &path,
+                    map.n_actions as usize,
+                    map.n_effects as usize,
+                    map.n_features as usize,
+                ),
+                Err(_) => tes_learning::library::store::load(&path),
+            }
+        }
+        // A bad arena number is the launch file's error, said by its own check.
+        Err(_) => tes_learning::library::store::load(&path),
+    };
+    checked.map(|_| ()).map_err(LaunchError::Library)
+}
+
 /// Refuses a prefix a running group uses. A group is there if its processes' progress
 /// services are (a watcher of other services, such as a test subscribing early, is not a
 /// group).
@@ -864,14 +984,16 @@ fn refuse_a_prefix_in_use(prefix: &str) -> Result<(), LaunchError> {
     }
 }
 
-/// Refuses a launch whose bridge would talk to a serial device that is not there: the link
-/// could never come up, and a run that cannot happen must not start.
+/// Refuses a launch whose bridge would talk to a serial device that is not there, or is no
+/// terminal (`/dev/null`, a FIFO, a file): the link could never come up, and a run that
+/// cannot happen must not start.
 fn refuse_a_missing_brick(file: &LaunchFile) -> Result<(), LaunchError> {
     let plays_bridge = file.launch.roles.is_empty() || file.launch.roles.contains(&Role::Bridge);
-    if let (true, TransportKind::Serial(path)) = (plays_bridge, &file.bridge.transport)
-        && std::fs::metadata(path).is_err()
-    {
-        return Err(LaunchError::NoBrick(path.clone()));
+    if plays_bridge {
+        file.bridge
+            .transport
+            .check_device()
+            .map_err(LaunchError::NoBrick)?;
     }
     Ok(())
 }
@@ -995,8 +1117,8 @@ fn open_link(
         group: settings.group.clone(),
         mode: settings.mode,
         zid: link.zid().to_owned(),
-        listen: settings.listen.clone(),
-        connect: settings.connect.clone(),
+        listen: link.endpoints().listen.clone(),
+        connect: link.endpoints().connect.clone(),
         security: settings.security(),
     });
     wait_for_peers(&link, file, stop, observer)?;
@@ -1039,10 +1161,13 @@ fn wait_for_peers(
             )));
         }
         if said.is_none_or(|at| at.elapsed() >= WAITING_SAID_EVERY) {
+            // Zero the first time: the launch says whom it waits for; then how long.
+            let waited = said.map_or(Duration::ZERO, |_| start.elapsed());
             said = Some(Instant::now());
             observer.event(&Event::LinkWaiting {
                 missing,
                 group: settings.group.clone(),
+                waited,
                 timeout,
             });
         }

@@ -58,6 +58,16 @@ pub enum CmdpError {
     /// A reward is NaN or infinite.
     #[error("the reward for entering state {0} is not finite")]
     BadReward(usize),
+    /// A step's reward ([`CmdpStructure::with_step_rewards`]) is NaN or infinite.
+    #[error("the reward of action {action} with effect {effect} in state {state} is not finite")]
+    BadStepReward {
+        /// State.
+        state: usize,
+        /// Action.
+        action: usize,
+        /// Effect.
+        effect: usize,
+    },
     /// A state's features are out of range or unsorted.
     #[error("state {state}: {source}")]
     BadFeatures {
@@ -91,8 +101,12 @@ pub struct CmdpStructure {
     pred_offsets: Vec<usize>,
     preds: Vec<u32>,
     /// `steps[s * E + e]`: where effect `e` leads from `s` with that state's reward and
-    /// whether it is terminal, side by side for the planner's backups.
+    /// whether it is terminal, side by side for the planner's backups. With step rewards the
+    /// reward here is 0 (the backups add each action's own from `step_rewards`).
     steps: Vec<Step>,
+    /// `step_rewards[(s * A + a) * E + e]`: the reward of action `a` in `s` when it has
+    /// effect `e`, if [`with_step_rewards`](Self::with_step_rewards) gave them.
+    step_rewards: Option<Vec<f64>>,
 }
 
 /// One successor of a state as a backup reads it: `R(next) + (live ? γ V(next) : 0)`.
@@ -209,6 +223,7 @@ impl CmdpStructure {
             pred_offsets,
             preds,
             steps,
+            step_rewards: None,
         })
     }
 
@@ -268,6 +283,69 @@ impl CmdpStructure {
     #[inline]
     pub fn reward(&self, s: usize) -> f64 {
         self.reward[s]
+    }
+
+    /// The reward of taking action `a` in `s` when it has effect `e` (and so leads to
+    /// `next_state(s, e)`): the [`reward`](Self::reward) for entering where it leads, unless
+    /// [`with_step_rewards`](Self::with_step_rewards) set it.
+    #[inline]
+    pub fn step_reward(&self, s: usize, a: usize, e: usize) -> f64 {
+        match &self.step_rewards {
+            Some(table) => table[(s * self.n_actions + a) * self.n_effects + e],
+            None => self.steps[s * self.n_effects + e].reward,
+        }
+    }
+
+    /// Whether [`with_step_rewards`](Self::with_step_rewards) gave the steps their rewards.
+    #[inline]
+    pub fn has_step_rewards(&self) -> bool {
+        self.step_rewards.is_some()
+    }
+
+    /// The rewards of one state's steps, `[a * E + e]`, when the structure has step rewards.
+    #[inline]
+    pub(crate) fn step_rewards_of(&self, s: usize) -> Option<&[f64]> {
+        let width = self.n_actions * self.n_effects;
+        self.step_rewards
+            .as_deref()
+            .map(|table| &table[s * width..][..width])
+    }
+
+    /// The same structure with each step's reward decided by the state it starts in, the
+    /// action taken and the effect it has, `reward(s, a, e)` — so by the state, the action
+    /// and the next state, which `(s, e)` decides — instead of by the state it enters alone:
+    /// a refused pick-up and a bump into a wall can stay put at different costs, and two
+    /// actions with the same outcome can cost differently, with no copy of any state or
+    /// effect. The planner backs up `Σ_e P(e | s, a) (reward(s, a, e) + γ V(next_state(s, e)))`;
+    /// [`reward`](Self::reward) still reports the entering rewards the structure was built
+    /// with. Kept as `S × A × E` floats (a Taxi of 500 states, 6 actions and 8 effects:
+    /// 24 000), not `S × A × S`.
+    pub fn with_step_rewards(
+        mut self,
+        reward: impl Fn(usize, usize, usize) -> f64,
+    ) -> Result<Self, CmdpError> {
+        let (n_states, n_actions, n_effects) = (self.n_states, self.n_actions, self.n_effects);
+        let mut table = Vec::with_capacity(n_states * n_actions * n_effects);
+        for state in 0..n_states {
+            for action in 0..n_actions {
+                for effect in 0..n_effects {
+                    let r = reward(state, action, effect);
+                    if !r.is_finite() {
+                        return Err(CmdpError::BadStepReward {
+                            state,
+                            action,
+                            effect,
+                        });
+                    }
+                    table.push(r);
+                }
+            }
+        }
+        for step in &mut self.steps {
+            step.reward = 0.0;
+        }
+        self.step_rewards = Some(table);
+        Ok(self)
     }
 
     /// Whether an episode ends on entering `s`.
@@ -882,6 +960,80 @@ pub mod examples {
 mod tests {
     use super::examples::corridor;
     use super::*;
+
+    /// Two effects that enter the same state with different step rewards: the planner
+    /// backs up each step's own reward and takes the action whose effect pays.
+    #[test]
+    fn step_rewards_are_what_the_planner_backs_up() {
+        use crate::plan::{PlannerParams, ValueIteration};
+        let c = two_state_structure();
+        assert_eq!(c.step_reward(0, 0, 1), c.reward(1));
+        let paid = c
+            .clone()
+            .with_step_rewards(|s, _, e| if (s, e) == (0, 1) { 1.0 } else { -1.0 })
+            .unwrap();
+        assert_eq!(
+            (paid.step_reward(0, 0, 0), paid.step_reward(0, 0, 1)),
+            (-1.0, 1.0)
+        );
+        assert_eq!(paid.reward(1), 0.0);
+        let mut table = EffectTable::uniform(&paid);
+        table.set(0, 0, &[1.0, 0.0]);
+        table.set(1, 0, &[0.0, 1.0]);
+        let mut planner = ValueIteration::new(&paid, PlannerParams::default()).unwrap();
+        planner.plan(&paid, &table);
+        assert_eq!(planner.policy()[0], 1);
+        assert_eq!(planner.q_value(&paid, &table, 0, 1), 1.0);
+        assert_eq!(planner.q_value(&paid, &table, 0, 0), -1.0);
+        let refused = c.with_step_rewards(|_, a, _| if a == 1 { f64::NAN } else { 0.0 });
+        assert_eq!(
+            refused.unwrap_err(),
+            CmdpError::BadStepReward {
+                state: 0,
+                action: 1,
+                effect: 0
+            }
+        );
+    }
+
+    /// Both actions have the same effect with the same chances, from the same state to the
+    /// same next state; only what they cost differs (−5 for action 0, −1 for action 1). The
+    /// plan takes the cheaper one, and its value is what that action pays.
+    #[test]
+    fn a_reward_that_depends_on_the_action_alone_is_planned_on() {
+        use crate::plan::{PlannerParams, ValueIteration};
+        let c = two_state_structure()
+            .with_step_rewards(|_, a, _| if a == 0 { -5.0 } else { -1.0 })
+            .unwrap();
+        // Each action has each effect half the time (the uniform table): the cost is all
+        // that tells them apart.
+        let table = EffectTable::uniform(&c);
+        assert_eq!(table.probs(0, 0), table.probs(1, 0));
+        let mut planner = ValueIteration::new(&c, PlannerParams::default()).unwrap();
+        let stats = planner.plan(&c, &table);
+        assert!(stats.converged);
+        assert_eq!(planner.policy()[0], 1);
+        assert_eq!(planner.value(0), -1.0);
+        assert_eq!(planner.q_value(&c, &table, 0, 0), -5.0);
+        assert_eq!(planner.q_value(&c, &table, 0, 1), -1.0);
+    }
+
+    /// Two states, two actions, two effects that both lead from state 0 to the terminal
+    /// state 1, no features and no entering rewards.
+    fn two_state_structure() -> CmdpStructure {
+        let no_features: &[u32] = &[];
+        CmdpStructure::new(
+            2,
+            2,
+            2,
+            0,
+            |_, _| 1,
+            vec![0.0, 0.0],
+            vec![false, true],
+            |_| no_features,
+        )
+        .unwrap()
+    }
 
     #[test]
     fn structure_answers_what_it_was_given() {

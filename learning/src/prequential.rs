@@ -14,6 +14,12 @@
 //! work is timed. [`fit_file`] runs both passes over a file, [`fit_stream`] over a stream
 //! that can be read only once (standard input).
 //!
+//! What a stream can make it hold is bounded: a file must be a regular file (a FIFO or a
+//! device such as `/dev/zero` is refused before a byte is read), a line longer than
+//! [`MAX_LINE_BYTES`] is refused, a gzip stream that inflates past [`INFLATION_BOUND`] is
+//! refused as a likely decompression bomb, and the buffers grow with the rows read — a batch
+//! holds at most 4 096 rows and 2^22 values — never with the width a row claims.
+//!
 //! Errors ([`FitError`]) name the file and line, with the same text `tes fit` prints. Progress
 //! is reported through a callback given the bytes of each line read, so a caller can draw a
 //! bar (or not) as it likes.
@@ -43,12 +49,12 @@
 //! # Ok::<(), tes_learning::prequential::FitError>(())
 //! ```
 
-use std::fs::File;
 use std::io::{self, BufRead, BufReader, Read, Seek, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use flate2::read::MultiGzDecoder;
+use tes_files::{FileProblem, InflationBound, InflationGuard};
 use thiserror::Error;
 
 use crate::labelled_csv::{RowError, header_names, is_blank, parse_row, row_text};
@@ -56,8 +62,26 @@ use crate::labelled_sparse::parse_sparse_row;
 use crate::mdagl::{Features, Mdagl, MdaglConfigError, MdaglError, MdaglParams, Prequential};
 use crate::tuning::{MdaglRace, RaceSchedule, Standing, auto_grid};
 
-/// Rows parsed before each timed batch of updates.
+/// Rows parsed before each timed batch of updates, at most.
 const CHUNK_ROWS: usize = 4096;
+
+/// Feature values (dense) or non-zero entries (sparse) held by a batch, at most: a batch of
+/// wide rows ends sooner, so its buffers stay within 32 MiB whatever the rows' width.
+const CHUNK_VALUES: usize = 1 << 22;
+
+/// The longest line read, in bytes. The widest model ([`crate::mdagl::MAX_WEIGHTS`] weights,
+/// two classes) has 2^23 features, written in 16 MiB as CSV of 0s and 1s; a line with no
+/// newline in 64 MiB (`/dev/zero` on standard input, a sparse file, a bomb that inflates to
+/// one line) is refused instead of being held whole.
+pub const MAX_LINE_BYTES: usize = 64 << 20;
+
+/// How far a gzip-compressed stream may inflate: 256 MiB, plus 200 bytes per compressed
+/// byte read. Rows of real data compress some 3 to 30 to 1; a decompression bomb (deflate
+/// reaches 1032 to 1) is refused once its output passes the bound.
+pub const INFLATION_BOUND: InflationBound = InflationBound {
+    allowance: 256 << 20,
+    ratio: 200,
+};
 
 /// How a stream's rows are written.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -180,14 +204,15 @@ pub enum FitError {
         #[source]
         source: io::Error,
     },
-    /// The file could not be opened.
+    /// The file could not be opened: missing, unreadable, or not a regular file (a FIFO, a
+    /// device such as `/dev/zero`, a directory), which is refused without reading from it.
     #[error("cannot open {}", path.display())]
     Open {
         /// The file.
         path: PathBuf,
         /// Why.
         #[source]
-        source: io::Error,
+        source: FileProblem,
     },
     /// Reading a line failed.
     #[error("{}:{line}: cannot read the line", path.display())]
@@ -319,15 +344,14 @@ fn label_range(classes: usize) -> String {
     }
 }
 
-/// A decoded stream: `reader`'s bytes, decompressed when they start as a gzip file does.
+/// A decoded stream: `reader`'s bytes, decompressed when they start as a gzip file does (up
+/// to [`INFLATION_BOUND`]).
 fn decoded<'a>(reader: impl Read + 'a) -> io::Result<Box<dyn BufRead + 'a>> {
     let mut buffered = BufReader::with_capacity(1 << 16, reader);
     let gzip = buffered.fill_buf()?.starts_with(&GZIP_MAGIC);
     Ok(if gzip {
-        Box::new(BufReader::with_capacity(
-            1 << 16,
-            MultiGzDecoder::new(buffered),
-        ))
+        let inflated = InflationGuard::new(buffered, MultiGzDecoder::new, INFLATION_BOUND);
+        Box::new(BufReader::with_capacity(1 << 16, inflated))
     } else {
         Box::new(buffered)
     })
@@ -337,22 +361,23 @@ fn decoded<'a>(reader: impl Read + 'a) -> io::Result<Box<dyn BufRead + 'a>> {
 const GZIP_MAGIC: [u8; 2] = [0x1f, 0x8b];
 
 /// Opens a file for [`scan`] or [`fit`], buffered, and decompressed if it is gzip-compressed
-/// (told by its first bytes, not its name).
+/// (told by its first bytes, not its name). Anything but a regular file is refused without
+/// being read ([`tes_files::open_regular`]).
 pub fn open(path: &Path) -> Result<Box<dyn BufRead>, FitError> {
-    let open_error = |source| FitError::Open {
+    let open_error = |source: FileProblem| FitError::Open {
         path: path.to_owned(),
         source,
     };
-    let file = File::open(path).map_err(open_error)?;
-    decoded(file).map_err(open_error)
+    let file = tes_files::open_regular(path).map_err(open_error)?.file;
+    decoded(file).map_err(|e| open_error(e.into()))
 }
 
-/// Whether the file at `path` is gzip-compressed (then its size says little of its rows).
+/// Whether the file at `path` is a regular file that is gzip-compressed (then its size says
+/// little of its rows).
 pub fn is_gzip(path: &Path) -> bool {
     let mut magic = [0u8; 2];
-    File::open(path)
-        .and_then(|mut file| file.read_exact(&mut magic))
-        .is_ok_and(|()| magic == GZIP_MAGIC)
+    tes_files::open_regular(path)
+        .is_ok_and(|mut opened| opened.file.read_exact(&mut magic).is_ok() && magic == GZIP_MAGIC)
 }
 
 /// One row as read: its label and features, borrowed from the reader.
@@ -431,14 +456,13 @@ impl<R: BufRead> RowReader<R> {
     pub fn next_row(&mut self, mut progress: impl FnMut(u64)) -> Result<Option<Row<'_>>, FitError> {
         loop {
             self.bytes.clear();
-            let read = self
-                .reader
-                .read_until(b'\n', &mut self.bytes)
-                .map_err(|source| FitError::Read {
-                    path: self.name.clone(),
-                    line: self.line + 1,
-                    source,
-                })?;
+            let read =
+                tes_files::read_until_capped(&mut self.reader, &mut self.bytes, MAX_LINE_BYTES)
+                    .map_err(|source| FitError::Read {
+                        path: self.name.clone(),
+                        line: self.line + 1,
+                        source,
+                    })?;
             if read == 0 {
                 return Ok(None);
             }
@@ -620,17 +644,14 @@ impl Chunk {
             (false, RowFormat::Csv) => Input::Dense,
             (false, RowFormat::Sparse) => Input::Sparse,
         };
-        let dense = if input == Input::Dense {
-            CHUNK_ROWS * shape.features
-        } else {
-            0
-        };
+        // Sized by the rows pushed, not by the width the scan found: a few rows of a million
+        // columns need a few million values, not a batch's worth.
         Self {
-            labels: Vec::with_capacity(CHUNK_ROWS),
-            dense: Vec::with_capacity(dense),
+            labels: Vec::new(),
+            dense: Vec::new(),
             indices: Vec::new(),
             values: Vec::new(),
-            ends: Vec::with_capacity(CHUNK_ROWS),
+            ends: Vec::new(),
             width: shape.features,
             input,
         }
@@ -664,7 +685,7 @@ impl Chunk {
     }
 
     fn is_full(&self) -> bool {
-        self.labels.len() >= CHUNK_ROWS
+        self.labels.len() >= CHUNK_ROWS || self.dense.len().max(self.indices.len()) >= CHUNK_VALUES
     }
 
     /// Row `i`'s features.

@@ -141,7 +141,7 @@ pub struct Standing {
 ///
 /// Aligned to its own cache lines: a model writes its own fields on every update, and
 /// neighbours in the field may learn on different threads.
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 #[repr(align(128))]
 struct Entrant {
     model: Mdagl,
@@ -150,8 +150,9 @@ struct Entrant {
     recent: f64,
 }
 
-/// A grid of mDAGL settings raced on one stream (see the [module docs](self)).
-#[derive(Debug)]
+/// A grid of mDAGL settings raced on one stream (see the [module docs](self)). Cloning
+/// copies the whole race: the copy learns on exactly as the original would.
+#[derive(Debug, Clone)]
 pub struct MdaglRace {
     entrants: Vec<Entrant>,
     /// Each entrant's log-probability of the current row's label (reused: no allocation
@@ -503,3 +504,120 @@ impl MdaglRace {
 
 #[cfg(test)]
 mod tests;
+
+/// One racing entrant's saved state (see [`RaceState`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct EntrantState {
+    /// Its model, with its whole learning state.
+    pub model: Mdagl,
+    /// Its summed prequential log-loss.
+    pub loss: f64,
+    /// Its loss since the last cut.
+    pub recent: f64,
+}
+
+/// A race's whole state: with it, [`MdaglRace::from_state`] rebuilds a race that predicts and
+/// learns on exactly as the saved one would (how a race is saved and restored).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RaceState {
+    /// The entrants still racing, in the race's order.
+    pub entrants: Vec<EntrantState>,
+    /// The retired settings' standings, in the order they retired.
+    pub retired: Vec<Standing>,
+    /// When entrants retire.
+    pub schedule: RaceSchedule,
+    /// Rows learned.
+    pub rows: u64,
+    /// The row count at which the next cut comes.
+    pub next_cut: u64,
+    /// The leading entrant's index in `entrants`.
+    pub leader: usize,
+}
+
+/// Why a saved race cannot be restored.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RaceStateError {
+    /// No entrant is left racing.
+    #[error("a race needs at least one entrant")]
+    NoEntrants,
+    /// The leader is not one of the entrants.
+    #[error("leader {leader} is not one of the {entrants} entrants")]
+    BadLeader {
+        /// The saved leader.
+        leader: usize,
+        /// Entrants saved.
+        entrants: usize,
+    },
+    /// The entrants disagree on the shape, or a loss is not finite.
+    #[error("the entrants differ in shape, or a loss is not finite")]
+    Inconsistent,
+}
+
+impl MdaglRace {
+    /// The race's whole state (see [`RaceState`]).
+    pub fn state(&self) -> RaceState {
+        RaceState {
+            entrants: self
+                .entrants
+                .iter()
+                .map(|e| EntrantState {
+                    model: e.model.clone(),
+                    loss: e.loss,
+                    recent: e.recent,
+                })
+                .collect(),
+            retired: self.retired.clone(),
+            schedule: self.schedule,
+            rows: self.rows,
+            next_cut: self.next_cut,
+            leader: self.leader,
+        }
+    }
+
+    /// Rebuilds a race from [`state`](Self::state)'s record, checked: at least one entrant,
+    /// all of one shape with finite losses, and a leader among them. It learns on one thread
+    /// ([`set_threads`](Self::set_threads) changes that, never the result).
+    pub fn from_state(state: RaceState) -> Result<Self, RaceStateError> {
+        let Some(first) = state.entrants.first() else {
+            return Err(RaceStateError::NoEntrants);
+        };
+        if state.leader >= state.entrants.len() {
+            return Err(RaceStateError::BadLeader {
+                leader: state.leader,
+                entrants: state.entrants.len(),
+            });
+        }
+        let shape = (first.model.n_classes(), first.model.n_features());
+        let consistent = state.entrants.iter().all(|e| {
+            (e.model.n_classes(), e.model.n_features()) == shape
+                && e.loss.is_finite()
+                && e.recent.is_finite()
+        });
+        if !consistent {
+            return Err(RaceStateError::Inconsistent);
+        }
+        let entrants: Vec<Entrant> = state
+            .entrants
+            .into_iter()
+            .map(|e| Entrant {
+                model: e.model,
+                loss: e.loss,
+                recent: e.recent,
+            })
+            .collect();
+        Ok(Self {
+            log_probs: Vec::with_capacity(entrants.len()),
+            entrants,
+            retired: state.retired,
+            schedule: RaceSchedule {
+                first_cut: state.schedule.first_cut.max(1),
+                finalists: state.schedule.finalists.max(1),
+            },
+            rows: state.rows,
+            next_cut: state.next_cut.max(1),
+            leader: state.leader,
+            threads: 1,
+            block: Vec::new(),
+        })
+    }
+}

@@ -18,15 +18,18 @@ pub enum LinkError {
         message: String,
     },
     /// The Zenoh session could not be opened.
-    #[error("cannot open the Zenoh link (listen {listen:?}, connect {connect:?}): {error}")]
+    #[error("cannot open the link (listen {listen:?}, connect {connect:?}): {reason}")]
     Open {
         /// The endpoints to listen on.
         listen: Vec<String>,
         /// The endpoints to connect to.
         connect: Vec<String>,
-        /// Zenoh's error.
-        error: zenoh::Error,
+        /// Zenoh's error in the link's words, with the fix where one is known.
+        reason: String,
     },
+    /// The directory of the private socket could not be made, or others may enter it.
+    #[error("cannot open the link on this host's private socket: {0}")]
+    PrivateSocket(String),
     /// The liveliness subscriber that watches the group's members could not be declared.
     #[error("cannot watch the group's members on Zenoh: {0}")]
     WatchMembers(zenoh::Error),

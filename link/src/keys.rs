@@ -70,6 +70,15 @@ pub enum KeyError {
         /// The file.
         path: PathBuf,
     },
+    /// The key directory exists and someone other than its owner may open it or replace the
+    /// files in it (or it is not a directory, or not this user's).
+    #[error("{}: {reason}", path.display())]
+    OpenDirectory {
+        /// The directory.
+        path: PathBuf,
+        /// Why, with the fix.
+        reason: String,
+    },
     /// A file or the directory could not be written.
     #[error("cannot write {}: {source}", path.display())]
     Write {
@@ -121,6 +130,14 @@ impl FromStr for Host {
             Some(_) => return Err(bad("nothing after '@': give the host's address")),
             None => (rest, None),
         };
+        if let Some(address) = &address
+            && !is_address(address)
+        {
+            return Err(bad(&format!(
+                "{address:?} is not an address: give an IP address (192.168.1.20, fd00::20) or \
+                 a DNS name (robot.local: letters, digits and '-' in dot-separated labels)"
+            )));
+        }
         let mut roles = Vec::new();
         for part in roles_text.split(',') {
             let role = Role::ALL
@@ -142,6 +159,28 @@ impl FromStr for Host {
             address,
         })
     }
+}
+
+/// Whether `text` is an IP address or a DNS name (labels of ASCII letters, digits and `-`,
+/// neither first nor last, 1 to 63 bytes each, 253 in all): what an endpoint and a
+/// certificate's subject alternative name may hold, and nothing that could end the quoted
+/// string it is printed into.
+pub fn is_address(text: &str) -> bool {
+    if text.parse::<std::net::IpAddr>().is_ok() {
+        return true;
+    }
+    let label_ok = |label: &str| {
+        (1..=63).contains(&label.len())
+            && label
+                .bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b == b'-')
+            && !label.starts_with('-')
+            && !label.ends_with('-')
+    };
+    text.len() <= 253
+        && text.split('.').all(label_ok)
+        // All digits and dots is a mistyped IPv4 address, not a name.
+        && !text.bytes().all(|b| b.is_ascii_digit() || b == b'.')
 }
 
 /// The hosts `tes link keygen` makes keys for when none is given: the robot's host
@@ -209,12 +248,49 @@ pub struct CertificateFacts {
     pub valid_now: bool,
 }
 
-/// Reads the first certificate of a PEM file.
-pub fn read_certificate(path: &Path) -> Result<CertificateFacts, String> {
-    let bytes = fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+/// The largest TLS file read, in bytes: a certificate or key is a few kilobytes, a bundle of
+/// authorities a few hundred.
+pub const MAX_PEM_BYTES: u64 = 1 << 20;
+
+/// The first PEM block of the file at `path`, read as every TES file is
+/// ([`tes_files::read_capped`]: a regular file of at most [`MAX_PEM_BYTES`]; a FIFO or a
+/// device is refused without blocking or reading).
+fn read_pem(path: &Path) -> Result<x509_parser::pem::Pem, String> {
+    let bytes = tes_files::read_capped(path, MAX_PEM_BYTES)
+        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    let (_, pem) = x509_parser::pem::parse_x509_pem(&bytes)
+        .map_err(|e| format!("{} is not a PEM file: {e}", path.display()))?;
+    Ok(pem)
+}
+
+/// What a certificate says, for the checks at launch.
+struct Certificate {
+    facts: CertificateFacts,
+    is_ca: bool,
+    subject: String,
+    issuer: String,
+    /// The certificate itself (DER), to check signatures with.
+    der: Vec<u8>,
+}
+
+impl Certificate {
+    /// Whether `authority`'s key signed this certificate.
+    fn signed_by(&self, authority: &Certificate) -> bool {
+        let parse = |der| x509_parser::parse_x509_certificate(der).map(|(_, cert)| cert);
+        match (parse(&self.der), parse(&authority.der)) {
+            (Ok(cert), Ok(ca)) => cert.verify_signature(Some(ca.public_key())).is_ok(),
+            _ => false,
+        }
+    }
+}
+
+/// Reads and parses the first certificate of a PEM file.
+fn read_cert(path: &Path) -> Result<Certificate, String> {
+    let pem = read_pem(path)?;
     let not_a_certificate = |e: String| format!("{} is not a PEM certificate: {e}", path.display());
-    let (_, pem) =
-        x509_parser::pem::parse_x509_pem(&bytes).map_err(|e| not_a_certificate(e.to_string()))?;
+    if pem.label != "CERTIFICATE" {
+        return Err(not_a_certificate(format!("it holds a {:?}", pem.label)));
+    }
     let cert = pem
         .parse_x509()
         .map_err(|e| not_a_certificate(e.to_string()))?;
@@ -225,11 +301,133 @@ pub fn read_certificate(path: &Path) -> Result<CertificateFacts, String> {
         .and_then(|cn| cn.as_str().ok())
         .unwrap_or("")
         .to_owned();
-    Ok(CertificateFacts {
-        common_name,
-        not_after: cert.validity().not_after.to_string(),
-        valid_now: cert.validity().is_valid(),
+    Ok(Certificate {
+        facts: CertificateFacts {
+            common_name,
+            not_after: cert.validity().not_after.to_string(),
+            valid_now: cert.validity().is_valid(),
+        },
+        is_ca: cert.is_ca(),
+        subject: cert.subject().to_string(),
+        issuer: cert.issuer().to_string(),
+        der: pem.contents.clone(),
     })
+}
+
+/// Reads the first certificate of a PEM file.
+pub fn read_certificate(path: &Path) -> Result<CertificateFacts, String> {
+    read_cert(path).map(|c| c.facts)
+}
+
+/// Which of a host's three TLS files.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TlsFile {
+    /// The group's authority (`tls_ca`).
+    Authority,
+    /// This host's certificate (`tls_cert`).
+    Certificate,
+    /// This host's private key (`tls_key`).
+    Key,
+}
+
+impl TlsFile {
+    /// Its key in the launch file, within `[launch]`.
+    pub fn setting(self) -> &'static str {
+        match self {
+            TlsFile::Authority => "link.tls_ca",
+            TlsFile::Certificate => "link.tls_cert",
+            TlsFile::Key => "link.tls_key",
+        }
+    }
+}
+
+/// A TLS file refused at start.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{reason}")]
+pub struct TlsFileError {
+    /// Which file.
+    pub file: TlsFile,
+    /// Why, naming the file and the fix.
+    pub reason: String,
+}
+
+/// Checks a host's three TLS files before anything else uses them (Zenoh reads them only
+/// once the link opens, and blocks on a FIFO or reads `/dev/zero` until memory runs out):
+/// each a regular file of at most [`MAX_PEM_BYTES`] holding PEM; the key and its directory
+/// owner-only, the others' directories writable by their owner alone; `ca` the certificate
+/// of an authority, and `cert` a host certificate it issued.
+pub fn check_tls_files(ca: &Path, cert: &Path, key: &Path) -> Result<(), TlsFileError> {
+    fn refuse<T>(file: TlsFile, reason: String) -> Result<T, TlsFileError> {
+        Err(TlsFileError { file, reason })
+    }
+    let authority = read_cert(ca).or_else(|r| refuse(TlsFile::Authority, r))?;
+    let host = read_cert(cert).or_else(|r| refuse(TlsFile::Certificate, r))?;
+    let key_pem = read_pem(key).or_else(|r| refuse(TlsFile::Key, r))?;
+    check_key_privacy(key).or_else(|r| refuse(TlsFile::Key, r))?;
+    for (file, path) in [(TlsFile::Authority, ca), (TlsFile::Certificate, cert)] {
+        let dir = tes_files::parent_dir(path);
+        if let Err(e) = tes_files::check_dir_not_writable_by_others(&dir) {
+            return refuse(
+                file,
+                format!("{} (holding {}) {e}", dir.display(), path.display()),
+            );
+        }
+    }
+    if !authority.is_ca {
+        return refuse(
+            TlsFile::Authority,
+            format!(
+                "{} is not an authority's certificate but a host's (common name {:?}): set \
+                 link.tls_ca to the group's authority, the {AUTHORITY_CERT} that `tes link \
+                 keygen` made beside the host files",
+                ca.display(),
+                authority.facts.common_name
+            ),
+        );
+    }
+    if host.is_ca {
+        return refuse(
+            TlsFile::Certificate,
+            format!(
+                "{} is an authority's certificate, not a host's: set link.tls_cert to this \
+                 host's certificate (NAME.pem of `tes link keygen`)",
+                cert.display()
+            ),
+        );
+    }
+    if host.issuer != authority.subject || !host.signed_by(&authority) {
+        return refuse(
+            TlsFile::Certificate,
+            format!(
+                "{} was not issued by the authority in {} (it names {:?} as its issuer): \
+                 give every host the files of one `tes link keygen`",
+                cert.display(),
+                ca.display(),
+                host.issuer,
+            ),
+        );
+    }
+    if !key_pem.label.ends_with("PRIVATE KEY") {
+        return refuse(
+            TlsFile::Key,
+            format!(
+                "{} holds a {:?}, not a private key: set link.tls_key to this host's key \
+                 (NAME.key of `tes link keygen`)",
+                key.display(),
+                key_pem.label
+            ),
+        );
+    }
+    Ok(())
+}
+
+/// A private key must be readable by its owner alone, in a directory only its owner may
+/// open (anyone who may write there may replace the key or the authority beside it).
+fn check_key_privacy(key: &Path) -> Result<(), String> {
+    tes_files::check_private_file(key).map_err(|e| format!("{} {e}", key.display()))?;
+    let dir = tes_files::parent_dir(key);
+    tes_files::check_private_dir(&dir)
+        .map_err(|e| format!("{} (holding {}) {e}", dir.display(), key.display()))
 }
 
 /// The files of one host.
@@ -279,14 +477,7 @@ pub fn keygen(dir: &Path, hosts: &[Host], port: u16) -> Result<KeySet, KeyError>
             return Err(KeyError::Exists { path });
         }
     }
-    fs::DirBuilder::new()
-        .recursive(true)
-        .mode(0o700)
-        .create(dir)
-        .map_err(|source| KeyError::Write {
-            path: dir.to_owned(),
-            source,
-        })?;
+    prepare_dir(dir)?;
     let year = this_year();
     let authority_key = KeyPair::generate()?;
     let authority_params = authority_params(year);
@@ -321,25 +512,23 @@ impl KeySet {
         let Some(first) = self.hosts.first() else {
             return text;
         };
-        let first_address = first
-            .host
-            .address
-            .clone()
-            .unwrap_or_else(|| format!("{}-ADDRESS", first.host.name.to_uppercase()));
+        let first_address = first.host.address.as_deref().map_or_else(
+            || format!("{}-ADDRESS", first.host.name.to_uppercase()),
+            endpoint_host,
+        );
         for (i, files) in self.hosts.iter().enumerate() {
             let roles: Vec<String> = files
                 .host
                 .roles
                 .iter()
-                .map(|r| format!("{:?}", r.name()))
+                .map(|r| toml_string(r.name()))
                 .collect();
             let (listen, connect) = if i == 0 {
-                (format!("[\"quic/0.0.0.0:{}\"]", self.port), "[]".to_owned())
+                let listen = toml_string(&format!("quic/0.0.0.0:{}", self.port));
+                (format!("[{listen}]"), "[]".to_owned())
             } else {
-                (
-                    "[]".to_owned(),
-                    format!("[\"quic/{first_address}:{}\"]", self.port),
-                )
+                let connect = toml_string(&format!("quic/{first_address}:{}", self.port));
+                ("[]".to_owned(), format!("[{connect}]"))
             };
             let _ = write!(
                 text,
@@ -349,13 +538,13 @@ impl KeySet {
                  [launch.link]\n\
                  listen = {listen}\n\
                  connect = {connect}\n\
-                 tls_ca = {ca:?}\n\
-                 tls_cert = {cert:?}\n\
-                 tls_key = {key:?}\n\n",
+                 tls_ca = {ca}\n\
+                 tls_cert = {cert}\n\
+                 tls_key = {key}\n\n",
                 name = files.host.name,
-                ca = self.authority.display().to_string(),
-                cert = files.cert.display().to_string(),
-                key = files.key.display().to_string(),
+                ca = toml_string(&self.authority.display().to_string()),
+                cert = toml_string(&files.cert.display().to_string()),
+                key = toml_string(&files.key.display().to_string()),
                 roles = roles.join(", "),
             );
         }
@@ -367,6 +556,76 @@ impl KeySet {
             );
         }
         text
+    }
+}
+
+/// The key directory, created readable only by its owner if missing; an existing one must be
+/// a directory of this user's that no one else may open, or the keys in it would not be
+/// private (it is refused with the `chmod` that fixes it, not changed: it may hold more than
+/// keys).
+fn prepare_dir(dir: &Path) -> Result<(), KeyError> {
+    let refuse = |reason: String| KeyError::OpenDirectory {
+        path: dir.to_owned(),
+        reason,
+    };
+    let meta = match fs::metadata(dir) {
+        Ok(meta) => meta,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return fs::DirBuilder::new()
+                .recursive(true)
+                .mode(0o700)
+                .create(dir)
+                .map_err(|source| KeyError::Write {
+                    path: dir.to_owned(),
+                    source,
+                });
+        }
+        Err(source) => {
+            return Err(KeyError::Write {
+                path: dir.to_owned(),
+                source,
+            });
+        }
+    };
+    if !meta.is_dir() {
+        return Err(refuse(format!(
+            "is {}, not a directory",
+            tes_files::kind_of(meta.file_type())
+        )));
+    }
+    if !tes_files::owned_by_this_user(&meta) {
+        return Err(refuse(
+            "belongs to another user, who could read or replace the keys: give a directory \
+             of your own"
+                .into(),
+        ));
+    }
+    tes_files::check_private_dir(dir).map_err(|e| refuse(e.to_string()))
+}
+
+/// `text` as a TOML basic string: quoted, with `"`, `\` and control characters escaped.
+fn toml_string(text: &str) -> String {
+    let mut out = String::with_capacity(text.len() + 2);
+    out.push('"');
+    for c in text.chars() {
+        match c {
+            '"' => out.push_str("\\\""),
+            '\\' => out.push_str("\\\\"),
+            c if c.is_control() => {
+                let _ = write!(out, "\\u{:04X}", u32::from(c));
+            }
+            c => out.push(c),
+        }
+    }
+    out.push('"');
+    out
+}
+
+/// An address as an endpoint's host: an IPv6 address in brackets, anything else as is.
+fn endpoint_host(address: &str) -> String {
+    match address.parse::<std::net::IpAddr>() {
+        Ok(std::net::IpAddr::V6(v6)) => format!("[{v6}]"),
+        _ => address.to_owned(),
     }
 }
 
@@ -469,7 +728,7 @@ fn write_private(path: &Path, text: &str) -> Result<(), KeyError> {
 
 #[cfg(test)]
 mod tests {
-    use std::os::unix::fs::PermissionsExt;
+    use std::os::unix::fs::{OpenOptionsExt, PermissionsExt};
 
     use super::*;
 
@@ -496,6 +755,14 @@ mod tests {
             ("a/b=controller", "the name must be"),
             ("robot=camera", "\"camera\" is not a role"),
             ("robot=controller@", "nothing after '@'"),
+            (
+                "robot=controller@x\"]\ninsecure = true",
+                "is not an address",
+            ),
+            ("robot=controller@-bad.local", "is not an address"),
+            ("robot=controller@a..b", "is not an address"),
+            ("robot=controller@192.168.1.300", "is not an address"),
+            ("robot=controller@robot.local:7447", "is not an address"),
         ] {
             let e = text.parse::<Host>().expect_err(text).to_string();
             assert!(e.contains(reason), "{text}: {e}");
@@ -567,12 +834,216 @@ mod tests {
     #[test]
     fn a_certificate_says_its_roles() {
         let dir = tempfile::tempdir().expect("temp dir");
-        let set = keygen(dir.path(), &default_hosts(), DEFAULT_PORT).expect("keys");
+        let set = keygen(&dir.path().join("k"), &default_hosts(), DEFAULT_PORT).expect("keys");
         let facts = read_certificate(&set.hosts[0].cert).expect("certificate");
         assert_eq!(facts.common_name, "perception-sim+bridge");
         assert!(facts.valid_now, "{facts:?}");
         let e = read_certificate(&set.hosts[0].key).expect_err("a key is not a certificate");
         assert!(e.contains("is not a PEM certificate"), "{e}");
+    }
+
+    #[test]
+    fn addresses_are_ip_addresses_or_dns_names() {
+        for good in [
+            "192.168.1.20",
+            "fd00::20",
+            "robot",
+            "robot.local",
+            "a-b.c1.example",
+        ] {
+            assert!(is_address(good), "{good}");
+        }
+        for bad in [
+            "",
+            "a b",
+            "x\"]",
+            "robot.local.",
+            "-a",
+            "a-",
+            "1.2.3",
+            "é.local",
+        ] {
+            assert!(!is_address(bad), "{bad}");
+        }
+    }
+
+    #[test]
+    fn printed_settings_quote_what_they_paste() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let keys = dir.path().join("odd \"dir\"\n");
+        let hosts = vec![
+            "robot=perception-sim,bridge@fd00::20"
+                .parse()
+                .expect("host"),
+            "learner=controller".parse().expect("host"),
+        ];
+        let set = keygen(&keys, &hosts, DEFAULT_PORT).expect("keys");
+        let lines = set.launch_lines();
+        assert!(
+            lines.contains("connect = [\"quic/[fd00::20]:7447\"]"),
+            "{lines}"
+        );
+        assert!(lines.contains("odd \\\"dir\\\"\\u000A/ca.pem\""), "{lines}");
+        // Every line is a comment, a table, a key, or empty: nothing a path or an address
+        // holds starts a line of its own.
+        for line in lines.lines() {
+            let starts = [
+                "#",
+                "[launch]",
+                "[launch.link]",
+                "roles =",
+                "listen =",
+                "connect =",
+            ];
+            let tls = ["tls_ca =", "tls_cert =", "tls_key ="];
+            assert!(
+                line.is_empty() || starts.iter().chain(&tls).any(|s| line.starts_with(s)),
+                "{line:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn keygen_refuses_a_directory_others_may_open() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let open = dir.path().join("open");
+        fs::create_dir(&open).expect("dir");
+        fs::set_permissions(&open, fs::Permissions::from_mode(0o777)).expect("chmod");
+        let e = keygen(&open, &default_hosts(), DEFAULT_PORT).expect_err("open directory");
+        let text = e.to_string();
+        assert!(text.contains("mode 0777"), "{text}");
+        assert!(
+            text.contains(&format!("run `chmod 700 {}`", open.display())),
+            "{text}"
+        );
+        assert_eq!(
+            fs::read_dir(&open).expect("dir").count(),
+            0,
+            "nothing written"
+        );
+        let mode = fs::metadata(&open).expect("dir").permissions().mode();
+        assert_eq!(mode & 0o777, 0o777, "left as it was");
+        fs::set_permissions(&open, fs::Permissions::from_mode(0o700)).expect("chmod");
+        keygen(&open, &default_hosts(), DEFAULT_PORT).expect("an owner-only directory");
+        let file = dir.path().join("file");
+        fs::write(&file, "").expect("file");
+        let e = keygen(&file, &default_hosts(), DEFAULT_PORT).expect_err("a file");
+        assert!(e.to_string().contains("not a directory"), "{e}");
+    }
+
+    /// The three TLS files of a fresh key set, in their own directory.
+    fn tls_files(dir: &Path) -> (PathBuf, PathBuf, PathBuf, KeySet) {
+        let set = keygen(dir, &default_hosts(), DEFAULT_PORT).expect("keys");
+        let host = &set.hosts[0];
+        (
+            set.authority.clone(),
+            host.cert.clone(),
+            host.key.clone(),
+            set.clone(),
+        )
+    }
+
+    #[test]
+    fn tls_files_as_keygen_makes_them_pass() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let (ca, cert, key, set) = tls_files(&dir.path().join("k"));
+        check_tls_files(&ca, &cert, &key).expect("a fresh set");
+        check_tls_files(&ca, &set.hosts[1].cert, &set.hosts[1].key).expect("either host");
+    }
+
+    #[test]
+    fn open_keys_are_refused_with_the_chmod_to_run() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let keys = dir.path().join("k");
+        let (ca, cert, key, _) = tls_files(&keys);
+        fs::set_permissions(&key, fs::Permissions::from_mode(0o644)).expect("chmod");
+        let e = check_tls_files(&ca, &cert, &key).expect_err("world-readable key");
+        assert_eq!(e.file, TlsFile::Key);
+        assert!(
+            e.reason
+                .contains(&format!("run `chmod 600 {}`", key.display())),
+            "{e}"
+        );
+        fs::set_permissions(&key, fs::Permissions::from_mode(0o600)).expect("chmod");
+        fs::set_permissions(&keys, fs::Permissions::from_mode(0o777)).expect("chmod");
+        let e = check_tls_files(&ca, &cert, &key).expect_err("open directory");
+        assert_eq!(e.file, TlsFile::Key);
+        assert!(
+            e.reason
+                .contains(&format!("run `chmod 700 {}`", keys.display())),
+            "{e}"
+        );
+        fs::set_permissions(&keys, fs::Permissions::from_mode(0o700)).expect("chmod");
+    }
+
+    #[test]
+    fn fifos_and_devices_as_tls_files_are_refused_without_blocking() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let (ca, cert, key, _) = tls_files(&dir.path().join("k"));
+        let fifo = dir.path().join("k").join("fifo.key");
+        nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::S_IRWXU).expect("mkfifo");
+        let (tx, rx) = std::sync::mpsc::channel();
+        let (c, k) = (ca.clone(), fifo.clone());
+        let c2 = cert.clone();
+        std::thread::spawn(move || {
+            let _ = tx.send(check_tls_files(&c, &c2, &k));
+        });
+        let result = rx
+            .recv_timeout(std::time::Duration::from_secs(20))
+            .unwrap_or_else(|_| {
+                let _ = fs::OpenOptions::new()
+                    .write(true)
+                    .custom_flags(nix::libc::O_NONBLOCK)
+                    .open(&fifo);
+                panic!("checking a FIFO key blocked")
+            });
+        let e = result.expect_err("a FIFO");
+        assert_eq!(e.file, TlsFile::Key);
+        assert!(e.reason.contains("is a FIFO, not a regular file"), "{e}");
+        let zero = Path::new("/dev/zero");
+        for (file, (a, c, k)) in [
+            (TlsFile::Authority, (zero, &*cert, &*key)),
+            (TlsFile::Certificate, (&*ca, zero, &*key)),
+            (TlsFile::Key, (&*ca, &*cert, zero)),
+        ] {
+            let e = check_tls_files(a, c, k).expect_err("/dev/zero");
+            assert_eq!(e.file, file);
+            assert!(
+                e.reason
+                    .contains("is a character device, not a regular file"),
+                "{e}"
+            );
+        }
+        let big = dir.path().join("k").join("big.pem");
+        fs::File::create(&big)
+            .and_then(|f| f.set_len(2 << 30))
+            .expect("a sparse file");
+        let e = check_tls_files(&big, &cert, &key).expect_err("2 GiB");
+        assert!(e.reason.contains("more than the 1048576 bytes"), "{e}");
+    }
+
+    #[test]
+    fn a_host_certificate_as_the_authority_is_caught() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let (ca, cert, key, set) = tls_files(&dir.path().join("k"));
+        let e = check_tls_files(&set.hosts[1].cert, &cert, &key).expect_err("host as CA");
+        assert_eq!(e.file, TlsFile::Authority);
+        assert!(
+            e.reason
+                .contains("is not an authority's certificate but a host's"),
+            "{e}"
+        );
+        let e = check_tls_files(&ca, &ca, &key).expect_err("CA as host");
+        assert_eq!(e.file, TlsFile::Certificate);
+        let (other_ca, ..) = tls_files(&dir.path().join("other"));
+        let e = check_tls_files(&other_ca, &cert, &key).expect_err("another group's CA");
+        assert!(
+            e.reason.contains("was not issued by the authority in"),
+            "{e}"
+        );
+        let e = check_tls_files(&ca, &cert, &cert).expect_err("a certificate as the key");
+        assert_eq!(e.file, TlsFile::Key);
+        assert!(e.reason.contains("not a private key"), "{e}");
     }
 
     #[test]

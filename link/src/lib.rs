@@ -11,7 +11,10 @@ unchanged and never see a raw network sample. What it refuses it counts and repo
 
 Each launch declares a Zenoh liveliness token per local role (`GROUP/member/ROLE/ZID`):
 that is how a launch knows its peers are there, that a role is played twice, and that a
-peer's host is gone (its session ended). A launch that stops tells its peers why
+peer's host is gone (its session ended). Every payload it forwards carries its session's id
+as an attachment, and a launch takes a service only from the session whose token claims the
+role that writes it: another session's samples are dropped before the checks, so they
+cannot move the checker's state (a sequence number far ahead) and shut the writer out. A launch that stops tells its peers why
 (`GROUP/stop`), so they stop too.
 
 Which services cross, by who writes and who reads them (each a [`Topic`]):
@@ -65,7 +68,9 @@ use std::time::Duration;
 use tes_link::{Link, LinkEvent, LinkSection};
 use tes_topics::{Role, ServiceNames};
 
-let settings = LinkSection { connect: vec!["tcp/192.168.1.20:7447".into()], ..LinkSection::default() };
+// No endpoints and no keys: the launches of this host meet on a Unix socket only this
+// user can reach.
+let settings = LinkSection::default();
 let mut link = Link::open(&settings, &[Role::Perception, Role::Bridge], &ServiceNames::with_prefix("tes/"))?;
 while !link.missing().is_empty() {
     std::thread::sleep(Duration::from_millis(100));
@@ -93,7 +98,7 @@ mod settings;
 mod topic;
 
 pub use error::LinkError;
-pub use link::{Link, LinkCounts, LinkEvent};
+pub use link::{Endpoints, Link, LinkCounts, LinkEvent};
 pub use settings::{
     DEFAULT_LEASE_MS, GROUP_NAME_MAX, LinkSection, MIN_LEASE_MS, MIN_PEER_TIMEOUT_MS, Mode,
     Security, access_control,

@@ -73,6 +73,9 @@ pub(crate) struct Shared {
     pub(crate) refused: [AtomicU64; Topic::ALL.len()],
     /// Payloads forwarded to this host, per [`Topic::index`].
     pub(crate) received: [AtomicU64; Topic::ALL.len()],
+    /// Payloads dropped unchecked because the session that announced their writer's role
+    /// did not send them, per [`Topic::index`].
+    foreign: [AtomicU64; Topic::ALL.len()],
 }
 
 impl Shared {
@@ -80,6 +83,33 @@ impl Shared {
         if let Ok(mut e) = self.events.lock() {
             e.push_back(event);
         }
+    }
+
+    /// Whether a payload of `topic` that says it was sent by the session `sender` comes from
+    /// the session that announced the role writing `topic`. One that does not — a stranger
+    /// on the link, whatever its sequence numbers — is dropped before any check, so it
+    /// cannot move the checker's state (the last sequence number taken) and shut the genuine
+    /// writer out; it is counted and told (the first, then every 100th).
+    fn sent_by_writer(&self, topic: Topic, sender: Option<&[u8]>) -> bool {
+        let writer = topic.writer();
+        let known = sender.is_some_and(|sender| {
+            self.peers.lock().is_ok_and(|peers| {
+                peers
+                    .get(&writer)
+                    .is_some_and(|sessions| sessions.iter().any(|s| s.as_bytes() == sender))
+            })
+        });
+        if !known {
+            let count = self.foreign[topic.index()].fetch_add(1, Ordering::Relaxed) + 1;
+            if count == 1 || count.is_multiple_of(100) {
+                self.push(LinkEvent::Denied(crate::refusals::Denial::NotTheWriter {
+                    key: topic.key().to_owned(),
+                    writer: writer.name().to_owned(),
+                    count,
+                }));
+            }
+        }
+        known
     }
 
     /// A member token of `role` by the session `who` appeared (`put`) or went away.
@@ -114,17 +144,24 @@ impl Shared {
 pub struct LinkCounts {
     /// Per service: (received and passed on, refused), in the order of [`Topic::ALL`].
     pub by_topic: Vec<(Topic, u64, u64)>,
+    /// Per service, in the same order: payloads dropped because the session playing their
+    /// writer's role did not send them (a stranger's).
+    pub foreign: Vec<u64>,
 }
 
-/// `observation 10 taken, 0 refused; command 3 taken, 1 refused`, the services with
-/// nothing left out; `nothing received` when none has anything.
+/// `observation 10 taken, 0 refused; command 3 taken, 1 refused, 6 from strangers`, the
+/// services with nothing left out; `nothing received` when none has anything.
 impl std::fmt::Display for LinkCounts {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let parts: Vec<String> = self
             .by_topic
             .iter()
-            .filter(|(_, r, x)| r + x > 0)
-            .map(|(t, r, x)| format!("{t} {r} taken, {x} refused"))
+            .zip(self.foreign.iter().chain(std::iter::repeat(&0)))
+            .filter(|((_, r, x), s)| r + x + **s > 0)
+            .map(|((t, r, x), s)| match s {
+                0 => format!("{t} {r} taken, {x} refused"),
+                s => format!("{t} {r} taken, {x} refused, {s} from strangers"),
+            })
             .collect();
         if parts.is_empty() {
             f.write_str("nothing received")
@@ -139,6 +176,7 @@ impl std::fmt::Display for LinkCounts {
 /// Dropping it [closes](Link::close) it.
 pub struct Link {
     session: zenoh::Session,
+    endpoints: Endpoints,
     group: String,
     zid: String,
     local: Vec<Role>,
@@ -162,7 +200,7 @@ impl Link {
         local: &[Role],
         names: &ServiceNames,
     ) -> Result<Self, LinkError> {
-        let session = open_session(settings)?;
+        let (session, endpoints) = open_session(settings)?;
         let group = settings.group.clone();
         let zid = session.zid().to_string();
         let shared = Arc::new(Shared::default());
@@ -177,6 +215,7 @@ impl Link {
         // From here on, dropping the link on an error closes what was started.
         let mut link = Self {
             session,
+            endpoints,
             group,
             zid,
             local: local.to_vec(),
@@ -213,6 +252,10 @@ impl Link {
                 .session
                 .declare_subscriber(key.clone())
                 .callback(move |sample| {
+                    let sender = sample.attachment().map(|a| a.to_bytes());
+                    if !shared.sent_by_writer(topic, sender.as_deref()) {
+                        return;
+                    }
                     let bytes = sample.payload().to_bytes();
                     if let Ok(mut inbound) = inbound.lock() {
                         inbound.take_counted(topic, &bytes, &shared);
@@ -247,8 +290,9 @@ impl Link {
                 .map_err(|error| LinkError::Publish { key, error })?;
             let names = names.clone();
             let ready: Ready = ready_tx.clone();
+            let zid = self.zid.clone();
             self.spawn(format!("link-out-{}", topic.index()), move |stop| {
-                outbound(topic, &names, &publisher, &stop, &ready)
+                outbound(topic, &names, &publisher, &zid, &stop, &ready)
             })?;
             forwarding += 1;
         }
@@ -287,6 +331,13 @@ impl Link {
             self.tokens.push(token);
         }
         Ok(())
+    }
+
+    /// Where this launch's link listens and connects (the private socket's, when the table
+    /// names none; a loopback endpoint another launch of the group listens on is connected
+    /// to).
+    pub fn endpoints(&self) -> &Endpoints {
+        &self.endpoints
     }
 
     /// This launch's Zenoh session id.
@@ -343,16 +394,24 @@ impl Link {
                     )
                 })
                 .collect(),
+            foreign: self
+                .shared
+                .foreign
+                .iter()
+                .map(|c| c.load(Ordering::Relaxed))
+                .collect(),
         }
     }
 
-    /// Stops forwarding, withdraws this launch from the group and closes the session.
+    /// Stops forwarding, withdraws this launch from the group and closes the session. The
+    /// forwarding stops first: nothing this launch sends arrives after its role is
+    /// withdrawn (a peer would drop it as a stranger's).
     pub fn close(&mut self) {
         self.stop.store(true, Ordering::Relaxed);
-        self.tokens.clear();
         for t in self.threads.drain(..) {
             let _ = t.join();
         }
+        self.tokens.clear();
         let _ = self.session.close().wait();
     }
 }
@@ -363,14 +422,106 @@ impl Drop for Link {
     }
 }
 
-/// Opens the Zenoh session `settings` describe.
-fn open_session(settings: &LinkSection) -> Result<zenoh::Session, LinkError> {
-    let config = settings.zenoh_config()?;
-    zenoh::open(config).wait().map_err(|error| LinkError::Open {
-        listen: settings.listen.clone(),
-        connect: settings.connect.clone(),
-        error,
+/// The endpoints a link listens on and connects to.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Endpoints {
+    /// Where it listens.
+    pub listen: Vec<String>,
+    /// Where it connects.
+    pub connect: Vec<String>,
+}
+
+/// Opens the Zenoh session `settings` describe: on the private socket when the table names
+/// no endpoints. When it cannot listen because another launch of this host listens there
+/// (the private socket, or a loopback port), it connects to that launch instead.
+fn open_session(settings: &LinkSection) -> Result<(zenoh::Session, Endpoints), LinkError> {
+    let first = if settings.is_private() {
+        let socket = settings
+            .prepare_private_socket()
+            .map_err(LinkError::PrivateSocket)?;
+        Endpoints {
+            listen: vec![socket],
+            connect: Vec::new(),
+        }
+    } else {
+        Endpoints {
+            listen: settings.listen.clone(),
+            connect: settings.connect.clone(),
+        }
+    };
+    let text = match try_open(settings, &first)? {
+        Ok(session) => return Ok((session, first)),
+        Err(text) => text,
+    };
+    if listening_taken(&text) && first.listen.iter().all(|e| on_this_host(e)) {
+        let instead = Endpoints {
+            listen: Vec::new(),
+            connect: first.listen.iter().chain(&first.connect).cloned().collect(),
+        };
+        if let Ok(session) = try_open(settings, &instead)? {
+            return Ok((session, instead));
+        }
+    }
+    Err(LinkError::Open {
+        reason: zenoh_words(&text, &first),
+        listen: first.listen,
+        connect: first.connect,
     })
+}
+
+/// A Zenoh session on `endpoints`; the outer error for a configuration Zenoh refused, the
+/// inner one Zenoh's reason it could not open.
+fn try_open(
+    settings: &LinkSection,
+    endpoints: &Endpoints,
+) -> Result<Result<zenoh::Session, String>, LinkError> {
+    let config = settings.zenoh_config_for(&endpoints.listen, &endpoints.connect)?;
+    Ok(zenoh::open(config).wait().map_err(|e| e.to_string()))
+}
+
+/// Whether Zenoh could not listen because something holds the address (a TCP port in use,
+/// the lock of a Unix socket another launch listens on).
+fn listening_taken(error: &str) -> bool {
+    error.contains("Address already in use") || error.contains("Unable to acquire lock")
+}
+
+/// Whether only this host can be listening on `endpoint` (a Unix socket, loopback).
+fn on_this_host(endpoint: &str) -> bool {
+    endpoint.starts_with(crate::settings::UNIX_SCHEME) || crate::settings::is_loopback(endpoint)
+}
+
+/// Zenoh's error `text` for a link that tried `endpoints`, in the link's words: without the
+/// places in Zenoh's sources it names, and with the fix where the cause is known.
+fn zenoh_words(text: &str, endpoints: &Endpoints) -> String {
+    let said = without_source_places(text);
+    if listening_taken(text) {
+        return format!(
+            "another program listens on {:?}, and no launch of the group answered there: stop \
+             it, or choose another port (two launches of one group on one host need no \
+             endpoints: leave link.listen and link.connect empty) ({said})",
+            endpoints.listen
+        );
+    }
+    said
+}
+
+/// `text` without the ` at PATH.rs:LINE` places Zenoh's errors end with.
+pub(crate) fn without_source_places(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    while let Some(at) = rest.find(" at ") {
+        let after = &rest[at + 4..];
+        let end = after.find(char::is_whitespace).unwrap_or(after.len());
+        if after[..end].contains(".rs:") {
+            out.push_str(&rest[..at]);
+            rest = &after[end..];
+        } else {
+            out.push_str(&rest[..at + 4]);
+            rest = after;
+        }
+    }
+    out.push_str(rest);
+    out.trim_end().to_owned()
 }
 
 /// Watches the liveliness tokens `GROUP/member/ROLE/ZID` of the other sessions: who plays
@@ -541,6 +692,7 @@ mod tests {
     fn counts_print_the_services_with_something() {
         let mut counts = LinkCounts {
             by_topic: Topic::ALL.into_iter().map(|t| (t, 0, 0)).collect(),
+            foreign: vec![0; Topic::ALL.len()],
         };
         assert_eq!(counts.to_string(), "nothing received");
         counts.by_topic[2] = (Topic::Command, 3, 1);
@@ -572,6 +724,8 @@ mod tests {
             listen: vec![format!("tcp/127.0.0.1:{port}")],
             multicast_scouting: Some(false),
             restamp: false,
+            // Plain TCP: the peers below are bare Zenoh sessions, as a stranger's would be.
+            insecure: true,
             ..LinkSection::default()
         };
         let names =
@@ -597,16 +751,7 @@ mod tests {
             WaitStrategy::Block,
         )
         .expect("observations");
-        let peer = LinkSection {
-            group: group.clone(),
-            listen: Vec::new(),
-            connect: vec![format!("tcp/127.0.0.1:{port}")],
-            multicast_scouting: Some(false),
-            ..LinkSection::default()
-        };
-        let peer = zenoh::open(peer.zenoh_config().expect("config"))
-            .wait()
-            .expect("peer session");
+        let peer = bare_session(port);
         // The peer plays the controller, so the link takes what it sends.
         let start = Instant::now();
         let token = peer
@@ -634,15 +779,31 @@ mod tests {
         }
     }
 
+    /// A bare Zenoh session connected to the link listening on loopback `port`.
+    fn bare_session(port: u16) -> zenoh::Session {
+        let settings = LinkSection {
+            listen: Vec::new(),
+            connect: vec![format!("tcp/127.0.0.1:{port}")],
+            multicast_scouting: Some(false),
+            insecure: true,
+            ..LinkSection::default()
+        };
+        zenoh::open(settings.zenoh_config().expect("config"))
+            .wait()
+            .expect("peer session")
+    }
+
     impl Rig {
-        /// Sends `bytes` as a command from the peer until the link has taken or refused one
-        /// more (a first sample may race the subscription being known).
+        /// Sends `bytes` as a command from the peer, as the link's own forwarding does (its
+        /// session's id attached), until the link has taken or refused one more (a first
+        /// sample may race the subscription being known).
         fn send_command(&self, bytes: &[u8]) {
             let before = self.taken_or_refused();
             let start = Instant::now();
             while self.taken_or_refused() == before {
                 self.peer
                     .put(format!("{}/command", self.group), bytes)
+                    .attachment(self.peer.zid().to_string())
                     .wait()
                     .expect("put");
                 assert!(
@@ -747,6 +908,63 @@ mod tests {
         std::thread::sleep(Duration::from_millis(200));
         assert_eq!(rig.observations.try_next().expect("inbox"), None);
         let _ = (&rig.names, &rig.node);
+    }
+
+    /// A stranger on an unauthenticated link — a session that announced no role — sends
+    /// well-formed commands with a sequence number far ahead (2^62), bare or claiming
+    /// another session's id: each is dropped before the checks, counted and told, and the
+    /// genuine controller's commands after them still reach the board.
+    #[test]
+    fn a_stranger_far_ahead_in_sequence_cannot_shut_the_controller_out() {
+        let rig = rig("stranger");
+        let port = rig
+            .link
+            .endpoints()
+            .listen
+            .first()
+            .and_then(|e| e.rsplit(':').next())
+            .and_then(|p| p.parse().ok())
+            .expect("a port");
+        let stranger = bare_session(port);
+        let ahead = Command {
+            seq: 1 << 62,
+            action: 1,
+            left_deg: 90,
+            right_deg: -90,
+            ..Command::default()
+        };
+        let key = format!("{}/command", rig.group);
+        let start = Instant::now();
+        let foreign = |rig: &Rig| rig.link.counts().foreign[Topic::Command.index()];
+        while foreign(&rig) < 6 {
+            stranger.put(&key, as_bytes(&ahead)).wait().expect("put");
+            stranger
+                .put(&key, as_bytes(&ahead))
+                .attachment("not-the-controller")
+                .wait()
+                .expect("put");
+            assert!(start.elapsed() < Duration::from_secs(20), "nothing dropped");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        assert_eq!(rig.commands.try_next().expect("board"), None);
+        for seq in 1..=3 {
+            let genuine = Command {
+                seq,
+                action: 2,
+                left_deg: -90,
+                right_deg: 90,
+                ..Command::default()
+            };
+            rig.send_command(as_bytes(&genuine));
+            assert_eq!(rig.commands.try_next().expect("board"), Some(genuine));
+        }
+        assert_eq!(rig.refused(), 0, "{}", rig.link.counts());
+        assert!(rig.link.counts().to_string().contains("from strangers"));
+        let told = rig.link.events().into_iter().any(|e| {
+            matches!(e, LinkEvent::Denied(crate::refusals::Denial::NotTheWriter { ref key, .. })
+                if key == "command")
+        });
+        assert!(told, "the stranger's commands were not told");
     }
 
     proptest! {

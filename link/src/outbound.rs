@@ -21,16 +21,20 @@ type Node = iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>;
 pub(crate) type Ready = mpsc::Sender<Result<(), IpcError>>;
 
 /// Forwards the local service `topic` to the peers through `publisher` until `stop`,
-/// telling `ready` when its ports are open.
+/// telling `ready` when its ports are open. Each payload carries, as its attachment, the
+/// Zenoh id `zid` of this launch's session: a peer takes a service only from the session that
+/// announced the role writing it.
 pub(crate) fn outbound(
     topic: Topic,
     names: &ServiceNames,
     publisher: &zenoh::pubsub::Publisher<'static>,
+    zid: &str,
     stop: &AtomicBool,
     ready: &Ready,
 ) {
+    let sender = zenoh::bytes::ZBytes::from(zid.to_owned());
     let put = |bytes: &[u8]| {
-        if let Err(e) = publisher.put(bytes).wait() {
+        if let Err(e) = publisher.put(bytes).attachment(sender.clone()).wait() {
             eprintln!("launch: link: warning: cannot send {topic}: {e}");
         }
     };

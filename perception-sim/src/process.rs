@@ -143,6 +143,18 @@ pub fn run(
     config: &PerceptionConfig,
     stop: &AtomicBool,
 ) -> Result<PerceptionSummary, PerceptionError> {
+    run_resuming(config, stop, false)
+}
+
+/// [`run`]; when `resume` is set (a respawn within a run), it goes on from the trajectory
+/// its predecessor wrote: episode numbers continue after the last episode that ended there
+/// and the configured number of episodes counts the run's, not this process's. Without a
+/// trajectory file there is nothing to go on from and it starts at episode 0.
+pub fn run_resuming(
+    config: &PerceptionConfig,
+    stop: &AtomicBool,
+    resume: bool,
+) -> Result<PerceptionSummary, PerceptionError> {
     let checked = config.check()?;
     let (strategy, settle) = (checked.wait(), checked.settle());
     let arena = Arena::new(ArenaId::from_number(config.arena).map_err(PerceptionError::Arena)?);
@@ -187,6 +199,14 @@ pub fn run(
         !settle.is_zero() || strategy == tes_runtime::wait::WaitStrategy::Anticipate,
         "perception",
     );
+    let (trajectory, first_episode) = open_trajectory(config, resume)?;
+    if first_episode > 0 {
+        tracing::info!(
+            first_episode,
+            episodes = config.episodes,
+            "going on with the run after a restart"
+        );
+    }
     let mut camera = Camera {
         arena: &arena,
         config,
@@ -199,7 +219,7 @@ pub fn run(
         settle,
         loan: None,
         motor_timeout: Duration::from_millis(config.motor_timeout_ms),
-        rng: ChaCha8Rng::seed_from_u64(config.seed),
+        rng: episode_rng(config.seed, first_episode),
         summary: PerceptionSummary::default(),
         counts,
         // Sequence numbers start from the monotonic clock, so a respawned perception's
@@ -209,11 +229,11 @@ pub fn run(
         seq: monotonic_ns(),
         last_command: 0,
         actions: 0,
-        trajectory: open_trajectory(config)?,
+        trajectory,
         maps_updated: std::time::Instant::now(),
         cpu: CpuMeter::process(),
     };
-    for episode in 0..config.episodes {
+    for episode in first_episode..config.episodes {
         if camera.run_episode(episode, stop)? == Flow::Stopped {
             return camera.stopped();
         }
@@ -241,18 +261,34 @@ fn write_report(
         })
 }
 
-/// The trajectory file, if one is asked for.
-fn open_trajectory(config: &PerceptionConfig) -> Result<Option<TrajectoryLog>, PerceptionError> {
-    config
-        .trajectory
-        .as_ref()
-        .map(|path| {
-            TrajectoryLog::create(path).map_err(|error| PerceptionError::Trajectory {
-                path: path.clone(),
-                error,
-            })
-        })
-        .transpose()
+/// The trajectory file, if one is asked for, and the episode to start with: 0, or when
+/// `resume`, the one after the last that ended in the file ([`TrajectoryLog::resume`]).
+fn open_trajectory(
+    config: &PerceptionConfig,
+    resume: bool,
+) -> Result<(Option<TrajectoryLog>, u32), PerceptionError> {
+    let Some(path) = config.trajectory.as_ref() else {
+        return Ok((None, 0));
+    };
+    let opened = if resume {
+        TrajectoryLog::resume(path)
+    } else {
+        TrajectoryLog::create(path).map(|log| (log, 0))
+    };
+    let (log, first) = opened.map_err(|error| PerceptionError::Trajectory {
+        path: path.clone(),
+        error,
+    })?;
+    Ok((Some(log), first))
+}
+
+/// The random starts of a run from episode `first` on: the seed's own sequence from the
+/// run's start, a sequence of its own for a run going on after a restart (which would
+/// otherwise repeat the first episodes' starts).
+fn episode_rng(seed: u64, first: u32) -> ChaCha8Rng {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    rng.set_stream(u64::from(first));
+    rng
 }
 
 /// Whether a run goes on.
@@ -414,7 +450,8 @@ impl Camera<'_> {
             self.take_motion(&mut run, motion)?;
         }
         self.summary.episodes += 1;
-        self.progress.report_mut().episodes = u64::from(self.summary.episodes);
+        // The run's count (a restarted perception goes on with its predecessor's episodes).
+        self.progress.report_mut().episodes = u64::from(episode) + 1;
         tracing::info!(
             episode,
             reward = run.tracker.total_reward(),
@@ -440,6 +477,13 @@ impl Camera<'_> {
             reward: run.reward as f32,
             flags: run.flags,
         };
+        // An episode's last row is written before its last observation goes out: a restarted
+        // perception goes on after the last episode its trajectory ends, and the controller
+        // reports an episode once it has that observation — so no episode is run twice. (No
+        // command answers that observation: no decision waits for the write.)
+        if run.flags & (observation_flags::TERMINAL | observation_flags::TRUNCATED) != 0 {
+            self.write_pending_row(run)?;
+        }
         // Stamped as it is handed over, as the floor's source stamps: the latency measured
         // from here is the link's and the decision's, not what it took to see the world.
         observation.stamp_ns = monotonic_ns();
@@ -457,6 +501,14 @@ impl Camera<'_> {
             run.moved_from,
             run.pose,
         )?;
+        self.write_pending_row(run)?;
+        self.progress.report_mut().out_seq = self.seq;
+        self.progress.report_mut().steps = self.summary.observations;
+        Ok(())
+    }
+
+    /// Writes the last action's trajectory row, if not yet written.
+    fn write_pending_row(&mut self, run: &mut EpisodeRun) -> Result<(), PerceptionError> {
         if let (Some(log), Some(row)) = (self.trajectory.as_mut(), run.pending.take()) {
             log.push(self.arena, &row)
                 .map_err(|error| PerceptionError::Trajectory {
@@ -464,8 +516,6 @@ impl Camera<'_> {
                     error,
                 })?;
         }
-        self.progress.report_mut().out_seq = self.seq;
-        self.progress.report_mut().steps = self.summary.observations;
         Ok(())
     }
 

@@ -14,10 +14,14 @@ use pyo3::prelude::*;
 #[pymodule]
 fn _tes(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<mdagl::Mdagl>()?;
+    m.add_function(wrap_pyfunction!(mdagl::_restore_mdagl, m)?)?;
     m.add_class::<structure::Structure>()?;
     m.add_class::<agents::Agent>()?;
+    m.add_function(wrap_pyfunction!(agents::_restore_agent, m)?)?;
     m.add_class::<worlds::GridWorld>()?;
     m.add_class::<worlds::ArenaWorld>()?;
+    m.add_function(wrap_pyfunction!(worlds::_restore_grid_world, m)?)?;
+    m.add_function(wrap_pyfunction!(worlds::_restore_arena_world, m)?)?;
     m.add(
         "LibraryFileError",
         m.py().get_type::<agents::LibraryFileError>(),

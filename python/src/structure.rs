@@ -4,9 +4,11 @@
 
 use std::sync::Arc;
 
-use numpy::{PyReadonlyArray1, PyReadonlyArray2};
+use numpy::ndarray::{Array2, Array3};
+use numpy::{IntoPyArray, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use pyo3::types::PyTuple;
 use tes_learning::agents::Contexts;
 use tes_learning::cmdp::CmdpStructure;
 
@@ -21,6 +23,8 @@ pub struct Structure {
     /// Which states share counts for the factored counting agents (each state its own, unless
     /// the environment named its factors).
     pub(crate) contexts: Contexts,
+    /// The factor of each state and how many there are, as given (what a pickle carries).
+    pub(crate) factors: Option<(Vec<u32>, usize)>,
 }
 
 #[pymethods]
@@ -31,9 +35,14 @@ impl Structure {
     /// * `feature_indptr`, `feature_indices` — the states' binary features as CSR (int64 row
     ///   pointers, uint32 sorted column indices below `n_features`);
     /// * `contexts` — optional `(n_states,)` int64: the factor each state belongs to, for
-    ///   `FEpsG` (default: every state its own).
+    ///   `FEpsG` (default: every state its own), and `n_contexts` how many factors there are
+    ///   (default: one more than the largest id);
+    /// * `step_reward` — optional `(n_states, n_actions, n_effects)` float64: the reward of
+    ///   each action from each state when it has each effect (so leads to `next_state[s, e]`),
+    ///   which the planner then uses instead of the reward for entering where the step leads
+    ///   (a reward that depends on the action or the state left, not only on where it ends).
     #[new]
-    #[pyo3(signature = (next_state, reward, terminal, feature_indptr, feature_indices, n_features, n_actions, contexts = None))]
+    #[pyo3(signature = (next_state, reward, terminal, feature_indptr, feature_indices, n_features, n_actions, contexts = None, n_contexts = None, step_reward = None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         next_state: PyReadonlyArray2<'_, i64>,
@@ -44,6 +53,8 @@ impl Structure {
         n_features: usize,
         n_actions: usize,
         contexts: Option<PyReadonlyArray1<'_, i64>>,
+        n_contexts: Option<usize>,
+        step_reward: Option<PyReadonlyArray3<'_, f64>>,
     ) -> PyResult<Self> {
         let next = next_state.as_array();
         let (n_states, n_effects) = next.dim();
@@ -63,14 +74,71 @@ impl Structure {
             |s| &indices[offsets[s]..offsets[s + 1]],
         )
         .map_err(|e| PyValueError::new_err(format!("structure: {e}")))?;
-        let contexts = match contexts {
-            None => Contexts::tabular(n_states),
-            Some(of_state) => factor_contexts(&of_state, n_states)?,
+        let cmdp = match step_reward {
+            None => cmdp,
+            Some(table) => with_step_rewards(cmdp, &table)?,
+        };
+        let (contexts, factors) = match contexts {
+            None => (Contexts::tabular(n_states), None),
+            Some(of_state) => {
+                let (of_state, n) = factor_ids(&of_state, n_states, n_contexts)?;
+                let contexts = Contexts::new(of_state.clone(), n)
+                    .ok_or_else(|| PyValueError::new_err("contexts are out of range"))?;
+                (contexts, Some((of_state, n)))
+            }
         };
         Ok(Self {
             cmdp: Arc::new(cmdp),
             contexts,
+            factors,
         })
+    }
+
+    /// Pickles as the arrays it was made from (`Structure(*args)` makes it again).
+    fn __reduce__<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyTuple>)> {
+        let c = &self.cmdp;
+        let (n, a, e) = (c.n_states(), c.n_actions(), c.n_effects());
+        let next = Array2::from_shape_fn((n, e), |(s, e)| c.next_state(s, e) as i64);
+        let reward: Vec<f64> = (0..n).map(|s| c.reward(s)).collect();
+        let terminal: Vec<bool> = (0..n).map(|s| c.is_terminal(s)).collect();
+        let mut indptr = vec![0i64];
+        let mut indices: Vec<u32> = Vec::new();
+        for s in 0..n {
+            indices.extend_from_slice(c.features(s));
+            indptr.push(indices.len() as i64);
+        }
+        let (contexts, n_contexts) = match &self.factors {
+            Some((of_state, k)) => (
+                Some(of_state.iter().map(|&c| i64::from(c)).collect::<Vec<_>>()),
+                Some(*k),
+            ),
+            None => (None, None),
+        };
+        let step_reward = c.has_step_rewards().then(|| {
+            Array3::from_shape_fn((n, a, e), |(s, a, e)| c.step_reward(s, a, e)).into_pyarray(py)
+        });
+        let args = PyTuple::new(
+            py,
+            [
+                next.into_pyarray(py).into_any(),
+                reward.into_pyarray(py).into_any(),
+                terminal.into_pyarray(py).into_any(),
+                indptr.into_pyarray(py).into_any(),
+                indices.into_pyarray(py).into_any(),
+                c.n_features().into_pyobject(py)?.into_any(),
+                c.n_actions().into_pyobject(py)?.into_any(),
+                contexts
+                    .map(|v| v.into_pyarray(py))
+                    .into_pyobject(py)?
+                    .into_any(),
+                n_contexts.into_pyobject(py)?.into_any(),
+                step_reward.into_pyobject(py)?.into_any(),
+            ],
+        )?;
+        Ok((py.get_type::<Structure>().into_any(), args))
     }
 
     /// Number of states.
@@ -113,6 +181,19 @@ impl Structure {
     fn reward(&self, state: usize) -> PyResult<f64> {
         self.check(state)?;
         Ok(self.cmdp.reward(state))
+    }
+
+    /// The reward the planner counts for `action` in `state` when it has `effect`: the
+    /// reward for entering where that leads, unless the structure was given step rewards.
+    fn step_reward(&self, state: usize, action: usize, effect: usize) -> PyResult<f64> {
+        self.next_state(state, effect)?;
+        if action >= self.cmdp.n_actions() {
+            return Err(PyValueError::new_err(format!(
+                "action {action} is out of range ({} actions)",
+                self.cmdp.n_actions()
+            )));
+        }
+        Ok(self.cmdp.step_reward(state, action, effect))
     }
 
     /// Whether entering `state` ends the episode.
@@ -193,8 +274,13 @@ fn checked_offsets(
     Ok(offsets)
 }
 
-/// Oracle factors for the counting agents: one id per state, numbered from 0.
-fn factor_contexts(of_state: &PyReadonlyArray1<'_, i64>, n_states: usize) -> PyResult<Contexts> {
+/// Oracle factors for the counting agents: one id per state, numbered from 0, and how many
+/// there are (`n_contexts`, or one more than the largest id).
+fn factor_ids(
+    of_state: &PyReadonlyArray1<'_, i64>,
+    n_states: usize,
+    n_contexts: Option<usize>,
+) -> PyResult<(Vec<u32>, usize)> {
     let of_state = of_state.as_array();
     if of_state.len() != n_states {
         return Err(PyValueError::new_err(format!(
@@ -207,6 +293,33 @@ fn factor_contexts(of_state: &PyReadonlyArray1<'_, i64>, n_states: usize) -> PyR
         .map(|&c| u32::try_from(c))
         .collect::<Result<Vec<u32>, _>>()
         .map_err(|_| PyValueError::new_err("contexts must be ids from 0 to 2^32 - 1"))?;
-    let n_contexts = ids.iter().max().map_or(0, |&m| m as usize + 1);
-    Contexts::new(ids, n_contexts).ok_or_else(|| PyValueError::new_err("contexts are out of range"))
+    let needed = ids.iter().max().map_or(0, |&m| m as usize + 1);
+    let n = n_contexts.unwrap_or(needed);
+    if n < needed {
+        return Err(PyValueError::new_err(format!(
+            "n_contexts is {n} but a context id is {}",
+            needed - 1
+        )));
+    }
+    Ok((ids, n))
+}
+
+/// `cmdp` with each step's reward from an `(n_states, n_actions, n_effects)` table.
+fn with_step_rewards(
+    cmdp: CmdpStructure,
+    table: &PyReadonlyArray3<'_, f64>,
+) -> PyResult<CmdpStructure> {
+    let table = table.as_array();
+    let shape = (cmdp.n_states(), cmdp.n_actions(), cmdp.n_effects());
+    if table.dim() != shape {
+        return Err(PyValueError::new_err(format!(
+            "step_reward is {:?} but the structure has {} states, {} actions and {} effects",
+            table.dim(),
+            shape.0,
+            shape.1,
+            shape.2
+        )));
+    }
+    cmdp.with_step_rewards(|s, a, e| table[(s, a, e)])
+        .map_err(|e| PyValueError::new_err(format!("structure: {e}")))
 }

@@ -24,10 +24,15 @@ type Step = (usize, usize, f64, bool);
 /// A grid task of the paper's §5.1 suite, with its start and dynamics drawn from a seeded
 /// source.
 #[pyclass(module = "tes._tes", name = "GridWorld")]
+#[derive(Clone)]
 pub struct GridWorld {
     task: GridTask,
     rng: ChaCha8Rng,
     state: usize,
+    /// What it was made with: `(task, irrelevant, world_seed)`.
+    made: (usize, usize, u64),
+    /// Whether the episode has ended (a terminal state was entered).
+    over: bool,
 }
 
 #[pymethods]
@@ -37,6 +42,7 @@ impl GridWorld {
     #[new]
     #[pyo3(signature = (task = 0, irrelevant = 200, world_seed = 0))]
     fn new(task: usize, irrelevant: usize, world_seed: u64) -> PyResult<Self> {
+        let task_id = task;
         if task >= GridSuite::TASKS {
             return Err(PyValueError::new_err(format!(
                 "task must be 0 to {}, not {task}",
@@ -46,9 +52,16 @@ impl GridWorld {
         let seed = world_seed.wrapping_mul(1_000_003).wrapping_add(task as u64);
         let task = GridTask::generate(GridSuite::params(task, irrelevant), seed)
             .map_err(|e| PyValueError::new_err(format!("grid task: {e}")))?;
+        let made = (task_id, irrelevant, world_seed);
         let mut rng = ChaCha8Rng::seed_from_u64(0);
         let state = task.random_start(&mut rng);
-        Ok(Self { task, rng, state })
+        Ok(Self {
+            task,
+            rng,
+            state,
+            made,
+            over: false,
+        })
     }
 
     /// Starts an episode in a random start cell, drawn from `seed` if given (then every later
@@ -59,12 +72,18 @@ impl GridWorld {
             self.rng = ChaCha8Rng::seed_from_u64(seed);
         }
         self.state = self.task.random_start(&mut self.rng);
+        self.over = false;
         self.state
     }
 
     /// Takes `action` (0 N, 1 E, 2 S, 3 W) under the true dynamics:
     /// `(next_state, effect, reward, terminal)`.
     fn step(&mut self, action: usize) -> PyResult<Step> {
+        if self.over {
+            return Err(PyValueError::new_err(
+                "the episode is over; reset() starts the next",
+            ));
+        }
         if action >= self.task.n_actions() {
             return Err(PyValueError::new_err(format!(
                 "action must be 0 to {}, not {action}",
@@ -73,6 +92,7 @@ impl GridWorld {
         }
         let outcome = self.task.step(self.state, action, &mut self.rng);
         self.state = outcome.next_state;
+        self.over = outcome.terminal;
         Ok((
             outcome.next_state,
             outcome.effect,
@@ -85,6 +105,29 @@ impl GridWorld {
     #[getter]
     fn state(&self) -> usize {
         self.state
+    }
+
+    /// Whether the episode has ended: `step` refuses until `reset`.
+    #[getter]
+    fn over(&self) -> bool {
+        self.over
+    }
+
+    fn __copy__(&self) -> Self {
+        self.clone()
+    }
+
+    fn __deepcopy__(&self, _memo: &Bound<'_, PyAny>) -> Self {
+        self.clone()
+    }
+
+    /// Pickles as what it was made with, its random source's exact position and its state.
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, SavedGrid)> {
+        let restore = py.import("tes._tes")?.getattr("_restore_grid_world")?;
+        Ok((
+            restore,
+            (self.made, save_rng(&self.rng), self.state, self.over),
+        ))
     }
 
     /// Columns.
@@ -163,14 +206,15 @@ impl GridWorld {
             |s| task.features(s),
         )
         .map_err(|e| PyValueError::new_err(format!("grid structure: {e}")))?;
-        let of_state = (0..task.n_states())
+        let of_state: Vec<u32> = (0..task.n_states())
             .map(|s| task.oracle_context(s) as u32)
             .collect();
-        let contexts = Contexts::new(of_state, task.n_oracle_contexts())
+        let contexts = Contexts::new(of_state.clone(), task.n_oracle_contexts())
             .ok_or_else(|| PyValueError::new_err("grid contexts out of range"))?;
         Ok(Structure {
             cmdp: Arc::new(cmdp),
             contexts,
+            factors: Some((of_state, task.n_oracle_contexts())),
         })
     }
 
@@ -212,11 +256,18 @@ impl GridWorld {
 /// A robot arena of the paper's §5.2 (Env 1–3): the robot's continuous pose, its wheel slip,
 /// the camera's 312 features and the episode rules (terminal states, stuck for 4 actions).
 #[pyclass(module = "tes._tes", name = "ArenaWorld")]
+#[derive(Clone)]
 pub struct ArenaWorld {
     arena: Arena,
     rng: ChaCha8Rng,
     pose: Pose,
     episode: Episode,
+    /// The arena's number (1–3).
+    number: u32,
+    /// The random source as the episode started, and the actions since: the episode's state
+    /// replayed from them (what a pickle carries).
+    at_reset: ChaCha8Rng,
+    actions: Vec<u8>,
 }
 
 #[pymethods]
@@ -225,9 +276,11 @@ impl ArenaWorld {
     #[new]
     #[pyo3(signature = (arena = 1))]
     fn new(arena: u32) -> PyResult<Self> {
+        let arena_number = arena;
         let id = ArenaId::from_number(arena).map_err(|e| PyValueError::new_err(e.to_string()))?;
         let arena = Arena::new(id);
-        let mut rng = ChaCha8Rng::seed_from_u64(0);
+        let at_reset = ChaCha8Rng::seed_from_u64(0);
+        let mut rng = at_reset.clone();
         let pose = arena.random_start(&mut rng);
         let episode = Episode::new(&arena, arena.discretise(pose))
             .map_err(|e| PyValueError::new_err(e.to_string()))?;
@@ -236,6 +289,9 @@ impl ArenaWorld {
             rng,
             pose,
             episode,
+            number: arena_number,
+            at_reset,
+            actions: Vec::new(),
         })
     }
 
@@ -246,6 +302,8 @@ impl ArenaWorld {
         if let Some(seed) = seed {
             self.rng = ChaCha8Rng::seed_from_u64(seed);
         }
+        self.at_reset = self.rng.clone();
+        self.actions.clear();
         self.pose = self.arena.random_start(&mut self.rng);
         self.episode = Episode::new(&self.arena, self.arena.discretise(self.pose))
             .map_err(|e| PyValueError::new_err(e.to_string()))?;
@@ -270,6 +328,8 @@ impl ArenaWorld {
             .observe(&self.arena, outcome.state)
             .map_err(|e| PyValueError::new_err(e.to_string()))?;
         self.pose = outcome.pose;
+        // An action below 3: the arena refused any other above.
+        self.actions.push(action as u8);
         let effect = self.arena.effect_between(before, outcome.state);
         Ok((
             outcome.state,
@@ -277,6 +337,31 @@ impl ArenaWorld {
             step.reward,
             step.status == EpisodeStatus::Terminal,
         ))
+    }
+
+    fn __copy__(&self) -> Self {
+        self.clone()
+    }
+
+    fn __deepcopy__(&self, _memo: &Bound<'_, PyAny>) -> Self {
+        self.clone()
+    }
+
+    /// Pickles as its arena, its random source as the episode started and the episode's
+    /// actions, which `tes._tes._restore_arena_world` replays (the same pose and episode to
+    /// the bit: every step is a function of them).
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, SavedArena)> {
+        let restore = py.import("tes._tes")?.getattr("_restore_arena_world")?;
+        Ok((
+            restore,
+            (self.number, save_rng(&self.at_reset), self.actions.clone()),
+        ))
+    }
+
+    /// Whether the episode is over (a terminal state, or stuck): `step` refuses until `reset`.
+    #[getter]
+    fn over(&self) -> bool {
+        self.episode.is_over()
     }
 
     /// Whether the episode ended because the robot was stuck for 4 actions.
@@ -387,14 +472,15 @@ impl ArenaWorld {
         .map_err(|e| PyValueError::new_err(format!("arena structure: {e}")))?;
         // The out state has no oracle context: it gets one of its own.
         let out = a.n_oracle_contexts();
-        let of_state = (0..a.n_states())
+        let of_state: Vec<u32> = (0..a.n_states())
             .map(|s| a.oracle_context(s).unwrap_or(out) as u32)
             .collect();
-        let contexts = Contexts::new(of_state, out + 1)
+        let contexts = Contexts::new(of_state.clone(), out + 1)
             .ok_or_else(|| PyValueError::new_err("arena contexts out of range"))?;
         Ok(Structure {
             cmdp: Arc::new(cmdp),
             contexts,
+            factors: Some((of_state, out + 1)),
         })
     }
 
@@ -433,4 +519,63 @@ fn check_state(state: usize, n_states: usize) -> PyResult<()> {
             "state {state} is out of range ({n_states} states)"
         )))
     }
+}
+
+/// A ChaCha random source's exact position: its seed, stream and word position (as two
+/// halves: Python pickles integers of any size, but the two halves keep the stub simple).
+type SavedRng = (Vec<u8>, u64, (u64, u64));
+
+/// A pickled grid world: `((task, irrelevant, world_seed), rng, state, over)`.
+type SavedGrid = ((usize, usize, u64), SavedRng, usize, bool);
+
+/// A pickled arena: `(arena, rng as the episode started, the episode's actions)`.
+type SavedArena = (u32, SavedRng, Vec<u8>);
+
+fn save_rng(rng: &ChaCha8Rng) -> SavedRng {
+    let pos = rng.get_word_pos();
+    (
+        rng.get_seed().to_vec(),
+        rng.get_stream(),
+        ((pos >> 64) as u64, pos as u64),
+    )
+}
+
+fn restore_rng((seed, stream, (high, low)): SavedRng) -> PyResult<ChaCha8Rng> {
+    let seed: [u8; 32] = seed
+        .try_into()
+        .map_err(|_| PyValueError::new_err("a saved random source's seed is 32 bytes"))?;
+    let mut rng = ChaCha8Rng::from_seed(seed);
+    rng.set_stream(stream);
+    rng.set_word_pos((u128::from(high) << 64) | u128::from(low));
+    Ok(rng)
+}
+
+/// Makes a pickled `GridWorld` again (see `GridWorld.__reduce__`).
+#[pyfunction]
+pub fn _restore_grid_world(
+    made: (usize, usize, u64),
+    rng: SavedRng,
+    state: usize,
+    over: bool,
+) -> PyResult<GridWorld> {
+    let (task, irrelevant, world_seed) = made;
+    let mut world = GridWorld::new(task, irrelevant, world_seed)?;
+    world.check(state)?;
+    world.rng = restore_rng(rng)?;
+    world.state = state;
+    world.over = over;
+    Ok(world)
+}
+
+/// Makes a pickled `ArenaWorld` again (see `ArenaWorld.__reduce__`): the episode's start drawn
+/// from the saved random source, then its actions replayed.
+#[pyfunction]
+pub fn _restore_arena_world(number: u32, rng: SavedRng, actions: Vec<u8>) -> PyResult<ArenaWorld> {
+    let mut world = ArenaWorld::new(number)?;
+    world.rng = restore_rng(rng)?;
+    world.reset(None)?;
+    for action in actions {
+        world.step(usize::from(action))?;
+    }
+    Ok(world)
 }

@@ -5,6 +5,11 @@
 * :func:`frozen_lake` — Gymnasium's ``FrozenLake-v1``, any map, slippery or not, any
   ``success_rate`` and ``reward_schedule``.
 * :func:`cliff_walking` — ``CliffWalking-v1`` and ``CliffWalkingSlippery-v1``.
+* :func:`taxi` — ``Taxi-v4`` (dry, with a passenger who keeps to the destination: the
+  defaults).
+
+Each adapter checks it was given the environment it is for, and refuses another with
+``TypeError`` naming both.
 
 The toy texts' effects are the move made (in the order of the environment's actions) or
 staying; the rewards and terminal cells are read from the environment's own transition table.
@@ -19,7 +24,18 @@ import numpy as np
 from tes import _tes
 from tes.structure import GridStructure
 
-__all__ = ["WorldStructure", "grid_task", "arena", "frozen_lake", "cliff_walking"]
+__all__ = ["WorldStructure", "TaxiStructure", "grid_task", "arena", "frozen_lake", "cliff_walking", "taxi"]
+
+
+def _unwrap(env: Any, class_name: str, adapter: str) -> Any:
+    """The environment under Gymnasium's wrappers, checked to be ``class_name``."""
+    inner = getattr(env, "unwrapped", env)
+    if type(inner).__name__ != class_name:
+        raise TypeError(
+            f"tes.adapters.{adapter} takes a {class_name} environment, "
+            f"not {type(inner).__name__}"
+        )
+    return inner
 
 
 class WorldStructure:
@@ -61,7 +77,7 @@ class WorldStructure:
 
 def grid_task(env: Any) -> WorldStructure:
     """The structure of a ``tes/GridTask-v0`` environment."""
-    inner = env.unwrapped
+    inner = _unwrap(env, "GridTaskEnv", "grid_task")
     return WorldStructure(
         inner.world,
         f"grid task {inner.task} (world seed {inner.world_seed})",
@@ -71,7 +87,7 @@ def grid_task(env: Any) -> WorldStructure:
 
 def arena(env: Any) -> WorldStructure:
     """The structure of a ``tes/Arena-v0`` environment (all 312 camera features)."""
-    inner = env.unwrapped
+    inner = _unwrap(env, "ArenaEnv", "arena")
     return WorldStructure(inner.world, f"arena {inner.arena}", ["forward", "spin", "pivot"])
 
 
@@ -88,7 +104,7 @@ def _entry_rewards(P: dict, n_states: int) -> np.ndarray:
 def frozen_lake(env: Any) -> GridStructure:
     """The structure of a ``FrozenLake-v1`` environment: 4 moves (left, down, right, up) and
     staying; holes and the goal are terminal."""
-    inner = env.unwrapped
+    inner = _unwrap(env, "FrozenLakeEnv", "frozen_lake")
     desc = np.asarray(inner.desc)
     nrow, ncol = desc.shape
     n_states = nrow * ncol
@@ -114,7 +130,7 @@ def cliff_walking(env: Any) -> GridStructure:
     down, left) and staying. Stepping into the cliff costs −100 and sends the agent back to
     the start; here the cliff cells are states whose every effect leads to the start, so the
     agent plans with the fall and its reward."""
-    inner = env.unwrapped
+    inner = _unwrap(env, "CliffWalkingEnv", "cliff_walking")
     nrow, ncol = inner.shape
     cliff = np.asarray(inner._cliff).reshape(-1)
     start = int(inner.start_state_index)
@@ -133,3 +149,137 @@ def cliff_walking(env: Any) -> GridStructure:
         move_names=["up", "right", "down", "left"],
         name=f"CliffWalking {nrow}x{ncol}",
     )
+
+
+class TaxiStructure:
+    """Taxi's structure (Dietterich's taxi, Gymnasium's ``Taxi-v4``): 500 states (taxi row and
+    column, passenger at one of the 4 stands or in the taxi, destination), 6 actions (south,
+    north, east, west, pick up, drop off).
+
+    Effects: 0–3 the taxi moved south, north, east, west; 4 the passenger got in; 5 the
+    passenger got out at the destination (the end); 6 the passenger got out at another
+    stand; 7 the taxi stayed put. The rewards are Taxi's own, by state, action and next state
+    (``step_reward``): +20 for the delivery, −10 for a pick-up or drop-off that stays put (it
+    was refused), −1 for every other step — a bump into a wall stays put too, at −1, with no
+    effect or state of its own.
+
+    Features, per state: the taxi's cell (25), which sides of it are walled (4), the
+    passenger in the taxi, the taxi at the passenger's stand, at the destination, at any
+    stand, and the three combinations pick-up and drop-off turn on (passenger waiting at the
+    taxi's cell; in the taxi at the destination; in the taxi at another stand).
+    """
+
+    MOVES = ((1, 0), (-1, 0), (0, 1), (0, -1))
+    PICKED_UP, DELIVERED, DROPPED, STAYED = 4, 5, 6, 7
+    PICKUP, DROPOFF = 4, 5
+
+    def __init__(self, env: Any):
+        inner = _unwrap(env, "TaxiEnv", "taxi")
+        if any(len(outcomes) != 1 for by_action in inner.P.values() for outcomes in by_action.values()):
+            raise ValueError("tes.adapters.taxi takes the dry taxi (is_rainy=False)")
+        if getattr(inner, "fickle_passenger", False):
+            raise ValueError(
+                "tes.adapters.taxi takes a passenger who keeps to the destination "
+                "(fickle_passenger=False)"
+            )
+        self._env = inner
+        self.locs = [tuple(loc) for loc in inner.locs]
+        self.nrow, self.ncol = inner.max_row + 1, inner.max_col + 1
+        self.n_states = int(inner.observation_space.n)
+        self.n_actions = int(inner.action_space.n)
+        self.n_effects = 8
+        self.n_features = self.nrow * self.ncol + 4 + 4 + 3
+        self.name = "Taxi"
+        self.action_names = ["south", "north", "east", "west", "pickup", "dropoff"]
+        self.feature_names = (
+            [f"cell=({r},{c})" for r in range(self.nrow) for c in range(self.ncol)]
+            + [f"wall={n}" for n in ("south", "north", "east", "west")]
+            + ["in_taxi", "at_passenger", "at_destination", "at_stand"]
+            + ["waiting_here", "deliverable", "droppable_elsewhere"]
+        )
+        # Walls from the table itself: a move that stays put in the dry taxi hit one.
+        self._walled = np.zeros((self.nrow, self.ncol, 4), dtype=bool)
+        for s in range(self.n_states):
+            row, col, _, _ = inner.decode(s)
+            for a in range(4):
+                self._walled[row, col, a] = inner.P[s][a][0][1] == s
+
+    def state(self, obs: Any) -> int:
+        return int(obs)
+
+    def _decode(self, state: int) -> tuple[int, int, int, int]:
+        row, col, passenger, destination = self._env.decode(state)
+        return int(row), int(col), int(passenger), int(destination)
+
+    def _encode(self, row: int, col: int, passenger: int, destination: int) -> int:
+        return int(self._env.encode(row, col, passenger, destination))
+
+    def features(self, state: int) -> list[int]:
+        row, col, passenger, destination = self._decode(state)
+        cells = self.nrow * self.ncol
+        on = [row * self.ncol + col]
+        on += [cells + a for a in range(4) if self._walled[row, col, a]]
+        here = (row, col)
+        in_taxi = passenger == 4
+        at_passenger = not in_taxi and self.locs[passenger] == here
+        at_destination = self.locs[destination] == here
+        at_stand = here in self.locs
+        flags = [in_taxi, at_passenger, at_destination, at_stand]
+        combos = [at_passenger, in_taxi and at_destination, in_taxi and at_stand and not at_destination]
+        on += [cells + 4 + i for i, f in enumerate(flags + combos) if f]
+        return sorted(on)
+
+    def next_state(self, state: int, effect: int) -> int:
+        row, col, passenger, destination = self._decode(state)
+        if self.terminal(state) or effect == self.STAYED:
+            return state
+        if effect < 4:
+            dr, dc = self.MOVES[effect]
+            r, c = row + dr, col + dc
+            if 0 <= r < self.nrow and 0 <= c < self.ncol and not self._walled[row, col, effect]:
+                return self._encode(r, c, passenger, destination)
+            return state
+        here = (row, col)
+        if effect == self.PICKED_UP:
+            ok = passenger < 4 and self.locs[passenger] == here
+            return self._encode(row, col, 4, destination) if ok else state
+        if effect == self.DELIVERED:
+            ok = passenger == 4 and self.locs[destination] == here
+            return self._encode(row, col, destination, destination) if ok else state
+        ok = passenger == 4 and here in self.locs and self.locs[destination] != here
+        return self._encode(row, col, self.locs.index(here), destination) if ok else state
+
+    def step_reward(self, state: int, action: int, next_state: int) -> float:
+        if next_state != state and self.terminal(next_state):
+            return 20.0
+        if next_state == state and action in (self.PICKUP, self.DROPOFF):
+            return -10.0
+        return -1.0
+
+    def reward(self, state: int) -> float:
+        """The reward for entering ``state`` (+20 for the delivered states; the planner reads
+        ``step_reward``, which also knows the action)."""
+        return 20.0 if self.terminal(state) else -1.0
+
+    def terminal(self, state: int) -> bool:
+        _, _, passenger, destination = self._decode(state)
+        return passenger == destination
+
+    def effect(self, state: int, action: int, next_state: int, reward: float) -> int:
+        if next_state == state:
+            return self.STAYED
+        row, col, passenger, _ = self._decode(state)
+        row2, col2, passenger2, destination = self._decode(next_state)
+        if passenger2 != passenger:
+            if passenger2 == 4:
+                return self.PICKED_UP
+            return self.DELIVERED if passenger2 == destination else self.DROPPED
+        for e, (dr, dc) in enumerate(self.MOVES):
+            if (row + dr, col + dc) == (row2, col2):
+                return e
+        raise ValueError(f"no effect leads from state {state} to state {next_state}")
+
+
+def taxi(env: Any) -> TaxiStructure:
+    """The structure of a ``Taxi-v4`` environment (see :class:`TaxiStructure`)."""
+    return TaxiStructure(env)

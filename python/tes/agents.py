@@ -7,7 +7,13 @@ Every agent takes a structure (see :mod:`tes.structure`) and speaks the same pro
 * ``end_episode()`` — the episode ended (``observe`` also notices ``terminated`` or
   ``truncated``);
 * ``greedy_policy() -> numpy.ndarray`` — for every state, in the structure's numbering, the
-  action the agent's current plan takes (re-planned to convergence first).
+  action the agent's current plan takes (planned to convergence on a copy: asking changes
+  nothing the agent does next).
+
+An agent is safe to share between threads (its calls take turns), copies with ``copy.copy``
+and ``copy.deepcopy`` into one that acts and learns on exactly as the original would, and
+pickles as its structure, its settings and the steps it has learned from, which unpickling
+replays (the same agent to the bit, at the cost of learning those steps again).
 
 The learning and planning run in Rust with the GIL released: :class:`LoreRL` (the paper's
 Algorithm 6), :class:`TES` and :class:`LWT` (Algorithms 2–3 and the single-view transfer
@@ -23,6 +29,8 @@ baseline) and :class:`FEpsG` (factored ε-greedy, counts per factor).
 
 from __future__ import annotations
 
+import copy
+import numbers
 import os
 from typing import Any
 
@@ -32,6 +40,13 @@ from tes import _tes
 from tes.structure import Structure, compile
 
 __all__ = ["Agent", "LoreRL", "TES", "LWT", "FEpsG"]
+
+
+def _seed(seed: Any) -> int:
+    """A seed as the native agents take it: a whole number from 0 to 2**64 - 1."""
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or not 0 <= int(seed) < 2**64:
+        raise ValueError(f"seed must be a whole number from 0 to 2**64 - 1, not {seed!r}")
+    return int(seed)
 
 
 class Agent:
@@ -80,6 +95,14 @@ class Agent:
         """For every state, the action the current plan takes (int64, ``n_states`` long)."""
         return self._native.greedy_policy()
 
+    def __copy__(self) -> "Agent":
+        """A copy that acts and learns on its own (the native agent is copied, not shared;
+        the structure, which does not change, is)."""
+        new = type(self).__new__(type(self))
+        new.__dict__.update(self.__dict__)
+        new._native = copy.copy(self._native)
+        return new
+
     def __repr__(self) -> str:
         return f"<{type(self).__name__} {self.name} on {self._native_structure_repr()}>"
 
@@ -108,7 +131,7 @@ class LoreRL(Agent):
         seed: int = 0,
     ):
         native = _tes.Agent.lore_rl(
-            compile(structure), lam, alpha, intercept, epsilon, gamma, seed
+            compile(structure), lam, alpha, intercept, epsilon, gamma, _seed(seed)
         )
         super().__init__(structure, native)
 
@@ -126,7 +149,7 @@ class FEpsG(Agent):
         gamma: float = 0.95,
         seed: int = 0,
     ):
-        native = _tes.Agent.fepsg(compile(structure), epsilon, gamma, seed)
+        native = _tes.Agent.fepsg(compile(structure), epsilon, gamma, _seed(seed))
         super().__init__(structure, native)
 
 
@@ -157,7 +180,7 @@ class _Transfer(Agent):
             epsilon,
             gamma,
             max_views,
-            seed,
+            _seed(seed),
             str(getattr(structure, "name", "") or type(structure).__name__),
             [str(n) for n in getattr(structure, "action_names", None) or []],
             [str(n) for n in getattr(structure, "feature_names", None) or []],

@@ -1,4 +1,6 @@
 """``python -m tes.bench``: is Python the bottleneck? Two measurements in one run.
+(``python -m tes.bench --rl`` instead compares loreRL, fEpsG and Q-learning on Gymnasium's
+toy texts: see ``tes._rl_bench``.)
 
 1. **Environment steps per second** through ``gymnasium.make`` (with its default wrappers),
    random actions: our ``tes/GridTask-v0`` (task 0, 30×30, 210 features) and
@@ -75,10 +77,11 @@ def csr(on: np.ndarray):
 def python_updates_per_second(on: np.ndarray, labels: np.ndarray, batch: int) -> float:
     """``Mdagl.partial_fit`` updates per second, fed ``batch`` rows per call."""
     X = csr(on)
-    model = tes.Mdagl(FEATURES, CLASSES)
+    # The paper's fixed setting, as `tes fit` without `auto`: one model, not a race.
+    model = tes.Mdagl(lam=0.05, alpha=1.5, intercept=False)
     start = time.perf_counter()
     for lo in range(0, len(labels), batch):
-        model.partial_fit(X[lo : lo + batch], labels[lo : lo + batch])
+        model.partial_fit(X[lo : lo + batch], labels[lo : lo + batch], classes=range(CLASSES))
     return len(labels) / (time.perf_counter() - start)
 
 
@@ -98,15 +101,25 @@ def tes_fit_updates_per_second(binary: str, path: Path) -> float:
     return float(json.loads(out.stdout)["updates_per_sec"])
 
 
+def tes_candidates(explicit: str | None) -> list[tuple[str, str | None]]:
+    """Where the `tes` binary is looked for, in order: --tes, $TES_BIN, a release then a debug
+    build in the repository this package was installed from (or is run in), then PATH."""
+    roots = [Path.cwd(), Path(__file__).resolve().parents[2]]
+    candidates: list[tuple[str, str | None]] = [
+        ("--tes", explicit),
+        ("$TES_BIN", os.environ.get("TES_BIN")),
+    ]
+    for root in dict.fromkeys(roots):
+        for profile in ("release", "debug"):
+            path = root / "target" / profile / "tes"
+            candidates.append((str(path), str(path)))
+    candidates.append(("tes on PATH", shutil.which("tes")))
+    return candidates
+
+
 def find_tes(explicit: str | None) -> str | None:
-    """The `tes` binary: --tes, $TES_BIN, a release build in the repository, then PATH."""
-    repo = Path(__file__).resolve().parents[2]
-    for candidate in (
-        explicit,
-        os.environ.get("TES_BIN"),
-        str(repo / "target" / "release" / "tes"),
-        shutil.which("tes"),
-    ):
+    """The first `tes` binary of :func:`tes_candidates` that exists and runs."""
+    for _, candidate in tes_candidates(explicit):
         if candidate and Path(candidate).is_file() and os.access(candidate, os.X_OK):
             return candidate
     return None
@@ -120,7 +133,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--tes", help="the tes binary (default: $TES_BIN or target/release/tes)")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
+    parser.add_argument(
+        "--rl", action="store_true",
+        help="instead: loreRL, fEpsG and Q-learning on the toy texts (tes._rl_bench)",
+    )
+    parser.add_argument("--seeds", type=int, default=3, help="--rl: seeds per method")
+    parser.add_argument(
+        "--scale", type=float, default=1.0, help="--rl: a share of each episode budget"
+    )
     args = parser.parse_args(argv)
+    if args.rl:
+        from tes import _rl_bench
+
+        return _rl_bench.main(args.seeds, args.json, args.scale)
 
     def median(measure) -> float:
         return statistics.median(measure(r) for r in range(args.repeats))
@@ -152,8 +177,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     binary = find_tes(args.tes)
     if binary is None:
-        print("no tes binary (build it with cargo build --release -p tes): tes fit skipped",
-              file=sys.stderr)
+        looked = ", ".join(where for where, _ in tes_candidates(args.tes))
+        print(
+            f"tes fit skipped: no tes binary (looked at {looked}); build one with "
+            "`cargo build --release -p tes` in the repository, or pass --tes PATH",
+            file=sys.stderr,
+        )
+        results["tes_binary"] = None
     else:
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "stream.csv"

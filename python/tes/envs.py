@@ -9,7 +9,11 @@ Observations are a ``Dict``: ``"state"`` (the state id the structures number by)
 ``"features"`` (the state's binary features, ``MultiBinary``) and the state's attributes
 (``"position"`` ``(x, y)`` on the grid; ``"attributes"`` ``(x, y, orientation)`` in the arena,
 ``(cells, cells, 0)`` once the robot has left it). ``info["effect"]`` is the effect the last
-action had. ``reset(seed=...)`` makes every later step reproducible. ``render_mode="rgb_array"``
+action had. ``reset(seed=...)`` makes every later step reproducible; ``reset(options=...)``
+with any option is refused (``ValueError``: the settings are ``make`` arguments), and a
+``step`` after the episode ended (terminated or truncated) raises
+``gymnasium.error.ResetNeeded`` in both worlds. Both pickle and ``copy.deepcopy`` (the world
+with its random source's exact position). ``render_mode="rgb_array"``
 draws the world with the agent.
 
 >>> import gymnasium, tes
@@ -44,6 +48,23 @@ _ARENA_SURFACES = np.array(
 )
 
 
+def _no_options(options: dict | None) -> None:
+    """Neither world takes reset options: refuse any rather than ignore them."""
+    if options:
+        raise ValueError(
+            f"reset() takes no options here (got {sorted(options)}); "
+            "the world's settings are make() arguments"
+        )
+
+
+def _check_not_over(over: bool) -> None:
+    """Stepping after the episode ended is an error, as the arena's own rule has it."""
+    if over:
+        raise gymnasium.error.ResetNeeded(
+            "the episode is over (terminated or truncated); reset() starts the next"
+        )
+
+
 def _seed_from(rng: np.random.Generator) -> int:
     """A seed for the native world's random source, drawn from Gymnasium's."""
     return int(rng.integers(0, 2**63 - 1))
@@ -66,6 +87,10 @@ class GridTaskEnv(gymnasium.Env):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', not {render_mode!r}")
         self.task, self.world_seed = int(task), int(world_seed)
+        if not 0 <= self.world_seed < 2**64:
+            raise ValueError(f"world_seed must be from 0 to 2**64 - 1, not {world_seed!r}")
+        if int(irrelevant) < 0:
+            raise ValueError(f"irrelevant must be at least 0, not {irrelevant!r}")
         self.world = _tes.GridWorld(self.task, int(irrelevant), self.world_seed)
         self.render_mode = render_mode
         w, h = self.world.width, self.world.height
@@ -78,6 +103,7 @@ class GridTaskEnv(gymnasium.Env):
         )
         self.action_space = spaces.Discrete(4)
         self._steps = 0
+        self._over = False
         self._layout = self.world.layout()
 
     def _obs(self, state: int) -> dict[str, Any]:
@@ -91,17 +117,21 @@ class GridTaskEnv(gymnasium.Env):
         }
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        _no_options(options)
         super().reset(seed=seed)
         self._steps = 0
+        self._over = False
         state = self.world.reset(_seed_from(self.np_random))
         return self._obs(state), {}
 
     def step(self, action: Any):
         if not self.action_space.contains(action):
             raise ValueError(f"action must be 0 to 3, not {action!r}")
+        _check_not_over(self._over)
         state, effect, reward, terminal = self.world.step(int(action))
         self._steps += 1
         truncated = not terminal and self._steps >= self.world.step_cap
+        self._over = terminal or truncated
         info = {"effect": effect, "effect_name": GRID_EFFECTS[effect]}
         return self._obs(state), reward, terminal, truncated, info
 
@@ -157,6 +187,7 @@ class ArenaEnv(gymnasium.Env):
         )
         self.action_space = spaces.Discrete(3)
         self._steps = 0
+        self._over = False
         self._layout = self.world.layout()
 
     def _obs(self, state: int) -> dict[str, Any]:
@@ -169,17 +200,21 @@ class ArenaEnv(gymnasium.Env):
         }
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        _no_options(options)
         super().reset(seed=seed)
         self._steps = 0
+        self._over = False
         state = self.world.reset(_seed_from(self.np_random))
         return self._obs(state), {"pose": self.world.pose}
 
     def step(self, action: Any):
         if not self.action_space.contains(action):
             raise ValueError(f"action must be 0 to 2, not {action!r}")
+        _check_not_over(self._over)
         state, effect, reward, terminal = self.world.step(int(action))
         self._steps += 1
         truncated = not terminal and (self.world.stuck or self._steps >= self.max_actions)
+        self._over = terminal or truncated
         info = {
             "effect": effect,
             "effect_name": self.world.effect_name(effect),

@@ -18,6 +18,7 @@ from __future__ import annotations
 from typing import Mapping, Sequence
 
 import numpy as np
+import numpy.typing as npt
 
 __all__ = [
     "optimal_policy",
@@ -61,7 +62,7 @@ def optimal_policy(P: Table, gamma: float, tolerance: float = 1e-10) -> np.ndarr
         values = new
 
 
-def optimal_success_probability(P: Table, start: Sequence[float], horizon: int) -> float:
+def optimal_success_probability(P: Table, start: npt.ArrayLike, horizon: int) -> float:
     """The highest probability any policy (free to change its action with the steps left)
     has of ending an episode with a positive reward within ``horizon`` steps: value
     iteration of ``horizon`` backups on the table, undiscounted, the goal's reward 1."""
@@ -80,7 +81,7 @@ def optimal_success_probability(P: Table, start: Sequence[float], horizon: int) 
 
 
 def policy_value(
-    P: Table, policy: Sequence[int], start: Sequence[float], horizon: int
+    P: Table, policy: npt.ArrayLike, start: npt.ArrayLike, horizon: int
 ) -> float:
     """The expected undiscounted return of ``policy`` from the ``start`` distribution within
     ``horizon`` steps."""
@@ -97,7 +98,7 @@ def policy_value(
 
 
 def success_probability(
-    P: Table, policy: Sequence[int], start: Sequence[float], horizon: int
+    P: Table, policy: npt.ArrayLike, start: npt.ArrayLike, horizon: int
 ) -> float:
     """The probability that ``policy`` ends an episode with a positive reward (FrozenLake's
     goal) within ``horizon`` steps, from the ``start`` distribution."""

@@ -16,7 +16,12 @@ The paper's agents learn only *which effect* an action has in a state; what each
 reward) -> int``
 ==========================================  ==================================================
 
-Optional: ``contexts(state) -> int`` (the factors ``FEpsG`` counts effects by; default:
+Optional: ``step_reward(state, action, next_state) -> float`` — the reward of taking
+``action`` in ``state`` and landing in ``next_state``, for rewards that depend on the action
+or the state left and not only on where the step ends (Taxi's −10 for a refused pick-up
+beside −1 for a bump into a wall, both staying put; the planner then uses it instead of
+``reward``, asking it once for each state, action and state an effect leads to);
+``contexts(state) -> int`` (the factors ``FEpsG`` counts effects by; default:
 every state its own), ``name`` (stored in a view library), ``action_names`` and
 ``feature_names`` (stored too, shown by ``tes library show``), and ``native()`` returning a
 ready :class:`tes._tes.Structure` (our own worlds' adapters do, so nothing is rebuilt).
@@ -29,7 +34,7 @@ laid out on a grid of cells, such as Gymnasium's toy texts (see :mod:`tes.adapte
 
 from __future__ import annotations
 
-from typing import Any, Protocol, Sequence, runtime_checkable
+from typing import Any, Callable, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
@@ -95,6 +100,9 @@ def compile(structure: Structure) -> _tes.Structure:  # noqa: A001 - the protoco
     contexts = None
     if callable(getattr(structure, "contexts", None)):
         contexts = np.array([structure.contexts(s) for s in range(n_states)], dtype=np.int64)
+    step_reward = None
+    if callable(getattr(structure, "step_reward", None)):
+        step_reward = _step_rewards(structure.step_reward, next_state, int(structure.n_actions))
     return _tes.Structure(
         next_state,
         reward,
@@ -104,7 +112,25 @@ def compile(structure: Structure) -> _tes.Structure:  # noqa: A001 - the protoco
         int(structure.n_features),
         int(structure.n_actions),
         contexts,
+        None,
+        step_reward,
     )
+
+
+def _step_rewards(
+    step_reward: Callable[[int, int, int], float], next_state: np.ndarray, n_actions: int
+) -> np.ndarray:
+    """``step_reward(s, a, next_state[s, e])`` as an ``(n_states, n_actions, n_effects)``
+    table: what the planner reads per effect, asked once per distinct next state (effects
+    that land in the same state share the reward, as a reward of the next state must)."""
+    n_states, n_effects = next_state.shape
+    table = np.empty((n_states, n_actions, n_effects), dtype=np.float64)
+    for s in range(n_states):
+        targets, where = np.unique(next_state[s], return_inverse=True)
+        for a in range(n_actions):
+            paid = np.array([float(step_reward(s, a, int(t))) for t in targets], dtype=np.float64)
+            table[s, a] = paid[where]
+    return table
 
 
 class GridStructure:
@@ -128,8 +154,8 @@ class GridStructure:
         nrow: int,
         ncol: int,
         moves: Sequence[tuple[int, int]],
-        rewards: Sequence[float],
-        terminals: Sequence[bool],
+        rewards: Sequence[float] | np.ndarray,
+        terminals: Sequence[bool] | np.ndarray,
         redirect: dict[int, int] | None = None,
         move_names: Sequence[str] | None = None,
         name: str = "grid",

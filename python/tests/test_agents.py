@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pickle
 import subprocess
 
 import gymnasium
@@ -142,6 +143,64 @@ def test_lore_rl_walks_the_cliff_edge_and_fepsg_learns_too():
     assert fepsg.name == "fEpsG" and rewards[-20:].mean() > rewards[:5].mean()
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_lore_rl_solves_taxi_within_50_episodes(seed):
+    """Taxi-v4 (Gymnasium's current name) with its structure declared by tes.adapters.taxi:
+    each step's reward is Taxi's by state, action and next state (a refused pick-up −10, a
+    bump into a wall −1, both staying put in one effect), with no mirror states. The greedy
+    policy delivers from every start within 200 steps."""
+    env = gymnasium.make("Taxi-v4")
+    table, start = env.unwrapped.P, env.unwrapped.initial_state_distrib
+    agent = tes.agents.LoreRL(tes.adapters.taxi(env), seed=seed, **TOY)
+    for episode in range(1, 51):
+        tes.run(env, agent, 1, seed=seed if episode == 1 else None)
+        success = success_probability(table, agent.greedy_policy(), start, 200)
+        if success == pytest.approx(1.0, abs=1e-12):
+            break
+    print(f"seed {seed}: greedy success 1.0 after {episode} episodes")
+    assert success == pytest.approx(1.0, abs=1e-12)
+
+
+def test_an_adapter_refuses_another_environment():
+    with pytest.raises(TypeError, match="frozen_lake takes a FrozenLakeEnv environment, not TaxiEnv"):
+        tes.adapters.frozen_lake(gymnasium.make("Taxi-v4"))
+    with pytest.raises(TypeError, match="taxi takes a TaxiEnv"):
+        tes.adapters.taxi(gymnasium.make("CliffWalking-v1"))
+    with pytest.raises(ValueError, match="is_rainy"):
+        tes.adapters.taxi(gymnasium.make("Taxi-v4", is_rainy=True))
+
+
+def test_a_step_reward_is_what_the_plan_pays():
+    """The Corridor with a toll on moving right from cell 2 that outweighs the exit: the plan
+    then goes nowhere near it (with entering rewards alone it would walk right)."""
+
+    class Tolled(Corridor):
+        def step_reward(self, state, action, next_state):
+            if (state, next_state) == (2, 3):
+                return -50.0
+            return self.reward(next_state)
+
+    native = tes.structure.compile(Tolled())
+    assert native.step_reward(2, 0, 1) == -50.0 and native.step_reward(2, 1, 1) == -50.0
+    assert native.step_reward(1, 1, 1) == -0.1
+    assert native.reward(3) == -0.1
+    class CappedCorridorEnv(CorridorEnv):
+        """Cut off after 20 steps: a plan that keeps away from the exit never ends."""
+
+        def reset(self, seed=None):
+            self.steps = 0
+            return super().reset(seed)
+
+        def step(self, action):
+            self.steps += 1
+            obs, reward, terminated, _, info = super().step(action)
+            return obs, reward, terminated, self.steps >= 20, info
+
+    agent = tes.agents.LoreRL(Tolled(), seed=1)
+    tes.run(CappedCorridorEnv(), agent, episodes=30, seed=1)
+    assert agent.greedy_policy()[2] == 0
+
+
 def frozen_lake(map_seed: int, success_rate: float = 0.8):
     desc = generate_random_map(size=8, p=0.8, seed=map_seed)
     return gymnasium.make(
@@ -255,3 +314,73 @@ def test_the_module_examples_run(module):
 
     failures, tried = doctest.testmod(importlib.import_module(module))
     assert tried > 0 and failures == 0
+
+
+def test_a_bad_step_reward_table_is_refused():
+    class Bad(Corridor):
+        def __init__(self, value):
+            self.value = value
+
+        def step_reward(self, state, action, next_state):
+            return self.value if (state, action, next_state) == (1, 1, 1) else -0.1
+
+    with pytest.raises(ValueError, match="reward of action 1 with effect 2 in state 1 is not finite"):
+        tes.structure.compile(Bad(float("nan")))
+    good = tes.structure.compile(Bad(-1.0))
+    args = list(good.__reduce__()[1])
+    args[-1] = np.zeros((5, 3, 3))
+    with pytest.raises(
+        ValueError,
+        match=r"step_reward is \(5, 3, 3\) but the structure has 5 states, 2 actions and 3 effects",
+    ):
+        tes._tes.Structure(*args)
+    copied = pickle.loads(pickle.dumps(good))
+    assert copied.step_reward(1, 1, 2) == -1.0 and copied.step_reward(1, 0, 2) == -0.1
+    with pytest.raises(ValueError, match="action 2 is out of range"):
+        copied.step_reward(1, 2, 2)
+
+
+def test_a_reward_that_depends_on_the_action_alone_is_planned_on():
+    """Two actions that do the same thing — each moves right or stays with the same chances,
+    from the same cell to the same next cell — but action 0 costs 1.0 a step and action 1
+    0.1: the plan takes the cheaper one everywhere, though nothing in where the steps lead
+    tells the actions apart, and the agent learns nothing about the costs (they are
+    declared)."""
+
+    class Tolls(Corridor):
+        def step_reward(self, state, action, next_state):
+            cost = -1.0 if action == 0 else -0.1
+            return cost + (1.0 if next_state == 4 and state != 4 else 0.0)
+
+    class SameMovesEnv(CorridorEnv):
+        """Either action moves right 80 % of the time and stays otherwise."""
+
+        def step(self, action):
+            moved = self.rng.random() < 0.8
+            self.s = min(4, self.s + 1) if moved else self.s
+            cost = -1.0 if action == 0 else -0.1
+            reward = cost + (1.0 if moved and self.s == 4 else 0.0)
+            return self.s, reward, self.s == 4, False, {}
+
+    structure = Tolls()
+    native = tes.structure.compile(structure)
+    assert native.step_reward(1, 0, 1) == -1.0 and native.step_reward(1, 1, 1) == -0.1
+    assert native.step_reward(1, 0, 2) == native.step_reward(1, 0, 0) == -1.0
+    agent = tes.agents.LoreRL(structure, seed=0, **TOY)
+    tes.run(SameMovesEnv(), agent, episodes=30, seed=0)
+    assert list(agent.greedy_policy()[:4]) == [1, 1, 1, 1]
+
+
+def test_the_taxi_adapter_pays_what_taxi_pays():
+    """Every state and action of Taxi-v4's own table: the declared reward of the step, and
+    the effect the adapter reads from it leads where the table says."""
+    env = gymnasium.make("Taxi-v4")
+    structure = tes.adapters.taxi(env)
+    native = tes.structure.compile(structure)
+    for s, by_action in env.unwrapped.P.items():
+        if structure.terminal(s):
+            continue
+        for a, [(_, next_state, reward, _)] in by_action.items():
+            effect = structure.effect(s, a, next_state, reward)
+            assert native.next_state(s, effect) == next_state
+            assert native.step_reward(s, a, effect) == reward, (s, a)

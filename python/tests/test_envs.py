@@ -125,3 +125,49 @@ def test_bad_settings_and_actions_are_refused():
         env.unwrapped.step(4)
     with pytest.raises(ValueError, match="out of range"):
         env.unwrapped.world.features(10**6)
+
+
+@pytest.mark.parametrize(
+    "env_id, kwargs",
+    [("tes/GridTask-v0", {"task": 1, "irrelevant": 5}), ("tes/Arena-v0", {"arena": 1})],
+)
+def test_a_step_after_the_end_is_an_error_in_both_worlds(env_id, kwargs):
+    env = gymnasium.make(env_id, **kwargs).unwrapped  # beneath Gymnasium's own wrappers
+    env.reset(seed=4)
+    rng = np.random.default_rng(4)
+    for _ in range(10_000):
+        _, _, terminated, truncated, _ = env.step(int(rng.integers(env.action_space.n)))
+        if terminated or truncated:
+            break
+    else:
+        pytest.fail("no episode ended")
+    with pytest.raises(gymnasium.error.ResetNeeded, match="reset"):
+        env.step(0)
+    env.reset()
+    env.step(0)
+
+
+@pytest.mark.parametrize("env_id", ["tes/GridTask-v0", "tes/Arena-v0"])
+def test_reset_options_are_refused_not_ignored(env_id):
+    env = gymnasium.make(env_id)
+    with pytest.raises(ValueError, match="no options"):
+        env.reset(seed=0, options={"task": 3})
+    env.reset(seed=0, options={})
+    env.reset(seed=0, options=None)
+
+
+def test_bad_seeds_are_refused_by_name():
+    with pytest.raises(ValueError, match="world_seed"):
+        gymnasium.make("tes/GridTask-v0", world_seed=-1)
+    structure = tes.adapters.frozen_lake(gymnasium.make("FrozenLake-v1"))
+    for make in (tes.agents.LoreRL, tes.agents.FEpsG, tes.agents.TES):
+        with pytest.raises(ValueError, match="seed must be a whole number"):
+            make(structure, seed=-1)
+
+
+def test_the_native_exception_is_tes_library_file_error():
+    assert tes.LibraryFileError.__module__ == "tes"
+    assert repr(tes.LibraryFileError("x")) == "LibraryFileError('x')"
+    assert f"{tes.LibraryFileError.__module__}.{tes.LibraryFileError.__name__}" == (
+        "tes.LibraryFileError"
+    )

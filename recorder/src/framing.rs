@@ -9,10 +9,19 @@
 //! stops instead at the first record whose lengths do not fit, as for a file cut short.
 //! Compressed chunks are never decompressed: the workspace builds `mcap` without its
 //! decompressors (TES writes uncompressed chunks), so their contents are never parsed.
+//!
+//! The same walk checks the checksums the writer stores: each uncompressed chunk's CRC of its
+//! records, before any of them is read, and the data section's CRC in the data end record. A
+//! mismatch is corruption, not a cut ([`Break::corrupt`]), and so is a break in a file that
+//! ends with the closing magic bytes, as only a complete file does.
 
 /// MCAP opcodes this check looks into.
 const CHUNK: u8 = 0x06;
 const FOOTER: u8 = 0x02;
+const DATA_END: u8 = 0x0F;
+/// Where an uncompressed chunk's CRC is in its body: after the start and end times and the
+/// uncompressed size.
+const CHUNK_CRC_AT: usize = 8 + 8 + 8;
 /// Opcode byte plus the length.
 const RECORD_HEADER: usize = 9;
 
@@ -23,6 +32,9 @@ pub(crate) struct Break {
     pub offset: usize,
     /// What is wrong with it.
     pub why: String,
+    /// Whether the file was damaged (a checksum that does not match, or a break in a file
+    /// that ends as a complete one does) rather than cut short.
+    pub corrupt: bool,
 }
 
 /// Checks the framing of `bytes`, an MCAP file whose 8 magic bytes have been checked:
@@ -30,39 +42,171 @@ pub(crate) struct Break {
 /// in what holds it; else where the first that does not fit starts. A file that ends within
 /// a record header is left to the reader (it reports the truncation itself).
 pub(crate) fn check(bytes: &[u8]) -> Result<(), Break> {
+    let complete = bytes.len() >= 2 * mcap::MAGIC.len() && bytes.ends_with(mcap::MAGIC);
+    match walk(bytes) {
+        Ok(Walked::ToTheEnd { last }) if complete => Err(Break::corrupt(
+            last,
+            "the records do not lead to the footer, though the file ends with the closing \
+             magic bytes as a complete file does"
+                .into(),
+        )),
+        Ok(_) => Ok(()),
+        Err(mut broken) => {
+            if complete && !broken.corrupt {
+                broken.corrupt = true;
+                broken.why.push_str(
+                    " (the file ends with the closing magic bytes, as a complete file does: it \
+                     was damaged, not cut short)",
+                );
+            }
+            Err(broken)
+        }
+    }
+}
+
+/// How far a sound walk went.
+enum Walked {
+    /// To the footer (and the closing magic, or part of it).
+    ToTheFooter,
+    /// To the end of the bytes without a footer; `last` is where the last record began.
+    ToTheEnd { last: usize },
+}
+
+/// The walk of [`check`], every break a cut unless a checksum says otherwise.
+fn walk(bytes: &[u8]) -> Result<Walked, Break> {
     let mut at = mcap::MAGIC.len();
+    let mut last = at;
+    let mut data_end_seen = false;
     while bytes.len() - at >= RECORD_HEADER {
+        last = at;
         let (opcode, len) = header(&bytes[at..]);
         let body_start = at + RECORD_HEADER;
         let fits = usize::try_from(len)
             .ok()
             .filter(|&len| len <= bytes.len() - body_start);
         let Some(len) = fits else {
-            return Err(Break {
-                offset: at,
-                why: format!(
+            return Err(Break::cut(
+                at,
+                format!(
                     "the record at byte {at} (opcode 0x{opcode:02x}) claims {len} bytes, {} are left",
                     bytes.len() - body_start
                 ),
-            });
+            ));
         };
         let body = &bytes[body_start..body_start + len];
-        let checked = if opcode == CHUNK {
-            check_chunk(body).map_err(|why| format!("the chunk at byte {at}: {why}"))
-        } else {
-            check_strings(opcode, body)
-                .map_err(|why| format!("the record at byte {at} (opcode 0x{opcode:02x}): {why}"))
-        };
-        if let Err(why) = checked {
-            return Err(Break { offset: at, why });
-        }
+        check_layout(at, opcode, body).map_err(|why| Break::cut(at, why))?;
+        check_sums(bytes, at, opcode, body, data_end_seen)
+            .map_err(|why| Break::corrupt(at, why))?;
+        data_end_seen |= opcode == DATA_END;
         if opcode == FOOTER {
-            // Only the closing magic follows.
-            return Ok(());
+            // Only the closing magic follows; a file cut within it is left to the reader.
+            let rest = &bytes[body_start + len..];
+            if !mcap::MAGIC.starts_with(rest) {
+                return Err(Break::corrupt(
+                    at,
+                    "the closing magic bytes after the footer are damaged".into(),
+                ));
+            }
+            return Ok(Walked::ToTheFooter);
         }
         at = body_start + len;
     }
-    Ok(())
+    Ok(Walked::ToTheEnd { last })
+}
+
+impl Break {
+    fn cut(offset: usize, why: String) -> Self {
+        Self {
+            offset,
+            why,
+            corrupt: false,
+        }
+    }
+
+    fn corrupt(offset: usize, why: String) -> Self {
+        Self {
+            offset,
+            why,
+            corrupt: true,
+        }
+    }
+}
+
+/// The lengths within a record at byte `at`: a chunk's records, a record's strings.
+fn check_layout(at: usize, opcode: u8, body: &[u8]) -> Result<(), String> {
+    if opcode == CHUNK {
+        check_chunk(body).map_err(|why| format!("the chunk at byte {at}: {why}"))
+    } else {
+        check_strings(opcode, body)
+            .map_err(|why| format!("the record at byte {at} (opcode 0x{opcode:02x}): {why}"))
+    }
+}
+
+/// The checksums a record at byte `at` of `bytes` carries: a chunk's of its records, the
+/// data end's of the data section, the footer's of the summary (and a footer must follow a
+/// data end, whose checksum would otherwise go unchecked).
+fn check_sums(
+    bytes: &[u8],
+    at: usize,
+    opcode: u8,
+    body: &[u8],
+    data_end_seen: bool,
+) -> Result<(), String> {
+    let mismatch = match opcode {
+        CHUNK => chunk_crc(body).map(|m| ("the chunk", m)),
+        DATA_END => data_crc(body, &bytes[..at]).map(|m| ("the data section", m)),
+        FOOTER if !data_end_seen => {
+            return Err(format!(
+                "the footer at byte {at} follows no data end record"
+            ));
+        }
+        FOOTER => summary_crc(body, bytes, at).map(|m| ("the summary", m)),
+        _ => None,
+    };
+    match mismatch {
+        Some((what, (stored, computed))) => Err(format!(
+            "{what} at byte {at} is corrupt: CRC-32 {stored:08x} stored, {computed:08x} computed"
+        )),
+        None => Ok(()),
+    }
+}
+
+/// A footer at byte `at` whose CRC-32 of the summary (from its start through the footer's
+/// `summary_offset_start`) is not the one stored: `(stored, computed)`; 0 stored, or no
+/// summary, means none.
+fn summary_crc(body: &[u8], bytes: &[u8], at: usize) -> Option<(u32, u32)> {
+    let fields = body.get(..20)?;
+    let start = usize::try_from(le_u64(fields)).ok()?;
+    let stored = le_u32(&fields[16..]);
+    let end = at + RECORD_HEADER + 16;
+    if stored == 0 || start == 0 || start > at {
+        return None;
+    }
+    let computed = crc32fast::hash(&bytes[start..end]);
+    (computed != stored).then_some((stored, computed))
+}
+
+/// An uncompressed chunk whose records' CRC-32 is not the one stored: `(stored, computed)`.
+/// A stored 0 means none was computed; a compressed chunk is left alone (its CRC is of the
+/// records decompressed, which are never read). Called on a body [`check_chunk`] passed.
+fn chunk_crc(body: &[u8]) -> Option<(u32, u32)> {
+    let stored = le_u32(&body[CHUNK_CRC_AT..]);
+    let name_len = le_u32(&body[CHUNK_CRC_AT + 4..]) as usize;
+    let records_at = CHUNK_CRC_AT + 4 + 4 + name_len + 8;
+    if stored == 0 || name_len != 0 {
+        return None;
+    }
+    let records_len = le_u64(&body[records_at - 8..]) as usize;
+    let computed = crc32fast::hash(&body[records_at..records_at + records_len]);
+    (computed != stored).then_some((stored, computed))
+}
+
+/// A data end record whose CRC-32 of the data section (every byte before the record, the
+/// magic included) is not the one stored: `(stored, computed)`; 0 stored means none.
+fn data_crc(body: &[u8], data_section: &[u8]) -> Option<(u32, u32)> {
+    let stored = le_u32(body.get(..4)?);
+    let computed = crc32fast::hash(data_section);
+    (stored != 0 && computed != stored).then_some((stored, computed))
 }
 
 fn header(bytes: &[u8]) -> (u8, u64) {
@@ -252,6 +396,7 @@ mod tests {
             header_record(),
             chunk("", &inner, inner.len() as u64),
             chunk("zstd", b"opaque", 6),
+            record(DATA_END, &[0; 4]),
             record(FOOTER, &[0; 20]),
         ]);
         assert_eq!(check(&f), Ok(()));

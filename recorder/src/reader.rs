@@ -2,25 +2,51 @@
 //! starting library. A truncated file (a recorder killed mid-run) is read up to its last
 //! complete record and says so; anything that is not a TES recording of a version this
 //! build knows is refused with the file and the problem named.
+//!
+//! [`Recording::open`] opens the file as every TES file is opened
+//! ([`tes_files::open_regular`]: a FIFO, a device or a directory is refused without being
+//! read), reads its first 8 bytes and refuses a file that does not start with the MCAP magic
+//! before reading on, and refuses one larger than [`MAX_RECORDING_BYTES`] before reserving
+//! memory for it. Every checksum the writer stored is checked — each chunk's before its
+//! records are read, each attachment's, the data section's — and a mismatch is
+//! [`ReadError::Corrupt`], as is a break in a file that ends as a complete one does: a
+//! damaged file is never mistaken for one cut short.
 
 use std::collections::BTreeMap;
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
+use tes_files::{FileProblem, Opened};
 use tes_topics::{Command, MotorState, Observation, WorldMap};
 
 use crate::schema::{self, DecodeError, FORMAT_VERSION, Topic, VERSION_KEY};
 use crate::writer::{END_METADATA, LIBRARY_ATTACHMENT, RUN_METADATA};
 
+/// The largest recording read, in bytes (1 GiB). A recording is read whole and its
+/// messages decoded into memory; a run records a few kilobytes per step, so this is hundreds
+/// of thousands of steps.
+pub const MAX_RECORDING_BYTES: u64 = 1 << 30;
+
 /// Why a file cannot be read as a recording.
 #[derive(Debug, thiserror::Error)]
 pub enum ReadError {
-    /// The file cannot be read.
-    #[error("cannot read {}: {error}", path.display())]
+    /// The file cannot be read: missing, unreadable, not a regular file (a FIFO, a device, a
+    /// directory: refused without reading from it) or larger than [`MAX_RECORDING_BYTES`].
+    #[error("cannot read {}: {problem}", path.display())]
     Io {
         /// The file.
         path: PathBuf,
         /// Why.
-        error: std::io::Error,
+        problem: FileProblem,
+    },
+    /// A checksum does not match, or the file breaks although it ends as a complete file
+    /// does: it was damaged (a flipped bit, a bad copy), and none of it is trusted.
+    #[error("{} is corrupt: {why}", path.display())]
+    Corrupt {
+        /// The file.
+        path: PathBuf,
+        /// Where and how.
+        why: String,
     },
     /// Not an MCAP file at all.
     #[error("{} is not an MCAP file ({why})", path.display())]
@@ -103,12 +129,9 @@ pub struct Recording {
 }
 
 impl Recording {
-    /// Reads the recording at `path`.
+    /// Reads the recording at `path` (see the module docs for what is refused).
     pub fn open(path: &Path) -> Result<Self, ReadError> {
-        let bytes = std::fs::read(path).map_err(|error| ReadError::Io {
-            path: path.to_owned(),
-            error,
-        })?;
+        let bytes = read_recording_file(path)?;
         Self::from_bytes(path, &bytes)
     }
 
@@ -117,8 +140,20 @@ impl Recording {
         check_magic(path, bytes)?;
         // Read up to where the framing breaks, if it does: the mcap crate trusts the lengths.
         let broken = crate::framing::check(bytes).err();
+        if let Some(b) = broken.as_ref().filter(|b| b.corrupt) {
+            return Err(ReadError::Corrupt {
+                path: path.to_owned(),
+                why: b.why.clone(),
+            });
+        }
         let bytes = broken.as_ref().map_or(bytes, |b| &bytes[..b.offset]);
         let records = Records::read(path, bytes)?;
+        if let Some(why) = records.corrupt {
+            return Err(ReadError::Corrupt {
+                path: path.to_owned(),
+                why,
+            });
+        }
         let truncated = records.truncation(broken.as_ref());
         if records.run.is_empty() {
             if let Some(why) = truncated {
@@ -189,6 +224,43 @@ impl Recording {
     }
 }
 
+/// The bytes of the recording at `path`: its magic checked before anything else is read, its
+/// size checked against [`MAX_RECORDING_BYTES`] before memory is reserved for it.
+fn read_recording_file(path: &Path) -> Result<Vec<u8>, ReadError> {
+    let refused = |problem: FileProblem| ReadError::Io {
+        path: path.to_owned(),
+        problem,
+    };
+    let Opened { mut file, size } = tes_files::open_regular(path).map_err(refused)?;
+    let mut bytes = Vec::with_capacity(mcap::MAGIC.len());
+    Read::by_ref(&mut file)
+        .take(mcap::MAGIC.len() as u64)
+        .read_to_end(&mut bytes)
+        .map_err(|e| refused(e.into()))?;
+    check_magic(path, &bytes)?;
+    let too_large = |size| {
+        refused(FileProblem::TooLarge {
+            size,
+            limit: MAX_RECORDING_BYTES,
+        })
+    };
+    if size > MAX_RECORDING_BYTES {
+        return Err(too_large(size));
+    }
+    let rest = size.saturating_sub(bytes.len() as u64);
+    bytes
+        .try_reserve_exact(usize::try_from(rest).unwrap_or(usize::MAX))
+        .map_err(|e| refused(std::io::Error::new(std::io::ErrorKind::OutOfMemory, e).into()))?;
+    // One byte past the limit, so a file that grows while read is refused, not read on.
+    file.take(MAX_RECORDING_BYTES + 1 - bytes.len() as u64)
+        .read_to_end(&mut bytes)
+        .map_err(|e| refused(e.into()))?;
+    if bytes.len() as u64 > MAX_RECORDING_BYTES {
+        return Err(too_large(bytes.len() as u64));
+    }
+    Ok(bytes)
+}
+
 /// Refuses bytes that do not start as an MCAP file.
 fn check_magic(path: &Path, bytes: &[u8]) -> Result<(), ReadError> {
     if bytes.len() < 8 || &bytes[..8] != mcap::MAGIC {
@@ -224,6 +296,8 @@ struct Records {
     read: usize,
     /// Why reading stopped early, if a record did not read.
     unreadable: Option<String>,
+    /// Why reading stopped early, if a checksum did not match.
+    corrupt: Option<String>,
     /// Whether the file's summary or footer was reached.
     complete: bool,
 }
@@ -233,7 +307,7 @@ impl Records {
     fn read(path: &Path, bytes: &[u8]) -> Result<Self, ReadError> {
         let records = mcap::read::ChunkFlattener::new_with_options(
             bytes,
-            mcap::read::Options::IgnoreEndMagic.into(),
+            mcap::read::Options::IgnoreEndMagic | mcap::read::Options::ValidateChunkCrcs,
         )
         .map_err(|e| ReadError::NotMcap {
             path: path.to_owned(),
@@ -247,11 +321,20 @@ impl Records {
             library: None,
             read: 0,
             unreadable: None,
+            corrupt: None,
             complete: false,
         };
         for record in records {
             match record {
                 Ok(record) => out.take(record),
+                Err(
+                    e @ (mcap::McapError::BadChunkCrc { .. }
+                    | mcap::McapError::BadAttachmentCrc { .. }
+                    | mcap::McapError::BadDataCrc { .. }),
+                ) => {
+                    out.corrupt = Some(format!("after {} records: {e}", out.read));
+                    break;
+                }
                 Err(e) => {
                     out.unreadable = Some(format!(
                         "the file ends or breaks after {} records ({e})",

@@ -43,7 +43,7 @@ pub fn summarise(recording: &Recording) -> Summary {
     let mut episodes: Vec<Episode> = Vec::new();
     let mut episode_latency = LatencyRecorder::new(budget_us, 0);
     let mut all = LatencyRecorder::new(budget_us, 0);
-    let mut sorted = Vec::new();
+    let mut actions = 0u64;
     let by_answer: std::collections::HashMap<u64, &tes_topics::Command> =
         recording.commands.iter().map(|c| (c.answers, c)).collect();
     let mut observations: Vec<_> = recording.observations.iter().collect();
@@ -90,21 +90,23 @@ pub fn summarise(recording: &Recording) -> Summary {
             let ns = c.stamp_ns.saturating_sub(c.observed_ns);
             episode_latency.record_ns(ns);
             all.record_ns(ns);
-            sorted.push(ns / 1000);
+            actions += 1;
         }
     }
     if let Some(e) = episodes.last_mut() {
         close(e, &mut episode_latency);
     }
-    sorted.sort_unstable();
+    // The maximum from the same histogram as the quantiles (both the top of a bucket), and
+    // the quantiles held to it: a p99 above the max would be a contradiction on the page.
+    let max = all.max_us();
     Summary {
         episodes,
-        actions: sorted.len() as u64,
+        actions,
         latency_us: [
-            all.quantile_us(0.5),
-            all.quantile_us(0.9),
-            all.quantile_us(0.99),
-            sorted.last().copied().unwrap_or(0),
+            all.quantile_us(0.5).min(max),
+            all.quantile_us(0.9).min(max),
+            all.quantile_us(0.99).min(max),
+            max,
         ],
     }
 }
@@ -123,8 +125,9 @@ impl std::fmt::Display for Summary {
         let [p50, p90, p99, max] = self.latency_us;
         write!(
             f,
-            "{ended} episodes, {} actions; decision latency p50 {p50} us, p90 {p90} us, p99 {p99} us, max {max} us",
-            self.actions
+            "{}, {}; decision latency p50 {p50} us, p90 {p90} us, p99 {p99} us, max {max} us",
+            tes_controller::summary::count(ended as u64, "episode"),
+            tes_controller::summary::count(self.actions, "action"),
         )
     }
 }
@@ -282,4 +285,69 @@ fn world_map_rows(map: &tes_topics::WorldMap) -> Vec<String> {
             )
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tes_topics::{Command, Observation};
+
+    /// One episode of decisions taking `latencies_ns`, as a recording holds it.
+    fn recording(latencies_ns: &[u64]) -> Recording {
+        let mut observations = Vec::new();
+        let mut commands = Vec::new();
+        for (i, &ns) in latencies_ns.iter().enumerate() {
+            let seq = i as u64 + 1;
+            observations.push(Observation {
+                seq,
+                step: i as u32,
+                flags: if i == 0 {
+                    observation_flags::EPISODE_START
+                } else {
+                    0
+                },
+                ..Observation::default()
+            });
+            commands.push(Command {
+                seq,
+                answers: seq,
+                observed_ns: 1_000_000,
+                stamp_ns: 1_000_000 + ns,
+                ..Command::default()
+            });
+        }
+        Recording {
+            path: PathBuf::from("run.mcap"),
+            run: Default::default(),
+            end: None,
+            world_map: None,
+            observations,
+            commands,
+            keepalives: Vec::new(),
+            motor_states: Vec::new(),
+            library: None,
+            truncated: None,
+        }
+    }
+
+    /// Latencies whose largest falls inside a histogram bucket: no quantile is printed above
+    /// the maximum, and one action or episode is said in the singular.
+    #[test]
+    fn no_quantile_exceeds_the_maximum() {
+        let mut latencies: Vec<u64> = (0..200).map(|i| 40_000 + i * 7).collect();
+        latencies.push(2_049_001);
+        let summary = summarise(&recording(&latencies));
+        let [p50, p90, p99, max] = summary.latency_us;
+        assert!(
+            p50 <= p90 && p90 <= p99 && p99 <= max,
+            "{p50} {p90} {p99} {max}"
+        );
+        let one = summarise(&recording(&[5_000])).to_string();
+        assert!(
+            one.ends_with(
+                "0 episodes, 1 action; decision latency p50 5 us, p90 5 us, p99 5 us, max 5 us"
+            ),
+            "{one}"
+        );
+    }
 }

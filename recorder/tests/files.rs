@@ -164,6 +164,10 @@ fn a_message_that_does_not_decode_is_named() {
         .position(|w| w == b"\"seq\":2,")
         .expect("the second observation");
     bytes[at + 6] = b'x';
+    // Flipped alone it is corruption; with the checksums made again, the message is read.
+    let e = Recording::from_bytes(&path, &bytes).unwrap_err();
+    assert!(matches!(e, ReadError::Corrupt { .. }), "{e}");
+    reseal(&mut bytes);
     let e = Recording::from_bytes(&path, &bytes).unwrap_err();
     let shown = e.to_string();
     assert!(
@@ -205,4 +209,103 @@ fn a_cut_recording_is_said_to_be_cut_wherever_it_breaks() {
     // Whole and without a world map, the run did not start.
     let whole = Recording::open(&path).unwrap();
     assert!(matches!(replay(&whole).unwrap_err(), ReplayError::NoMap));
+}
+
+/// Recomputes the checksums of a recording's chunks and data section, as if its bytes had
+/// been written as they are now.
+fn reseal(bytes: &mut [u8]) {
+    let mut at = 8;
+    while at + 9 <= bytes.len() {
+        let opcode = bytes[at];
+        let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+        let body = at + 9;
+        match opcode {
+            0x06 => {
+                let name_len =
+                    u32::from_le_bytes(bytes[body + 28..body + 32].try_into().unwrap()) as usize;
+                let records = body + 32 + name_len + 8;
+                let crc = crc32fast::hash(&bytes[records..body + len]);
+                bytes[body + 24..body + 28].copy_from_slice(&crc.to_le_bytes());
+            }
+            0x0F => {
+                let crc = crc32fast::hash(&bytes[..at]);
+                bytes[body..body + 4].copy_from_slice(&crc.to_le_bytes());
+                return;
+            }
+            _ => {}
+        }
+        at = body + len;
+    }
+}
+
+/// Every single flipped byte of a complete recording's data section (header, chunks,
+/// metadata, attachments, the data end) makes it corrupt — never read as if whole, never
+/// said to be cut short — and so does one in its summary.
+#[test]
+fn a_flipped_byte_is_corruption_not_a_cut() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("run.mcap");
+    recording(&path, 5);
+    let bytes = std::fs::read(&path).unwrap();
+    let data_end = bytes
+        .windows(9)
+        .rposition(|w| w[0] == 0x0F && w[1..] == 4u64.to_le_bytes())
+        .expect("a data end record");
+    let mut flipped = bytes.clone();
+    for at in (8..data_end + 13).chain([data_end + 20, bytes.len() - 40, bytes.len() - 3]) {
+        flipped[at] ^= 0x10;
+        match Recording::from_bytes(&path, &flipped) {
+            Err(ReadError::Corrupt { why, .. }) => assert!(!why.is_empty()),
+            Err(e) => panic!("byte {at} flipped: {e}"),
+            Ok(r) => panic!("byte {at} flipped read as {:?}", r.truncated),
+        }
+        flipped[at] = bytes[at];
+    }
+    let e = Recording::from_bytes(&path, &{
+        let mut b = bytes.clone();
+        b[200] ^= 1;
+        b
+    })
+    .unwrap_err();
+    assert!(e.to_string().contains("is corrupt"), "{e}");
+}
+
+/// `Recording::open` reads a regular file only, checks its magic before reading on, and
+/// refuses one over `MAX_RECORDING_BYTES` unread.
+#[test]
+fn open_refuses_what_is_not_a_recording_file_before_reading_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let e = Recording::open(Path::new("/dev/zero")).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("is a character device, not a regular file"),
+        "{e}"
+    );
+    let fifo = dir.path().join("fifo.mcap");
+    nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::S_IRWXU).unwrap();
+    let e = Recording::open(&fifo).unwrap_err();
+    assert!(
+        e.to_string().contains("is a FIFO, not a regular file"),
+        "{e}"
+    );
+    let sparse = |name: &str, start: &[u8]| {
+        let path = dir.path().join(name);
+        std::fs::write(&path, start).unwrap();
+        std::fs::OpenOptions::new()
+            .write(true)
+            .open(&path)
+            .and_then(|f| f.set_len(2 << 30))
+            .unwrap();
+        path
+    };
+    let e = Recording::open(&sparse("zeros.mcap", b"")).unwrap_err();
+    assert!(matches!(e, ReadError::NotMcap { .. }), "{e}");
+    let e = Recording::open(&sparse("huge.mcap", mcap::MAGIC)).unwrap_err();
+    assert!(
+        e.to_string().contains(&format!(
+            "more than the {} bytes",
+            tes_recorder::reader::MAX_RECORDING_BYTES
+        )),
+        "{e}"
+    );
 }

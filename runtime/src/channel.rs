@@ -30,7 +30,8 @@ use crate::anticipate::{Anticipation, Step};
 pub use crate::board::{LatestInbox, LatestOutbox};
 use crate::clock::monotonic_ns;
 pub use crate::ipc::{
-    DOMAIN_VAR, IpcError, Member, NODE_NAME_MAX, NodeEntry, NodeLiveness, clean_stale_domains,
+    Cleanup, DOMAIN_VAR, IpcError, Member, NODE_NAME_MAX, NodeEntry, NodeLiveness,
+    clean_every_stale_domain, clean_every_stale_resource, clean_stale_domains,
     clean_stale_resources, config, group_node, group_node_name, ipc_err, list_nodes, node,
     node_named, parse_group_node_name, prefix_of, pubsub, remove_domain, services_with_prefix,
     shared_node,

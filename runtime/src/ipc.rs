@@ -406,6 +406,58 @@ pub fn list_nodes() -> Result<Vec<NodeEntry>, IpcError> {
     Ok(nodes)
 }
 
+/// What a clean-up removed, and what it could not remove (each named, with why).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Cleanup {
+    /// How many dead nodes (or domains) were removed.
+    pub removed: usize,
+    /// What could not be removed: "node NAME (pid N): why", "domain NAME: why".
+    pub not_removed: Vec<String>,
+}
+
+/// [`clean_stale_resources`], going on past a dead node it cannot clean: every other one is
+/// cleaned, and each failure is named in [`Cleanup::not_removed`]. Fails only when the node
+/// registry cannot be listed.
+pub fn clean_every_stale_resource() -> Result<Cleanup, IpcError> {
+    use iceoryx2::node::NodeView;
+    let mut cleanup = Cleanup::default();
+    Node::<ipc::Service>::list(config(), |state| {
+        if let NodeState::<ipc::Service>::Dead(view) = state {
+            let who = match view.details() {
+                Some(d) => format!(
+                    "node {:?} (pid {})",
+                    d.name().as_str(),
+                    d.process_id().value()
+                ),
+                None => "a node whose details cannot be read".to_owned(),
+            };
+            match view.try_remove_stale_resources() {
+                Ok(()) => cleanup.removed += 1,
+                Err(e) => cleanup.not_removed.push(format!("{who}: {e:?}")),
+            }
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(ipc_err("list the nodes"))?;
+    Ok(cleanup)
+}
+
+/// [`clean_stale_domains`], going on past a domain it cannot remove: every other one is
+/// removed, and each failure is named in [`Cleanup::not_removed`].
+pub fn clean_every_stale_domain() -> Cleanup {
+    let mut cleanup = Cleanup::default();
+    for domain in domains_on_machine() {
+        if recently_changed(&domain) {
+            continue;
+        }
+        match remove_domain(&domain) {
+            Ok(removed) => cleanup.removed += usize::from(removed),
+            Err(e) => cleanup.not_removed.push(format!("domain {domain:?}: {e}")),
+        }
+    }
+    cleanup
+}
+
 /// Removes the iceoryx2 resources (shared memory, event and service files) left behind by
 /// nodes whose process died without cleaning up; returns how many dead nodes were cleaned.
 pub fn clean_stale_resources() -> Result<usize, IpcError> {

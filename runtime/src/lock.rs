@@ -75,28 +75,35 @@ impl Lock {
             path: path.to_owned(),
             error,
         };
-        let file = OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(path)
-            .map_err(io)?;
-        let mut file = match Flock::lock(file, FlockArg::LockExclusiveNonblock) {
-            Ok(locked) => locked,
-            Err((mut file, Errno::EWOULDBLOCK)) => {
-                let mut text = String::new();
-                let pid = file
-                    .read_to_string(&mut text)
-                    .ok()
-                    .and_then(|_| text.trim().parse().ok());
-                return Err(LockError::Held {
-                    what,
-                    path: path.to_owned(),
-                    pid,
-                });
+        let mut file = loop {
+            let file = OpenOptions::new()
+                .read(true)
+                .write(true)
+                .create(true)
+                .truncate(false)
+                .open(path)
+                .map_err(io)?;
+            let locked = match Flock::lock(file, FlockArg::LockExclusiveNonblock) {
+                Ok(locked) => locked,
+                Err((mut file, Errno::EWOULDBLOCK)) => {
+                    let mut text = String::new();
+                    let pid = file
+                        .read_to_string(&mut text)
+                        .ok()
+                        .and_then(|_| text.trim().parse().ok());
+                    return Err(LockError::Held {
+                        what,
+                        path: path.to_owned(),
+                        pid,
+                    });
+                }
+                Err((_, e)) => return Err(io(e.into())),
+            };
+            // A holder removes the file as it lets go (see `Drop`): a lock taken on a file
+            // removed meanwhile guards nothing, so it is taken again on the file now there.
+            if still_at(&locked, path).map_err(io)? {
+                break locked;
             }
-            Err((_, e)) => return Err(io(e.into())),
         };
         // Name the holder: this process (a dead holder's pid is overwritten).
         let named = (|| {
@@ -136,6 +143,26 @@ impl Lock {
     }
 }
 
+/// Removes the lock file while the lock is still held, so a clean exit leaves nothing behind;
+/// a process that opened the file meanwhile finds it gone once it gets the lock, and tries
+/// again (see [`Lock::acquire`]). A killed holder's file stays, and is taken over.
+impl Drop for Lock {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// Whether `path` is still the file `file` has open (not removed or replaced).
+fn still_at(file: &File, path: &Path) -> std::io::Result<bool> {
+    use std::os::unix::fs::MetadataExt;
+    let open = file.metadata()?;
+    match std::fs::metadata(path) {
+        Ok(there) => Ok((there.dev(), there.ino()) == (open.dev(), open.ino())),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(false),
+        Err(e) => Err(e),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -154,8 +181,23 @@ mod tests {
         );
         assert!(Lock::acquire_within(&path, "data directory", Duration::from_millis(60)).is_err());
         drop(first);
+        assert!(!path.exists(), "a lock let go of leaves no file behind");
         let second = Lock::acquire(&path, "data directory").unwrap();
         assert_eq!(second.path(), path);
+    }
+
+    /// A process that opened the lock file just before its holder let go (and removed it)
+    /// does not hold a lock on the removed file: it takes the lock on the file now there.
+    #[test]
+    fn a_lock_on_a_removed_file_is_taken_again_on_the_new_one() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.lock");
+        let old = File::create(&path).unwrap();
+        std::fs::remove_file(&path).unwrap();
+        std::fs::write(&path, "").unwrap();
+        assert!(!still_at(&old, &path).unwrap());
+        let lock = Lock::acquire(&path, "data directory").unwrap();
+        assert!(still_at(&lock._file, &path).unwrap());
     }
 
     /// A lock file left by a process that died (here: one whose pid no process has) names

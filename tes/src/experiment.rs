@@ -651,24 +651,25 @@ fn run_experiment<E: Experiment>(
         Some(m) => m.settings()?,
         None => config(),
     };
-    if let Some(report) = with_progress(&config, &out, options)? {
+    if let Some(report) = with_progress(&config, &out, options, options.resume)? {
         print_summary(E::console(&report, &out))?;
     }
     Ok(config)
 }
 
-/// Runs (a share of) an experiment with a line saying what runs and a progress bar; `None`
-/// for a shard.
+/// Runs (a share of) an experiment with a line saying what runs (`resuming`: an interrupted
+/// run goes on) and a progress bar; `None` for a shard.
 fn with_progress<E: Experiment>(
     config: &E,
     out: &Path,
     options: JobOptions,
+    resuming: bool,
 ) -> Result<Option<E::Report>> {
     eprintln!(
         "{} experiment: {}{} -> {}",
         E::NAME,
         config.describe(),
-        shard_note(options),
+        shard_note(options, resuming),
         out.display()
     );
     let bar = progress_bar(E::NAME);
@@ -708,12 +709,12 @@ fn stop_on_interrupt(out: &Path, which: &str, folders: &[PathBuf]) -> Result<()>
     Ok(())
 }
 
-fn shard_note(options: JobOptions) -> String {
+fn shard_note(options: JobOptions, resuming: bool) -> String {
     let mut note = String::new();
     if !options.shard.is_all() {
         note.push_str(&format!(", shard {}", options.shard));
     }
-    if options.resume {
+    if resuming {
         note.push_str(", resuming");
     }
     note
@@ -957,17 +958,30 @@ fn run_all(args: &AllArgs) -> Result<()> {
     };
     let folders: Vec<PathBuf> = study::EXPERIMENTS.map(|e| study.dir(e)).into();
     stop_on_interrupt(&study.out, "all", &folders)?;
+    // Every experiment of a study skips the runs its folder already holds (none in a
+    // fresh folder); only `--resume` is said to be resuming.
     let options = JobOptions {
         shard: study.shard,
         resume: true,
     };
+    let resuming = args.jobs.resume.is_some();
     let started = std::time::Instant::now();
     let c = &study.configs;
-    let g = with_progress(&c.grid, &study.dir(grid::EXPERIMENT), options)?;
-    let t = with_progress(&c.transfer, &study.dir(transfer::EXPERIMENT), options)?;
-    let r = with_progress(&c.robot, &study.dir(robot::EXPERIMENT), options)?;
-    let f = with_progress(&c.fig4, &study.dir(fig4::EXPERIMENT), options)?;
-    let l = with_progress(&c.lifelong, &study.dir(lifelong::EXPERIMENT), options)?;
+    let g = with_progress(&c.grid, &study.dir(grid::EXPERIMENT), options, resuming)?;
+    let t = with_progress(
+        &c.transfer,
+        &study.dir(transfer::EXPERIMENT),
+        options,
+        resuming,
+    )?;
+    let r = with_progress(&c.robot, &study.dir(robot::EXPERIMENT), options, resuming)?;
+    let f = with_progress(&c.fig4, &study.dir(fig4::EXPERIMENT), options, resuming)?;
+    let l = with_progress(
+        &c.lifelong,
+        &study.dir(lifelong::EXPERIMENT),
+        options,
+        resuming,
+    )?;
     let (Some(g), Some(t), Some(r), Some(f), Some(l)) = (g, t, r, f, l) else {
         println!(
             "shard {} of the study written to {}; combine the shards with `tes experiment merge DIR... --out DIR`",

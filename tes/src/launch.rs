@@ -6,7 +6,7 @@
 
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
@@ -86,9 +86,11 @@ pub fn run(args: &LaunchArgs) -> Result<()> {
     }
     let file = launch_file(args)?;
     // Zenoh tells refused connections and messages only in its log: the link's layer picks
-    // them out. Log lines themselves only with RUST_LOG (the launcher says what it does).
-    tes_runtime::logging::init_with("off", tes_link::refusals::layer());
+    // them out. Log lines themselves only with RUST_LOG (the launcher says what it does),
+    // but for the live view's warnings (full, or out of file descriptors).
+    tes_runtime::logging::init_with("off,tes_viewer::live=warn", tes_link::refusals::layer());
     let stop = stop_on_signals()?;
+    let signalled = signal_received()?;
     let options = Options::new(this_executable()?, stop);
     let verdict = if args.tui {
         live::run(&file, options)?
@@ -99,7 +101,29 @@ pub fn run(args: &LaunchArgs) -> Result<()> {
         };
         tes_launch::run(&file, options, &mut printer)?
     };
-    verdict_to_result(&verdict)
+    verdict_to_result(&verdict)?;
+    exit_as_signalled(&signalled);
+    Ok(())
+}
+
+/// The signal (SIGINT, SIGTERM) that stopped the command, once one has: 0 until then.
+pub(crate) fn signal_received() -> Result<Arc<AtomicUsize>> {
+    let received = Arc::new(AtomicUsize::new(0));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register_usize(signal, received.clone(), signal as usize)
+            .context("cannot install the signal handlers")?;
+    }
+    Ok(received)
+}
+
+/// A command that a signal stopped, cleanly, exits as shells expect of one: with status
+/// 128 + the signal (130 after Ctrl-C, 143 after SIGTERM), as `tes experiment` does; it
+/// returns if no signal came.
+pub(crate) fn exit_as_signalled(received: &AtomicUsize) {
+    let signal = received.load(Ordering::Relaxed);
+    if signal != 0 {
+        std::process::exit(128 + i32::try_from(signal).unwrap_or(0));
+    }
 }
 
 /// The launch file of `args`: the file or the embedded defaults, with the flags applied.

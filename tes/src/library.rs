@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Result, bail};
 use clap::{Args, Subcommand};
 use serde::Serialize;
-use tes_learning::library::store::{self, FORMAT_VERSION, StoredLibrary};
+use tes_learning::library::store::{self, FORMAT_VERSION, MAGIC, StoredLibrary};
 
 /// Arguments of `tes library`.
 #[derive(Debug, Args)]
@@ -73,13 +73,30 @@ struct ScoreReport {
     won: bool,
 }
 
+/// The format version the file at `path` says it is in (a library that prunes to its limit
+/// is written as version 1, which older builds read, though this build writes up to
+/// [`FORMAT_VERSION`]); `None` if its header cannot be read.
+fn format_version_of(path: &Path) -> Option<u32> {
+    use std::io::Read as _;
+    let mut header = [0u8; 12];
+    std::fs::File::open(path)
+        .ok()?
+        .read_exact(&mut header)
+        .ok()?;
+    let (magic, version) = header.split_at(8);
+    if magic != MAGIC {
+        return None;
+    }
+    Some(u32::from_le_bytes(version.try_into().ok()?))
+}
+
 fn report(path: &std::path::Path, stored: &StoredLibrary) -> Report {
     let l = &stored.library;
     let p = l.params();
     let name = |names: &[String], i: usize| names.get(i).cloned();
     Report {
         file: path.display().to_string(),
-        format_version: FORMAT_VERSION,
+        format_version: format_version_of(path).unwrap_or(FORMAT_VERSION),
         world: stored.world.clone(),
         actions: l.n_actions(),
         effects: l.n_effects(),

@@ -18,12 +18,13 @@ enum Which {
     /// Make the group's own certificate authority and a certificate and key per host, and
     /// print the `[launch.link]` lines each host's launch file needs.
     Keygen {
-        /// The directory for the keys (created, readable only by you). Existing keys are
-        /// never overwritten.
+        /// The directory for the keys (created, readable only by you; an existing one must be
+        /// yours and closed to others, else it is refused with the `chmod` that fixes it).
+        /// Existing keys are never overwritten.
         dir: PathBuf,
         /// A host: `NAME=ROLE[,ROLE…][@ADDRESS]`, e.g.
-        /// `robot=perception-sim,bridge@192.168.1.20`. The first listens; the others connect
-        /// to it. [default: `robot=perception-sim,bridge` and `learner=controller`]
+        /// `robot=perception-sim,bridge@192.168.1.20`; the address is an IP address or a DNS
+        /// name. The first listens; the others connect to it. [default: `robot=perception-sim,bridge` and `learner=controller`]
         #[arg(long = "host", value_name = "NAME=ROLES[@ADDRESS]")]
         hosts: Vec<Host>,
         /// The port the first host listens on.
@@ -49,7 +50,7 @@ fn keygen(dir: &Path, hosts: &[Host], port: u16) -> Result<()> {
         .with_context(|| format!("cannot make the group's keys in {}", dir.display()))?;
     println!(
         "made the group's authority ({}; its signing key {} stays here) and a certificate and \
-         key for {} — every file readable only by you.\n",
+         key for {} — every file readable only by you, in a directory only you may open.\n",
         set.authority.display(),
         set.authority_key.display(),
         set.hosts

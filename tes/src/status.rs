@@ -41,7 +41,17 @@ pub fn run(args: &StatusArgs) -> Result<()> {
     } else {
         print!("{}", render(&status));
     }
-    Ok(())
+    match status.not_cleaned.len() {
+        0 => Ok(()),
+        n => anyhow::bail!(
+            "--clean removed what it could; {} could not be removed (named above)",
+            if n == 1 {
+                "1 stale resource".to_owned()
+            } else {
+                format!("{n} stale resources")
+            }
+        ),
+    }
 }
 
 /// `12.3 s`, `4 min 05 s`, `2 h 03 min`, `3 d 04 h`.
@@ -72,6 +82,9 @@ pub(crate) fn render(status: &Status) -> String {
             "removed {n} iceoryx2 domain{} whose processes had all ended",
             if n == 1 { "" } else { "s" }
         );
+    }
+    for what in &status.not_cleaned {
+        let _ = writeln!(out, "could not remove {what}");
     }
     if status.groups.is_empty() {
         let _ = writeln!(out, "{NONE_RUNNING}");
@@ -174,16 +187,37 @@ mod tests {
             groups: group_nodes(&[entry("other", 3, Alive)]),
             cleaned: None,
             domains_cleaned: None,
+            not_cleaned: Vec::new(),
         };
         assert_eq!(render(&status), format!("{NONE_RUNNING}\n"));
         let cleaned = Status {
             groups: Vec::new(),
             cleaned: Some(2),
             domains_cleaned: Some(0),
+            not_cleaned: Vec::new(),
         };
         assert_eq!(
             render(&cleaned),
             format!("removed the stale iceoryx2 resources of 2 dead processes\n{NONE_RUNNING}\n")
+        );
+    }
+
+    /// A clean-up that could not remove everything says what it removed and names each
+    /// thing it could not, with why.
+    #[test]
+    fn what_a_clean_up_could_not_remove_is_named() {
+        let status = Status {
+            groups: Vec::new(),
+            cleaned: Some(1),
+            domains_cleaned: Some(0),
+            not_cleaned: vec!["node \"x/controller\" (pid 7): InternalError".into()],
+        };
+        assert_eq!(
+            render(&status),
+            format!(
+                "removed the stale iceoryx2 resources of 1 dead process\n\
+                 could not remove node \"x/controller\" (pid 7): InternalError\n{NONE_RUNNING}\n"
+            )
         );
     }
 
@@ -212,6 +246,7 @@ mod tests {
             groups,
             cleaned: None,
             domains_cleaned: None,
+            not_cleaned: Vec::new(),
         });
         let lines: Vec<&str> = text.lines().collect();
         assert_eq!(
@@ -234,6 +269,7 @@ mod tests {
             groups: vec![silent],
             cleaned: None,
             domains_cleaned: None,
+            not_cleaned: Vec::new(),
         });
         assert!(
             text.contains(

@@ -7,25 +7,57 @@
 //! [`LiveServer::draw`] only queues a message for each subscribed client (a bounded queue per
 //! client, oldest dropped when full): a viewer that stops reading loses messages, never slows
 //! the caller. Pictures of the robot's motion go out at a screen's pace ([`MotionPace`]), not
-//! the loop's; decisions, episode ends and log lines all go out. Requests it cannot serve (malformed, an unknown channel) are answered by the
-//! server with a status message.
+//! the loop's; decisions, episode ends and log lines all go out. Requests it cannot serve
+//! (malformed, an unknown channel) are answered by the server with a status message.
+//!
+//! Viewers reach the crate's server through a front door of ours (`door`), which bounds
+//! what they can make the launcher hold: [`CONNECTIONS_MAX`] connections, each with
+//! [`HANDSHAKE_DEADLINE`] to finish its upgrade, a request head of at most
+//! [`REQUEST_HEAD_MAX`] bytes and messages of at most [`CLIENT_MESSAGE_MAX`] bytes; it keeps
+//! listening when the process runs out of file descriptors, and offers the protocol under
+//! both its names ([`handshake`]). [`LiveServer::stop`] takes at most [`STOP_WAIT`] twice
+//! (the crate's server, then the runtime), whatever the viewers do.
 
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
 
 use foxglove::websocket::{ChannelView, Client, ServerListener};
 use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, WebSocketServer};
 
 use crate::canvas::{Canvas, Channel, Drawing};
 
+mod door;
+mod frames;
+pub mod handshake;
+
 /// The address the live server binds unless told otherwise: loopback only.
 pub const DEFAULT_ADDR: &str = "127.0.0.1:8765";
 
 /// Messages queued per client before the oldest are dropped: about 50 actions' worth of
-/// drawings.
-const BACKLOG: usize = 1024;
+/// drawings. The crate's server keeps a second queue of this many for its own answers
+/// (advertisements, statuses), and drops a client that fills it.
+pub const BACKLOG: usize = 1024;
+
+/// Connections the live server holds at once, handshaking or served; one more is answered
+/// `503 Service Unavailable` and closed.
+pub const CONNECTIONS_MAX: usize = 16;
+
+/// The time a connection has to finish its WebSocket upgrade.
+pub const HANDSHAKE_DEADLINE: Duration = Duration::from_secs(5);
+
+/// The longest upgrade request (its HTTP head) a viewer may send.
+pub const REQUEST_HEAD_MAX: usize = 8 * 1024;
+
+/// The longest message (its fragments added up) a viewer may send; its requests are small
+/// JSON objects.
+pub const CLIENT_MESSAGE_MAX: usize = 64 * 1024;
+
+/// The longest [`LiveServer::stop`] waits for the crate's server to close its connections,
+/// and then for the runtime's threads.
+pub const STOP_WAIT: Duration = Duration::from_secs(1);
 
 /// The live view's pace for the robot's motion: at most this many pictures a second per
 /// channel, about a screen's rate. The loop may decide 500 times a second; each picture sent
@@ -95,7 +127,8 @@ pub struct LiveServer {
     channels: BTreeMap<&'static str, Arc<RawChannel>>,
     motion: MotionPace,
     joins: Arc<Joins>,
-    server: Option<foxglove::WebSocketServerHandle>,
+    inner: Option<Arc<door::Inner>>,
+    door: Option<tokio::task::JoinHandle<()>>,
     // Kept for its channels' lifetime; dropped last.
     _context: Arc<Context>,
     runtime: Option<tokio::runtime::Runtime>,
@@ -143,26 +176,28 @@ impl LiveServer {
             })
             .collect::<Result<BTreeMap<_, _>, LiveError>>()?;
         let joins = Arc::new(Joins::default());
-        let server = WebSocketServer::new()
-            .name(format!("tes {}", env!("CARGO_PKG_VERSION")))
-            .bind(addr.ip().to_string(), addr.port())
-            .context(&context)
-            .message_backlog_size(BACKLOG)
-            .listener(joins.clone())
-            .tokio_runtime(runtime.handle());
-        let handle = runtime
-            .block_on(server.start())
-            .map_err(|e| LiveError::Bind {
-                addr,
-                reason: e.to_string(),
-            })?;
-        let addr = SocketAddr::new(addr.ip(), handle.port());
+        let build = inner_server(&context, &joins, runtime.handle());
+        let bind_error = |reason: String| LiveError::Bind { addr, reason };
+        let (listener, inner) = runtime.block_on(async {
+            let listener = tokio::net::TcpListener::bind(addr)
+                .await
+                .map_err(|e| bind_error(e.to_string()))?;
+            let inner = door::Inner::start(build)
+                .await
+                .map_err(|e| bind_error(format!("its inner server: {e}")))?;
+            Ok::<_, LiveError>((listener, inner))
+        })?;
+        let addr = listener
+            .local_addr()
+            .map_err(|e| bind_error(e.to_string()))?;
+        let door = runtime.spawn(door::Door::new(listener, inner.clone()).serve());
         Ok(Self {
             addr,
             channels,
             motion: MotionPace::default(),
             joins,
-            server: Some(handle),
+            inner: Some(inner),
+            door: Some(door),
             _context: context,
             runtime: Some(runtime),
         })
@@ -178,20 +213,55 @@ impl LiveServer {
         self.joins.0.swap(false, Ordering::AcqRel)
     }
 
-    /// Stops serving: clients are disconnected.
+    /// Stops serving: clients are disconnected. Takes at most twice [`STOP_WAIT`], whatever
+    /// the clients do.
     pub fn stop(mut self) {
         self.shut_down();
     }
 
     fn shut_down(&mut self) {
-        if let (Some(server), Some(runtime)) = (self.server.take(), &self.runtime) {
-            let stopping = server.stop();
-            runtime.block_on(stopping.wait());
+        // The door first: with it go the connections it holds (handshaking or spliced), so
+        // the crate's server sees its clients leave.
+        if let Some(door) = self.door.take() {
+            door.abort();
+        }
+        if let (Some(inner), Some(runtime)) = (self.inner.take(), &self.runtime) {
+            let stopping: Vec<_> = inner.take_handles().into_iter().map(|h| h.stop()).collect();
+            let all_stopped = async {
+                for s in stopping {
+                    s.wait().await;
+                }
+            };
+            // The timer is made inside the runtime, whose clock it needs.
+            let bounded = async { tokio::time::timeout(STOP_WAIT, all_stopped).await };
+            if runtime.block_on(bounded).is_err() {
+                tracing::debug!("the live server's clients did not all close within {STOP_WAIT:?}");
+            }
         }
         if let Some(runtime) = self.runtime.take() {
-            runtime.shutdown_timeout(std::time::Duration::from_secs(1));
+            // Drops every task left; waits for no client.
+            runtime.shutdown_timeout(STOP_WAIT);
         }
     }
+}
+
+/// How the door builds the crate's server: on a free loopback port, on `runtime`, serving
+/// `context`'s channels, telling `joins` of subscriptions.
+fn inner_server(
+    context: &Arc<Context>,
+    joins: &Arc<Joins>,
+    runtime: &tokio::runtime::Handle,
+) -> door::BuildInner {
+    let (context, joins, runtime) = (context.clone(), joins.clone(), runtime.clone());
+    Box::new(move || {
+        WebSocketServer::new()
+            .name(format!("tes {}", env!("CARGO_PKG_VERSION")))
+            .bind("127.0.0.1", 0)
+            .context(&context)
+            .message_backlog_size(BACKLOG)
+            .listener(joins.clone())
+            .tokio_runtime(&runtime)
+    })
 }
 
 impl Drop for LiveServer {

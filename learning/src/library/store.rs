@@ -38,9 +38,10 @@
 //!
 //! # The file on disk
 //!
-//! [`load`] opens the path once, without blocking (a FIFO must not hang the caller), and
-//! refuses anything that is not a regular file — a FIFO, a device such as `/dev/zero`, a
-//! directory, a socket — before reading a byte of it. It reads the header, refuses a body
+//! [`load`] opens the path once as every TES file is opened ([`tes_files::open_regular`]),
+//! without blocking (a FIFO must not hang the caller), and refuses anything that is not a
+//! regular file — a FIFO, a device such as `/dev/zero`, a directory, a socket — before
+//! reading a byte of it. It reads the header, refuses a body
 //! length the file's size cannot hold, and then reads exactly that much, so no file can make
 //! it allocate more than the file really holds. A symbolic link is followed; a dangling one
 //! is an error naming the link and its missing target.
@@ -54,11 +55,11 @@
 //! A save killed mid-write leaves its temporary file `.<name>.tmp-<pid>` behind;
 //! [`remove_stale_temp_files`] removes those whose process is gone.
 
-use std::fs::{self, File, OpenOptions};
+use std::fs::{self, File};
 use std::io::{self, Read, Write};
-use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
 use std::path::{Path, PathBuf};
 
+use tes_files::{FileProblem, Opened};
 use thiserror::Error;
 
 use super::{LibraryParams, Pruning, TaskScore, View, ViewLibrary};
@@ -92,18 +93,11 @@ pub enum StoreProblem {
     /// Reading or writing failed.
     #[error("{0}")]
     Io(#[from] io::Error),
-    /// The path names something other than a regular file; nothing was read from it.
-    #[error("is {kind}, not a regular file")]
-    NotARegularFile {
-        /// What it is, e.g. "a FIFO" or "a character device".
-        kind: &'static str,
-    },
-    /// The path is a symbolic link whose target does not exist.
-    #[error("is a symbolic link to {}, which does not exist", target.display())]
-    DanglingSymlink {
-        /// Where the link points.
-        target: PathBuf,
-    },
+    /// The path is not a regular file or is a dangling symbolic link
+    /// ([`tes_files::open_regular`]); nothing was read from it. (A file that cannot be opened
+    /// is [`StoreProblem::Io`].)
+    #[error(transparent)]
+    File(FileProblem),
     /// Not a TES view library.
     #[error("not a TES view library (bad magic bytes)")]
     NotALibrary,
@@ -174,6 +168,15 @@ pub enum StoreProblem {
     },
 }
 
+impl From<FileProblem> for StoreProblem {
+    fn from(problem: FileProblem) -> Self {
+        match problem {
+            FileProblem::Io(e) => StoreProblem::Io(e),
+            refused => StoreProblem::File(refused),
+        }
+    }
+}
+
 /// A library file could not be loaded or saved; names the file.
 #[derive(Debug, Error)]
 #[error("view library {}: {problem}", path.display())]
@@ -239,7 +242,9 @@ fn save_target(path: &Path) -> Result<PathBuf, StoreProblem> {
     let target = if meta.file_type().is_symlink() {
         match fs::canonicalize(path) {
             Ok(t) => t,
-            Err(e) if e.kind() == io::ErrorKind::NotFound => return Err(dangling(path, e)),
+            Err(e) if e.kind() == io::ErrorKind::NotFound => {
+                return Err(tes_files::dangling(path, e).into());
+            }
             Err(e) => return Err(e.into()),
         }
     } else {
@@ -247,9 +252,10 @@ fn save_target(path: &Path) -> Result<PathBuf, StoreProblem> {
     };
     let meta = fs::metadata(&target)?;
     if !meta.is_file() {
-        return Err(StoreProblem::NotARegularFile {
-            kind: kind_of(meta.file_type()),
-        });
+        return Err(FileProblem::NotARegularFile {
+            kind: tes_files::kind_of(meta.file_type()),
+        }
+        .into());
     }
     Ok(target)
 }
@@ -276,36 +282,6 @@ fn temp_prefix(name: &str) -> String {
     format!(".{name}.tmp-")
 }
 
-/// What a file type is, for [`StoreProblem::NotARegularFile`].
-fn kind_of(t: fs::FileType) -> &'static str {
-    if t.is_dir() {
-        "a directory"
-    } else if t.is_fifo() {
-        "a FIFO"
-    } else if t.is_char_device() {
-        "a character device"
-    } else if t.is_block_device() {
-        "a block device"
-    } else if t.is_socket() {
-        "a socket"
-    } else if t.is_symlink() {
-        "a symbolic link"
-    } else if t.is_file() {
-        "a regular file"
-    } else {
-        "a file of unknown type"
-    }
-}
-
-/// The problem for an open of `path` that failed with `NotFound`: a dangling link if `path`
-/// is a symbolic link, else the plain error (no file there).
-fn dangling(path: &Path, error: io::Error) -> StoreProblem {
-    match fs::read_link(path) {
-        Ok(target) => StoreProblem::DanglingSymlink { target },
-        Err(_) => StoreProblem::Io(error),
-    }
-}
-
 /// Loads the library at `path`. Refuses anything but a regular file without reading from it
 /// (and without blocking on a FIFO), and never allocates more than the file holds.
 pub fn load(path: &Path) -> Result<StoredLibrary, StoreError> {
@@ -316,33 +292,7 @@ pub fn load(path: &Path) -> Result<StoredLibrary, StoreError> {
 /// The bytes of the library file at `path`: its header and the body length the header
 /// declares (plus one byte, so a file that grew since is refused as having trailing bytes).
 fn read_library_file(path: &Path) -> Result<Vec<u8>, StoreProblem> {
-    // Opening a device can do things (a serial port's control lines, a tape's rewind): refuse
-    // what is visibly not a regular file before opening it. The check on the opened file
-    // below is the one that counts.
-    if let Ok(meta) = fs::metadata(path)
-        && !meta.is_file()
-    {
-        return Err(StoreProblem::NotARegularFile {
-            kind: kind_of(meta.file_type()),
-        });
-    }
-    // O_NONBLOCK: opening a FIFO without a writer returns at once instead of waiting for one.
-    // Regular files ignore the flag, so it need not be cleared for reading.
-    let mut file = OpenOptions::new()
-        .read(true)
-        .custom_flags(libc::O_NONBLOCK | libc::O_NOCTTY)
-        .open(path)
-        .map_err(|e| match e.kind() {
-            io::ErrorKind::NotFound => dangling(path, e),
-            _ => StoreProblem::Io(e),
-        })?;
-    let meta = file.metadata()?;
-    if !meta.is_file() {
-        return Err(StoreProblem::NotARegularFile {
-            kind: kind_of(meta.file_type()),
-        });
-    }
-    let size = meta.len();
+    let Opened { mut file, size } = tes_files::open_regular(path)?;
     let mut bytes = Vec::with_capacity(HEADER_LEN);
     Read::by_ref(&mut file)
         .take(HEADER_LEN as u64)

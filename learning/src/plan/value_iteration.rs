@@ -122,7 +122,7 @@ impl ValueIteration {
                 } else {
                     gamma * self.values[next]
                 };
-                p * (structure.reward(next) + future)
+                p * (structure.step_reward(s, a, e) + future)
             })
             .sum()
     }
@@ -254,7 +254,10 @@ impl ValueIteration {
         let gamma = self.params.gamma;
         // What `Iterator::sum` starts from (the scalar sum of products this reproduces).
         let zero: f64 = std::iter::empty::<f64>().sum();
-        let by_lanes = optimism.is_none() && !table.lanes.is_empty();
+        // Rewards that depend on the action are added per action, which the lanes (one shared
+        // `R + γV` per effect) do not do.
+        let by_lanes =
+            optimism.is_none() && !table.lanes.is_empty() && !structure.has_step_rewards();
         let Self {
             values,
             policy,
@@ -312,6 +315,7 @@ impl ValueIteration {
                     let rows = ActionRows {
                         probs,
                         optimism,
+                        step_rewards: structure.step_rewards_of(s),
                         n_states,
                         n_effects,
                     };
@@ -506,6 +510,9 @@ struct ActionRows<'a> {
     /// `probs[(a * S + s) * E + e]`.
     probs: &'a [f64],
     optimism: Option<Optimism<'a>>,
+    /// The state's step rewards, `[a * E + e]`, when the structure has them (the backups
+    /// then hold `γV` alone and each action adds its own rewards).
+    step_rewards: Option<&'a [f64]>,
     n_states: usize,
     n_effects: usize,
 }
@@ -520,6 +527,7 @@ impl ActionRows<'_> {
         let Self {
             probs,
             optimism,
+            step_rewards,
             n_states,
             n_effects,
         } = self;
@@ -529,11 +537,15 @@ impl ActionRows<'_> {
                 Some(o) if o.unknown[a * n_states + s] => o.value,
                 _ => {
                     let row = (a * n_states + s) * n_effects;
-                    probs[row..row + n_effects]
-                        .iter()
-                        .zip(backup.iter())
-                        .map(|(&p, &b)| p * b)
-                        .sum()
+                    let probs = probs[row..row + n_effects].iter();
+                    match step_rewards {
+                        None => probs.zip(backup.iter()).map(|(&p, &b)| p * b).sum(),
+                        Some(rewards) => probs
+                            .zip(backup.iter())
+                            .zip(&rewards[a * n_effects..][..n_effects])
+                            .map(|((&p, &b), &r)| p * (r + b))
+                            .sum(),
+                    }
                 }
             };
             if q > best.1 {

@@ -441,3 +441,64 @@ fn a_block_stops_at_its_first_refused_row() {
         .expect_err("label");
     assert_eq!((refused.row, out.len(), race.rows()), (0, 0, 2));
 }
+
+/// A race saved mid-way — before and after its first cut — and restored from its state goes
+/// on exactly as the original: the same prequential records, leader and standings.
+#[test]
+fn a_restored_race_goes_on_as_the_original() {
+    let (rows, _) = stream(StreamShape {
+        classes: 3,
+        features: 12,
+        relevant: 2,
+        relevant_on: 0.2,
+        noise_on: 0.1,
+        rows: 900,
+        seed: 5,
+    });
+    let schedule = RaceSchedule {
+        first_cut: 300,
+        finalists: 1,
+    };
+    for saved_at in [150, 450] {
+        let mut race = MdaglRace::new(3, 12, &auto_grid(None, None, true), schedule).unwrap();
+        for (x, label) in &rows[..saved_at] {
+            race.update(Features::SparseBinary(x), *label).unwrap();
+        }
+        let mut restored = MdaglRace::from_state(race.state()).unwrap();
+        assert_eq!(restored.state(), race.state());
+        for (x, label) in &rows[saved_at..] {
+            let a = race.update(Features::SparseBinary(x), *label).unwrap();
+            let b = restored.update(Features::SparseBinary(x), *label).unwrap();
+            assert_eq!(
+                (a.log_prob.to_bits(), a.predicted),
+                (b.log_prob.to_bits(), b.predicted)
+            );
+        }
+        assert_eq!(restored.state(), race.state());
+        assert_eq!(restored.standings(), race.standings());
+    }
+}
+
+#[test]
+fn a_corrupt_race_state_is_refused() {
+    let race =
+        MdaglRace::new(2, 3, &auto_grid(None, None, false), RaceSchedule::default()).unwrap();
+    let mut no_entrants = race.state();
+    no_entrants.entrants.clear();
+    assert_eq!(
+        MdaglRace::from_state(no_entrants).unwrap_err(),
+        RaceStateError::NoEntrants
+    );
+    let mut bad_leader = race.state();
+    bad_leader.leader = 99;
+    assert!(matches!(
+        MdaglRace::from_state(bad_leader),
+        Err(RaceStateError::BadLeader { .. })
+    ));
+    let mut nan_loss = race.state();
+    nan_loss.entrants[0].loss = f64::NAN;
+    assert_eq!(
+        MdaglRace::from_state(nan_loss).unwrap_err(),
+        RaceStateError::Inconsistent
+    );
+}

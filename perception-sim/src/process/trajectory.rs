@@ -123,6 +123,35 @@ impl TrajectoryLog {
         })
     }
 
+    /// Opens the file at `path` that an earlier perception of the same run wrote, to go on
+    /// from it: its rows are kept and new ones appended. Returns the log and the episode to
+    /// go on with: the one after the last that ended there (an episode cut short by the
+    /// restart is run again under its number; no episode line was given for it). A missing
+    /// or empty file is [`create`](Self::create)d, starting at episode 0.
+    pub fn resume(path: &Path) -> std::io::Result<(Self, u32)> {
+        let text = match std::fs::read_to_string(path) {
+            Ok(text) if !text.trim().is_empty() => text,
+            Ok(_) => return Ok((Self::create(path)?, 0)),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                return Ok((Self::create(path)?, 0));
+            }
+            Err(e) => return Err(e),
+        };
+        let next = next_episode(&text);
+        let mut file = std::fs::OpenOptions::new().append(true).open(path)?;
+        // A row the predecessor was killed in the middle of writing is ended, so the next
+        // row starts on its own line.
+        if !text.ends_with('\n') {
+            writeln!(file)?;
+        }
+        let log = Self {
+            path: path.to_owned(),
+            out: BufWriter::new(file),
+            flushed: Instant::now(),
+        };
+        Ok((log, next))
+    }
+
     /// The file.
     pub fn path(&self) -> &Path {
         &self.path
@@ -171,10 +200,69 @@ impl TrajectoryLog {
     }
 }
 
+/// The episode after the last one whose end a trajectory's `text` holds (0 if none ended).
+fn next_episode(text: &str) -> u32 {
+    let mut lines = text.lines();
+    let columns: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let at = |name: &str| columns.iter().position(|c| *c == name);
+    let (Some(episode_at), Some(end_at)) = (at("episode"), at("end")) else {
+        return 0;
+    };
+    lines
+        .filter_map(|line| {
+            let fields: Vec<&str> = line.split(',').collect();
+            // A row cut short by a kill has fewer fields than the header: not an end.
+            if fields.len() != columns.len() || fields[end_at].is_empty() {
+                return None;
+            }
+            fields[episode_at].parse::<u32>().ok()
+        })
+        .max()
+        .map_or(0, |last| last.saturating_add(1))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::arena::ArenaId;
+
+    /// A respawned perception goes on after the last episode that ended, whatever rows of
+    /// an interrupted one (or half a row) follow it; the kept rows stay and new ones append.
+    #[test]
+    fn a_resumed_trajectory_goes_on_after_its_last_ended_episode() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("trajectory.csv");
+        let fields = HEADER.split(',').count();
+        let row = |episode: u32, step: u32, end: &str| {
+            let mut cells = vec![episode.to_string(), step.to_string()];
+            cells.resize(fields - 1, "1".to_owned());
+            cells.push(end.to_owned());
+            cells.join(",")
+        };
+        let text = format!(
+            "{HEADER}\n{}\n{}\n{}\n{}\n4,0,1,",
+            row(3, 0, ""),
+            row(3, 1, "ball"),
+            row(4, 0, ""),
+            row(4, 1, "")
+        );
+        std::fs::write(&path, &text).unwrap();
+        let (mut log, next) = TrajectoryLog::resume(&path).unwrap();
+        assert_eq!(next, 4, "episode 4 was cut short: it is run again");
+        writeln!(log.out, "{}", row(4, 0, "")).unwrap();
+        log.flush().unwrap();
+        let after = std::fs::read_to_string(&path).unwrap();
+        assert!(after.starts_with(&text), "the earlier rows are kept");
+        assert!(after.ends_with(&format!("4,0,1,\n{}\n", row(4, 0, ""))));
+
+        let fresh = dir.path().join("fresh.csv");
+        let (_, next) = TrajectoryLog::resume(&fresh).unwrap();
+        assert_eq!(next, 0);
+        assert_eq!(
+            std::fs::read_to_string(&fresh).unwrap(),
+            format!("{HEADER}\n")
+        );
+    }
 
     #[test]
     fn the_end_column_names_why_an_episode_ended() {

@@ -83,6 +83,7 @@ pub(crate) fn lines_of(event: &Event, echo: bool) -> Vec<(To, String)> {
         Event::ProcessExited { .. }
         | Event::Stalled { .. }
         | Event::Escalated(_)
+        | Event::WaitedForSave(_)
         | Event::StopRequested
         | Event::Log { .. } => process_line(event),
         _ => run_line(event),
@@ -205,6 +206,18 @@ fn process_line(event: &Event) -> Option<Said> {
             "launch: {} did not stop within {:?} of {}; escalating",
             e.process, e.grace, e.signal
         )),
+        Event::WaitedForSave(w) if w.done => note(format!(
+            "launch: waited {:.1} s for the {} to save the library (at most {} s)",
+            w.waited.as_secs_f64(),
+            w.process,
+            w.bound.as_secs()
+        )),
+        Event::WaitedForSave(w) => warn(format!(
+            "launch: the {} was still saving the library after {} s; killed (the previous \
+             library file is intact)",
+            w.process,
+            w.bound.as_secs()
+        )),
         _ => None,
     }
 }
@@ -237,11 +250,14 @@ fn exit_line(
 /// How the link is protected, in a few words.
 fn security_words(security: &Security) -> String {
     match security {
-        Security::Loopback => "plain TCP on loopback".into(),
+        Security::Private { socket } => format!(
+            "this host only: a Unix socket only this user can reach ({})",
+            socket.display()
+        ),
         Security::Tls { common_name } => {
             format!("mutual TLS, this host's certificate {common_name:?}")
         }
-        Security::Insecure { .. } => "plain TCP, INSECURE".into(),
+        Security::Insecure { .. } => "no authentication, INSECURE".into(),
     }
 }
 
@@ -265,9 +281,10 @@ fn link_line(event: &Event) -> Option<Said> {
             );
             match security {
                 Security::Insecure { exposed } => warn(format!(
-                    "{opened}\nlaunch: link: INSECURE: plain TCP beyond loopback ({}): anyone \
-                     who reaches it can join the group, read its observations and drive the \
-                     robot ([launch.link] insecure = true; `tes link keygen DIR` makes TLS keys)",
+                    "{opened}\nlaunch: link: INSECURE: no authentication on {}: anyone who \
+                     reaches it (on loopback, every user of this host) can join the group, read \
+                     its observations and drive the robot ([launch.link] insecure = true; \
+                     `tes link keygen DIR` makes TLS keys)",
                     exposed.join(", ")
                 )),
                 _ => note(opened),
@@ -276,10 +293,22 @@ fn link_line(event: &Event) -> Option<Said> {
         Event::LinkWaiting {
             missing,
             group,
+            waited,
             timeout,
-        } => note(format!(
+        } if waited.is_zero() => note(format!(
             "launch: link: waiting for the {} (group {group:?}; gives up after {:.0} s)",
             role_list(missing),
+            timeout.as_secs_f64()
+        )),
+        Event::LinkWaiting {
+            missing,
+            waited,
+            timeout,
+            ..
+        } => note(format!(
+            "launch: link: no {} yet after {:.0} s (gives up after {:.0} s)",
+            role_list(missing),
+            waited.as_secs_f64(),
             timeout.as_secs_f64()
         )),
         Event::LinkUp { role, again: false } => note(format!("launch: link: the {role} is there")),

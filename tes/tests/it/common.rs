@@ -4,6 +4,7 @@
 //! away from the tests that must be alone on the machine.
 
 use std::io::{BufRead, BufReader};
+use std::os::unix::process::CommandExt as _;
 use std::path::Path;
 use std::process::{Child, Command, ExitStatus, Output, Stdio};
 use std::sync::{Condvar, Mutex, PoisonError, mpsc};
@@ -174,6 +175,17 @@ impl Group {
         Self::launch_with(dir, config, episodes, &[], &[])
     }
 
+    /// [`start`](Self::start), the launcher leading a process group of its own (its
+    /// children in it), as a shell starts a command: a signal to the group is a Ctrl-C in
+    /// its terminal.
+    pub fn start_own_process_group(dir: &Path, launch_toml: &str, episodes: u32) -> Self {
+        let config = dir.join("launch.toml");
+        std::fs::write(&config, launch_toml).expect("launch file");
+        let mut command = tes_command();
+        command.process_group(0);
+        Self::spawn(command, dir, Some(&config), episodes, &[], &[])
+    }
+
     /// Launches `launch_toml` (written to `dir/launch.toml`) with `args` after the launch's
     /// own and the environment variables `env` set (an iceoryx2 domain of its own, say).
     pub fn start_in(
@@ -195,8 +207,18 @@ impl Group {
         args: &[&str],
         env: &[(&str, &str)],
     ) -> Self {
+        Self::spawn(tes_command(), dir, config, episodes, args, env)
+    }
+
+    fn spawn(
+        mut command: Command,
+        dir: &Path,
+        config: Option<&Path>,
+        episodes: u32,
+        args: &[&str],
+        env: &[(&str, &str)],
+    ) -> Self {
         let sharing = sharing_the_machine();
-        let mut command = tes_command();
         command.arg("launch");
         if let Some(config) = config {
             command.arg("--config").arg(config);
@@ -232,12 +254,14 @@ impl Group {
         }
     }
 
-    /// Waits for the launcher to exit (at most `limit`); returns its success and output.
+    /// Waits for the launcher to exit (at most `limit`); returns whether it ended cleanly
+    /// and its output. Clean: status 0, or 128 + the signal that stopped it (130 after
+    /// SIGINT, 143 after SIGTERM), as `tes launch` exits when a test stops it.
     pub fn finish(&mut self, limit: Duration) -> (bool, Vec<String>, Vec<String>) {
         let status = wait_exit(&mut self.launcher, limit, "tes launch");
         std::thread::sleep(Duration::from_millis(100));
         (
-            status.success(),
+            status.success() || matches!(status.code(), Some(130 | 143)),
             self.stdout.try_iter().collect(),
             self.stderr.try_iter().collect(),
         )
@@ -429,7 +453,8 @@ pub fn reported_actions(out: &[String]) -> u64 {
     out.iter()
         .find_map(|l| {
             let rest = l.strip_prefix("controller: ")?;
-            let actions = rest.split(", ").nth(1)?.strip_suffix(" actions")?;
+            // "89 actions", "1 action", "0 actions: no decision was made".
+            let actions = rest.split(", ").nth(1)?.split(' ').next()?;
             actions.parse().ok()
         })
         .unwrap_or_else(|| panic!("no controller summary in {out:?}"))

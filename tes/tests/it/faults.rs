@@ -7,6 +7,7 @@
 //! resources even when the test fails.
 
 use std::io::BufRead;
+use std::os::fd::AsRawFd as _;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -66,10 +67,12 @@ fn a_failed_link_launch(dir: &Path, bridge: &str, library: &Path, before: &[u8])
 fn a_dead_link_stops_the_launch_and_leaves_the_library_as_it_was() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (library, before) = library_from_a_good_run(dir.path());
-    // A device that is there but is no brick (a device that is not there at all is refused
-    // before anything starts: see `run_folder::a_refused_launch_leaves_…`).
-    let device = dir.path().join("not-a-brick");
-    std::fs::write(&device, b"").expect("a file where the device should be");
+    // A terminal that is there but no brick answers on: a pseudo-terminal whose other end
+    // nobody reads (a path that is not there, or is no terminal, is refused before anything
+    // starts: see `run_folder::a_refused_launch_leaves_…` and `hostile_files::`).
+    let pty = nix::pty::openpty(None, None).expect("a pseudo-terminal");
+    let device = std::fs::read_link(format!("/proc/self/fd/{}", pty.slave.as_raw_fd()))
+        .expect("the pseudo-terminal's path");
     let transport = format!("transport = \"serial:{}\"\n", device.display());
     let said = a_failed_link_launch(dir.path(), &transport, &library, &before);
     assert!(
@@ -79,6 +82,7 @@ fn a_dead_link_stops_the_launch_and_leaves_the_library_as_it_was() {
         )),
         "{said}"
     );
+    drop(pty);
 }
 
 /// A brick's own links on a machine that lacks them (this build machine has no Bluetooth in
@@ -445,4 +449,64 @@ fn errors_name_the_real_cause() {
         said.contains("cannot write the run directory: /sys/tes-run") && !said.contains("invalid"),
         "{said}"
     );
+}
+
+/// The episode numbers of `csv` (an `episodes.csv`), in order.
+fn csv_episodes(csv: &str) -> Vec<u32> {
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().expect("a header").split(',').collect();
+    let at = header
+        .iter()
+        .position(|c| *c == "episode")
+        .expect("an episode column");
+    lines
+        .map(|l| {
+            l.split(',')
+                .nth(at)
+                .expect("the episode")
+                .parse()
+                .expect("a number")
+        })
+        .collect()
+}
+
+/// A respawned role goes on with the run: with `restart = "on-failure"`, perception-sim, the
+/// controller and the bridge are each killed mid-run; the episode numbers carry on (no number
+/// twice, in the output or in `episodes.csv`), and the run ends at the episode budget — not
+/// the budget again after perception's restart. (Perception killed in the instant between
+/// recording an episode's end and publishing it leaves that one number out: at most one gap.)
+#[test]
+fn a_respawned_role_continues_the_run_and_repeats_no_episode() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let toml = launch_file(dir.path(), "restart = \"on-failure\"\nmax_restarts = 10\n");
+    let budget = 60;
+    let mut group = Group::start(dir.path(), &toml, budget);
+    let mut out = Vec::new();
+    for role in ["perception-sim", "controller", "bridge"] {
+        out.extend(group.wait_for_episodes(3, Duration::from_secs(120)));
+        kill(group.child(role), Signal::SIGKILL).expect("kill a child");
+        // Restarts are counted per process.
+        group.wait_for_stderr(
+            &format!("{role} was killed by SIGKILL; respawning it (restart 1/10)"),
+            Duration::from_secs(60),
+        );
+    }
+    let (ok, rest, err) = group.finish(Duration::from_secs(300));
+    out.extend(rest);
+    assert!(ok, "{out:#?}\n{err:#?}");
+    let numbers: Vec<u32> = out
+        .iter()
+        .filter_map(|l| tes_controller::summary::EpisodeLine::parse(l))
+        .map(|e| e.episode)
+        .collect();
+    let mut unique = numbers.clone();
+    unique.sort_unstable();
+    unique.dedup();
+    assert_eq!(unique.len(), numbers.len(), "an episode twice: {numbers:?}");
+    assert!(numbers.iter().all(|&n| n < budget), "{numbers:?}");
+    assert!(numbers.len() + 1 >= budget as usize, "{numbers:?}");
+    let csv = std::fs::read_to_string(dir.path().join("run/episodes.csv")).expect("episodes.csv");
+    let mut rows = csv_episodes(&csv);
+    rows.sort_unstable();
+    assert_eq!(rows, unique, "episodes.csv has each episode once:\n{csv}");
 }

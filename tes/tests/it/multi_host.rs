@@ -125,11 +125,14 @@ impl Drop for Host {
     }
 }
 
-/// How the two hosts' link is carried: plain TCP on loopback, or QUIC (TLS 1.3, both sides
+/// How the two hosts' link is carried: the default private Unix socket (in a directory of the
+/// test's own), or QUIC (TLS 1.3, both sides
 /// authenticated) with the keys of `tes link keygen` (the robot's host's and the controller's
 /// host's own certificates).
 enum Carrier {
-    Tcp,
+    Private {
+        dir: tempfile::TempDir,
+    },
     Tls {
         _dir: tempfile::TempDir,
         keys: tes_link::keys::KeySet,
@@ -149,11 +152,25 @@ impl Carrier {
         Self::Tls { _dir: dir, keys }
     }
 
+    /// The default link: no endpoints, the socket in a directory of the test's own (made
+    /// by the launch, mode 700: a temporary directory is made open to others).
+    fn private() -> Self {
+        Self::Private {
+            dir: tempfile::tempdir().expect("temp dir"),
+        }
+    }
+
     /// The `[launch.link]` lines of the two hosts of group `group`, the robot's host
     /// listening on `port`.
     fn split(&self, group: &str, port: u16) -> (String, String) {
         let (scheme, robot_files, workstation_files) = match self {
-            Carrier::Tcp => ("tcp", String::new(), String::new()),
+            Carrier::Private { dir } => {
+                let same = format!(
+                    "group = \"{group}\"\nsocket_dir = {:?}\npeer_timeout_ms = 60000\n",
+                    dir.path().join("link").display().to_string()
+                );
+                return (same.clone(), same);
+            }
             Carrier::Tls { keys, .. } => {
                 let files = |host: &tes_link::keys::HostFiles| {
                     format!(
@@ -178,11 +195,6 @@ impl Carrier {
     }
 }
 
-/// The `[launch.link]` lines of two hosts over plain TCP on loopback.
-fn split(group: &str, port: u16) -> (String, String) {
-    Carrier::Tcp.split(group, port)
-}
-
 fn group_name(test: &str) -> String {
     format!("tes-test/{}/{test}", std::process::id())
 }
@@ -192,7 +204,7 @@ fn group_name(test: &str) -> String {
 /// controller's side only; both launches stop cleanly and leave nothing in their domains.
 #[test]
 fn split_across_two_hosts_the_group_learns_and_saves_on_the_controllers_side() {
-    learns_and_saves_on_the_controllers_side(&Carrier::Tcp, "learn");
+    learns_and_saves_on_the_controllers_side(&Carrier::private(), "learn");
 }
 
 /// The same over QUIC (TLS 1.3, both sides authenticated), each host with its own
@@ -236,6 +248,20 @@ fn learns_and_saves_on_the_controllers_side(carrier: &Carrier, test: &str) {
     );
     let episodes = out_w.iter().filter(|l| l.starts_with("episode ")).count();
     assert_eq!(episodes, 80, "{out_w:?}");
+    // A healthy run refuses nothing and drops nothing: its peer's own declarations and
+    // samples are not a stranger's.
+    for (host, err) in [("robot", &err_r), ("workstation", &err_w)] {
+        let told: Vec<&String> = err
+            .iter()
+            .filter(|l| l.contains("launch: link: refused") || l.contains("launch: link: dropped"))
+            .collect();
+        assert!(told.is_empty(), "{host}: {told:?}");
+        let waiting = err.iter().filter(|l| l.contains("waiting for the")).count();
+        assert!(
+            waiting <= 1,
+            "{host} said it waited {waiting} times: {err:?}"
+        );
+    }
     // The recording on the controller's side holds the map and observations that came over
     // the link and every command, and replays to the same decisions.
     let recorded = tes_recorder::reader::Recording::open(&recording).expect("the recording reads");
@@ -279,7 +305,7 @@ fn learns_and_saves_on_the_controllers_side(carrier: &Carrier, test: &str) {
 /// Ctrl-C on either host stops both launches cleanly (exit 0, the library saved).
 #[test]
 fn ctrl_c_on_either_host_stops_the_other_cleanly() {
-    ctrl_c_on_either_host(&Carrier::Tcp, "");
+    ctrl_c_on_either_host(&Carrier::private(), "");
 }
 
 /// The same over QUIC with the group's keys.
@@ -344,7 +370,7 @@ fn ctrl_c_on_either_host(carrier: &Carrier, suffix: &str) {
 /// non-zero naming the lost peer, with no child left and no stale shared memory.
 #[test]
 fn losing_the_controllers_host_mid_move_brakes_and_stops_the_robot_non_zero() {
-    losing_the_controllers_host(&Carrier::Tcp, "loss");
+    losing_the_controllers_host(&Carrier::private(), "loss");
 }
 
 /// The same over QUIC with the group's keys.
@@ -438,21 +464,23 @@ fn bad_roles_and_unreachable_peers_are_refused_and_start_nothing() {
         "{err}"
     );
 
-    // Nobody there: the launch names the roles it waits for and gives up.
-    let port = free_port();
+    // Nobody there: the launch names the roles it waits for, once, and gives up.
+    let alone = Carrier::private();
+    let (link, _) = alone.split(&group_name("nobody"), 0);
     let group = host.start(
         "",
-        &format!(
-            "group = \"{}\"\nlisten = []\nconnect = [\"tcp/127.0.0.1:{port}\"]\n\
-             peer_timeout_ms = 1500\n",
-            group_name("nobody")
-        ),
+        &link.replace("peer_timeout_ms = 60000", "peer_timeout_ms = 1500"),
         1,
         &["--roles", "controller"],
     );
     let (ok, _, err) = group.finish(Duration::from_secs(60));
+    let waiting = err
+        .iter()
+        .filter(|l| l.contains("waiting for the perception-sim, bridge"))
+        .count();
     let err = err.join("\n");
     assert!(!ok, "{err}");
+    assert_eq!(waiting, 1, "{err}");
     assert!(
         err.contains("playing the perception-sim, bridge was reached within 1.5 s"),
         "{err}"
@@ -461,7 +489,8 @@ fn bad_roles_and_unreachable_peers_are_refused_and_start_nothing() {
 
     // Two controllers in one group.
     let port = free_port();
-    let (a_link, b_link) = split(&group_name("twice"), port);
+    let twice = Carrier::private();
+    let (a_link, b_link) = twice.split(&group_name("twice"), port);
     let mut a = Host::new("a");
     let mut b = Host::new("b");
     a.start("", &a_link, 1, &["--roles", "controller"]);
@@ -475,13 +504,27 @@ fn bad_roles_and_unreachable_peers_are_refused_and_start_nothing() {
     }
 }
 
-/// Plain TCP that other hosts could reach is refused before anything starts, naming the key
-/// and the fix; with `insecure = true` the launch goes on and says so; over TLS, a host given
+/// Plain TCP — on loopback too — is refused before anything starts, naming the key and the
+/// fix; with `insecure = true` the launch goes on and says so; over TLS, a host given
 /// another host's certificate is refused.
 #[test]
-fn plain_tcp_beyond_loopback_is_refused_unless_insecure() {
+fn plain_tcp_is_refused_unless_insecure() {
     let mut host = Host::new("i");
     let port = free_port();
+    let group = host.start(
+        "",
+        &format!("listen = [\"tcp/127.0.0.1:{port}\"]\n"),
+        1,
+        &["--roles", "controller"],
+    );
+    let (ok, _, err) = group.finish(Duration::from_secs(30));
+    let err = err.join("\n");
+    assert!(!ok, "{err}");
+    assert!(
+        err.contains("every user of this host reaches loopback"),
+        "{err}"
+    );
+    assert!(err.trim_end().ends_with("nothing was started"), "{err}");
     let exposed = format!(
         "group = \"{}\"\nlisten = [\"tcp/0.0.0.0:{port}\"]\npeer_timeout_ms = 1000\n",
         group_name("exposed")
@@ -507,7 +550,7 @@ fn plain_tcp_beyond_loopback_is_refused_unless_insecure() {
     let err = err.join("\n");
     assert!(!ok, "nobody else is there: {err}");
     assert!(
-        err.contains("launch: link: INSECURE: plain TCP beyond loopback (tcp/0.0.0.0:"),
+        err.contains("launch: link: INSECURE: no authentication on tcp/0.0.0.0:"),
         "{err}"
     );
 
@@ -530,14 +573,30 @@ struct Stranger {
     sent: u64,
 }
 
+/// The stranger script.
+fn stranger_script() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/it/zenoh_stranger.py")
+}
+
 /// Runs `zenoh_stranger.py` against `endpoint` for `seconds` with `credentials` (`--ca`,
-/// `--cert`, `--key` arguments).
+/// `--cert`, `--key` arguments, or its other options).
 fn stranger(endpoint: &str, group: &str, seconds: f64, credentials: &[String]) -> Stranger {
-    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/it/zenoh_stranger.py");
-    let out = std::process::Command::new("python3")
-        .arg(&script)
+    let mut command = std::process::Command::new("python3");
+    command.arg(stranger_script());
+    report_of(command, endpoint, group, seconds, credentials)
+}
+
+/// What the stranger `command` (the script's interpreter and path) reported.
+fn report_of(
+    mut command: std::process::Command,
+    endpoint: &str,
+    group: &str,
+    seconds: f64,
+    options: &[String],
+) -> Stranger {
+    let out = command
         .args([endpoint, group, &seconds.to_string()])
-        .args(credentials)
+        .args(options)
         .output()
         .expect("python3 runs");
     assert!(
@@ -550,6 +609,245 @@ fn stranger(endpoint: &str, group: &str, seconds: f64, credentials: &[String]) -
         zid: report["zid"].as_str().unwrap_or_default().to_owned(),
         peers: report["peers"].as_u64().unwrap_or(u64::MAX),
         sent: report["sent"].as_u64().unwrap_or(0),
+    }
+}
+
+/// The same client run as another user (`nobody`, uid 65534), when this test runs as root:
+/// the system's Python 3 with a copy of the installed `zenoh` package (an abi3 wheel) in a
+/// directory that user may read, since the installed one may lie under root's home. `None`
+/// when not root.
+fn stranger_as_another_user(dir: &std::path::Path) -> Option<std::process::Command> {
+    use std::os::unix::fs::PermissionsExt;
+    use std::os::unix::process::CommandExt;
+    if !running_as_root() {
+        return None;
+    }
+    let found = std::process::Command::new("python3")
+        .args([
+            "-c",
+            "import os, zenoh; print(os.path.dirname(zenoh.__file__))",
+        ])
+        .output()
+        .expect("python3 runs");
+    let package = PathBuf::from(String::from_utf8_lossy(&found.stdout).trim());
+    let copy = dir.join("zenoh");
+    std::fs::create_dir_all(&copy).expect("package directory");
+    for entry in std::fs::read_dir(&package).expect("the zenoh package") {
+        let entry = entry.expect("an entry");
+        if entry.path().is_file() {
+            std::fs::copy(entry.path(), copy.join(entry.file_name())).expect("copied");
+        }
+    }
+    std::fs::copy(stranger_script(), dir.join("zenoh_stranger.py")).expect("script copied");
+    for path in [dir.to_path_buf(), copy] {
+        std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o755)).expect("chmod");
+    }
+    let mut command = std::process::Command::new("/usr/bin/python3");
+    command
+        .arg(dir.join("zenoh_stranger.py"))
+        .env_clear()
+        .env("PYTHONPATH", dir)
+        .env("HOME", dir)
+        .env("PATH", "/usr/bin:/bin")
+        .uid(65534)
+        .gid(65534);
+    Some(command)
+}
+
+/// Whether this test runs as root (the owner of its own `/proc/self`).
+fn running_as_root() -> bool {
+    use std::os::unix::fs::MetadataExt;
+    std::fs::metadata("/proc/self").is_ok_and(|m| m.uid() == 0)
+}
+
+/// The bytes of a well-formed command of the arena the launches run (Env3's first action,
+/// its own wheel targets), numbered `seq`, as hex for the stranger's `--payload`.
+fn command_hex(seq: u64) -> String {
+    use tes_perception_sim::arena::{Arena, ArenaId};
+    let map = tes_perception_sim::process::world_map(&Arena::new(ArenaId::Env3)).expect("map");
+    let [left_deg, right_deg] = map.action_wheels[0];
+    let command = tes_topics::Command {
+        seq,
+        action: 0,
+        left_deg,
+        right_deg,
+        ..tes_topics::Command::default()
+    };
+    tes_topics::wire::as_bytes(&command)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// Another user of this host cannot reach a split group's default link: the socket's
+/// directory is this user's, mode 700, and PyPI's Zenoh client run as `nobody` reaches no
+/// peer through it — while the same client run as the launching user does (the path is
+/// right).
+#[test]
+#[cfg_attr(
+    not(tes_zenoh_client),
+    ignore = "PyPI's Zenoh is not installed: python3 -m pip install 'eclipse-zenoh==1.10.*'"
+)]
+fn another_user_cannot_reach_the_default_link() {
+    use std::os::unix::fs::{MetadataExt, PermissionsExt};
+    let carrier = Carrier::private();
+    let Carrier::Private { dir } = &carrier else {
+        unreachable!("a private carrier")
+    };
+    let group = group_name("private");
+    let (link, _) = carrier.split(&group, 0);
+    let mut robot = Host::new("p");
+    robot.start(
+        "roles = [\"perception-sim\", \"bridge\"]\nreal_time_factor = 0.01",
+        &link,
+        10_000,
+        &[],
+    );
+    let seen = robot
+        .group()
+        .wait_for_stderr("waiting for the controller", Duration::from_secs(60));
+    let socket = dir
+        .path()
+        .join("link")
+        .join(format!("link-{}.sock", group.replace('/', "~")));
+    assert!(
+        seen.iter()
+            .any(|l| l.contains(&socket.display().to_string())),
+        "the launch says where its socket is: {seen:?}"
+    );
+    let meta = std::fs::metadata(dir.path().join("link")).expect("the socket's directory");
+    assert_eq!(meta.permissions().mode() & 0o777, 0o700);
+    let me = std::fs::metadata("/proc/self").expect("procfs").uid();
+    assert_eq!(meta.uid(), me);
+    assert!(socket.exists(), "{socket:?}");
+    let endpoint = format!("unixsock-stream/{}", socket.display());
+    let other = tempfile::tempdir().expect("temp dir");
+    if let Some(command) = stranger_as_another_user(other.path()) {
+        let outsider = report_of(command, &endpoint, &group, 2.0, &[]);
+        assert_eq!(outsider.peers, 0, "another user reached the default link");
+        assert!(outsider.sent > 0);
+    } else {
+        eprintln!("not root: the client cannot be run as another user; its directory is checked");
+    }
+    let insider = stranger(&endpoint, &group, 1.0, &[]);
+    assert_eq!(insider.peers, 1, "the launching user reaches its own link");
+    let (_, _, err) = robot.group().finish(Duration::from_secs(60));
+    assert!(!robot.group().children_alive(), "{err:?}");
+    assert!(robot.leftovers().is_empty(), "{:?}", robot.leftovers());
+}
+
+/// On a link explicitly made insecure (plain TCP on loopback, the two launches naming the
+/// same endpoint: the second, finding it taken, connects), PyPI's Zenoh client as a stranger
+/// who announces no role sends well-formed commands numbered 2^62: each is dropped as not the
+/// controller's launch's, counted and told, and the controller's commands go on being taken
+/// (none refused; the group stops cleanly when asked). A stranger who forges the
+/// controller's session id wedges the commands; the link's stall watch then stops the group,
+/// saying so.
+#[test]
+#[cfg_attr(
+    not(tes_zenoh_client),
+    ignore = "PyPI's Zenoh is not installed: python3 -m pip install 'eclipse-zenoh==1.10.*'"
+)]
+fn on_an_insecure_link_a_strangers_commands_do_not_stop_the_controllers() {
+    for forged in [false, true] {
+        let group = group_name(if forged { "forged" } else { "insecure" });
+        let port = free_port();
+        let link = format!(
+            "group = \"{group}\"\nlisten = [\"tcp/127.0.0.1:{port}\"]\ninsecure = true\n\
+             peer_timeout_ms = 60000\n"
+        );
+        let mut robot = Host::new("r");
+        let mut workstation = Host::new("w");
+        robot.start(
+            "roles = [\"perception-sim\", \"bridge\"]\nreal_time_factor = 0.01\n\
+             stall_timeout_ms = 3000",
+            &link,
+            10_000,
+            &[],
+        );
+        let opened = robot
+            .group()
+            .wait_for_stderr("waiting for the controller", Duration::from_secs(60));
+        assert!(
+            opened.iter().any(|l| l.contains("launch: link: INSECURE")),
+            "the insecure link is said: {opened:?}"
+        );
+        workstation.start("", &link, 10_000, &["--roles", "controller"]);
+        workstation
+            .group()
+            .wait_for_episodes(1, Duration::from_secs(120));
+        // The controller's session id, as its launch says it (a stranger reads it off the
+        // group's member tokens just as well).
+        let opened = workstation
+            .group()
+            .wait_for_stderr("launch: link: this launch plays", Duration::from_secs(30));
+        let controller_id = opened
+            .iter()
+            .find_map(|l| l.split(", id ").nth(1))
+            .and_then(|rest| rest.split(',').next())
+            .expect("the controller's launch says its id")
+            .to_owned();
+        let sender = if forged {
+            controller_id.as_str()
+        } else {
+            "own"
+        };
+        let options = [
+            "--no-token".to_owned(),
+            "--sender".to_owned(),
+            sender.to_owned(),
+            "--payload".to_owned(),
+            command_hex(1 << 62),
+        ];
+        let client = stranger(&format!("tcp/127.0.0.1:{port}"), &group, 2.0, &options);
+        assert!(client.peers >= 1 && client.sent > 0, "the stranger got in");
+        if forged {
+            robot
+                .group()
+                .wait_for_stderr("stalled", Duration::from_secs(60));
+            let (ok, _, err) = robot.group().finish(Duration::from_secs(60));
+            assert!(!ok, "{err:?}");
+            continue;
+        }
+        // The stall watch (3 s) would stop a group whose commands stopped: let it pass twice.
+        let before = workstation
+            .group()
+            .wait_for_episodes(1, Duration::from_secs(60));
+        std::thread::sleep(Duration::from_secs(7));
+        let pid = Pid::from_raw(robot.group().launcher.id() as i32);
+        kill(pid, Signal::SIGINT).expect("SIGINT");
+        let (ok_r, _, err_r) = robot.group().finish(Duration::from_secs(60));
+        let (ok_w, out_w, err_w) = workstation.group().finish(Duration::from_secs(60));
+        assert!(ok_r, "robot: {err_r:?}");
+        assert!(ok_w, "workstation: {out_w:?} {err_w:?}");
+        assert!(!before.is_empty());
+        let said = err_r.join("\n");
+        assert!(
+            said.contains(
+                "launch: link: dropped 1 sample(s) of command not sent by the launch \
+                           that plays the controller"
+            ),
+            "{said}"
+        );
+        let counts = err_r
+            .iter()
+            .find(|l| l.contains("launch: link: from peers"))
+            .cloned()
+            .unwrap_or_default();
+        assert!(
+            counts.contains(" 0 refused, ") && counts.contains("from strangers"),
+            "{counts}"
+        );
+        let taken: u64 = counts
+            .split("command ")
+            .nth(1)
+            .and_then(|rest| rest.split(' ').next())
+            .and_then(|n| n.parse().ok())
+            .unwrap_or(0);
+        assert!(taken > 0, "{counts}");
+        for host in [&robot, &workstation] {
+            assert!(host.leftovers().is_empty(), "{:?}", host.leftovers());
+        }
     }
 }
 
@@ -655,7 +953,7 @@ fn strangers_are_kept_out_and_a_wrong_role_cannot_command() {
     );
     assert!(
         said.contains(&format!(
-            "refused peer {}'s Declare/Undeclare Liveliness Token (ingress) on {group}/member/controller/",
+            "refused peer {}'s Liveliness Token (ingress) on {group}/member/controller/",
             impostor.zid
         )),
         "{said}"

@@ -4,21 +4,22 @@
 //! folder. A guard kills the tmux server — and with it the launcher, whose children die with
 //! it — even when the test fails.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
 use crate::common::*;
 
-/// A private tmux server: its socket name is this test's own.
+/// A private tmux server: its socket is a file in this test's own temporary directory
+/// (`-S`), removed with it — not one under tmux's shared directory, which outlives the test.
 struct Tmux {
-    socket: String,
+    socket: PathBuf,
 }
 
 impl Tmux {
     fn run(&self, args: &[&str]) -> std::process::Output {
         Command::new("tmux")
-            .arg("-L")
+            .arg("-S")
             .arg(&self.socket)
             .args(args)
             .output()
@@ -49,6 +50,8 @@ impl Tmux {
 impl Drop for Tmux {
     fn drop(&mut self) {
         let _ = self.run(&["kill-server"]);
+        // tmux leaves its socket behind when its server is killed.
+        let _ = std::fs::remove_file(&self.socket);
     }
 }
 
@@ -73,7 +76,7 @@ fn the_live_view_shows_the_group_and_q_stops_it_cleanly() {
     let exit = dir.path().join("exit");
     let _sharing = sharing_the_machine();
     let tmux = Tmux {
-        socket: format!("tes-tui-test-{}", std::process::id()),
+        socket: dir.path().join("tmux.sock"),
     };
     let command = format!(
         "TES_DATA_DIR={} {} launch --config {} --episodes 100000 --tui; echo $? > {}; sleep 60",

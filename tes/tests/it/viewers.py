@@ -7,6 +7,7 @@
     viewers.py native-live HOST:PORT RRD SECONDS
                                      the same, following a live group
     viewers.py live HOST:PORT N      a Foxglove WebSocket client follows a live group for N episodes
+    viewers.py names HOST:PORT       a client offering each name of the protocol, one after the other
 
 Each prints one JSON object of facts for the Rust test to judge.
 """
@@ -187,7 +188,7 @@ def facts_of_live(addr, episodes):
 def follow_live(client, deadline, facts, episodes, message_class):
     ws = client()
     channels = {}
-    while len(channels) < 11 and time.monotonic() < deadline:
+    while len(channels) < 12 and time.monotonic() < deadline:
         m = ws.recv(timeout=10)
         if isinstance(m, str):
             j = json.loads(m)
@@ -236,7 +237,7 @@ def follow_live(client, deadline, facts, episodes, message_class):
     # A client that subscribes to everything and never reads again.
     slow = client()
     slow_channels = {}
-    while len(slow_channels) < 11:
+    while len(slow_channels) < 12:
         j = slow.recv(timeout=10)
         if isinstance(j, str) and json.loads(j).get("op") == "advertise":
             for c in json.loads(j)["channels"]:
@@ -258,6 +259,35 @@ def follow_live(client, deadline, facts, episodes, message_class):
     return facts
 
 
+def facts_of_names(addr):
+    """What a client offering only the SDK's name of the protocol, and one offering only its
+    published name (Lichtblick's, older Foxglove Studio's), are each given: the subprotocol
+    the server answers with, the channels advertised, and messages on /tf once subscribed."""
+    from websockets.sync.client import connect
+
+    facts = {}
+    for name in ["foxglove.sdk.v1", "foxglove.websocket.v1"]:
+        deadline = time.monotonic() + 60
+        with connect(f"ws://{addr}", subprotocols=[name], open_timeout=10,
+                     max_size=None) as ws:
+            channels = {}
+            while len(channels) < 12 and time.monotonic() < deadline:
+                m = ws.recv(timeout=10)
+                if isinstance(m, str) and json.loads(m).get("op") == "advertise":
+                    for c in json.loads(m)["channels"]:
+                        channels[c["topic"]] = [c["id"], c["schemaName"], c["encoding"]]
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                {"id": 1, "channelId": channels["/tf"][0]}]}))
+            tf = 0
+            while tf < 3 and time.monotonic() < deadline:
+                m = ws.recv(timeout=10)
+                if isinstance(m, bytes) and m[0] == 1 and struct.unpack_from("<I", m, 1)[0] == 1:
+                    tf += 1
+            facts[name] = {"subprotocol": ws.subprotocol, "tf": tf,
+                           "channels": {t: c[1:] for t, c in channels.items()}}
+    return facts
+
+
 def main():
     mode = sys.argv[1]
     if mode == "mcap":
@@ -270,6 +300,8 @@ def main():
         facts = facts_of_native(sys.argv[2], sys.argv[3])
     elif mode == "native-live":
         facts = facts_of_native_live(sys.argv[2], sys.argv[3], sys.argv[4])
+    elif mode == "names":
+        facts = facts_of_names(sys.argv[2])
     else:
         raise SystemExit(__doc__)
     print(json.dumps(facts))

@@ -2,7 +2,8 @@
 //! Foxglove's own schemas, which PyPI's `mcap` with Foxglove's Protobuf classes reads and
 //! Rerun converts; `tes launch --foxglove` serves the same channels live to a WebSocket
 //! client (PyPI's `websockets`), which also tries bad requests and leaves a second client
-//! unread. The clients are driven by `viewers.py` beside this file; each test is ignored, with
+//! unread, and to a client offering each name of the protocol (`foxglove.sdk.v1`, and the
+//! published `foxglove.websocket.v1`). The clients are driven by `viewers.py` beside this file; each test is ignored, with
 //! how to install them, where they cannot be imported, and always runs under CI (`build.rs`).
 
 use std::path::Path;
@@ -214,6 +215,7 @@ fn a_live_group_is_served_to_foxglove_clients_that_cannot_slow_or_break_it() {
         "loopback by default: {addr}"
     );
     let f = client_facts(&["live", &addr, "5"]);
+    let names = client_facts(&["names", &addr]);
     kill(Pid::from_raw(group.launcher.id() as i32), Signal::SIGINT).expect("SIGINT");
     let (ok, out, err) = group.finish(LIMIT);
     assert!(ok, "the group stopped cleanly on Ctrl-C: {out:?} {err:?}");
@@ -240,6 +242,17 @@ fn a_live_group_is_served_to_foxglove_clients_that_cannot_slow_or_break_it() {
     assert!(said("already subscribed"), "{statuses:?}");
     assert!(count(&f["after_bad_requests"]) >= 1);
     assert_eq!(f["slow_client"], "OPEN");
+    // A client offering only the protocol's published name (Lichtblick, Foxglove Studio
+    // before the SDK) is answered in that name and given what an SDK client is given.
+    let (sdk, published) = (&names["foxglove.sdk.v1"], &names["foxglove.websocket.v1"]);
+    assert_eq!(sdk["subprotocol"], "foxglove.sdk.v1", "{names}");
+    assert_eq!(published["subprotocol"], "foxglove.websocket.v1", "{names}");
+    assert_eq!(sdk["channels"], published["channels"], "{names}");
+    assert_eq!(sdk["channels"].as_object().map(|c| c.len()), Some(12));
+    assert!(
+        count(&sdk["tf"]) >= 3 && count(&published["tf"]) >= 3,
+        "{names}"
+    );
 }
 
 /// Every message of an MCAP file: its topic, publish time and bytes, in file order.

@@ -1,4 +1,8 @@
+use std::fs::OpenOptions;
+use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+
 use proptest::prelude::*;
+use tes_files::FileProblem;
 
 use super::*;
 use crate::library::{ActionOutcome, Winner};
@@ -519,7 +523,7 @@ fn a_fifo_is_refused_without_blocking() {
     assert!(
         matches!(
             err.problem,
-            StoreProblem::NotARegularFile { kind: "a FIFO" }
+            StoreProblem::File(FileProblem::NotARegularFile { kind: "a FIFO" })
         ),
         "{err}"
     );
@@ -531,7 +535,10 @@ fn a_fifo_is_refused_without_blocking() {
     // A save does not replace it either.
     let err = save(&path, &grown()).unwrap_err();
     assert!(
-        matches!(err.problem, StoreProblem::NotARegularFile { .. }),
+        matches!(
+            err.problem,
+            StoreProblem::File(FileProblem::NotARegularFile { .. })
+        ),
         "{err}"
     );
     assert!(fs::symlink_metadata(&path).unwrap().file_type().is_fifo());
@@ -547,9 +554,9 @@ fn dev_zero_behind_a_symlink_is_refused_before_anything_is_read() {
     assert!(
         matches!(
             err.problem,
-            StoreProblem::NotARegularFile {
+            StoreProblem::File(FileProblem::NotARegularFile {
                 kind: "a character device"
-            }
+            })
         ),
         "{err}"
     );
@@ -590,7 +597,7 @@ fn a_dangling_symlink_is_an_error_and_stays_in_place_after_a_save_attempt() {
     std::os::unix::fs::symlink(&target, &path).unwrap();
     let err = load(&path).unwrap_err();
     match &err.problem {
-        StoreProblem::DanglingSymlink { target: t } => assert_eq!(t, &target),
+        StoreProblem::File(FileProblem::DanglingSymlink { target: t }) => assert_eq!(t, &target),
         other => panic!("expected a dangling link, got {other}"),
     }
     let text = err.to_string();
@@ -599,7 +606,10 @@ fn a_dangling_symlink_is_an_error_and_stays_in_place_after_a_save_attempt() {
     assert!(text.contains("which does not exist"), "{text}");
     let err = save(&path, &grown()).unwrap_err();
     assert!(
-        matches!(err.problem, StoreProblem::DanglingSymlink { .. }),
+        matches!(
+            err.problem,
+            StoreProblem::File(FileProblem::DanglingSymlink { .. })
+        ),
         "{err}"
     );
     assert!(
