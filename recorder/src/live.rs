@@ -6,11 +6,13 @@
 //! It is woken by nothing, so no process of the group notifies it, and it never waits on the
 //! loop: every half millisecond it reads one entry of the command log, and when a new
 //! command is out (the robot is moving, the next decision is a motion away) it takes
-//! everything queued and writes it; at least every 20 ms in any case. What each service guarantees decides how it
-//! is read:
+//! everything queued; at least every 20 ms in any case. It writes and draws what it took in
+//! the order of the samples' stamps, not stream by stream ([`crate::merge`]): a sample
+//! published while another stream is read would otherwise be drawn before older ones. What
+//! each service guarantees decides how it is read:
 //!
-//! * observations and motor states are publish–subscribe: the recorder's subscribers (no
-//!   listener) queue up to `tes_runtime::ipc::RECORDER_BUFFER` samples each;
+//! * observations, motor states and the world's poses are publish–subscribe: the recorder's
+//!   subscribers (no listener) queue up to `tes_runtime::ipc::RECORDER_BUFFER` samples each;
 //! * the controller's commands go to the bridge over a one-entry blackboard, which a passive
 //!   reader could miss; the controller also stores each one, once it is out, in a ring of the
 //!   last `tes_runtime::ring::RING` commands (`tes/command/log`, a lock-free store into shared
@@ -41,6 +43,7 @@ use tes_viewer::canvas::{Canvas, Drawing};
 use tes_viewer::live::{LiveError, LiveServer};
 use tes_viewer::scene::{Scene, SceneSettings};
 
+use crate::merge::{Merge, Sample};
 use crate::writer::{RecordCounts, RunInfo, RunWriter, WriteError};
 
 /// Why the recorder stopped with an error.
@@ -292,9 +295,7 @@ fn open_ports(prefix: &str) -> Result<Ports, RecordError> {
         maps: subscriber::<WorldMap>(&node, &names.world_map, 1, 1)?,
         observations: subscriber::<Observation>(&node, &names.observation, 0, RECORDER_BUFFER)?,
         motor_states: subscriber::<MotorState>(&node, &names.motor_state, 0, RECORDER_BUFFER)?,
-        // One a decision, drained at every decision: the group's own buffer rides out
-        // sixteen decisions in which the recorder gets no time.
-        world_poses: subscriber::<WorldPose>(&node, &names.world_pose, 0, channel::BUFFER)?,
+        world_poses: subscriber::<WorldPose>(&node, &names.world_pose, 0, RECORDER_BUFFER)?,
         commands: RingReader::<Command>::open(&node, &names.command_log)?,
         _node: node,
     })
@@ -307,14 +308,8 @@ struct Tap {
     scene: Scene,
     seen: [Gaps; 3],
     have_map: bool,
-    /// The observations of a drain (kept to reuse its room).
-    observations: Vec<Observation>,
-    /// Commands taken but not yet written: each waits for the observation it answers.
-    commands: Vec<Command>,
-    /// The newest observation taken.
-    newest_observation: u64,
-    /// The world's poses of a drain (kept to reuse its room).
-    world_poses: Vec<WorldPose>,
+    /// The samples taken, handed on in the order of their stamps.
+    merge: Merge,
 }
 
 impl Tap {
@@ -328,44 +323,30 @@ impl Tap {
         )
     }
 
-    /// Takes everything queued: the observations and the commands answering them in the
-    /// order they were published, then the motion, then the log lines.
+    /// Takes everything queued and hands on, in the order of their stamps, every sample no
+    /// stream can still bring an older one than ([`Merge`]); then the log lines.
     fn drain(
         &mut self,
         ports: &mut Ports,
         lines: &mpsc::Receiver<LogLine>,
         stopping: bool,
     ) -> Result<(), RecordError> {
+        // Before any stream is read: a sample stamped well before this is queued by now.
+        let read_ns = tes_runtime::clock::monotonic_ns();
+        self.take(ports, stopping)?;
+        // What is drawn once is drawn no later than the oldest sample still to draw, so
+        // every channel stays in time order.
+        let drawn_ns = self.merge.oldest_ns().map_or(read_ns, |o| o.min(read_ns));
         if !self.have_map {
-            drain(&ports.maps, |m| self.world_map(&m))?;
+            drain(&ports.maps, |m| self.world_map(&m, drawn_ns))?;
         }
         if self.live.as_ref().is_some_and(LiveServer::take_joined) {
             let (scene, mut canvas) = self.canvas();
-            scene.redraw(tes_runtime::clock::monotonic_ns(), &mut canvas)?;
+            scene.redraw(drawn_ns, &mut canvas)?;
         }
-        self.take_in_order(ports, stopping)?;
-        // The world's poses before the motor reports: each comes after the whole motion it
-        // ends, so every report of that motion is taken below, and the scene draws the
-        // motion from them.
-        let mut world_poses = std::mem::take(&mut self.world_poses);
-        world_poses.clear();
-        drain(&ports.world_poses, |w| {
-            world_poses.push(w);
-            Ok(())
-        })?;
-        drain(&ports.motor_states, |m| {
-            self.seen[2].see(m.seq);
-            if let Some(file) = &mut self.file {
-                file.motor_state(&m)?;
-            }
-            let (scene, mut canvas) = self.canvas();
-            Ok(scene.motor_state(&m, &mut canvas)?)
-        })?;
-        for w in &world_poses {
-            let (scene, mut canvas) = self.canvas();
-            scene.world_pose(w, &mut canvas)?;
+        while let Some(sample) = self.merge.next_ready(read_ns, stopping) {
+            self.sample(sample)?;
         }
-        self.world_poses = world_poses;
         while let Ok(line) = lines.try_recv() {
             let (scene, mut canvas) = self.canvas();
             scene.log_line(line.role, &line.text, line.stamp_ns, &mut canvas)?;
@@ -373,57 +354,52 @@ impl Tap {
         Ok(())
     }
 
-    /// The queued observations and the new commands, merged by their publish times (one
-    /// monotonic clock for the whole host), so that each decision is drawn after the
-    /// observation it answers and before the one its motion led to. A command answering an
-    /// observation still on its way (published between the two reads) waits for the next
-    /// drain, with every command after it; at the stop nothing waits.
-    fn take_in_order(&mut self, ports: &mut Ports, stopping: bool) -> Result<(), RecordError> {
-        let mut observations = std::mem::take(&mut self.observations);
-        observations.clear();
+    /// Reads every stream into the merge: what each queued since the last drain and the
+    /// commands logged since (at the stop, the whole command log scanned once more).
+    fn take(&mut self, ports: &mut Ports, stopping: bool) -> Result<(), RecordError> {
+        let merge = &mut self.merge;
         drain(&ports.observations, |o| {
-            observations.push(o);
+            merge.push(Sample::Observation(o));
             Ok(())
         })?;
-        let new_commands = if stopping {
+        let commands = if stopping {
             ports.commands.take_new_scanning()
         } else {
             ports.commands.take_new()
         };
-        self.commands.extend_from_slice(new_commands);
-        if let Some(o) = observations.last() {
-            self.newest_observation = o.seq;
+        for c in commands {
+            merge.push(Sample::Command(*c));
         }
-        let ready = if stopping {
-            self.commands.len()
-        } else {
-            self.commands
-                .iter()
-                .position(|c| {
-                    c.action != tes_topics::KEEP_ALIVE_ACTION && c.answers > self.newest_observation
-                })
-                .unwrap_or(self.commands.len())
-        };
-        let commands: Vec<Command> = self.commands.drain(..ready).collect();
-        let (mut o, mut c) = (observations.iter().peekable(), commands.iter().peekable());
-        loop {
-            let observation_first = match (o.peek(), c.peek()) {
-                (Some(a), Some(b)) => a.stamp_ns <= b.stamp_ns,
-                (Some(_), None) => true,
-                (None, Some(_)) => false,
-                (None, None) => break,
-            };
-            if observation_first {
-                let next = o.next().copied();
-                if let Some(next) = next {
-                    self.observation(&next)?;
-                }
-            } else if let Some(next) = c.next() {
-                self.command(next)?;
+        drain(&ports.world_poses, |w| {
+            merge.push(Sample::WorldPose(w));
+            Ok(())
+        })?;
+        drain(&ports.motor_states, |m| {
+            merge.push(Sample::MotorState(m));
+            Ok(())
+        })
+    }
+
+    /// Writes and draws one sample.
+    fn sample(&mut self, sample: Sample) -> Result<(), RecordError> {
+        match sample {
+            Sample::Observation(o) => self.observation(&o),
+            Sample::Command(c) => self.command(&c),
+            Sample::MotorState(m) => self.motor_state(&m),
+            Sample::WorldPose(w) => {
+                let (scene, mut canvas) = self.canvas();
+                Ok(scene.world_pose(&w, &mut canvas)?)
             }
         }
-        self.observations = observations;
-        Ok(())
+    }
+
+    fn motor_state(&mut self, m: &MotorState) -> Result<(), RecordError> {
+        self.seen[2].see(m.seq);
+        if let Some(file) = &mut self.file {
+            file.motor_state(m)?;
+        }
+        let (scene, mut canvas) = self.canvas();
+        Ok(scene.motor_state(m, &mut canvas)?)
     }
 
     fn observation(&mut self, o: &Observation) -> Result<(), RecordError> {
@@ -444,12 +420,11 @@ impl Tap {
         Ok(scene.command(c, &mut canvas)?)
     }
 
-    fn world_map(&mut self, map: &WorldMap) -> Result<(), RecordError> {
+    fn world_map(&mut self, map: &WorldMap, now: u64) -> Result<(), RecordError> {
         if self.have_map {
             return Ok(());
         }
         self.have_map = true;
-        let now = tes_runtime::clock::monotonic_ns();
         if let Some(file) = &mut self.file {
             file.world_map(map, now)?;
         }
@@ -495,10 +470,7 @@ fn record(
         scene,
         seen: [Gaps::default(); 3],
         have_map: false,
-        observations: Vec::with_capacity(RECORDER_BUFFER),
-        commands: Vec::new(),
-        newest_observation: 0,
-        world_poses: Vec::with_capacity(RECORDER_BUFFER),
+        merge: Merge::with_capacity(RECORDER_BUFFER),
     };
     let (mut last_flush, mut last_drain) = (Instant::now(), Instant::now());
     loop {

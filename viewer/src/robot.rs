@@ -304,7 +304,7 @@ mod tests {
         assert_eq!(poses[3], (50, to));
         // Turned the short way, through 0, not round.
         let h = poses[0].1.heading;
-        assert!(h < 0.1 || h > std::f64::consts::TAU - 0.1, "{h}");
+        assert!(!(0.1..=std::f64::consts::TAU - 0.1).contains(&h), "{h}");
         // The next motion's baseline is this one's last report.
         assert_eq!(motion.reports.front().map(|r| r.1), Some(7));
         // An episode's start is its pose alone.

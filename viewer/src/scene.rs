@@ -230,12 +230,14 @@ pub(crate) enum Delivery {
 }
 
 /// Encodes messages onto the scene's channels, each once into a buffer it keeps, with times
-/// moved to the wall clock.
+/// moved to the wall clock; each channel's times never go back.
 #[derive(Debug)]
 pub(crate) struct Painter {
     channels: Channels,
     buffer: Vec<u8>,
     wall_offset_ns: i128,
+    /// The time of each channel's last drawing (in the order of [`Channels::all`]).
+    drawn_ns: [u64; 12],
 }
 
 impl Painter {
@@ -244,6 +246,7 @@ impl Painter {
             channels: Channels::new(),
             buffer: Vec::with_capacity(4096),
             wall_offset_ns,
+            drawn_ns: [0; 12],
         }
     }
 
@@ -283,9 +286,26 @@ impl Painter {
             tracing::warn!("cannot encode a drawing: {e}");
             return Ok(());
         }
+        let channel = pick(&self.channels);
+        // The recorder hands samples on in time order; a straggler it could not wait for
+        // (a publisher descheduled for longer than it waits) is drawn at its channel's last
+        // time rather than before it, since viewers and MCAP readers expect each channel in
+        // time order.
+        let index = self
+            .channels
+            .all()
+            .iter()
+            .position(|c| std::ptr::eq(*c, channel));
+        let stamp_ns = match index.and_then(|i| self.drawn_ns.get_mut(i)) {
+            Some(last) => {
+                *last = (*last).max(stamp_ns);
+                *last
+            }
+            None => stamp_ns,
+        };
         let wall_ns = self.wall_ns(stamp_ns);
         canvas.draw(Drawing {
-            channel: pick(&self.channels),
+            channel,
             data: &self.buffer,
             stamp_ns,
             wall_ns,

@@ -323,22 +323,27 @@ fn record_by_default(dir: &Path, episodes: u32) -> std::path::PathBuf {
 /// motion led to its observation with the effect that motion had.
 #[test]
 fn every_drawn_decision_names_the_observation_it_answered_and_the_effect_of_its_action() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let file = record_by_default(dir.path(), 12);
+    every_label_is_true(&messages(&file));
+}
+
+/// Each drawn decision against the command and observation it answered, and each text over
+/// the robot against the action that led to its observation and the effect it had.
+fn every_label_is_true(all: &[(String, u64, Vec<u8>)]) {
     use prost::Message;
     use tes_perception_sim::arena::{ACTION_NAMES, Arena, ArenaId, Effect};
     use tes_recorder::schema::{decode_command, decode_observation};
     use tes_topics::observation_flags;
-    let dir = tempfile::tempdir().expect("temp dir");
-    let file = record_by_default(dir.path(), 12);
-    let all = messages(&file);
-    let observations = on(&all, "/tes/observation", |b| {
+    let observations = on(all, "/tes/observation", |b| {
         decode_observation(b).expect("an observation")
     });
-    let commands = on(&all, "/tes/command", |b| {
+    let commands = on(all, "/tes/command", |b| {
         decode_command(b).expect("a command")
     });
     let by_stamp: std::collections::HashMap<u64, &tes_topics::Observation> =
         observations.iter().map(|(_, o)| (o.stamp_ns, o)).collect();
-    let decisions = on(&all, "/tes/decision", |b| {
+    let decisions = on(all, "/tes/decision", |b| {
         DecisionTwin::decode(b).expect("a decision")
     });
     assert_eq!(decisions.len(), commands.len(), "a decision per command");
@@ -366,7 +371,7 @@ fn every_drawn_decision_names_the_observation_it_answered_and_the_effect_of_its_
 
     // The text over the robot at each observation.
     let arena = Arena::new(ArenaId::Env3);
-    let texts = on(&all, "/robot", |b| {
+    let texts = on(all, "/robot", |b| {
         foxglove::messages::SceneUpdate::decode(b).expect("a scene update")
     });
     let mut checked = 0;
@@ -491,28 +496,33 @@ fn a_default_recording_has_a_log_and_data_for_every_panel_of_the_layout() {
 /// The belief (`arena → belief`) is drawn beside it.
 #[test]
 fn the_robot_moves_as_far_as_its_wheels_turned() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let file = record_by_default(dir.path(), 6);
+    the_robot_moves_as_its_wheels_allow(&messages(&file));
+}
+
+/// Each step of `arena → robot` within an episode against the wheels' turn between its two
+/// transforms; the belief drawn beside it.
+fn the_robot_moves_as_its_wheels_allow(all: &[(String, u64, Vec<u8>)]) {
     use prost::Message;
     use tes_recorder::schema::{decode_motor_state, decode_observation};
     use tes_topics::observation_flags;
-    let dir = tempfile::tempdir().expect("temp dir");
-    let file = record_by_default(dir.path(), 6);
-    let all = messages(&file);
-    let tf = on(&all, "/tf", |b| {
+    let tf = on(all, "/tf", |b| {
         foxglove::messages::FrameTransform::decode(b).expect("a transform")
     });
     assert!(tf.iter().all(|(_, t)| t.child_frame_id == "robot"));
-    let belief = on(&all, "/tf/belief", |b| {
+    let belief = on(all, "/tf/belief", |b| {
         foxglove::messages::FrameTransform::decode(b).expect("a transform")
     });
     assert!(!belief.is_empty() && belief.iter().all(|(_, t)| t.child_frame_id == "belief"));
-    let starts: Vec<u64> = on(&all, "/tes/observation", |b| {
+    let starts: Vec<u64> = on(all, "/tes/observation", |b| {
         decode_observation(b).expect("an observation")
     })
     .into_iter()
     .filter(|(_, o)| o.flags & observation_flags::EPISODE_START != 0)
     .map(|(_, o)| o.stamp_ns)
     .collect();
-    let wheels: Vec<(u64, [i32; 2])> = on(&all, "/tes/motor-state", |b| {
+    let wheels: Vec<(u64, [i32; 2])> = on(all, "/tes/motor-state", |b| {
         decode_motor_state(b).expect("a motor state")
     })
     .into_iter()
@@ -549,6 +559,61 @@ fn the_robot_moves_as_far_as_its_wheels_turned() {
     }
     assert!(steps > 100, "{steps} steps");
     assert!(largest > 0.0);
+}
+
+/// Busy processes, two per core at normal priority (`yes > /dev/null`), the kind of load under
+/// which the recorder once drew the belief back in time; killed when dropped, even when the
+/// test fails.
+struct CpuHog(Vec<std::process::Child>);
+
+impl CpuHog {
+    fn start() -> Self {
+        let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
+        let hogs = (0..2 * cores)
+            .map(|_| {
+                Command::new("yes")
+                    .stdout(std::process::Stdio::null())
+                    .spawn()
+                    .expect("yes runs")
+            })
+            .collect();
+        Self(hogs)
+    }
+}
+
+impl Drop for CpuHog {
+    fn drop(&mut self) {
+        for hog in &mut self.0 {
+            let _ = hog.kill();
+            let _ = hog.wait();
+        }
+    }
+}
+
+/// On a machine whose every core is busy with other work, a recording at the fastest pace
+/// still has every channel in time order (a sample read late from one service is drawn after
+/// the older ones of another), every label true and the robot moving as its wheels allow.
+#[test]
+fn under_a_cpu_hog_every_channel_stays_in_time_order_and_every_drawing_true() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let hog = CpuHog::start();
+    let file = record_by_default(dir.path(), 12);
+    drop(hog);
+    let bytes = std::fs::read(&file).expect("the recording reads");
+    let mut last: std::collections::HashMap<String, u64> = std::collections::HashMap::new();
+    let mut back = Vec::new();
+    for m in mcap::MessageStream::new(&bytes).expect("an MCAP file") {
+        let m = m.expect("a whole message");
+        let previous = last.insert(m.channel.topic.clone(), m.log_time);
+        if previous.is_some_and(|p| p > m.log_time) {
+            back.push(format!("{} {previous:?} → {}", m.channel.topic, m.log_time));
+        }
+    }
+    assert!(back.is_empty(), "log times go back: {back:#?}");
+    assert!(last.contains_key("/tf/belief") && last.contains_key("/tf"));
+    let all = messages(&file);
+    every_label_is_true(&all);
+    the_robot_moves_as_its_wheels_allow(&all);
 }
 
 /// The key of a column of the `.rrd` a client read back: `entity archetype:component`.
@@ -691,7 +756,7 @@ fn a_drawn_grid_run_ends_each_episode_as_the_cell_it_ended_on() {
         .filter(|c| c.size.is_some_and(|s| s.z < 0.005))
         .map(|c| {
             let (p, k) = (
-                c.pose.clone().expect("placed").position.expect("at"),
+                c.pose.expect("placed").position.expect("at"),
                 c.color.expect("coloured"),
             );
             ([p.x, p.y], [k.r, k.g, k.b])

@@ -272,3 +272,48 @@ fn every_channel_describes_its_messages() {
         assert!(!c.schema.data.is_empty(), "{}", c.topic);
     }
 }
+
+/// A straggler (an observation handed over after a motor report newer than it) is drawn at
+/// its channels' last time, never before: each channel stays in time order.
+#[test]
+fn a_sample_older_than_the_last_drawn_is_drawn_at_its_channels_last_time() {
+    let mut scene = Scene::new(SceneSettings::default());
+    let mut drawn = Collected::default();
+    let ok = |r: Result<(), std::convert::Infallible>| r.unwrap_or_else(|e| match e {});
+    ok(scene.world_map(&arena_map(3), 1, &mut drawn));
+    let start = observation(
+        1,
+        0,
+        0,
+        StateAttributes::at(2, 2, 0),
+        observation_flags::EPISODE_START,
+    );
+    ok(scene.observation(&start, &mut drawn));
+    for (i, deg) in [0, 90, 180].into_iter().enumerate() {
+        let m = MotorState {
+            seq: i as u64 + 1,
+            stamp_ns: 5_000_000 + i as u64,
+            tacho_count: [0, deg, deg],
+            ..MotorState::default()
+        };
+        ok(scene.motor_state(&m, &mut drawn));
+    }
+    // Published at 3 ms, before the reports above, but handed over after them.
+    ok(scene.observation(
+        &observation(3, 0, 1, StateAttributes::at(3, 2, 0), 0),
+        &mut drawn,
+    ));
+    let mut last: std::collections::HashMap<&str, u64> = std::collections::HashMap::new();
+    for (topic, _, wall_ns) in &drawn.drawings {
+        let before = last.insert(topic, *wall_ns).unwrap_or(0);
+        assert!(before <= *wall_ns, "{topic}: {before} then {wall_ns}");
+    }
+    let beliefs: Vec<u64> = drawn
+        .drawings
+        .iter()
+        .filter(|(t, ..)| *t == TF_BELIEF)
+        .map(|(.., w)| *w)
+        .collect();
+    assert_eq!(beliefs.len(), 4, "{beliefs:?}");
+    assert_eq!(beliefs[3], 5_000_002, "drawn at the last report's time");
+}
