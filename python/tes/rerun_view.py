@@ -239,6 +239,7 @@ def convert(mcap_path: str, rrd_path: str, recording_id: str | None = None) -> i
 def live_messages(addr: str, seconds: float | None) -> Iterable[tuple[str, int, Any]]:
     """The drawn messages a live group's Foxglove WebSocket server at ``addr`` sends, decoded,
     for ``seconds`` (or until the server closes)."""
+    from websockets.exceptions import ConnectionClosed
     from websockets.sync.client import connect
 
     deadline = None if seconds is None else time.monotonic() + seconds
@@ -250,6 +251,8 @@ def live_messages(addr: str, seconds: float | None) -> Iterable[tuple[str, int, 
                 frame = ws.recv(timeout=0.5)
             except TimeoutError:
                 continue
+            except ConnectionClosed:
+                return  # the group ended: its server closed the connection
             if isinstance(frame, str):
                 new = _advertised(json.loads(frame), channels)
                 if new:
