@@ -151,7 +151,10 @@ pub struct LatencySettings {
     pub record: bool,
     /// Also compare the group with and without the live Foxglove server and a viewer.
     pub foxglove: bool,
-    /// With `record` or `foxglove`: blocks of each kind.
+    /// Also compare the group with and without the live Foxglove server and Rerun's own
+    /// viewer following it: this script (`python/tes/rerun_view.py`) run with `--live`.
+    pub rerun: Option<PathBuf>,
+    /// With `record`, `foxglove` or `rerun`: blocks of each kind.
     pub record_blocks: u64,
     /// How the processes reach each other.
     pub via: Via,
@@ -177,6 +180,7 @@ impl Default for LatencySettings {
             planner_idle_spin_us: None,
             record: false,
             foxglove: false,
+            rerun: None,
             record_blocks: 4,
             via: Via::Shm,
             pace: Pace::Fastest,
@@ -207,7 +211,7 @@ impl LatencySettings {
         let placement = controller.placement(self.wait, planning).map_err(|e| {
             BenchError::Settings(format!("--{}: {}", e.key.replace('_', "-"), e.reason))
         })?;
-        if (self.record || self.foxglove) && self.record_blocks == 0 {
+        if (self.record || self.foxglove || self.rerun.is_some()) && self.record_blocks == 0 {
             return Err(BenchError::Settings(
                 "--record-blocks must be at least 1".into(),
             ));
@@ -392,6 +396,7 @@ impl fmt::Display for Note {
                 match watcher {
                     Watcher::Recorder => "recorder",
                     Watcher::Foxglove => "Foxglove server and a viewer",
+                    Watcher::Rerun => "Foxglove server and Rerun's viewer",
                 }
             ),
         }
@@ -497,6 +502,9 @@ pub struct LatencyResult {
     /// With `foxglove`: the group with and without the live Foxglove server and a viewer
     /// reading every channel, in alternating blocks (null without).
     pub foxglove: Option<RecorderComparison>,
+    /// With `rerun`: the group with and without the live Foxglove server and Rerun's own
+    /// viewer following it (`rerun_view.py --live`), in alternating blocks (null without).
+    pub rerun: Option<RecorderComparison>,
 }
 
 impl LatencyResult {
@@ -653,12 +661,17 @@ pub fn run(latency: &CheckedLatency, harness: &mut Harness<'_>) -> Result<Latenc
     } else {
         None
     };
+    let rerun = if s.rerun.is_some() {
+        Some(recorder_cost::compare(&group, s, harness, Watcher::Rerun)?)
+    } else {
+        None
+    };
     Ok(result(
         latency,
         ours,
         floor,
         floor_awake,
-        [recorder, foxglove],
+        [recorder, foxglove, rerun],
     ))
 }
 
@@ -782,7 +795,7 @@ fn result(
     ours: Ours,
     floor: Floor,
     floor_awake: Option<Floor>,
-    [recorder, foxglove]: [Option<RecorderComparison>; 2],
+    [recorder, foxglove, rerun]: [Option<RecorderComparison>; 3],
 ) -> LatencyResult {
     let s = &latency.settings;
     let Ours {
@@ -846,5 +859,6 @@ fn result(
         planning: controller.planning,
         recorder,
         foxglove,
+        rerun,
     }
 }

@@ -21,6 +21,7 @@ pub mod keep_awake;
 pub mod latency;
 pub mod recorder_cost;
 pub mod relay;
+pub mod rerun_client;
 pub mod scaling;
 pub mod viewer_client;
 

@@ -1,9 +1,10 @@
-//! What an observer of the group costs it: the recorder (`tes bench latency --record`) or the
-//! live Foxglove server with a viewer reading every channel (`--foxglove`). The measured group
+//! What an observer of the group costs it: the recorder (`tes bench latency --record`), the
+//! live Foxglove server with a viewer reading every channel (`--foxglove`), or the same server
+//! followed by Rerun's own viewer (`--rerun`, [`crate::rerun_client`]). The measured group
 //! runs in blocks without and with it, alternating, each from the same starting library,
 //! compared by the medians over the blocks of each kind.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 use tes_launch::Event;
@@ -12,6 +13,7 @@ use tes_recorder::reader::Recording;
 use crate::error::{BenchError, Result};
 use crate::group::Group;
 use crate::latency::{Harness, LatencySettings, Note};
+use crate::rerun_client::RerunClient;
 use crate::viewer_client::ViewerClient;
 
 /// The observer a comparison switches on and off.
@@ -22,6 +24,9 @@ pub enum Watcher {
     Recorder,
     /// The launcher's live Foxglove server, with a viewer subscribed to every channel.
     Foxglove,
+    /// The launcher's live Foxglove server, followed by Rerun's own viewer
+    /// (`rerun_view.py --live`, logging every drawing through rerun-sdk).
+    Rerun,
 }
 
 impl Watcher {
@@ -30,6 +35,7 @@ impl Watcher {
         match self {
             Self::Recorder => "recorder",
             Self::Foxglove => "Foxglove server",
+            Self::Rerun => "Rerun viewer",
         }
     }
 }
@@ -52,7 +58,7 @@ pub struct RecorderBlock {
     pub written: Option<[u64; 3]>,
     /// With the recorder: the samples it could not take in time.
     pub missed: Option<u64>,
-    /// With the Foxglove server: the messages its viewer received.
+    /// With the Foxglove server: the messages its viewer received (Rerun's: drew).
     pub viewer_messages: Option<u64>,
 }
 
@@ -105,9 +111,18 @@ pub(crate) fn compare(
         let mut file = block_file.clone();
         match watcher {
             Watcher::Recorder => file.launch.record = with.then(|| mcap.clone()),
-            Watcher::Foxglove => file.launch.foxglove = with.then(|| "127.0.0.1:0".to_owned()),
+            Watcher::Foxglove | Watcher::Rerun => {
+                file.launch.foxglove = with.then(|| "127.0.0.1:0".to_owned());
+            }
         }
-        let ((report, summary), viewer_messages) = run_watched(group, &file, harness)?;
+        let viewer = match (watcher, &settings.rerun) {
+            (Watcher::Rerun, Some(script)) => Viewer::Rerun {
+                script,
+                rrd: group.dir.join("bench.rrd"),
+            },
+            _ => Viewer::Bench,
+        };
+        let ((report, summary), viewer_messages) = run_watched(group, &file, harness, &viewer)?;
         if report.count < measured {
             return Err(BenchError::Run(format!(
                 "block {}: the bridge saw {} measured commands, expected {measured}",
@@ -140,20 +155,52 @@ type Reports = (
     tes_controller::process::ControllerSummary,
 );
 
-/// Runs the group once; when its launch serves Foxglove, a viewer follows it throughout and
+/// Who follows a launch that serves Foxglove.
+enum Viewer<'a> {
+    /// The bench's own client, reading every channel.
+    Bench,
+    /// `python3 script --live ADDR -o rrd` (`python/tes/rerun_view.py`).
+    Rerun { script: &'a Path, rrd: PathBuf },
+}
+
+/// A viewer following a block.
+enum Following {
+    Bench(ViewerClient),
+    Rerun(RerunClient),
+}
+
+impl Following {
+    fn start(viewer: &Viewer<'_>, addr: std::net::SocketAddr) -> Result<Self> {
+        match viewer {
+            Viewer::Bench => ViewerClient::connect(addr).map(Self::Bench),
+            Viewer::Rerun { script, rrd } => RerunClient::spawn(script, addr, rrd).map(Self::Rerun),
+        }
+    }
+
+    /// Ends it; the messages it received (the bench's client) or drew (Rerun's).
+    fn stop(self) -> Result<u64> {
+        match self {
+            Self::Bench(client) => Ok(client.stop()),
+            Self::Rerun(client) => client.stop(),
+        }
+    }
+}
+
+/// Runs the group once; when its launch serves Foxglove, `viewer` follows it throughout and
 /// the messages it received are returned too.
 fn run_watched(
     group: &Group,
     file: &tes_launch::LaunchFile,
     harness: &mut Harness<'_>,
+    viewer: &Viewer<'_>,
 ) -> Result<(Reports, Option<u64>)> {
-    let mut viewer: Option<ViewerClient> = None;
+    let mut following: Option<Following> = None;
     let mut failed = None;
     let inner = &mut *harness.observer;
     let mut watching = |e: &Event| {
         if let Event::Foxglove { addr, .. } = e {
-            match ViewerClient::connect(*addr) {
-                Ok(client) => viewer = Some(client),
+            match Following::start(viewer, *addr) {
+                Ok(f) => following = Some(f),
                 Err(e) => failed = Some(e),
             }
         }
@@ -166,11 +213,12 @@ fn run_watched(
         notes: &mut *harness.notes,
     };
     let ran = group.run(file, &mut watched);
-    let received = viewer.map(ViewerClient::stop);
+    let received = following.map(Following::stop).transpose();
     if let Some(e) = failed {
         return Err(e);
     }
-    Ok((ran?, received))
+    let ran = ran?;
+    Ok((ran, received?))
 }
 
 /// Whether block `i` of the comparison runs with the recorder: without, with, with, without,

@@ -226,6 +226,9 @@ impl Supervisor {
                 pid: c.process.child.id(),
             });
         }
+        if let Some(log) = &log_to {
+            log.send(LAUNCH_LOG, &started_line(&children, &prefix));
+        }
         let pruned = prepared.commit();
         if !pruned.is_empty() {
             observer.event(&Event::RunFoldersPruned {
@@ -338,6 +341,14 @@ impl Supervisor {
         let drawn = self.record.finish();
         self.relay.emit_records(&self.record, observer);
         let mut failures: Vec<String> = ending.failure.into_iter().collect();
+        if let Some(log) = &self.relay.log_to {
+            // The recording's last line: how the group went (the recorder's own end is in
+            // the file's end record).
+            let mut so_far = failures.clone();
+            self.add_failed_children(&mut so_far);
+            let line = ended_line(&so_far, ending.reason.as_deref(), self.relay.episodes);
+            log.send(LAUNCH_LOG, &line);
+        }
         self.finish_recording(&mut failures, observer);
         self.add_failed_children(&mut failures);
         observer.event(&Event::RunFolder {
@@ -566,6 +577,16 @@ impl Supervisor {
             restart: self.children[i].restarts,
             max: self.file.launch.max_restarts,
         });
+        if let Some(log) = &self.relay.log_to {
+            let how = children::describe(status);
+            let text = format!(
+                "WARN launch: {} {how}; restart {} of {}",
+                role.name(),
+                self.children[i].restarts,
+                self.file.launch.max_restarts
+            );
+            log.send(LAUNCH_LOG, &text);
+        }
         if let Err(e) = channel::clean_stale_resources() {
             observer.event(&Event::Warning(e.to_string()));
         }
@@ -787,6 +808,34 @@ impl Supervisor {
     /// The group is to stop: the first reason given is the one.
     fn end(&mut self, failure: Option<String>, reason: Option<String>) {
         self.ending.get_or_insert(Ending { failure, reason });
+    }
+}
+
+/// The name the launcher's own lines carry in a recording's `/log`.
+const LAUNCH_LOG: &str = "launch";
+
+/// The `/log` line of the group's start: each process and its pid.
+fn started_line(children: &[Running], prefix: &str) -> String {
+    let who: Vec<String> = children
+        .iter()
+        .map(|c| format!("{} (pid {})", c.spec.role.name(), c.process.child.id()))
+        .collect();
+    format!(
+        "INFO launch: the group {prefix} started: {}",
+        who.join(", ")
+    )
+}
+
+/// The `/log` line of the group's end: how it went, at the level it deserves.
+fn ended_line(failures: &[String], reason: Option<&str>, episodes: u32) -> String {
+    if failures.is_empty() {
+        let why = reason.unwrap_or("the group stopped");
+        format!("INFO launch: {why}; {episodes} episodes")
+    } else {
+        format!(
+            "ERROR launch: the group failed after {episodes} episodes: {}",
+            failures.join("; ")
+        )
     }
 }
 

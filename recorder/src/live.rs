@@ -6,11 +6,13 @@
 //! It is woken by nothing, so no process of the group notifies it, and it never waits on the
 //! loop: every half millisecond it reads one entry of the command log, and when a new
 //! command is out (the robot is moving, the next decision is a motion away) it takes
-//! everything queued and writes it; at least every 20 ms in any case. What each service guarantees decides how it
-//! is read:
+//! everything queued; at least every 20 ms in any case. It writes and draws what it took in
+//! the order of the samples' stamps, not stream by stream ([`crate::merge`]): a sample
+//! published while another stream is read would otherwise be drawn before older ones. What
+//! each service guarantees decides how it is read:
 //!
-//! * observations and motor states are publish–subscribe: the recorder's subscribers (no
-//!   listener) queue up to `tes_runtime::ipc::RECORDER_BUFFER` samples each;
+//! * observations, motor states and the world's poses are publish–subscribe: the recorder's
+//!   subscribers (no listener) queue up to `tes_runtime::ipc::RECORDER_BUFFER` samples each;
 //! * the controller's commands go to the bridge over a one-entry blackboard, which a passive
 //!   reader could miss; the controller also stores each one, once it is out, in a ring of the
 //!   last `tes_runtime::ring::RING` commands (`tes/command/log`, a lock-free store into shared
@@ -44,11 +46,12 @@ use tes_controller::priority::Background;
 use tes_runtime::channel::{self, IpcError};
 use tes_runtime::ipc::RECORDER_BUFFER;
 use tes_runtime::ring::RingReader;
-use tes_topics::{Command, MotorState, Observation, ServiceNames, WorldMap};
+use tes_topics::{Command, MotorState, Observation, ServiceNames, WorldMap, WorldPose};
 use tes_viewer::canvas::{Canvas, Drawing};
 use tes_viewer::live::{LiveError, LiveServer};
 use tes_viewer::scene::{Scene, SceneSettings};
 
+use crate::merge::{Merge, Sample};
 use crate::writer::{RecordCounts, RunInfo, RunWriter, WriteError};
 
 /// Why the recorder stopped with an error.
@@ -360,6 +363,7 @@ struct Ports {
     maps: Sub<WorldMap>,
     observations: Sub<Observation>,
     motor_states: Sub<MotorState>,
+    world_poses: Sub<WorldPose>,
     commands: RingReader<Command>,
 }
 
@@ -370,6 +374,7 @@ fn open_ports(prefix: &str) -> Result<Ports, RecordError> {
         maps: subscriber::<WorldMap>(&node, &names.world_map, 1, 1)?,
         observations: subscriber::<Observation>(&node, &names.observation, 0, RECORDER_BUFFER)?,
         motor_states: subscriber::<MotorState>(&node, &names.motor_state, 0, RECORDER_BUFFER)?,
+        world_poses: subscriber::<WorldPose>(&node, &names.world_pose, 0, RECORDER_BUFFER)?,
         commands: RingReader::<Command>::open(&node, &names.command_log)?,
         _node: node,
     })
@@ -382,6 +387,8 @@ struct Tap {
     scene: Scene,
     seen: [Gaps; 3],
     have_map: bool,
+    /// The samples taken, handed on in the order of their stamps.
+    merge: Merge,
 }
 
 impl Tap {
@@ -395,50 +402,30 @@ impl Tap {
         )
     }
 
-    /// Takes everything queued: in the order of the loop, observations, the commands
-    /// answering them, the motion; then the log lines.
+    /// Takes everything queued and hands on, in the order of their stamps, every sample no
+    /// stream can still bring an older one than ([`Merge`]); then the log lines.
     fn drain(
         &mut self,
         ports: &mut Ports,
         lines: &mpsc::Receiver<LogLine>,
         stopping: bool,
     ) -> Result<(), RecordError> {
+        // Before any stream is read: a sample stamped well before this is queued by now.
+        let read_ns = tes_runtime::clock::monotonic_ns();
+        self.take(ports, stopping)?;
+        // What is drawn once is drawn no later than the oldest sample still to draw, so
+        // every channel stays in time order.
+        let drawn_ns = self.merge.oldest_ns().map_or(read_ns, |o| o.min(read_ns));
         if !self.have_map {
-            drain(&ports.maps, |m| self.world_map(&m))?;
+            drain(&ports.maps, |m| self.world_map(&m, drawn_ns))?;
         }
         if self.live.as_ref().is_some_and(LiveServer::take_joined) {
             let (scene, mut canvas) = self.canvas();
-            scene.redraw(tes_runtime::clock::monotonic_ns(), &mut canvas)?;
+            scene.redraw(drawn_ns, &mut canvas)?;
         }
-        drain(&ports.observations, |o| {
-            self.seen[0].see(o.seq);
-            if let Some(file) = &mut self.file {
-                file.observation(&o)?;
-            }
-            let (scene, mut canvas) = self.canvas();
-            Ok(scene.observation(&o, &mut canvas)?)
-        })?;
-        let new_commands = if stopping {
-            ports.commands.take_new_scanning()
-        } else {
-            ports.commands.take_new()
-        };
-        for c in new_commands {
-            self.seen[1].see(c.seq);
-            if let Some(file) = &mut self.file {
-                file.command(c)?;
-            }
-            let (scene, mut canvas) = self.canvas();
-            scene.command(c, &mut canvas)?;
+        while let Some(sample) = self.merge.next_ready(read_ns, stopping) {
+            self.sample(sample)?;
         }
-        drain(&ports.motor_states, |m| {
-            self.seen[2].see(m.seq);
-            if let Some(file) = &mut self.file {
-                file.motor_state(&m)?;
-            }
-            let (scene, mut canvas) = self.canvas();
-            Ok(scene.motor_state(&m, &mut canvas)?)
-        })?;
         while let Ok(line) = lines.try_recv() {
             let (scene, mut canvas) = self.canvas();
             scene.log_line(line.role, &line.text, line.stamp_ns, &mut canvas)?;
@@ -446,12 +433,77 @@ impl Tap {
         Ok(())
     }
 
-    fn world_map(&mut self, map: &WorldMap) -> Result<(), RecordError> {
+    /// Reads every stream into the merge: what each queued since the last drain and the
+    /// commands logged since (at the stop, the whole command log scanned once more).
+    fn take(&mut self, ports: &mut Ports, stopping: bool) -> Result<(), RecordError> {
+        let merge = &mut self.merge;
+        drain(&ports.observations, |o| {
+            merge.push(Sample::Observation(o));
+            Ok(())
+        })?;
+        let commands = if stopping {
+            ports.commands.take_new_scanning()
+        } else {
+            ports.commands.take_new()
+        };
+        for c in commands {
+            merge.push(Sample::Command(*c));
+        }
+        drain(&ports.world_poses, |w| {
+            merge.push(Sample::WorldPose(w));
+            Ok(())
+        })?;
+        drain(&ports.motor_states, |m| {
+            merge.push(Sample::MotorState(m));
+            Ok(())
+        })
+    }
+
+    /// Writes and draws one sample.
+    fn sample(&mut self, sample: Sample) -> Result<(), RecordError> {
+        match sample {
+            Sample::Observation(o) => self.observation(&o),
+            Sample::Command(c) => self.command(&c),
+            Sample::MotorState(m) => self.motor_state(&m),
+            Sample::WorldPose(w) => {
+                let (scene, mut canvas) = self.canvas();
+                Ok(scene.world_pose(&w, &mut canvas)?)
+            }
+        }
+    }
+
+    fn motor_state(&mut self, m: &MotorState) -> Result<(), RecordError> {
+        self.seen[2].see(m.seq);
+        if let Some(file) = &mut self.file {
+            file.motor_state(m)?;
+        }
+        let (scene, mut canvas) = self.canvas();
+        Ok(scene.motor_state(m, &mut canvas)?)
+    }
+
+    fn observation(&mut self, o: &Observation) -> Result<(), RecordError> {
+        self.seen[0].see(o.seq);
+        if let Some(file) = &mut self.file {
+            file.observation(o)?;
+        }
+        let (scene, mut canvas) = self.canvas();
+        Ok(scene.observation(o, &mut canvas)?)
+    }
+
+    fn command(&mut self, c: &Command) -> Result<(), RecordError> {
+        self.seen[1].see(c.seq);
+        if let Some(file) = &mut self.file {
+            file.command(c)?;
+        }
+        let (scene, mut canvas) = self.canvas();
+        Ok(scene.command(c, &mut canvas)?)
+    }
+
+    fn world_map(&mut self, map: &WorldMap, now: u64) -> Result<(), RecordError> {
         if self.have_map {
             return Ok(());
         }
         self.have_map = true;
-        let now = tes_runtime::clock::monotonic_ns();
         if let Some(file) = &mut self.file {
             file.world_map(map, now)?;
         }
@@ -502,6 +554,7 @@ fn record(
         scene,
         seen: [Gaps::default(); 3],
         have_map: false,
+        merge: Merge::with_capacity(RECORDER_BUFFER),
     };
     let (mut last_flush, mut last_drain) = (Instant::now(), Instant::now());
     loop {
@@ -517,6 +570,8 @@ fn record(
         tap.drain(&mut ports, lines, stopping)?;
         pace.drained();
         if stopping {
+            let (scene, mut canvas) = tap.canvas();
+            scene.finish(&mut canvas)?;
             break;
         }
         if last_flush.elapsed() >= FLUSH_EVERY

@@ -502,15 +502,16 @@ pub fn pubsub<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service>(
 /// ([`RECORDED_BUFFER_SERVICES`]), so that a recorder that polls now and then misses nothing:
 /// at the fastest pace the bridge publishes about 17 motor states per action, 8 000 a second,
 /// so this rides out half a second in which a busy machine gives the (`SCHED_IDLE`) recorder
-/// no time.
+/// no time (and the observations and world poses, one an action each, far longer).
 pub const RECORDER_BUFFER: usize = 4096;
 
 /// The services (by the end of their names) whose subscribers may hold up to
 /// [`RECORDER_BUFFER`] samples: small payloads published every action. Subscribers of the
 /// group itself still ask for [`BUFFER`].
-pub const RECORDED_BUFFER_SERVICES: [&str; 2] = [
+pub const RECORDED_BUFFER_SERVICES: [&str; 3] = [
     tes_topics::service::OBSERVATION,
     tes_topics::service::MOTOR_STATE,
+    tes_topics::service::WORLD_POSE,
 ];
 
 /// The most samples a subscriber of the service `name` may hold.

@@ -155,7 +155,13 @@ pub struct LatencyArgs {
     /// `--record`'s.
     #[arg(long)]
     foxglove: bool,
-    /// With `--record` or `--foxglove`: blocks of each kind; each measures `--actions / N`
+    /// Also compare the group with and without the live Foxglove server followed by Rerun's
+    /// own viewer (`python3 SCRIPT --live ADDR -o FILE.rrd`, SCRIPT being
+    /// `python/tes/rerun_view.py`; needs rerun-sdk, mcap and websockets), in alternating
+    /// blocks as `--record`'s.
+    #[arg(long, value_name = "SCRIPT")]
+    rerun: Option<PathBuf>,
+    /// With `--record`, `--foxglove` or `--rerun`: blocks of each kind; each measures `--actions / N`
     /// actions after the warm-up.
     #[arg(long, default_value_t = 4, value_name = "N")]
     record_blocks: u64,
@@ -282,6 +288,7 @@ fn latency_settings(args: &LatencyArgs) -> Result<LatencySettings> {
         planner_idle_spin_us: args.planner_idle_spin_us,
         record: args.record,
         foxglove: args.foxglove,
+        rerun: args.rerun.clone(),
         record_blocks: args.record_blocks,
         via: match args.via {
             ViaArg::Shm => Via::Shm,
@@ -407,7 +414,10 @@ fn print_latency(result: &LatencyResult, warmup: u64) {
         );
     }
     print_cpu(result);
-    for r in [&result.recorder, &result.foxglove].into_iter().flatten() {
+    for r in [&result.recorder, &result.foxglove, &result.rerun]
+        .into_iter()
+        .flatten()
+    {
         print_observer_cost(r);
     }
     // A planner thread yields to everything: where the measured loops keep both CPUs busy
@@ -466,6 +476,7 @@ fn print_observer_cost(r: &RecorderComparison) {
     let what = match r.watcher {
         Watcher::Recorder => "written obs/cmd/motor",
         Watcher::Foxglove => "viewer received",
+        Watcher::Rerun => "Rerun drew",
     };
     println!(
         "{:>5} {:>16} {:>8} {:>8} {:>7} {:>12} {:>24} {:>7}",
