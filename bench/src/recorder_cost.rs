@@ -6,84 +6,15 @@
 
 use std::path::{Path, PathBuf};
 
-use serde::Serialize;
 use tes_launch::Event;
 use tes_recorder::reader::Recording;
 
 use crate::error::{BenchError, Result};
 use crate::group::Group;
-use crate::latency::{Harness, LatencySettings, Note};
+use crate::harness::{Harness, LatencySettings, Note};
+pub use crate::harness::{RecorderBlock, RecorderComparison, Watcher};
 use crate::rerun_client::RerunClient;
 use crate::viewer_client::ViewerClient;
-
-/// The observer a comparison switches on and off.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Watcher {
-    /// The launcher's recorder writing the run to MCAP (its drawings for viewers included).
-    Recorder,
-    /// The launcher's live Foxglove server, with a viewer subscribed to every channel.
-    Foxglove,
-    /// The launcher's live Foxglove server, followed by Rerun's own viewer
-    /// (`rerun_view.py --live`, logging every drawing through rerun-sdk).
-    Rerun,
-}
-
-impl Watcher {
-    /// As the tables name it.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Recorder => "recorder",
-            Self::Foxglove => "Foxglove server",
-            Self::Rerun => "Rerun viewer",
-        }
-    }
-}
-
-/// One block of the comparison: a run of the group from the starting library, with or
-/// without the observer.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-pub struct RecorderBlock {
-    /// Whether the observer ran (the recorder, or the Foxglove server and its viewer).
-    pub recorded: bool,
-    /// Observation → bridge, median, µs.
-    pub p50_us: u64,
-    /// Observation → bridge, 99th percentile, µs.
-    pub p99_us: u64,
-    /// Actions over the budget.
-    pub misses: u64,
-    /// Heap allocations on the controller's acting path (null if not counted).
-    pub allocations: Option<u64>,
-    /// With the recorder: the observations, commands and motor states it wrote.
-    pub written: Option<[u64; 3]>,
-    /// With the recorder: the samples it could not take in time.
-    pub missed: Option<u64>,
-    /// With the Foxglove server: the messages its viewer received (Rerun's: drew).
-    pub viewer_messages: Option<u64>,
-}
-
-/// An observer's cost as the medians over blocks of each kind.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct RecorderComparison {
-    /// The observer compared.
-    pub watcher: Watcher,
-    /// In the order they ran.
-    pub blocks: Vec<RecorderBlock>,
-    /// Median over the blocks without the recorder of their p50, µs.
-    pub without_p50_us: f64,
-    /// Median over the blocks without the recorder of their p99, µs.
-    pub without_p99_us: f64,
-    /// Median over the blocks with the recorder of their p50, µs.
-    pub with_p50_us: f64,
-    /// Median over the blocks with the recorder of their p99, µs.
-    pub with_p99_us: f64,
-    /// `with / without − 1` of the p50 medians (0.05 = 5 % slower with the recorder).
-    pub change_p50: f64,
-    /// `with / without − 1` of the p99 medians.
-    pub change_p99: f64,
-    /// The most allocations any block counted on the acting path with the recorder.
-    pub allocations_with: Option<u64>,
-}
 
 /// Runs `2 × record_blocks` blocks of `actions / record_blocks` measured actions each,
 /// without and with `watcher` in turn ([`block_is_recorded`]), and compares them.
@@ -93,9 +24,9 @@ pub(crate) fn compare(
     harness: &mut Harness<'_>,
     watcher: Watcher,
 ) -> Result<RecorderComparison> {
-    let measured = (settings.actions / settings.record_blocks.max(1)).max(1);
+    let measured = (settings.actions() / settings.record_blocks.max(1)).max(1);
     let mut block_file = group.file.clone();
-    block_file.perception.actions = measured + settings.warmup;
+    block_file.perception.actions = measured + settings.warmup();
     let mcap = group.dir.join("bench.mcap");
     let kinds = 2 * settings.record_blocks;
     let mut blocks = Vec::new();

@@ -38,6 +38,7 @@ pub mod progress;
 pub mod replot;
 pub mod report;
 pub mod robot;
+pub mod settings;
 pub mod stats;
 pub mod study;
 pub mod svg;

@@ -14,7 +14,7 @@ use tes_runtime::settings::{self, Origin, SettingError};
 use tes_topics::Role;
 
 use crate::children::ChildSpec;
-use crate::{reference, run_folder};
+use crate::run_folder;
 
 /// What to do when a child dies.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize, Default)]
@@ -813,9 +813,9 @@ pub fn unique_service_prefix() -> String {
 pub const RESOLVED_LAUNCH_FILE: &str = "launch.toml";
 
 /// Checks every child's settings, takes the run directory for this launch and writes their
-/// settings there. A launch without a service prefix gets one of its own.
+/// settings there. A launch without a service prefix gets one of its own. The resolved launch
+/// file beside them is [`reference::write_resolved`](crate::reference::write_resolved)'s.
 pub fn prepare(file: &LaunchFile) -> Result<Prepared, LaunchFileError> {
-    let as_given = file;
     let mut file = file.clone();
     if file.launch.service_prefix.is_empty() {
         file.launch.service_prefix = unique_service_prefix();
@@ -877,11 +877,6 @@ pub fn prepare(file: &LaunchFile) -> Result<Prepared, LaunchFileError> {
         _locks: lock,
     };
     let run_dir = prepared.run_dir.clone();
-    // As given: a launch without a service prefix of its own gets a new one when rerun.
-    let resolved = reference::render_resolved(as_given)
-        .map_err(|e| unwritable("cannot write the resolved launch file".into())(e.into()))?;
-    let resolved_path = run_dir.join(RESOLVED_LAUNCH_FILE);
-    std::fs::write(&resolved_path, resolved).map_err(run_dir_error(&resolved_path))?;
     children.write_into(&run_dir);
     let plays = |role: &Role| file.launch.roles.is_empty() || file.launch.roles.contains(role);
     for role in START_ORDER.iter().filter(|r| plays(r)) {

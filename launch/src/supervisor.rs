@@ -176,6 +176,7 @@ impl Supervisor {
         // A refusal from here until the children run removes the new run folder (`prepared`'s
         // drop) and leaves `runs/latest` as it was.
         let mut prepared = prepare(file)?;
+        crate::reference::write_resolved(file, &prepared.run_dir)?;
         clean_stale_resources(observer);
         let prefix = prepared.service_prefix.clone();
         refuse_a_prefix_in_use(&prefix)?;

@@ -592,7 +592,7 @@ impl Camera<'_> {
             seq: self.seq + 1,
             due_ns,
         })?;
-        self.loan = Some(tes_runtime::anticipate::sleep_until_with_loan(
+        self.loan = Some(tes_runtime::channel::sleep_until_with_loan(
             due_ns,
             self.observations,
         )?);

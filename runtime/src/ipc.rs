@@ -8,7 +8,17 @@ use iceoryx2::service::Service;
 
 use tes_topics::{Role, ServiceNames};
 
-use crate::channel::{BUFFER, Listener};
+/// A process's iceoryx2 node ([`group_node`]): its ports are opened on it, and it outlives
+/// them.
+pub type ProcessNode = Node<ipc::Service>;
+
+/// The listening end of an event service.
+pub(crate) type Listener<S = ipc::Service> = iceoryx2::port::listener::Listener<S>;
+
+/// Samples a subscriber can hold before the oldest is dropped. The control loop has one sample
+/// in flight; the slack absorbs a receiver descheduled on a loaded machine, and receivers
+/// detect any loss by the payloads' sequence numbers.
+pub const BUFFER: usize = 16;
 
 /// An iceoryx2 failure; `context` says which step.
 #[derive(Debug, thiserror::Error)]

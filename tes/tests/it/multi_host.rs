@@ -930,6 +930,29 @@ fn on_an_insecure_link_a_strangers_commands_do_not_stop_the_controllers() {
     }
 }
 
+/// The robot's half of a group (perception-sim and bridge) listening on QUIC at `port` with
+/// `keys`' first host certificate, once it waits for its controller.
+fn robot_listening_on_quic(keys: &tes_link::keys::KeySet, group: &str, port: u16) -> Host {
+    let mut robot = Host::new("s");
+    let link = format!(
+        "group = \"{group}\"\nlisten = [\"quic/127.0.0.1:{port}\"]\nconnect = []\n\
+         peer_timeout_ms = 60000\ntls_ca = {:?}\ntls_cert = {:?}\ntls_key = {:?}\n",
+        keys.authority.display().to_string(),
+        keys.hosts[0].cert.display().to_string(),
+        keys.hosts[0].key.display().to_string(),
+    );
+    robot.start(
+        "roles = [\"perception-sim\", \"bridge\"]\nreal_time_factor = 0.01",
+        &link,
+        10_000,
+        &[],
+    );
+    robot
+        .group()
+        .wait_for_stderr("waiting for the controller", Duration::from_secs(60));
+    robot
+}
+
 /// An independent client, PyPI's Zenoh, tries to join a robot's host over QUIC: with no
 /// certificate, with another authority's, and over plain TCP it reaches no peer and the
 /// launch logs the refused connections; with a valid certificate of the wrong role (the robot
@@ -954,23 +977,7 @@ fn strangers_are_kept_out_and_a_wrong_role_cannot_command() {
         .and_then(|s| s.local_addr())
         .map(|a| a.port())
         .expect("a free UDP port");
-    let mut robot = Host::new("s");
-    let link = format!(
-        "group = \"{group}\"\nlisten = [\"quic/127.0.0.1:{port}\"]\nconnect = []\n\
-         peer_timeout_ms = 60000\ntls_ca = {:?}\ntls_cert = {:?}\ntls_key = {:?}\n",
-        keys.authority.display().to_string(),
-        keys.hosts[0].cert.display().to_string(),
-        keys.hosts[0].key.display().to_string(),
-    );
-    robot.start(
-        "roles = [\"perception-sim\", \"bridge\"]\nreal_time_factor = 0.01",
-        &link,
-        10_000,
-        &[],
-    );
-    robot
-        .group()
-        .wait_for_stderr("waiting for the controller", Duration::from_secs(60));
+    let mut robot = robot_listening_on_quic(keys, &group, port);
     let quic = format!("quic/127.0.0.1:{port}");
     let path = |p: &PathBuf| p.display().to_string();
     let ca = |set: &tes_link::keys::KeySet| vec!["--ca".to_owned(), path(&set.authority)];
