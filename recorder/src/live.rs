@@ -7,7 +7,7 @@
 //! loop: every half millisecond it reads one entry of the command log, and when a new
 //! command is out (the robot is moving, the next decision is a motion away) it takes
 //! everything queued; at least every 20 ms in any case. It writes and draws what it took in
-//! the order of the samples' stamps, not stream by stream ([`crate::merge`]): a sample
+//! the order of the samples' stamps, not stream by stream (`merge`): a sample
 //! published while another stream is read would otherwise be drawn before older ones. What
 //! each service guarantees decides how it is read:
 //!
@@ -120,7 +120,7 @@ const LOOK_EVERY: Duration = Duration::from_micros(500);
 const DRAIN_AT_LEAST: Duration = Duration::from_millis(20);
 
 /// How long the recorder may go without draining the services before the watcher raises it
-/// to normal priority: five times [`DRAIN_AT_LEAST`], far less than a buffer's worth of
+/// to normal priority: five times `DRAIN_AT_LEAST`, far less than a buffer's worth of
 /// actions, and far more than a healthy recorder on an idle machine ever lags.
 pub const LAG_LIMIT: Duration = Duration::from_millis(100);
 
