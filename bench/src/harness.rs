@@ -541,6 +541,13 @@ pub struct LatencyResult {
 }
 
 impl LatencyResult {
+    /// The observers' comparisons this run made (recorder, Foxglove, Rerun), in that order.
+    pub fn observers(&self) -> impl Iterator<Item = &RecorderComparison> {
+        [&self.recorder, &self.foxglove, &self.rerun]
+            .into_iter()
+            .flatten()
+    }
+
     /// Ours, observation → bridge, as a report (the run's own fields).
     pub fn ours(&self) -> LatencyReport {
         LatencyReport {

@@ -96,12 +96,7 @@ pub fn latency(result: &LatencyResult, warmup: u64) -> String {
         );
     }
     cpu(&mut out, result);
-    for r in [&result.recorder, &result.foxglove, &result.rerun]
-        .into_iter()
-        .flatten()
-    {
-        observer_cost(&mut out, r);
-    }
+    result.observers().for_each(|r| observer_cost(&mut out, r));
     // A planner thread yields to everything: where the measured loops keep both CPUs busy
     // (spin on two cores) it barely runs, and the agent acts on an old policy.
     if result.learn.count > 0 {
