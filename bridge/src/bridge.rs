@@ -423,11 +423,19 @@ impl<T: Transport> Bridge<T> {
     fn link_error(&mut self, e: &TransportError) {
         self.stats.transport_errors += 1;
         if self.state.flags & motor_flags::LINK_DOWN == 0 {
-            tracing::warn!(error = %e, transport = %self.transport.describe(), "link to the brick failed");
+            if self.link_ever_up {
+                tracing::warn!(error = %e, transport = %self.transport.describe(), "link to the brick failed");
+            } else {
+                // Still coming up: if it never does, the process's error says this cause, once.
+                tracing::debug!(error = %e, transport = %self.transport.describe(), "link to the brick not up yet");
+            }
         }
         if e.is_link_failure() {
             self.state.flags |= motor_flags::LINK_DOWN;
-            self.last_link_error = Some(e.to_string());
+            // A back-off is the consequence of the failure before it, not a cause to report.
+            if !matches!(e, TransportError::Backoff { .. }) || self.last_link_error.is_none() {
+                self.last_link_error = Some(e.to_string());
+            }
             self.link_impossible = e.is_impossible();
         }
     }

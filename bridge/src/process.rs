@@ -38,6 +38,10 @@ use crate::transport::{
     TimedTransport, Transport, TransportError, UsbTransport,
 };
 
+/// What to check when a link never came up (its possible causes are outside the program).
+const NEVER_UP_FIX: &str =
+    "; is the brick switched on, and is this its link? (docs/bridge.md, section 4: failures)";
+
 /// Why the bridge process could not run.
 #[derive(Debug, Error)]
 pub enum ProcessError {
@@ -53,10 +57,11 @@ pub enum ProcessError {
     /// The link to the brick did not come up, or stayed down, for longer than
     /// `link_timeout_ms`.
     #[error(
-        "the link to the brick ({transport}) {}: {last_error}",
+        "the link to the brick ({transport}) {}: {last_error}{}",
         if *impossible { "cannot be used on this machine".to_owned() }
         else if *never_up { format!("did not come up within {:.1} s", down_for.as_secs_f64()) }
-        else { format!("has been down for {:.1} s", down_for.as_secs_f64()) }
+        else { format!("has been down for {:.1} s", down_for.as_secs_f64()) },
+        if *never_up && !*impossible { NEVER_UP_FIX } else { "" }
     )]
     LinkDown {
         /// The transport, as configured.

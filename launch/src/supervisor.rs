@@ -352,6 +352,10 @@ impl Supervisor {
         }
         self.finish_recording(&mut failures, observer);
         self.add_failed_children(&mut failures);
+        self.relay
+            .held_errors
+            .retain(|_, error| !failures.iter().any(|f| f.contains(error.as_str())));
+        self.relay.tell_held_errors(observer);
         observer.event(&Event::RunFolder {
             dir: self.prepared.run_dir.clone(),
             drawn: drawn.map_err(|e| error_chain(&e)),
@@ -530,26 +534,26 @@ impl Supervisor {
             self.relay_until_quiet(observer);
         }
         let said = self.relay.last_error(role);
+        self.relay.take_held_error(role);
         observer.event(&Event::ProcessExited {
             role,
             how: how.clone(),
-            said: said.clone(),
+            said,
             then,
         });
+        // The cause was said with the exit just now: the verdict names the failure only.
         match then {
             ExitConsequence::Finished => {
                 self.end(None, Some("perception-sim finished its episodes".into()));
             }
             ExitConsequence::LinkDown => {
-                let cause = said.unwrap_or_else(|| "the link to the brick is down".to_owned());
                 self.end(
-                    Some(format!("bridge: {cause}")),
+                    Some("bridge: its link to the brick".to_owned()),
                     Some("the group stopped".into()),
                 );
             }
             _ => {
-                let said = said.map(|e| format!(" ({e})")).unwrap_or_default();
-                let failure = format!("{role} {how}{said}");
+                let failure = format!("{role} {how}");
                 self.end(Some(failure), Some("the group stopped".into()));
             }
         }
@@ -564,10 +568,12 @@ impl Supervisor {
     ) -> Result<(), LaunchError> {
         let role = self.children[i].spec.role;
         self.children[i].restarts += 1;
+        self.relay_until_quiet(observer);
+        let said = self.relay.take_held_error(role);
         observer.event(&Event::ProcessExited {
             role,
             how: children::describe(status),
-            said: None,
+            said,
             then: ExitConsequence::Restart {
                 restart: self.children[i].restarts,
                 max: self.file.launch.max_restarts,
@@ -766,7 +772,13 @@ impl Supervisor {
                 continue;
             }
             let role = c.spec.role.name();
-            let line = format!("{role} {}", children::describe(s));
+            let said = self
+                .relay
+                .held_errors
+                .get(&c.spec.role)
+                .map(|e| format!(" ({e})"))
+                .unwrap_or_default();
+            let line = format!("{role} {}{said}", children::describe(s));
             if !failures.iter().any(|f| f.starts_with(role) || *f == line) {
                 failures.push(line);
             }
@@ -858,6 +870,9 @@ pub fn run(
 #[derive(Default)]
 struct Relay {
     last_words: BTreeMap<Role, VecDeque<String>>,
+    /// Each child's closing `error: …` line, held back from the relayed lines: the launch
+    /// says it once, with the child's role, where it tells how the child ended.
+    held_errors: BTreeMap<Role, String>,
     /// Episode lines seen.
     episodes: u32,
     /// Episodes of the run record told so far.
@@ -894,7 +909,12 @@ impl Relay {
                 if let Some(log) = &self.log_to {
                     log.send(role.name(), &text);
                 }
-                observer.event(&Event::Log { role, text });
+                match text.trim().strip_prefix("error: ") {
+                    Some(error) => {
+                        self.held_errors.insert(role, error.to_owned());
+                    }
+                    None => observer.event(&Event::Log { role, text }),
+                }
             }
         }
     }
@@ -910,6 +930,22 @@ impl Relay {
         {
             self.robot_told = Some(at);
             observer.event(&Event::RobotMoved(at));
+        }
+    }
+
+    /// The closing error `role` said and the launch has not told yet, now told.
+    fn take_held_error(&mut self, role: Role) -> Option<String> {
+        self.held_errors.remove(&role)
+    }
+
+    /// Tells every closing error not told with its child's end (a child that failed while
+    /// the group stopped), as that child's log line.
+    fn tell_held_errors(&mut self, observer: &mut dyn Observer) {
+        for (role, error) in std::mem::take(&mut self.held_errors) {
+            observer.event(&Event::Log {
+                role,
+                text: format!("error: {error}"),
+            });
         }
     }
 

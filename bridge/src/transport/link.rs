@@ -163,6 +163,9 @@ pub struct LinkTransport<D: Device> {
     connection: Option<D::Connection>,
     retry_at: Option<Instant>,
     consecutive_timeouts: u32,
+    /// Whether the brick ever answered on this link: until it has, closing the link is part
+    /// of bringing it up, and the bridge says the cause once when it gives up.
+    answered: bool,
     stats: LinkStats,
 }
 
@@ -187,6 +190,7 @@ impl<D: Device> LinkTransport<D> {
             connection: None,
             retry_at: None,
             consecutive_timeouts: 0,
+            answered: false,
             stats: LinkStats::default(),
         }
     }
@@ -211,7 +215,11 @@ impl<D: Device> LinkTransport<D> {
     /// Closes the link; the next transaction reopens it after the back-off.
     pub fn disconnect(&mut self) {
         if self.connection.take().is_some() {
-            tracing::warn!(link = %self.device.describe(), "link closed; will reconnect");
+            if self.answered {
+                tracing::warn!(link = %self.device.describe(), "link closed; will reconnect");
+            } else {
+                tracing::debug!(link = %self.device.describe(), "link closed before the brick answered; will reconnect");
+            }
         }
         self.retry_at = Some(Instant::now() + self.timing.reconnect_backoff);
     }
@@ -309,6 +317,7 @@ impl<D: Device> LinkTransport<D> {
             };
             if let Some(reply) = found {
                 self.consecutive_timeouts = 0;
+                self.answered = true;
                 return Ok(reply);
             }
         }

@@ -79,6 +79,18 @@ fn lives(events: &[Event]) -> Vec<String> {
         .collect()
 }
 
+/// How many events say `text` (a log line, an exit's cause, a warning).
+fn said_anywhere(events: &[Event], text: &str) -> usize {
+    events
+        .iter()
+        .filter(|e| match e {
+            Event::Log { text: t, .. } | Event::Warning(t) => t.contains(text),
+            Event::ProcessExited { said, .. } => said.as_deref().is_some_and(|s| s.contains(text)),
+            _ => false,
+        })
+        .count()
+}
+
 fn episodes(events: &[Event]) -> Vec<u32> {
     events
         .iter()
@@ -175,11 +187,14 @@ fn a_crashed_child_is_restarted_when_the_launch_says_so() {
             "verdict: 0 failures"
         ]
     );
-    // The restarted controller's episodes are relayed; the crash's last words were logged.
+    // The restarted controller's episodes are relayed; the crash's last words are said once,
+    // with its exit (not relayed as a line of its own before).
     assert_eq!(episodes(&events), [1, 2]);
+    assert_eq!(said_anywhere(&events, "crashes once"), 1, "{events:?}");
     assert!(events.iter().any(|e| matches!(
         e,
-        Event::Log { role: Role::Controller, text } if text.contains("crashes once")
+        Event::ProcessExited { role: Role::Controller, said: Some(said), .. }
+            if said.contains("crashes once")
     )));
     assert!(verdict.success(), "{verdict:?}");
 }
@@ -203,10 +218,9 @@ fn a_crashed_child_stops_the_group_without_restarts() {
             &ExitConsequence::StopGroup
         ))
     );
-    assert_eq!(
-        verdict.failures,
-        ["controller exited with status 3 (the fake controller crashes once)"]
-    );
+    // The cause was said with the exit; the verdict names the failure without repeating it.
+    assert_eq!(verdict.failures, ["controller exited with status 3"]);
+    assert_eq!(said_anywhere(&events, "crashes once"), 1, "{events:?}");
 }
 
 #[test]

@@ -233,9 +233,12 @@ fn exit_line(
         ExitConsequence::Finished => {
             note("launch: perception-sim finished its episodes; the group stopped".into())
         }
-        ExitConsequence::Restart { restart, max } => warn(format!(
-            "launch: {role} {how}; respawning it (restart {restart}/{max})"
-        )),
+        ExitConsequence::Restart { restart, max } => {
+            let said = said.map(|e| format!(" ({e})")).unwrap_or_default();
+            warn(format!(
+                "launch: {role} {how}{said}; respawning it (restart {restart}/{max})"
+            ))
+        }
         ExitConsequence::LinkDown => warn(format!(
             "launch: bridge stopped: {}; stopping the others",
             said.unwrap_or("the link to the brick is down")
@@ -352,17 +355,28 @@ fn run_folder_lines(
                 .filter_map(|p| p.file_name())
                 .map(|n| n.to_string_lossy().into_owned())
                 .collect();
-            vec![
-                (To::Out, format!("launch: run folder {}", dir.display())),
-                (
+            // Only the files the run wrote are named (a run that failed at once has no
+            // trajectory).
+            let mut what: Vec<String> = Vec::new();
+            if !names.is_empty() {
+                what.push(format!("{} (pictures)", names.join(", ")));
+            }
+            for (table, rows) in [
+                ("episodes.csv", "one row per episode"),
+                ("trajectory.csv", "one row per action"),
+            ] {
+                if dir.join(table).exists() {
+                    what.push(format!("{table} ({rows})"));
+                }
+            }
+            let mut lines = vec![(To::Out, format!("launch: run folder {}", dir.display()))];
+            if !what.is_empty() {
+                lines.push((
                     To::Out,
-                    format!(
-                        "launch: see the run in {} there (pictures), and episodes.csv and \
-                         trajectory.csv (one row per episode, per action)",
-                        names.join(", ")
-                    ),
-                ),
-            ]
+                    format!("launch: see the run in {} there", what.join(", ")),
+                ));
+            }
+            lines
         }
         Err(e) => vec![(
             To::Err,

@@ -67,7 +67,8 @@ fn a_failed_link_launch(dir: &Path, bridge: &str, library: &Path, before: &[u8])
 }
 
 /// A link to the brick that never comes up stops the launch with an error naming the
-/// transport, exits non-zero, and leaves the library byte for byte as it was.
+/// transport and its cause once, exits non-zero, and leaves the library byte for byte as it
+/// was.
 #[test]
 fn a_dead_link_stops_the_launch_and_leaves_the_library_as_it_was() {
     let dir = tempfile::tempdir().expect("temp dir");
@@ -87,6 +88,15 @@ fn a_dead_link_stops_the_launch_and_leaves_the_library_as_it_was() {
         )),
         "{said}"
     );
+    // Retried until the link's timeout, the cause is said once, with what to check, and no
+    // warning of each failed try comes before it.
+    assert_eq!(said.matches("no reply from the brick").count(), 1, "{said}");
+    assert_eq!(
+        said.matches("is the brick switched on").count(),
+        1,
+        "{said}"
+    );
+    assert!(!said.contains("WARN"), "{said}");
     drop(pty);
 }
 
