@@ -416,6 +416,56 @@ pub fn list_nodes() -> Result<Vec<NodeEntry>, IpcError> {
     Ok(nodes)
 }
 
+/// Whether a node that looks dead is one a live process is still making (or taking down):
+/// its files exist before its details are written and its monitor locked, so for that
+/// moment it lists as dead, and removing it would break the other process. Its creator's
+/// pid is part of its id; a node whose creator still runs is left alone.
+fn in_the_making(view: &iceoryx2::node::DeadNodeView<ipc::Service>) -> bool {
+    use iceoryx2::node::NodeView;
+    if view.details().is_some() {
+        return false;
+    }
+    view.id().pid::<ipc::Service>().ok().is_some_and(|pid| {
+        // Signal 0 only asks whether the process exists (EPERM: it does, another user's).
+        matches!(
+            nix::sys::signal::kill(nix::unistd::Pid::from_raw(pid.value()), None),
+            Ok(()) | Err(nix::errno::Errno::EPERM)
+        )
+    })
+}
+
+/// Removes a dead node's resources: by iceoryx2, which needs the node's details to find them
+/// (without them it falls back on a global config file, warns that there is none, and
+/// fails), else by hand.
+fn remove_dead_node(view: iceoryx2::node::DeadNodeView<ipc::Service>) -> Result<(), String> {
+    use iceoryx2::node::NodeView;
+    if view.details().is_some() {
+        view.try_remove_stale_resources()
+            .map_err(|e| format!("{e:?}"))
+    } else {
+        remove_detail_less_node(view.id()).map_err(|e| e.to_string())
+    }
+}
+
+/// Removes what a dead node left without its details (its process died while making or taking
+/// it down): its directory and its monitor's files in the node directory.
+fn remove_detail_less_node(id: &iceoryx2::identifiers::UniqueNodeId) -> std::io::Result<()> {
+    let dir = std::path::PathBuf::from(config().global.node_dir().to_string());
+    let name = id.value().to_string();
+    match std::fs::remove_dir_all(dir.join(&name)) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(e),
+        _ => {}
+    }
+    let monitor = format!("{}{name}.", config().global.prefix);
+    for entry in std::fs::read_dir(&dir)? {
+        let entry = entry?;
+        if entry.file_name().to_string_lossy().starts_with(&monitor) {
+            std::fs::remove_file(entry.path())?;
+        }
+    }
+    Ok(())
+}
+
 /// What a clean-up removed, and what it could not remove (each named, with why).
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Cleanup {
@@ -432,7 +482,9 @@ pub fn clean_every_stale_resource() -> Result<Cleanup, IpcError> {
     use iceoryx2::node::NodeView;
     let mut cleanup = Cleanup::default();
     Node::<ipc::Service>::list(config(), |state| {
-        if let NodeState::<ipc::Service>::Dead(view) = state {
+        if let NodeState::<ipc::Service>::Dead(view) = state
+            && !in_the_making(&view)
+        {
             let who = match view.details() {
                 Some(d) => format!(
                     "node {:?} (pid {})",
@@ -441,9 +493,9 @@ pub fn clean_every_stale_resource() -> Result<Cleanup, IpcError> {
                 ),
                 None => "a node whose details cannot be read".to_owned(),
             };
-            match view.try_remove_stale_resources() {
+            match remove_dead_node(view) {
                 Ok(()) => cleanup.removed += 1,
-                Err(e) => cleanup.not_removed.push(format!("{who}: {e:?}")),
+                Err(e) => cleanup.not_removed.push(format!("{who}: {e}")),
             }
         }
         CallbackProgression::Continue
@@ -474,10 +526,12 @@ pub fn clean_stale_resources() -> Result<usize, IpcError> {
     let mut cleaned = 0;
     let mut failures = Vec::new();
     Node::<ipc::Service>::list(config(), |state| {
-        if let NodeState::<ipc::Service>::Dead(view) = state {
-            match view.try_remove_stale_resources() {
+        if let NodeState::<ipc::Service>::Dead(view) = state
+            && !in_the_making(&view)
+        {
+            match remove_dead_node(view) {
                 Ok(()) => cleaned += 1,
-                Err(e) => failures.push(format!("{e:?}")),
+                Err(e) => failures.push(e),
             }
         }
         CallbackProgression::Continue
