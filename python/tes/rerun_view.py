@@ -52,6 +52,15 @@ TOPICS = ("/arena", "/tf", "/tf/belief", "/robot", "/log", "/tes/decision", "/te
 #: The timeline every message is put on: its wall-clock time, as Foxglove shows it.
 TIMELINE = "time"
 
+#: Live, how often the gathered rows go to Rerun and the growing drawings (the path, the text
+#: over the robot) are redrawn: 20 times a second, about a display's pace. Every transform,
+#: decision and latency is kept; only a path or text a newer one replaced within the same
+#: 50 ms is not drawn. A client that does less per message takes less CPU from the group.
+LIVE_FLUSH_NS = 50_000_000
+
+#: From a recording: rows go to Rerun once a second of the run, and every drawing is kept.
+FILE_FLUSH_NS = 1_000_000_000
+
 
 def message_classes(schema_name: str, descriptor_set: bytes) -> Any:
     """The Protobuf class of ``schema_name`` from the file descriptor set a channel carries
@@ -82,17 +91,32 @@ def _pose(rr: Any, pose: Any) -> tuple[list[float], Any]:
 
 
 class RunLogger:
-    """Turns the drawn channels' messages into Rerun's archetypes, one message at a time, in
-    the order of the run."""
+    """Turns the drawn channels' messages into Rerun's archetypes, in the order of the run.
 
-    def __init__(self, rr: Any) -> None:
+    The many small rows (each transform, decision and latency) are gathered and sent as
+    columns (``rr.send_columns``) every ``flush_ns`` of the run, which costs a fraction of a
+    ``rr.log`` call each; with ``latest_only`` a drawing that grows (the path, the text over
+    the robot) is drawn as it stands at each send, not at every message. Call ``flush`` at
+    the end (and live, when no message came for a while)."""
+
+    def __init__(self, rr: Any, flush_ns: int = FILE_FLUSH_NS, latest_only: bool = False) -> None:
         self.rr = rr
         self.static_done: set[str] = set()
+        self.flush_ns = flush_ns
+        self.latest_only = latest_only
+        self.now_ns = 0
+        self.flushed_ns: int | None = None
+        #: entity → (archetype, times, columns), sent at the next flush.
+        self.rows: dict[str, tuple[Any, list[int], dict[str, list[Any]]]] = {}
+        #: entity → (time, drawing) of a growing drawing, drawn at the next flush.
+        self.latest: dict[str, tuple[int, Callable[[], None]]] = {}
         rr.log(ARENA, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
 
     def put(self, topic: str, time_ns: int, m: Any) -> None:
-        """Logs message ``m`` of ``topic`` at ``time_ns`` (wall clock, ns)."""
-        self.rr.set_time(TIMELINE, timestamp=time_ns * 1e-9)
+        """Takes message ``m`` of ``topic`` at ``time_ns`` (wall clock, ns)."""
+        self.now_ns = time_ns
+        if self.flushed_ns is None:
+            self.flushed_ns = time_ns
         handler: Callable[[Any], None] | None = {
             "/arena": self.arena,
             "/tf": self.transform,
@@ -104,10 +128,50 @@ class RunLogger:
         }.get(topic)
         if handler is not None:
             handler(m)
+        if time_ns - self.flushed_ns >= self.flush_ns:
+            self.flush()
+
+    def at_now(self) -> None:
+        """Puts the next ``rr.log`` at the message's time."""
+        self.rr.set_time(TIMELINE, timestamp=self.now_ns * 1e-9)
+
+    def row(self, entity: str, archetype: Any, **fields: Any) -> None:
+        """One row of ``archetype`` for ``entity`` at the message's time, sent at the next
+        flush."""
+        _, times, columns = self.rows.setdefault(entity, (archetype, [], {}))
+        times.append(self.now_ns)
+        for name, value in fields.items():
+            columns.setdefault(name, []).append(value)
+
+    def growing(self, entity: str, draw: Callable[[], None]) -> None:
+        """A drawing that replaces the last one of ``entity``: drawn now, or (``latest_only``)
+        as it stands at the next flush."""
+        if self.latest_only:
+            self.latest[entity] = (self.now_ns, draw)
+        else:
+            self.at_now()
+            draw()
+
+    def flush(self) -> None:
+        """Sends the gathered rows as columns, and draws each growing drawing's latest."""
+        import numpy as np
+
+        rr = self.rr
+        for entity, (archetype, times, columns) in self.rows.items():
+            stamps = np.array(times, dtype="datetime64[ns]")
+            rr.send_columns(entity, indexes=[rr.TimeColumn(TIMELINE, timestamp=stamps)],
+                            columns=archetype.columns(**columns))
+        self.rows.clear()
+        for time_ns, draw in self.latest.values():
+            rr.set_time(TIMELINE, timestamp=time_ns * 1e-9)
+            draw()
+        self.latest.clear()
+        self.flushed_ns = self.now_ns
 
     def arena(self, update: Any) -> None:
         """The world, once: its cubes (floor, cells, death spots, walls) as boxes, its marks
         as flat cylinders, the ball as a sphere, the grid as lines."""
+        self.at_now()
         for e in update.entities:
             self.shapes(f"{ARENA}/{e.id}", e, static=True)
 
@@ -153,41 +217,44 @@ class RunLogger:
     def transform(self, t: Any) -> None:
         """``parent → child`` as the child entity's transform."""
         child = FRAMES.get(t.child_frame_id, f"{ARENA}/{t.child_frame_id}")
-        self.rr.log(child, self.rr.Transform3D(
-            translation=_xyz(t.translation),
-            quaternion=self.rr.Quaternion(xyzw=_xyzw(t.rotation))))
+        self.row(child, self.rr.Transform3D, translation=_xyz(t.translation),
+                 quaternion=_xyzw(t.rotation))
 
     def robot(self, update: Any) -> None:
         """The robot's entities: its body and the belief's outline (drawn once, in their
         frames), its episode's path, the text over it."""
+        rr = self.rr
         for e in update.entities:
             if e.id == "path":
-                points = [_xyz(p) for line in e.lines for p in line.points]
-                self.rr.log(PATH, self.rr.LineStrips3D(
-                    [points], colors=[[245, 197, 24, 255]], radii=self.rr.Radius.ui_points(3.0)))
+                self.growing(PATH, lambda e=e: rr.log(PATH, rr.LineStrips3D(
+                    [[_xyz(p) for line in e.lines for p in line.points]],
+                    colors=[[245, 197, 24, 255]], radii=rr.Radius.ui_points(3.0))))
             elif e.id == "decision" and e.texts:
                 text = e.texts[0]
-                self.rr.log(SAID, self.rr.Points3D(
+                self.growing(SAID, lambda text=text: rr.log(SAID, rr.Points3D(
                     [_xyz(text.pose.position)], labels=[text.text], radii=0.005,
-                    colors=[[255, 255, 255, 255]], show_labels=True))
+                    colors=[[255, 255, 255, 255]], show_labels=True)))
             elif e.frame_id in FRAMES and e.id not in self.static_done:
                 self.static_done.add(e.id)
+                self.at_now()
                 self.shapes(f"{FRAMES[e.frame_id]}/{e.id}", e, static=True)
 
     def log_line(self, line: Any) -> None:
         levels = {1: "DEBUG", 2: "INFO", 3: "WARN", 4: "ERROR", 5: "CRITICAL"}
-        self.rr.log(LOG, self.rr.TextLog(f"{line.name}: {line.message}",
-                                         level=levels.get(line.level, "INFO")))
+        self.row(LOG, self.rr.TextLog, text=f"{line.name}: {line.message}",
+                 level=levels.get(line.level, "INFO"))
 
     def decision(self, d: Any) -> None:
-        self.rr.log(DECISIONS, self.rr.TextLog(
-            f"episode {d.episode} step {d.step}: {d.action_name} ({d.latency_us:.1f} µs)"))
-        self.rr.log(LATENCY, self.rr.Scalars(d.latency_us))
+        self.row(DECISIONS, self.rr.TextLog,
+                 text=f"episode {d.episode} step {d.step}: {d.action_name} "
+                      f"({d.latency_us:.1f} µs)")
+        self.row(LATENCY, self.rr.Scalars, scalars=d.latency_us)
 
     def episode(self, e: Any) -> None:
-        self.rr.log(EPISODES, self.rr.TextLog(
-            f"episode {e.episode}: {e.outcome}, reward {e.reward:.2f} in {e.actions} actions"))
-        self.rr.log(REWARD, self.rr.Scalars(e.reward))
+        self.row(EPISODES, self.rr.TextLog,
+                 text=f"episode {e.episode}: {e.outcome}, reward {e.reward:.2f} in "
+                      f"{e.actions} actions")
+        self.row(REWARD, self.rr.Scalars, scalars=e.reward)
 
 
 def blueprint() -> Any:
@@ -232,13 +299,14 @@ def convert(mcap_path: str, rrd_path: str, recording_id: str | None = None) -> i
         for topic, time_ns, message in recorded_messages(mcap_path):
             logger.put(topic, time_ns, message)
             drawn += 1
+        logger.flush()
         rec.flush()
     return drawn
 
 
-def live_messages(addr: str, seconds: float | None) -> Iterable[tuple[str, int, Any]]:
+def live_messages(addr: str, seconds: float | None) -> Iterable[tuple[str, int, Any] | None]:
     """The drawn messages a live group's Foxglove WebSocket server at ``addr`` sends, decoded,
-    for ``seconds`` (or until the server closes)."""
+    for ``seconds`` (or until the server closes); ``None`` when none came for a while."""
     from websockets.exceptions import ConnectionClosed
     from websockets.sync.client import connect
 
@@ -248,8 +316,9 @@ def live_messages(addr: str, seconds: float | None) -> Iterable[tuple[str, int, 
         subscribed: dict[int, tuple[str, Any]] = {}
         while deadline is None or time.monotonic() < deadline:
             try:
-                frame = ws.recv(timeout=0.5)
+                frame = ws.recv(timeout=LIVE_FLUSH_NS * 1e-9)
             except TimeoutError:
+                yield None
                 continue
             except ConnectionClosed:
                 return  # the group ended: its server closed the connection
@@ -293,13 +362,17 @@ def follow(addr: str, rrd_path: str | None, spawn: bool, seconds: float | None) 
         rr.spawn(default_blueprint=blueprint())
     if rrd_path:
         rr.save(rrd_path, default_blueprint=blueprint())
-    logger, drawn = RunLogger(rr), 0
+    logger, drawn = RunLogger(rr, flush_ns=LIVE_FLUSH_NS, latest_only=True), 0
     try:
-        for topic, time_ns, message in live_messages(addr, seconds):
-            logger.put(topic, time_ns, message)
+        for message in live_messages(addr, seconds):
+            if message is None:
+                logger.flush()
+                continue
+            logger.put(*message)
             drawn += 1
     except KeyboardInterrupt:
         pass
+    logger.flush()
     rr.disconnect()
     return drawn
 
