@@ -224,6 +224,19 @@ pub struct SceneSettings {
     pub wheel_ports: [usize; 2],
 }
 
+impl SceneSettings {
+    /// The settings of a run starting now, its wheels on the brick's ports `wheel_ports`.
+    pub fn from_now(wheel_ports: [usize; 2]) -> Self {
+        let wall_ns = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos() as i128);
+        Self {
+            wall_offset_ns: wall_ns - i128::from(tes_runtime::clock::monotonic_ns()),
+            wheel_ports,
+        }
+    }
+}
+
 impl Default for SceneSettings {
     fn default() -> Self {
         Self {
