@@ -16,6 +16,11 @@ A block that must not run here says so on the line before its fence:
 
     <!-- snippet: skip (needs an NXT brick on USB) -->
 
+A block that serves until it is stopped (a bridge, a live view) says how long to let it run
+before Ctrl-C (SIGINT to its process group); it passes if it then ends with status 0 or 130:
+
+    <!-- snippet: stop after 3 s -->
+
 The reason is required; `--list` prints every block with what will become of it. Files not
 covered: docs/python.md (its blocks need the package installed; `python/tests` run it) and
 docs/reliability.md (its fuzz and soak commands run for hours).
@@ -25,6 +30,7 @@ import argparse
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -35,6 +41,9 @@ ROOT = Path(__file__).resolve().parent.parent
 LANGUAGES = {"sh": "sh", "bash": "sh", "python": "python"}
 FENCE = re.compile(r"^(\s*)```(\w+)\s*$")
 SKIP = re.compile(r"^\s*<!--\s*snippet:\s*skip\s*\((.+)\)\s*-->\s*$")
+STOP = re.compile(r"^\s*<!--\s*snippet:\s*stop after\s+(\d+(?:\.\d+)?)\s*s\s*-->\s*$")
+# The exit statuses of a block stopped by Ctrl-C: finished anyway, or 128 + SIGINT.
+STOPPED_OK = {0, 130}
 NOT_COVERED = {
     "docs/python.md": "its blocks need the tes Python package installed; python/tests run it",
     "docs/reliability.md": "its fuzz and soak commands run for hours",
@@ -44,9 +53,10 @@ LIMIT_S = 600
 
 
 class Block:
-    def __init__(self, path, line, language, code, skip):
+    def __init__(self, path, line, language, code, skip, stop_after=None):
         self.path, self.line, self.language, self.code, self.skip = (
             path, line, language, code, skip)
+        self.stop_after = stop_after
 
     def where(self):
         return f"{self.path}:{self.line}"
@@ -67,9 +77,11 @@ def blocks_of(path):
             end += 1
         if language in LANGUAGES:
             skip = SKIP.match(lines[i - 1]) if i > 0 else None
+            stop = STOP.match(lines[i - 1]) if i > 0 else None
             code = "\n".join(l[indent:] for l in lines[i + 1:end])
             found.append(Block(path, i + 1, LANGUAGES[language], code,
-                               skip.group(1) if skip else None))
+                               skip.group(1) if skip else None,
+                               float(stop.group(1)) if stop else None))
         i = end + 1
     return found
 
@@ -105,15 +117,30 @@ def run(block, work, env):
     else:
         command = [sys.executable, "-c", code]
     started = time.monotonic()
+    # A process group of its own: a stop reaches every process the block started, as
+    # Ctrl-C in a terminal would.
+    process = subprocess.Popen(command, cwd=work, env=env, stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL,
+                               start_new_session=True)
     try:
-        done = subprocess.run(command, cwd=work, env=env, capture_output=True, text=True,
-                              timeout=LIMIT_S, stdin=subprocess.DEVNULL)
-        ok, output = done.returncode == 0, done.stdout + done.stderr
+        if block.stop_after is not None:
+            try:
+                stdout, stderr = process.communicate(timeout=block.stop_after)
+            except subprocess.TimeoutExpired:
+                os.killpg(process.pid, signal.SIGINT)
+                stdout, stderr = process.communicate(timeout=LIMIT_S)
+            ok = process.returncode in STOPPED_OK
+        else:
+            stdout, stderr = process.communicate(timeout=LIMIT_S)
+            ok = process.returncode == 0
+        output = stdout + stderr
         if not ok:
-            output += f"\n(exit status {done.returncode})"
-    except subprocess.TimeoutExpired as e:
+            output += f"\n(exit status {process.returncode})"
+    except subprocess.TimeoutExpired:
+        os.killpg(process.pid, signal.SIGKILL)
+        stdout, stderr = process.communicate()
         ok = False
-        output = f"{e.stdout or ''}{e.stderr or ''}\n(still running after {LIMIT_S} s)"
+        output = f"{stdout}{stderr}\n(still running after {LIMIT_S} s)"
     return ok, time.monotonic() - started, output
 
 
@@ -139,7 +166,9 @@ def main():
                     print(f"{block.where()}: skipped ({block.skip})")
                     continue
                 if args.list:
-                    print(f"{block.where()}: runs")
+                    how = (f" (stopped after {block.stop_after:g} s)"
+                           if block.stop_after is not None else "")
+                    print(f"{block.where()}: runs{how}")
                     continue
                 if work is None:
                     work, env = scratch_for(args.tes, tmp)

@@ -26,7 +26,7 @@ use tes_topics::{Command, Observation, Role, ServiceNames, StateAttributes, Worl
 
 use crate::error::{BenchError, Result};
 use crate::group::{Carrier, remove_domain_of, wait_or_kill};
-use crate::latency::{Floor, LatencySettings};
+use crate::harness::{Floor, LatencySettings};
 use crate::relay::{self, RelayConfig};
 
 /// The scheduling help the floor gets because the group got it: the acting thread's CPU
@@ -59,8 +59,8 @@ pub fn relay_floor(
     let cfg = RelayConfig {
         service_prefix: format!("{prefix}floor/"),
         wait: settings.wait,
-        messages: settings.actions + settings.warmup,
-        warmup: settings.warmup,
+        messages: settings.actions() + settings.warmup(),
+        warmup: settings.warmup(),
         budget_us: settings.budget_us,
         report: Some(report.clone()),
         hop_report: Some(hop_report.clone()),
@@ -70,7 +70,7 @@ pub fn relay_floor(
         helper_cpu: helps.helper_cpu,
         helper_idle_spin_us: helps.helper_idle_spin_us,
         cpu_dir: Some(dir.to_owned()),
-        announce: settings.pace == crate::latency::Pace::Real,
+        announce: settings.pace == crate::harness::Pace::Real,
         ..RelayConfig::default()
     };
     cfg.check()?;
@@ -272,7 +272,7 @@ pub fn zenoh_floor(
                 cause,
             }
         })?;
-    let total = settings.actions + settings.warmup;
+    let total = settings.actions() + settings.warmup();
     let hop = HopSettings {
         connect: endpoint,
         group,
@@ -280,7 +280,7 @@ pub fn zenoh_floor(
         wait: settings.wait,
         hop_cpu,
         answer: total,
-        warmup: settings.warmup,
+        warmup: settings.warmup(),
         budget_us: settings.budget_us,
         report: dir.join("floor-first-hop.json"),
         tls: carrier.files(Carrier::CONTROLLER),
@@ -448,9 +448,9 @@ fn round_trips(
     wait_for_peer(robot, "robot's")?;
     let mut side = RobotSide::open(names, settings.wait)?;
     side.probe()?;
-    let mut round = LatencyRecorder::new(settings.budget_us, settings.warmup);
+    let mut round = LatencyRecorder::new(settings.budget_us, settings.warmup());
     let gap = Duration::from_micros(cycle_us);
-    for step in 0..settings.actions + settings.warmup {
+    for step in 0..settings.actions() + settings.warmup() {
         let next = Instant::now() + gap;
         round.record_ns(side.round_trip(step)?);
         let left = next.saturating_duration_since(Instant::now());

@@ -16,7 +16,7 @@ use tes_runtime::latency::LatencyReport;
 use tes_topics::Role;
 
 use crate::error::{BenchError, GroupFailure, Result};
-use crate::latency::{CheckedLatency, Harness, Pace, REAL_LINK_DELAY_MS, Via};
+use crate::harness::{CheckedLatency, Harness, Pace, REAL_LINK_DELAY_MS, Via};
 use std::collections::BTreeMap;
 use tes_bridge::config::LinkDelayConfig;
 use tes_bridge::process::BridgeReport;
@@ -225,7 +225,7 @@ fn group_file(dir: &Path, prefix: &str, latency: &CheckedLatency, files: &RunFil
     };
     file.perception.actions = latency.total();
     file.perception.report = Some(files.perception_report.clone());
-    file.perception.warmup_actions = s.warmup;
+    file.perception.warmup_actions = s.warmup();
     if s.pace == Pace::Real {
         // The robot's pace: the paper's settle time, the brick in real time, and every
         // reply of the brick as late as over Bluetooth.
@@ -243,7 +243,7 @@ fn group_file(dir: &Path, prefix: &str, latency: &CheckedLatency, files: &RunFil
     let c = &mut file.controller;
     c.library = Some(files.library.clone());
     c.budget_us = s.budget_us;
-    c.warmup_actions = s.warmup;
+    c.warmup_actions = s.warmup();
     c.report = Some(files.controller_report.clone());
     // Resolved CPUs or "none", never "auto": the floor's hop was given the same CPU.
     let ThreadPlacement { acting, planner } = latency.placement();
@@ -257,7 +257,7 @@ fn group_file(dir: &Path, prefix: &str, latency: &CheckedLatency, files: &RunFil
     // The bridge's [ipc] table as the bench writes it: the launch-wide prefix and wait go in.
     let ipc = &mut file.bridge.ipc;
     ipc.budget_us = s.budget_us;
-    ipc.warmup_commands = s.warmup;
+    ipc.warmup_commands = s.warmup();
     ipc.latency_report = Some(files.bridge_report.clone());
     file
 }

@@ -17,11 +17,14 @@ pub mod error;
 pub mod fixtures;
 pub mod floor;
 mod group;
+pub mod harness;
 pub mod keep_awake;
 pub mod latency;
 pub mod recorder_cost;
 pub mod relay;
+pub mod rerun_client;
 pub mod scaling;
+pub mod table;
 pub mod viewer_client;
 
 pub use error::{BenchError, GroupFailure};

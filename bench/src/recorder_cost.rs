@@ -1,83 +1,20 @@
-//! What an observer of the group costs it: the recorder (`tes bench latency --record`) or the
-//! live Foxglove server with a viewer reading every channel (`--foxglove`). The measured group
+//! What an observer of the group costs it: the recorder (`tes bench latency --record`), the
+//! live Foxglove server with a viewer reading every channel (`--foxglove`), or the same server
+//! followed by Rerun's own viewer (`--rerun`, [`crate::rerun_client`]). The measured group
 //! runs in blocks without and with it, alternating, each from the same starting library,
 //! compared by the medians over the blocks of each kind.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-use serde::Serialize;
 use tes_launch::Event;
 use tes_recorder::reader::Recording;
 
 use crate::error::{BenchError, Result};
 use crate::group::Group;
-use crate::latency::{Harness, LatencySettings, Note};
+use crate::harness::{Harness, LatencySettings, Note};
+pub use crate::harness::{RecorderBlock, RecorderComparison, Watcher};
+use crate::rerun_client::RerunClient;
 use crate::viewer_client::ViewerClient;
-
-/// The observer a comparison switches on and off.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Watcher {
-    /// The launcher's recorder writing the run to MCAP (its drawings for viewers included).
-    Recorder,
-    /// The launcher's live Foxglove server, with a viewer subscribed to every channel.
-    Foxglove,
-}
-
-impl Watcher {
-    /// As the tables name it.
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Recorder => "recorder",
-            Self::Foxglove => "Foxglove server",
-        }
-    }
-}
-
-/// One block of the comparison: a run of the group from the starting library, with or
-/// without the observer.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-pub struct RecorderBlock {
-    /// Whether the observer ran (the recorder, or the Foxglove server and its viewer).
-    pub recorded: bool,
-    /// Observation → bridge, median, µs.
-    pub p50_us: u64,
-    /// Observation → bridge, 99th percentile, µs.
-    pub p99_us: u64,
-    /// Actions over the budget.
-    pub misses: u64,
-    /// Heap allocations on the controller's acting path (null if not counted).
-    pub allocations: Option<u64>,
-    /// With the recorder: the observations, commands and motor states it wrote.
-    pub written: Option<[u64; 3]>,
-    /// With the recorder: the samples it could not take in time.
-    pub missed: Option<u64>,
-    /// With the Foxglove server: the messages its viewer received.
-    pub viewer_messages: Option<u64>,
-}
-
-/// An observer's cost as the medians over blocks of each kind.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct RecorderComparison {
-    /// The observer compared.
-    pub watcher: Watcher,
-    /// In the order they ran.
-    pub blocks: Vec<RecorderBlock>,
-    /// Median over the blocks without the recorder of their p50, µs.
-    pub without_p50_us: f64,
-    /// Median over the blocks without the recorder of their p99, µs.
-    pub without_p99_us: f64,
-    /// Median over the blocks with the recorder of their p50, µs.
-    pub with_p50_us: f64,
-    /// Median over the blocks with the recorder of their p99, µs.
-    pub with_p99_us: f64,
-    /// `with / without − 1` of the p50 medians (0.05 = 5 % slower with the recorder).
-    pub change_p50: f64,
-    /// `with / without − 1` of the p99 medians.
-    pub change_p99: f64,
-    /// The most allocations any block counted on the acting path with the recorder.
-    pub allocations_with: Option<u64>,
-}
 
 /// Runs `2 × record_blocks` blocks of `actions / record_blocks` measured actions each,
 /// without and with `watcher` in turn ([`block_is_recorded`]), and compares them.
@@ -87,9 +24,9 @@ pub(crate) fn compare(
     harness: &mut Harness<'_>,
     watcher: Watcher,
 ) -> Result<RecorderComparison> {
-    let measured = (settings.actions / settings.record_blocks.max(1)).max(1);
+    let measured = (settings.actions() / settings.record_blocks.max(1)).max(1);
     let mut block_file = group.file.clone();
-    block_file.perception.actions = measured + settings.warmup;
+    block_file.perception.actions = measured + settings.warmup();
     let mcap = group.dir.join("bench.mcap");
     let kinds = 2 * settings.record_blocks;
     let mut blocks = Vec::new();
@@ -105,9 +42,18 @@ pub(crate) fn compare(
         let mut file = block_file.clone();
         match watcher {
             Watcher::Recorder => file.launch.record = with.then(|| mcap.clone()),
-            Watcher::Foxglove => file.launch.foxglove = with.then(|| "127.0.0.1:0".to_owned()),
+            Watcher::Foxglove | Watcher::Rerun => {
+                file.launch.foxglove = with.then(|| "127.0.0.1:0".to_owned());
+            }
         }
-        let ((report, summary), viewer_messages) = run_watched(group, &file, harness)?;
+        let viewer = match (watcher, &settings.rerun) {
+            (Watcher::Rerun, Some(script)) => Viewer::Rerun {
+                script,
+                rrd: group.dir.join("bench.rrd"),
+            },
+            _ => Viewer::Bench,
+        };
+        let ((report, summary), viewer_messages) = run_watched(group, &file, harness, &viewer)?;
         if report.count < measured {
             return Err(BenchError::Run(format!(
                 "block {}: the bridge saw {} measured commands, expected {measured}",
@@ -140,20 +86,52 @@ type Reports = (
     tes_controller::process::ControllerSummary,
 );
 
-/// Runs the group once; when its launch serves Foxglove, a viewer follows it throughout and
+/// Who follows a launch that serves Foxglove.
+enum Viewer<'a> {
+    /// The bench's own client, reading every channel.
+    Bench,
+    /// `python3 script --live ADDR -o rrd` (`python/tes/rerun_view.py`).
+    Rerun { script: &'a Path, rrd: PathBuf },
+}
+
+/// A viewer following a block.
+enum Following {
+    Bench(ViewerClient),
+    Rerun(RerunClient),
+}
+
+impl Following {
+    fn start(viewer: &Viewer<'_>, addr: std::net::SocketAddr) -> Result<Self> {
+        match viewer {
+            Viewer::Bench => ViewerClient::connect(addr).map(Self::Bench),
+            Viewer::Rerun { script, rrd } => RerunClient::spawn(script, addr, rrd).map(Self::Rerun),
+        }
+    }
+
+    /// Ends it; the messages it received (the bench's client) or drew (Rerun's).
+    fn stop(self) -> Result<u64> {
+        match self {
+            Self::Bench(client) => Ok(client.stop()),
+            Self::Rerun(client) => client.stop(),
+        }
+    }
+}
+
+/// Runs the group once; when its launch serves Foxglove, `viewer` follows it throughout and
 /// the messages it received are returned too.
 fn run_watched(
     group: &Group,
     file: &tes_launch::LaunchFile,
     harness: &mut Harness<'_>,
+    viewer: &Viewer<'_>,
 ) -> Result<(Reports, Option<u64>)> {
-    let mut viewer: Option<ViewerClient> = None;
+    let mut following: Option<Following> = None;
     let mut failed = None;
     let inner = &mut *harness.observer;
     let mut watching = |e: &Event| {
         if let Event::Foxglove { addr, .. } = e {
-            match ViewerClient::connect(*addr) {
-                Ok(client) => viewer = Some(client),
+            match Following::start(viewer, *addr) {
+                Ok(f) => following = Some(f),
                 Err(e) => failed = Some(e),
             }
         }
@@ -166,11 +144,12 @@ fn run_watched(
         notes: &mut *harness.notes,
     };
     let ran = group.run(file, &mut watched);
-    let received = viewer.map(ViewerClient::stop);
+    let received = following.map(Following::stop).transpose();
     if let Some(e) = failed {
         return Err(e);
     }
-    Ok((ran?, received))
+    let ran = ran?;
+    Ok((ran, received?))
 }
 
 /// Whether block `i` of the comparison runs with the recorder: without, with, with, without,

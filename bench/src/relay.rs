@@ -326,7 +326,7 @@ fn pause(
     }
     let due_ns = monotonic_ns() + gap.as_nanos() as u64;
     heads_up.send(HeadsUp { seq, due_ns })?;
-    Ok(Some(tes_runtime::anticipate::sleep_until_with_loan(
+    Ok(Some(tes_runtime::channel::sleep_until_with_loan(
         due_ns, out,
     )?))
 }

@@ -127,6 +127,46 @@ pub fn measure(
     })
 }
 
+/// The settings of a sweep: `tes bench scaling`'s flags, each defined here once (its help
+/// from its doc, its default from [`ScalingSettings::default`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::Args)]
+pub struct ScalingSettings {
+    /// Decisions measured per point (after the warm-up).
+    #[arg(long, default_value_t = ScalingSettings::default().actions)]
+    pub actions: u64,
+    /// Decisions run first at each point and left out.
+    #[arg(long, default_value_t = ScalingSettings::default().warmup)]
+    pub warmup: u64,
+    /// Seed of the structures, libraries and steps.
+    #[arg(long, default_value_t = ScalingSettings::default().seed)]
+    pub seed: u64,
+    /// The acting loop's order: decide-first (the decision and the learning timed apart) or
+    /// learn-first (the older order: the decision includes the learning).
+    #[arg(long, default_value_t = ScalingSettings::default().order)]
+    pub order: Order,
+}
+
+impl Default for ScalingSettings {
+    fn default() -> Self {
+        Self {
+            actions: 5000,
+            warmup: 500,
+            seed: 1,
+            order: Order::DecideFirst,
+        }
+    }
+}
+
+impl ScalingSettings {
+    /// [`sweep`] with these settings; refuses a sweep that measures nothing.
+    pub fn sweep(&self, progress: impl FnMut(&ScalingPoint)) -> Result<Vec<ScalingPoint>> {
+        if self.actions == 0 {
+            anyhow::bail!("--actions must be at least 1");
+        }
+        sweep(self.actions, self.warmup, self.seed, self.order, progress)
+    }
+}
+
 /// The whole sweep in `order`: every feature count at 9 views, every library size at 312
 /// features.
 pub fn sweep(

@@ -54,16 +54,47 @@ impl TransportKind {
         !matches!(self, TransportKind::Sim)
     }
 
-    /// For `serial:PATH`, that PATH is a terminal device ([`check_serial_device`]); every
-    /// other transport passes. Run where the bridge runs, before it starts: the settings'
-    /// own check ([`BridgeSettings::check`]) does not look at devices, as a host that does
-    /// not play the bridge checks them too.
-    pub fn check_device(&self) -> Result<(), SerialDeviceError> {
+    /// That this machine can carry the link at all: for `serial:PATH`, that PATH is a
+    /// terminal device ([`check_serial_device`]); for `usb`, that the machine shows a USB
+    /// bus; for `bluetooth:ADDR`, that its kernel offers Bluetooth sockets. A brick that is
+    /// merely absent or switched off passes (it may come within the link's timeout). Run
+    /// where the bridge runs, before it starts: the settings' own check
+    /// ([`BridgeSettings::check`]) does not look at devices, as a host that does not play
+    /// the bridge checks them too.
+    pub fn check_device(&self) -> Result<(), DeviceError> {
+        let here = |failure: crate::transport::link::OpenFailure| {
+            if failure.impossible {
+                Err(DeviceError::NotOnThisMachine {
+                    transport: self.to_string(),
+                    failure,
+                })
+            } else {
+                Ok(())
+            }
+        };
         match self {
-            TransportKind::Serial(path) => check_serial_device(path),
-            _ => Ok(()),
+            TransportKind::Serial(path) => Ok(check_serial_device(path)?),
+            TransportKind::Usb(_) => crate::transport::usb_bus().or_else(here),
+            TransportKind::Bluetooth(_) => crate::transport::kernel_support().or_else(here),
+            TransportKind::Sim => Ok(()),
         }
     }
+}
+
+/// Why the transport cannot carry the link on this machine, found before the bridge starts.
+#[derive(Debug, thiserror::Error)]
+pub enum DeviceError {
+    /// `serial:PATH` names no terminal device.
+    #[error(transparent)]
+    Serial(#[from] SerialDeviceError),
+    /// No retry can bring the link up here: no USB bus, no Bluetooth in the kernel.
+    #[error("the link to the brick ({transport}) cannot be used on this machine: {failure}")]
+    NotOnThisMachine {
+        /// The transport, as the settings name it.
+        transport: String,
+        /// The cause and its fix.
+        failure: crate::transport::link::OpenFailure,
+    },
 }
 
 /// The fix said with every refused serial device.

@@ -75,7 +75,7 @@ pub enum ProcessError {
     Link(#[from] TransportError),
     /// `transport = "serial:PATH"` names no terminal device.
     #[error("transport: {0}")]
-    Device(#[from] crate::config::SerialDeviceError),
+    Device(#[from] crate::config::DeviceError),
     /// The latency report could not be written.
     #[error("cannot write the latency report {}: {error}", path.display())]
     Report {

@@ -11,8 +11,7 @@ use std::path::Path;
 use serde::Serialize;
 use zbus::zvariant::{OwnedObjectPath, OwnedValue};
 
-use crate::transport::kernel_refusal;
-use crate::transport::link::OpenFailure;
+use crate::transport::kernel_support;
 use crate::transport::{UsbBrick, find_bricks};
 
 /// The NXT's Bluetooth class of device: major class "toy", minor "robot".
@@ -201,22 +200,6 @@ fn scan_bluetooth(sysfs: &Path) -> BluetoothScan {
         ));
     }
     scan
-}
-
-/// Whether the kernel offers Bluetooth RFCOMM sockets.
-fn kernel_support() -> Result<(), OpenFailure> {
-    let runtime = tokio::runtime::Builder::new_current_thread()
-        .enable_io()
-        .build()
-        .map_err(|e| OpenFailure::bare(format!("cannot start the Bluetooth runtime: {e}")))?;
-    runtime
-        .block_on(async { bluer::rfcomm::Socket::new() })
-        .map(drop)
-        .map_err(|e| {
-            kernel_refusal(&e).unwrap_or_else(|| {
-                OpenFailure::bare(format!("cannot open a Bluetooth socket: {e}"))
-            })
-        })
 }
 
 /// The adapters the kernel lists under `sysfs` (`/sys/class/bluetooth/hci0`, …).

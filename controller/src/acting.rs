@@ -82,6 +82,7 @@ use tes_runtime::latency::{LatencyRecorder, LatencyReport};
 use tes_topics::{Command, Observation, WorldMap, observation_flags};
 use thiserror::Error;
 
+pub use crate::config::Order;
 use crate::realtime::{Planner, PlannerThreadError};
 use crate::summary::EpisodeLine;
 
@@ -100,46 +101,6 @@ pub enum ActingError {
     /// The planner failed.
     #[error(transparent)]
     Planner(#[from] PlannerThreadError),
-}
-
-/// When the acting loop learns from an observation: after the command it answers it with is
-/// out (the default), or before deciding that command.
-///
-/// Both make the same decisions: the command comes from the last adopted plan, which the
-/// observation's lesson cannot change. Deciding first takes the scoring and updating of every
-/// view of the last action, and the model's hand-over to the planner, off the decision.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Order {
-    /// Adopt a finished plan, decide, publish; then learn and hand the planner the model.
-    #[default]
-    DecideFirst,
-    /// Learn, adopt a finished plan, decide, publish (the order before decide-first; kept as
-    /// the baseline the latency benchmark compares against).
-    LearnFirst,
-}
-
-impl std::fmt::Display for Order {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            Order::DecideFirst => "decide-first",
-            Order::LearnFirst => "learn-first",
-        })
-    }
-}
-
-impl std::str::FromStr for Order {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "decide-first" => Ok(Order::DecideFirst),
-            "learn-first" => Ok(Order::LearnFirst),
-            _ => Err(format!(
-                "unknown order {s:?}: expected decide-first or learn-first"
-            )),
-        }
-    }
 }
 
 /// What the acting loop is told once, at start.

@@ -22,7 +22,7 @@ use tes_learning::library::{LibraryError, LibraryParams, ViewLibrary};
 use tes_learning::mdagl::MdaglParams;
 use tes_learning::plan::PlannerParams;
 use tes_runtime::alloc_count;
-use tes_runtime::channel::{self, Idle, Inbox, IpcError, LatestOutbox, WaitStrategy};
+use tes_runtime::channel::{self, Idle, Inbox, IpcError, LatestOutbox, ProcessNode, WaitStrategy};
 use tes_runtime::clock::{Clock, MonotonicClock};
 use tes_runtime::progress::ProgressOutbox;
 use tes_runtime::ring::RingOutbox;
@@ -171,73 +171,18 @@ fn remove_stale_saves(path: &std::path::Path) {
 
 /// Runs the controller until `stop` is raised. `on_episode` receives each finished episode
 /// (once the next episode's first command is out, or at the end of the run).
+///
+/// Three steps: the settings checked once ([`ControllerConfig::check`]), everything the run
+/// needs opened in order by one constructor (`Shell::open`), then observations answered
+/// until the stop (`Shell::serve`) and the run ended (`Shell::finish`).
 pub fn run(
     config: &ControllerConfig,
     stop: &AtomicBool,
     mut on_episode: impl FnMut(&EpisodeLine),
 ) -> Result<ControllerSummary, ControllerError> {
     let checked = config.check()?;
-    log_placement(&checked);
-    let names = ServiceNames::with_prefix(&config.service_prefix);
-    let node = channel::group_node(&names, Role::Controller, false)?;
-    let mut ports = Ports {
-        maps: Inbox::open(
-            &node,
-            &names.world_map,
-            &names.world_map_event,
-            1,
-            WaitStrategy::Block,
-        )?,
-        observations: Inbox::open(
-            &node,
-            &names.observation,
-            &names.observation_event,
-            0,
-            checked.wait(),
-        )?
-        // Waiting by `anticipate`, perception's word of when the next observation is due.
-        .with_heads_up(&node, &names.observation_due, &names.observation_due_event)?,
-        // A blackboard, not a publisher: sending a command allocates nothing (see LatestOutbox).
-        commands: LatestOutbox::open(&node, &names.command, &names.command_event)?,
-        // Every command again, by its number, for a recorder (written once the command is
-        // out; nobody is notified). Without it the group runs on, unrecordable.
-        command_log: RingOutbox::open(&node, &names.command_log)
-            .inspect_err(|e| {
-                tracing::warn!(error = %e, "no command log: a recording of this run misses its commands");
-            })
-            .ok(),
-    };
-    let Some(map) = wait_for_map(&ports.maps, &names, checked.map_timeout(), stop)? else {
+    let Some(mut shell) = Shell::open(config, &checked, stop)? else {
         return Ok(ControllerSummary::default());
-    };
-    let library_path = config.library_path();
-    // One controller per library: a predecessor still saving on its way out (its launcher was
-    // killed) is waited for; a running one is refused, naming its pid.
-    let _library_lock = lock_library(&library_path)?;
-    let start = load_library(config, &library_path, &map)?;
-    let settings = acting_settings(config, &checked);
-    let (acting, library) = start_acting(config, &checked, settings, map, start, library_path)?;
-    let saver = Saver::spawn(library.path.clone(), library.names.clone())?;
-    // Ready (map, library, first plan): the first report tells perception it may start.
-    let progress = ProgressOutbox::open(&node, &names, Role::Controller)?;
-    if let Some(cpu) = checked.placement().acting {
-        tes_runtime::affinity::pin_this_thread(cpu)?;
-        ports
-            .observations
-            .poll_alone(tes_runtime::affinity::kept_clear(cpu));
-    }
-    let mut shell = Shell {
-        progress,
-        saver,
-        acting,
-        library,
-        ports: &ports,
-        clock: MonotonicClock,
-        idle_timeout: settings.keepalive.map_or(IDLE_TICK, |k| k.min(IDLE_TICK)),
-        ipc_allocations: 0,
-        warmup_allocations: None,
-        cpu: CpuMeter::process(),
-        acting_thread_cpu: CpuMeter::this_thread(),
     };
     shell.serve(stop, &mut on_episode)?;
     // The launcher gives a controller still saving the library more time before SIGKILL;
@@ -319,6 +264,43 @@ struct Ports {
 }
 
 impl Ports {
+    /// Opens the controller's services on `node`: the map, the observations (waited for by
+    /// `strategy`, with perception's heads-up when anticipating), the commands and their log.
+    fn open(
+        node: &ProcessNode,
+        names: &ServiceNames,
+        strategy: WaitStrategy,
+    ) -> Result<Self, ControllerError> {
+        Ok(Self {
+            maps: Inbox::open(
+                node,
+                &names.world_map,
+                &names.world_map_event,
+                1,
+                WaitStrategy::Block,
+            )?,
+            observations: Inbox::open(
+                node,
+                &names.observation,
+                &names.observation_event,
+                0,
+                strategy,
+            )?
+            // Waiting by `anticipate`, perception's word of when the next observation is due.
+            .with_heads_up(node, &names.observation_due, &names.observation_due_event)?,
+            // A blackboard, not a publisher: sending a command allocates nothing (see
+            // LatestOutbox).
+            commands: LatestOutbox::open(node, &names.command, &names.command_event)?,
+            // Every command again, by its number, for a recorder (written once the command is
+            // out; nobody is notified). Without it the group runs on, unrecordable.
+            command_log: RingOutbox::open(node, &names.command_log)
+                .inspect_err(|e| {
+                    tracing::warn!(error = %e, "no command log: a recording of this run misses its commands");
+                })
+                .ok(),
+        })
+    }
+
     /// Publishes `command` to the bridge.
     #[inline]
     fn send(&self, command: Command) -> Result<(), IpcError> {
@@ -442,13 +424,17 @@ enum Answer {
 /// The controller's loop: the acting loop between the ports, one method per phase of an
 /// observation's handling (wait, act, what follows the command), and the run's end. (Fields
 /// drop in the order declared: the last made first.)
-struct Shell<'p> {
+struct Shell {
     progress: ProgressOutbox,
     saver: Saver,
     acting: ActingLoop,
     /// The library the run started from and saves to at its end.
     library: LibraryRun,
-    ports: &'p Ports,
+    /// One controller per library, until the run's last save is done.
+    _library_lock: tes_runtime::lock::Lock,
+    ports: Ports,
+    /// The node the ports were opened on: dropped last.
+    _node: ProcessNode,
     clock: MonotonicClock,
     /// How long a wait for an observation lasts before the idle work (keep-alive, progress).
     idle_timeout: Duration,
@@ -462,7 +448,57 @@ struct Shell<'p> {
     acting_thread_cpu: CpuMeter,
 }
 
-impl Shell<'_> {
+impl Shell {
+    /// Opens what the run needs, in order: the log of where its threads run, the node and
+    /// its ports, perception's world map (`None`: `stop` was raised first), the library's
+    /// lock and the library, the acting loop with its planner and first plan, the saver,
+    /// the progress report (which tells perception it may start) and the acting thread's
+    /// CPU.
+    fn open(
+        config: &ControllerConfig,
+        checked: &CheckedController,
+        stop: &AtomicBool,
+    ) -> Result<Option<Self>, ControllerError> {
+        log_placement(checked);
+        let names = ServiceNames::with_prefix(&config.service_prefix);
+        let node = channel::group_node(&names, Role::Controller, false)?;
+        let mut ports = Ports::open(&node, &names, checked.wait())?;
+        let Some(map) = wait_for_map(&ports.maps, &names, checked.map_timeout(), stop)? else {
+            return Ok(None);
+        };
+        let library_path = config.library_path();
+        // One controller per library: a predecessor still saving on its way out (its launcher
+        // was killed) is waited for; a running one is refused, naming its pid.
+        let library_lock = lock_library(&library_path)?;
+        let start = load_library(config, &library_path, &map)?;
+        let settings = acting_settings(config, checked);
+        let (acting, library) = start_acting(config, checked, settings, map, start, library_path)?;
+        let saver = Saver::spawn(library.path.clone(), library.names.clone())?;
+        // Ready (map, library, first plan): the first report tells perception it may start.
+        let progress = ProgressOutbox::open(&node, &names, Role::Controller)?;
+        if let Some(cpu) = checked.placement().acting {
+            tes_runtime::affinity::pin_this_thread(cpu)?;
+            ports
+                .observations
+                .poll_alone(tes_runtime::affinity::kept_clear(cpu));
+        }
+        Ok(Some(Self {
+            progress,
+            saver,
+            acting,
+            library,
+            _library_lock: library_lock,
+            ports,
+            _node: node,
+            clock: MonotonicClock,
+            idle_timeout: settings.keepalive.map_or(IDLE_TICK, |k| k.min(IDLE_TICK)),
+            ipc_allocations: 0,
+            warmup_allocations: None,
+            cpu: CpuMeter::process(),
+            acting_thread_cpu: CpuMeter::this_thread(),
+        }))
+    }
+
     /// Answers observations until `stop` is raised.
     fn serve(
         &mut self,

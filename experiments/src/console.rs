@@ -4,11 +4,42 @@
 use std::fmt::{self, Write as _};
 use std::path::Path;
 
+use crate::experiment::Console;
 use crate::fig4::Fig4Report;
 use crate::grid::GridReport;
 use crate::lifelong::LifelongReport;
 use crate::robot::RobotReport;
 use crate::transfer::TransferReport;
+
+impl Console for GridReport {
+    fn console(&self, out: &Path) -> Result<String, fmt::Error> {
+        grid(self, out)
+    }
+}
+
+impl Console for TransferReport {
+    fn console(&self, out: &Path) -> Result<String, fmt::Error> {
+        transfer(self, out)
+    }
+}
+
+impl Console for RobotReport {
+    fn console(&self, out: &Path) -> Result<String, fmt::Error> {
+        robot(self, out)
+    }
+}
+
+impl Console for Fig4Report {
+    fn console(&self, out: &Path) -> Result<String, fmt::Error> {
+        fig4(self, out)
+    }
+}
+
+impl Console for LifelongReport {
+    fn console(&self, out: &Path) -> Result<String, fmt::Error> {
+        lifelong(self, out)
+    }
+}
 
 /// What `tes experiment grid` prints of `report`, written to `out`: Fig. 3a–c's final
 /// rewards, Table 1's times and the paper's targets.

@@ -23,7 +23,7 @@ use crate::jobs::JobOptions;
 /// ```
 pub trait Experiment: Serialize + DeserializeOwned {
     /// What a complete run gives: the summary written to `summary.json`.
-    type Report;
+    type Report: Console;
 
     /// The experiment's name: its sub-command, its folder in a study, and the `experiment`
     /// its manifests record.
@@ -46,5 +46,14 @@ pub trait Experiment: Serialize + DeserializeOwned {
     fn summarise_dir(out: &Path) -> Result<Self::Report>;
 
     /// The summary as the console prints it at the end of a run.
-    fn console(report: &Self::Report, out: &Path) -> Result<String, fmt::Error>;
+    fn console(report: &Self::Report, out: &Path) -> Result<String, fmt::Error> {
+        report.console(out)
+    }
+}
+
+/// A report as `tes experiment` prints it when its run ends (each report's text is in
+/// [`crate::console`]).
+pub trait Console {
+    /// The text, for the result folder `out`.
+    fn console(&self, out: &Path) -> Result<String, fmt::Error>;
 }

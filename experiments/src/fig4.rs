@@ -15,7 +15,6 @@
 //! phase are the transfer experiment's ([`crate::transfer`]).
 
 use std::collections::BTreeMap;
-use std::fmt;
 use std::fs;
 use std::path::Path;
 use std::time::Instant;
@@ -29,6 +28,7 @@ use crate::experiment::Experiment;
 use crate::grid::GridEnv;
 use crate::jobs::{self, JobOptions, Manifest};
 use crate::method::Method;
+use crate::settings::{Kind, Setting, Settings, number};
 use crate::stats::{Summary, summarise};
 use crate::svg::{BandPoint, LineChart, Series};
 use crate::transfer::{self, JobResult, TransferConfig};
@@ -161,6 +161,54 @@ impl Fig4Config {
             stop_at_drift: self.stop_at_drift,
             ..TransferConfig::paper()
         }
+    }
+}
+
+/// The flags of `tes experiment`'s sub-command, defined once (see [`crate::settings`]).
+impl Settings for Fig4Config {
+    const QUICK_HELP: &'static str = "Small settings for a first look: seconds.";
+    const SETTINGS: &'static [Setting<Self>] = &[
+        Setting {
+            flag: "runs",
+            value_name: "RUNS",
+            help: "Independent runs of each pair and of the long run.",
+            kind: Kind::Value,
+            show: |c| c.runs.to_string(),
+            take: |c, v| {
+                c.runs = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "long-episodes",
+            value_name: "LONG_EPISODES",
+            help: "Episodes of the long run (Fig. 4c).",
+            kind: Kind::Value,
+            show: |c| c.convergence_episodes.to_string(),
+            take: |c, v| {
+                c.convergence_episodes = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "seed",
+            value_name: "SEED",
+            help: "Base seed, as the transfer experiment's.",
+            kind: Kind::Value,
+            show: |c| c.seed.to_string(),
+            take: |c, v| {
+                c.seed = number(v)?;
+                Ok(())
+            },
+        },
+    ];
+
+    fn standard() -> Self {
+        Self::paper()
+    }
+
+    fn quick() -> Self {
+        Self::quick()
     }
 }
 
@@ -319,10 +367,6 @@ impl Experiment for Fig4Config {
 
     fn summarise_dir(out: &Path) -> Result<Fig4Report> {
         summarise_dir(out)
-    }
-
-    fn console(report: &Fig4Report, out: &Path) -> Result<String, fmt::Error> {
-        crate::console::fig4(report, out)
     }
 }
 

@@ -13,7 +13,6 @@
 //! fixed by the world seed; run `r` of every algorithm uses agent seed `seed + r`.
 
 use std::collections::BTreeMap;
-use std::fmt;
 use std::fs;
 use std::path::Path;
 use std::sync::Arc;
@@ -33,6 +32,7 @@ use crate::episode::{
 use crate::experiment::Experiment;
 use crate::jobs::{self, JobOptions, Manifest};
 use crate::method::Method;
+use crate::settings::{Kind, Setting, Settings, comma_separated, number, on_off, probability};
 pub use crate::stats::Summary;
 use crate::stats::summarise;
 use crate::svg::{BandPoint, LineChart, Series};
@@ -51,23 +51,10 @@ pub struct GridEnv {
 impl GridEnv {
     /// Wraps a grid task, deriving the agent-known CMDP structure and oracle contexts.
     pub fn new(task: GridTask) -> Result<Self> {
-        let reward = (0..task.n_states()).map(|s| task.reward(s)).collect();
-        let terminal = (0..task.n_states()).map(|s| task.is_terminal(s)).collect();
-        let structure = CmdpStructure::new(
-            task.n_states(),
-            task.n_actions(),
-            task.n_effects(),
-            task.n_features(),
-            |s, e| task.apply_effect(s, e),
-            reward,
-            terminal,
-            |s| task.features(s),
-        )
-        .context("the grid task does not form a valid CMDP")?;
-        let of_state = (0..task.n_states())
-            .map(|s| task.oracle_context(s) as u32)
-            .collect();
-        let contexts = Contexts::new(of_state, task.n_oracle_contexts())
+        let structure = tes_perception_sim::structure::grid(&task)
+            .context("the grid task does not form a valid CMDP")?;
+        let (of_state, n_contexts) = tes_perception_sim::structure::grid_contexts(&task);
+        let contexts = Contexts::new(of_state, n_contexts)
             .context("the grid task's oracle contexts are out of range")?;
         Ok(Self {
             task,
@@ -188,6 +175,132 @@ impl GridConfig {
             methods: None,
         }
     }
+}
+
+impl Settings for GridConfig {
+    const QUICK_HELP: &'static str =
+        "Small settings for a first look (and CI): finishes in about two minutes on two cores.";
+    const SETTINGS: &'static [Setting<Self>] = &[
+        Setting {
+            flag: "runs",
+            value_name: "RUNS",
+            help: "Independent runs per algorithm and feature count.",
+            kind: Kind::Value,
+            show: |c| c.runs.to_string(),
+            take: |c, v| {
+                c.runs = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "episodes",
+            value_name: "EPISODES",
+            help: "Episodes per run.",
+            kind: Kind::Value,
+            show: |c| c.episodes.to_string(),
+            take: |c, v| {
+                c.episodes = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "seed",
+            value_name: "SEED",
+            help: "First agent seed; run r uses seed + r.",
+            kind: Kind::Value,
+            show: |c| c.seed.to_string(),
+            take: |c, v| {
+                c.seed = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "world-seed",
+            value_name: "WORLD_SEED",
+            help: "Seed of the grid suite (layouts, dynamics, irrelevant features).",
+            kind: Kind::Value,
+            show: |c| c.world_seed.to_string(),
+            take: |c, v| {
+                c.world_seed = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "converge-plans",
+            value_name: "",
+            help: "Plan every re-plan to the tolerance, instead of stopping it once no value \
+                   moves by more than the model change that triggered it (see \
+                   `tes_learning::plan`).",
+            kind: Kind::Switch,
+            show: |c| on_off(!c.stop_at_drift),
+            take: |c, _| {
+                c.stop_at_drift = false;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "rl-dt-per-state-counts",
+            value_name: "",
+            help: "RL-DT keeps per-state effect counts instead of the list of all examples: \
+                   the same trees and rewards, induced in time bounded by the states rather \
+                   than the steps (our shortcut; the default list is Hester & Stone's and \
+                   what Table 1 compares against).",
+            kind: Kind::Switch,
+            show: |c| on_off(c.rl_dt_examples == ExampleStore::PerStateCounts),
+            take: |c, _| {
+                c.rl_dt_examples = ExampleStore::PerStateCounts;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "fepsg-epsilon",
+            value_name: "EPSILON",
+            help: "fEpsG's exploration ε (the paper's 0.1; loreRL explores with 0.05).",
+            kind: Kind::Value,
+            show: |c| c.fepsg_epsilon.to_string(),
+            take: |c, v| {
+                c.fepsg_epsilon = probability(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "methods",
+            value_name: "METHODS",
+            help: "Only these algorithms, comma-separated names as in the figures (e.g. \
+                   `loreRL,fEpsG`); `all`: every figure's.",
+            kind: Kind::Value,
+            show: |c| c.methods.as_deref().map_or("all".into(), comma_separated),
+            take: |c, v| {
+                c.methods = methods(v)?;
+                Ok(())
+            },
+        },
+    ];
+
+    fn standard() -> Self {
+        Self::paper(20, 800)
+    }
+
+    fn quick() -> Self {
+        Self::quick()
+    }
+}
+
+/// `--methods`: the methods named, comma-separated, as the figures name them; `all`: none
+/// singled out.
+fn methods(text: &str) -> Result<Option<Vec<Method>>, String> {
+    if text == "all" {
+        return Ok(None);
+    }
+    let named = text.split(',').map(|name| {
+        Method::from_name(name.trim()).ok_or_else(|| {
+            format!(
+                "{name:?} is no method; the grid's are {}",
+                METHODS.map(|m| m.name().into_owned()).join(", ")
+            )
+        })
+    });
+    named.collect::<Result<Vec<_>, _>>().map(Some)
 }
 
 /// One job: an algorithm at a feature count. Cells sort by method first, in [`Method`]'s
@@ -532,10 +645,6 @@ impl Experiment for GridConfig {
 
     fn summarise_dir(out: &Path) -> Result<GridReport> {
         summarise_dir(out)
-    }
-
-    fn console(report: &GridReport, out: &Path) -> Result<String, fmt::Error> {
-        crate::console::grid(report, out)
     }
 }
 

@@ -32,7 +32,7 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use rayon::prelude::*;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
@@ -228,6 +228,21 @@ impl Default for JobOptions {
             resume: false,
         }
     }
+}
+
+/// Runs the jobs on `threads` worker threads (`None`: one per core). Only the first call in
+/// a process can size the pool; a later one keeps the pool as it is.
+pub fn use_threads(threads: Option<usize>) -> Result<()> {
+    if let Some(threads) = threads {
+        if threads == 0 {
+            bail!("--threads must be at least 1");
+        }
+        // A failure means the pool was already built, which is harmless.
+        let _ = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build_global();
+    }
+    Ok(())
 }
 
 /// Starts a fresh run in `out`: removes the job records an earlier run left there and

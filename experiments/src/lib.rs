@@ -21,7 +21,7 @@
 //!   merging shard folders;
 //! * [`report`] — `report.md`, every table and figure of the whole study in one page;
 //! * [`replot`] — redraws the figures a result folder's `summary.json` holds the data of;
-//! * [`write_labelled_csv`] and the `make-fit-demo` binary — the seeded demo stream that
+//! * [`write_labelled_csv`], [`write_labelled_sparse`] and the `make-fit-demo` binary — the seeded demo stream that
 //!   `tes fit` runs on in the README (`data/fit-demo.csv`).
 //!
 //! Every run is seeded and records its seeds; the same settings give the same numbers.
@@ -38,6 +38,7 @@ pub mod progress;
 pub mod replot;
 pub mod report;
 pub mod robot;
+pub mod settings;
 pub mod stats;
 pub mod study;
 pub mod svg;
@@ -70,18 +71,70 @@ pub fn write_labelled_csv(
     seed: u64,
     rows: usize,
 ) -> io::Result<Vec<u32>> {
-    let mut stream = SparseMultinomialStream::new(spec, seed)
-        .map_err(|e| io::Error::new(io::ErrorKind::InvalidInput, e))?;
-    let mut line = String::with_capacity(2 * spec.features + 4);
-    for _ in 0..rows {
-        let (label, active) = stream.next_row();
-        line.clear();
+    write_rows(out, spec, seed, rows, |line, label, active| {
         line.push_str(&label.to_string());
         let mut next = active.iter().peekable();
         for i in 0..spec.features as u32 {
             let on = next.next_if_eq(&&i).is_some();
             line.push_str(if on { ",1" } else { ",0" });
         }
+    })
+}
+
+/// The same rows as [`write_labelled_csv`], as sparse `label column:1 …` lines (columns
+/// from 0, the row's on features only): the form `tes fit` reads for wide streams, where a
+/// CSV of thousands of zeros per row would dwarf the data.
+///
+/// ```
+/// use tes_experiments::{write_labelled_csv, write_labelled_sparse};
+/// use tes_learning::mdagl::synthetic::SyntheticSpec;
+///
+/// let spec = SyntheticSpec { features: 8, relevant: 2, ..SyntheticSpec::default() };
+/// let (mut csv, mut sparse) = (Vec::new(), Vec::new());
+/// write_labelled_csv(&mut csv, spec, 42, 3)?;
+/// write_labelled_sparse(&mut sparse, spec, 42, 3)?;
+/// for (dense, sparse) in String::from_utf8(csv)?.lines().zip(String::from_utf8(sparse)?.lines()) {
+///     let mut fields = dense.split(',');
+///     let label = fields.next().unwrap_or_default();
+///     let on: Vec<String> = fields
+///         .enumerate()
+///         .filter(|(_, v)| *v == "1")
+///         .map(|(i, _)| format!("{i}:1"))
+///         .collect();
+///     assert_eq!(sparse, [label.to_owned()].into_iter().chain(on).collect::<Vec<_>>().join(" "));
+/// }
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub fn write_labelled_sparse(
+    out: &mut impl Write,
+    spec: SyntheticSpec,
+    seed: u64,
+    rows: usize,
+) -> io::Result<Vec<u32>> {
+    write_rows(out, spec, seed, rows, |line, label, active| {
+        line.push_str(&label.to_string());
+        for column in active {
+            line.push_str(&format!(" {column}:1"));
+        }
+    })
+}
+
+/// Draws `rows` rows of the seeded stream, each written as a line by `format`; returns the
+/// true model's relevant columns.
+fn write_rows(
+    out: &mut impl Write,
+    spec: SyntheticSpec,
+    seed: u64,
+    rows: usize,
+    format: impl Fn(&mut String, usize, &[u32]),
+) -> io::Result<Vec<u32>> {
+    let mut stream = SparseMultinomialStream::new(spec, seed)
+        .map_err(|e| io::Error::new(io::ErrorKind::InvalidInput, e))?;
+    let mut line = String::with_capacity(2 * spec.features + 4);
+    for _ in 0..rows {
+        let (label, active) = stream.next_row();
+        line.clear();
+        format(&mut line, label, active);
         line.push('\n');
         out.write_all(line.as_bytes())?;
     }

@@ -17,7 +17,6 @@
 //! after each task, the time per episode, and questions of our own judged by paired tests.
 
 use std::collections::BTreeMap;
-use std::fmt;
 use std::fs;
 use std::path::Path;
 use std::time::Instant;
@@ -40,6 +39,7 @@ use crate::experiment::Experiment;
 use crate::grid::GridEnv;
 use crate::jobs::{self, JobOptions, Manifest};
 use crate::method::Method;
+use crate::settings::{Kind, Setting, Settings, number};
 use crate::stats::{Summary, summarise};
 use crate::svg::{LineChart, Series};
 use crate::verdict::{Paired, TIME_RATIO_TEST, TargetCheck, Verdict, difference, paired, ratio};
@@ -124,6 +124,87 @@ impl LifelongConfig {
             bail!("the recency decay must be a finite number >= 0");
         }
         Ok(())
+    }
+}
+
+/// The flags of `tes experiment`'s sub-command, defined once (see [`crate::settings`]).
+impl Settings for LifelongConfig {
+    const QUICK_HELP: &'static str = "Small settings for a first look: seconds.";
+    const SETTINGS: &'static [Setting<Self>] = &[
+        Setting {
+            flag: "runs",
+            value_name: "RUNS",
+            help: "Independent runs of the whole sequence.",
+            kind: Kind::Value,
+            show: |c| c.runs.to_string(),
+            take: |c, v| {
+                c.runs = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "episodes",
+            value_name: "EPISODES",
+            help: "Episodes on each task of the sequence.",
+            kind: Kind::Value,
+            show: |c| c.episodes.to_string(),
+            take: |c, v| {
+                c.episodes = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "rounds",
+            value_name: "ROUNDS",
+            help: "Shuffled passes over every world.",
+            kind: Kind::Value,
+            show: |c| c.rounds.to_string(),
+            take: |c, v| {
+                c.rounds = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "recency",
+            value_name: "RECENCY",
+            help: "The recency decay μ of the library's track record.",
+            kind: Kind::Value,
+            show: |c| c.recency.to_string(),
+            take: |c, v| {
+                c.recency = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "seed",
+            value_name: "SEED",
+            help: "Base agent seed.",
+            kind: Kind::Value,
+            show: |c| c.seed.to_string(),
+            take: |c, v| {
+                c.seed = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "world-seed",
+            value_name: "WORLD_SEED",
+            help: "Seed of the worlds and of the sequence.",
+            kind: Kind::Value,
+            show: |c| c.world_seed.to_string(),
+            take: |c, v| {
+                c.world_seed = number(v)?;
+                Ok(())
+            },
+        },
+    ];
+
+    fn standard() -> Self {
+        LifelongConfig::standard()
+    }
+
+    fn quick() -> Self {
+        Self::quick()
     }
 }
 
@@ -413,10 +494,6 @@ impl Experiment for LifelongConfig {
 
     fn summarise_dir(out: &Path) -> Result<LifelongReport> {
         summarise_dir(out)
-    }
-
-    fn console(report: &LifelongReport, out: &Path) -> Result<String, fmt::Error> {
-        crate::console::lifelong(report, out)
     }
 }
 

@@ -825,6 +825,33 @@ pub fn sync(doc: &str, root: &Path) -> Result<String> {
     Ok(out)
 }
 
+/// `tes experiment report --sync FILE`: rewrites every generated block of `file` from the
+/// folders it names (relative to `root`).
+pub fn sync_file(file: &Path, root: &Path) -> Result<()> {
+    let doc =
+        fs::read_to_string(file).with_context(|| format!("cannot read {}", file.display()))?;
+    let synced = sync(&doc, root)?;
+    fs::write(file, synced).with_context(|| format!("cannot write {}", file.display()))
+}
+
+/// `tes experiment report --check FILE`: an error naming every generated block of `file`
+/// that no longer says what its folder (relative to `root`) holds.
+pub fn check_file(file: &Path, root: &Path) -> Result<()> {
+    let doc =
+        fs::read_to_string(file).with_context(|| format!("cannot read {}", file.display()))?;
+    let stale = stale_blocks(&doc, root)?;
+    if !stale.is_empty() {
+        bail!(
+            "{} block(s) of {} no longer say what their folders hold (run `tes experiment report --sync {}`): {}",
+            stale.len(),
+            file.display(),
+            file.display(),
+            stale.join("; ")
+        );
+    }
+    Ok(())
+}
+
 /// The commands of `doc`'s blocks that no longer hold what their folders say.
 pub fn stale_blocks(doc: &str, root: &Path) -> Result<Vec<String>> {
     let mut stale = Vec::new();

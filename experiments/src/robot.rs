@@ -18,7 +18,6 @@
 //! Paper settings: α = 0.5, λ = 0.05, γ = 0.95, ε = 0.05, m = 10.
 
 use std::collections::BTreeMap;
-use std::fmt;
 use std::fs;
 use std::path::Path;
 use std::sync::Arc;
@@ -36,11 +35,13 @@ use tes_learning::library::{LibraryParams, ViewLibrary};
 use tes_learning::mdagl::MdaglParams;
 use tes_learning::plan::PlannerParams;
 use tes_perception_sim::arena::{Arena, ArenaId, Episode as ArenaEpisode, EpisodeStatus};
+use tes_perception_sim::structure::{self, ArenaFeatures};
 
 use crate::episode::{End, Episode, RunOutcome, write_episodes_csv, write_file, write_summary};
 use crate::experiment::Experiment;
 use crate::jobs::{self, JobOptions, Manifest};
 use crate::method::Method;
+use crate::settings::{Kind, Setting, Settings, number};
 use crate::stats::{ALPHA, Summary, holm, sign_test, summarise};
 use crate::svg::{BandPoint, LineChart, Series};
 use crate::verdict::{
@@ -90,6 +91,65 @@ impl RobotConfig {
     }
 }
 
+/// The flags of `tes experiment`'s sub-command, defined once (see [`crate::settings`]).
+impl Settings for RobotConfig {
+    const QUICK_HELP: &'static str = "Small settings for a first look: seconds.";
+    const SETTINGS: &'static [Setting<Self>] = &[
+        Setting {
+            flag: "runs",
+            value_name: "RUNS",
+            help: "Independent repeats.",
+            kind: Kind::Value,
+            show: |c| c.runs.to_string(),
+            take: |c, v| {
+                c.runs = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "episodes",
+            value_name: "EPISODES",
+            help: "Episodes on Env 3.",
+            kind: Kind::Value,
+            show: |c| c.episodes.to_string(),
+            take: |c, v| {
+                c.episodes = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "train-episodes",
+            value_name: "TRAIN_EPISODES",
+            help: "Episodes in each arena experienced before Env 3.",
+            kind: Kind::Value,
+            show: |c| c.train_episodes.to_string(),
+            take: |c, v| {
+                c.train_episodes = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "seed",
+            value_name: "SEED",
+            help: "Base seed; run r uses seed + r.",
+            kind: Kind::Value,
+            show: |c| c.seed.to_string(),
+            take: |c, v| {
+                c.seed = number(v)?;
+                Ok(())
+            },
+        },
+    ];
+
+    fn standard() -> Self {
+        Self::paper()
+    }
+
+    fn quick() -> Self {
+        Self::quick()
+    }
+}
+
 /// The compared methods, in report order (the order of the jobs, too).
 pub const METHODS: [Method; 7] = [
     Method::Tes,
@@ -123,28 +183,10 @@ impl World {
     fn new(id: ArenaId) -> Result<Self> {
         let arena = Arena::new(id);
         let n = arena.n_states();
-        let full = CmdpStructure::new(
-            n,
-            arena.n_actions(),
-            arena.n_effects(),
-            arena.n_features(),
-            |s, e| arena.apply_effect(s, e),
-            arena.rewards().to_vec(),
-            arena.terminals().to_vec(),
-            |s| arena.features(s),
-        )
-        .with_context(|| format!("{id} does not form a CMDP"))?;
-        let manual = CmdpStructure::new(
-            n,
-            arena.n_actions(),
-            arena.n_effects(),
-            12,
-            |s, e| arena.apply_effect(s, e),
-            arena.rewards().to_vec(),
-            arena.terminals().to_vec(),
-            |s| arena.man_features(s),
-        )
-        .with_context(|| format!("{id}'s hand-picked features do not form a CMDP"))?;
+        let full = structure::arena(&arena, ArenaFeatures::All)
+            .with_context(|| format!("{id} does not form a CMDP"))?;
+        let manual = structure::arena(&arena, ArenaFeatures::HandPicked)
+            .with_context(|| format!("{id}'s hand-picked features do not form a CMDP"))?;
         let of_state = (0..n)
             .map(|s| arena.oracle_context(s).unwrap_or(0) as u32)
             .collect();
@@ -418,10 +460,6 @@ impl Experiment for RobotConfig {
 
     fn summarise_dir(out: &Path) -> Result<RobotReport> {
         summarise_dir(out)
-    }
-
-    fn console(report: &RobotReport, out: &Path) -> Result<String, fmt::Error> {
-        crate::console::robot(report, out)
     }
 }
 

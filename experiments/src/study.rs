@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 
+use crate::experiment::Experiment;
 use crate::fig4::{self, Fig4Config};
 use crate::grid::{self, GridConfig};
 use crate::jobs::{self, Manifest, Shard};
@@ -25,6 +26,59 @@ pub const EXPERIMENTS: [&str; 5] = [
     fig4::EXPERIMENT,
     lifelong::EXPERIMENT,
 ];
+
+/// Recomputes the summary, tables and figures of the complete folder `dir` of whichever
+/// experiment its manifest names, from its job records; returns what the experiment prints.
+pub fn summarise_folder(dir: &Path) -> Result<String> {
+    fn summarise<E: Experiment>(dir: &Path) -> Result<String> {
+        E::console(&E::summarise_dir(dir)?, dir).context("cannot write the experiment's summary")
+    }
+    let manifest = Manifest::read(dir)?;
+    match manifest.experiment.as_str() {
+        GridConfig::NAME => summarise::<GridConfig>(dir),
+        TransferConfig::NAME => summarise::<TransferConfig>(dir),
+        RobotConfig::NAME => summarise::<RobotConfig>(dir),
+        Fig4Config::NAME => summarise::<Fig4Config>(dir),
+        LifelongConfig::NAME => summarise::<LifelongConfig>(dir),
+        other => bail!("unknown experiment {other:?} in {}", dir.display()),
+    }
+}
+
+/// Every experiment's settings as Markdown tables (`tes experiment settings`,
+/// docs/experiments.md): each flag, its default, its `--quick` value and what it sets, from
+/// the one definition the command line's flags come from ([`crate::settings`]).
+pub fn settings_reference() -> String {
+    use crate::settings::markdown;
+    let tables = [
+        markdown::<GridConfig>(grid::EXPERIMENT),
+        markdown::<TransferConfig>(transfer::EXPERIMENT),
+        markdown::<RobotConfig>(robot::EXPERIMENT),
+        markdown::<Fig4Config>(fig4::EXPERIMENT),
+        markdown::<LifelongConfig>(lifelong::EXPERIMENT),
+    ];
+    format!(
+        "# Experiment settings\n\n<!-- Generated from the experiments' settings definitions \
+         (experiments/src/settings.rs and each experiment's `impl Settings`): \
+         `tes experiment settings > docs/experiments.md`; do not edit by hand. -->\n\n\
+         Every setting of every `tes experiment` sub-command: its flag, its default, its value \
+         under `--quick` and what it sets. Besides these, each takes `--out DIR`, \
+         `--threads N`, `--shard K/N` and `--resume DIR` (see the README).\n\n{}",
+        tables.join("\n")
+    )
+}
+
+/// What does not hold of any experiment's settings definition ([`crate::settings::check`]).
+pub fn settings_problems() -> Vec<String> {
+    use crate::settings::check;
+    [
+        check::<GridConfig>(),
+        check::<TransferConfig>(),
+        check::<RobotConfig>(),
+        check::<Fig4Config>(),
+        check::<LifelongConfig>(),
+    ]
+    .concat()
+}
 
 /// The report of a whole study, in its folder.
 pub const REPORT: &str = "report.md";
@@ -92,6 +146,38 @@ pub struct Study {
 }
 
 impl Study {
+    /// `tes experiment all`'s study: resumed from `resume` (which takes the settings and
+    /// shard from its manifests: no other may be given), or prepared in `out` with each
+    /// experiment's standard (or `quick`) settings, `runs` repeats of each if given, and
+    /// share `shard` of the jobs.
+    pub fn open(
+        out: &Path,
+        resume: Option<&Path>,
+        quick: bool,
+        runs: Option<usize>,
+        shard: Option<Shard>,
+    ) -> Result<Self> {
+        if let Some(dir) = resume {
+            if shard.is_some() || runs.is_some() || quick {
+                bail!(
+                    "--resume takes the settings and shard from the manifests in {}; give no other setting",
+                    dir.display()
+                );
+            }
+            return Self::resume(dir);
+        }
+        let configs = if quick {
+            StudyConfigs::quick()
+        } else {
+            StudyConfigs::paper()
+        };
+        let configs = match runs {
+            Some(runs) => configs.with_runs(runs),
+            None => configs,
+        };
+        Self::prepare(out, configs, shard.unwrap_or(Shard::ALL))
+    }
+
     /// A new study in `out`: every experiment's manifest is written first, so that an
     /// interrupted study resumes from any point.
     pub fn prepare(out: &Path, configs: StudyConfigs, shard: Shard) -> Result<Self> {

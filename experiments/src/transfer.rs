@@ -20,7 +20,6 @@
 //! line up while their actions do).
 
 use std::collections::BTreeMap;
-use std::fmt;
 use std::fs;
 use std::path::Path;
 use std::time::Instant;
@@ -45,6 +44,7 @@ use crate::experiment::Experiment;
 use crate::grid::GridEnv;
 use crate::jobs::{self, JobOptions, Manifest};
 use crate::method::Method;
+use crate::settings::{Kind, Setting, Settings, comma_separated, number, numbers, on_off};
 use crate::stats::{Summary, summarise};
 use crate::svg::{CategoryChart, CategorySeries, Interval, LineChart, Series};
 use crate::verdict::{PER_TASK_TEST, POOLED_TEST, TargetCheck, TaskDecisions, Verdict};
@@ -163,6 +163,125 @@ impl TransferConfig {
         let mut m = vec![Method::Tes, Method::Lwt, Method::LoreRl, Method::FEpsG];
         m.extend((1..=self.random_combinations).map(Method::Rands));
         m
+    }
+}
+
+/// The flags of `tes experiment`'s sub-command, defined once (see [`crate::settings`]).
+impl Settings for TransferConfig {
+    const QUICK_HELP: &'static str =
+        "Small settings for a first look (and CI): finishes in under two minutes on two cores.";
+    const SETTINGS: &'static [Setting<Self>] = &[
+        Setting {
+            flag: "runs",
+            value_name: "RUNS",
+            help: "Independent runs per test task.",
+            kind: Kind::Value,
+            show: |c| c.runs.to_string(),
+            take: |c, v| {
+                c.runs = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "tasks",
+            value_name: "TASKS",
+            help: "Held-out test tasks, comma-separated suite indices.",
+            kind: Kind::Value,
+            show: |c| comma_separated(&c.test_tasks),
+            take: |c, v| {
+                c.test_tasks = numbers(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "train-episodes",
+            value_name: "TRAIN_EPISODES",
+            help: "Episodes on each training task.",
+            kind: Kind::Value,
+            show: |c| c.train_episodes.to_string(),
+            take: |c, v| {
+                c.train_episodes = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "test-episodes",
+            value_name: "TEST_EPISODES",
+            help: "Episodes on the test task.",
+            kind: Kind::Value,
+            show: |c| c.test_episodes.to_string(),
+            take: |c, v| {
+                c.test_episodes = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "seed",
+            value_name: "SEED",
+            help: "Base seed; the job of (task t, run r) uses seed + 1000 r + t.",
+            kind: Kind::Value,
+            show: |c| c.seed.to_string(),
+            take: |c, v| {
+                c.seed = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "world-seed",
+            value_name: "WORLD_SEED",
+            help: "Seed of the grid suite (layouts, dynamics, irrelevant features).",
+            kind: Kind::Value,
+            show: |c| c.world_seed.to_string(),
+            take: |c, v| {
+                c.world_seed = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "converge-plans",
+            value_name: "",
+            help: "Plan every re-plan to the tolerance, instead of stopping it once no value moves by \
+                   more than the model change that triggered it (see `tes_learning::plan`).",
+            kind: Kind::Switch,
+            show: |c| on_off(!c.stop_at_drift),
+            take: |c, _| {
+                c.stop_at_drift = false;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "max-views",
+            value_name: "MAX_VIEWS",
+            help: "The most views the library keeps (M; the paper's 20); a larger M prunes \
+                   less, an ablation of the library's pruning.",
+            kind: Kind::Value,
+            show: |c| c.max_views.to_string(),
+            take: |c, v| {
+                c.max_views = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "prune-one-per-task",
+            value_name: "",
+            help: "Prune one view per task as Algorithm 2 writes it (`if |T| > M then remove \
+                   the least valuable`), which lets a task that adds several views leave the \
+                   library above M, instead of pruning down to M (the default).",
+            kind: Kind::Switch,
+            show: |c| on_off(c.prune_one_per_task),
+            take: |c, _| {
+                c.prune_one_per_task = true;
+                Ok(())
+            },
+        },
+    ];
+
+    fn standard() -> Self {
+        Self::paper()
+    }
+
+    fn quick() -> Self {
+        Self::quick()
     }
 }
 
@@ -411,10 +530,6 @@ impl Experiment for TransferConfig {
 
     fn summarise_dir(out: &Path) -> Result<TransferReport> {
         summarise_dir(out)
-    }
-
-    fn console(report: &TransferReport, out: &Path) -> Result<String, fmt::Error> {
-        crate::console::transfer(report, out)
     }
 }
 

@@ -14,7 +14,7 @@ use tes_runtime::settings::{self, Origin, SettingError};
 use tes_topics::Role;
 
 use crate::children::ChildSpec;
-use crate::{reference, run_folder};
+use crate::run_folder;
 
 /// What to do when a child dies.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize, Default)]
@@ -658,6 +658,13 @@ pub enum LaunchFileError {
     },
     /// Another group owns the run directory.
     Busy(LockError),
+    /// Another launch plays this role from the same data directory.
+    RoleBusy {
+        /// The role.
+        role: Role,
+        /// Its lock, held by the other launch.
+        error: LockError,
+    },
 }
 
 impl std::fmt::Display for LaunchFileError {
@@ -698,11 +705,26 @@ impl std::fmt::Display for LaunchFileError {
                 path.parent().unwrap_or(path).display(),
                 pid.map(|p| format!(" (pid {p})")).unwrap_or_default()
             )?,
-            LaunchFileError::Busy(LockError::Io { path, error, .. }) => write!(
+            LaunchFileError::Busy(LockError::Io { path, error, .. })
+            | LaunchFileError::RoleBusy {
+                error: LockError::Io { path, error, .. },
+                ..
+            } => write!(
                 f,
                 "cannot lock the run directory: {}: {}",
                 path.display(),
                 tes_runtime::cause::explain(error)
+            )?,
+            LaunchFileError::RoleBusy {
+                role,
+                error: LockError::Held { path, pid, .. },
+            } => write!(
+                f,
+                "the {role} of the runs in {} is in use by another tes launch{}; stop that \
+                 one first, or give this launch other roles (--roles), a data directory of its \
+                 own (TES_DATA_DIR) or another [launch] runs_dir",
+                path.parent().unwrap_or(path).display(),
+                pid.map(|p| format!(" (pid {p})")).unwrap_or_default()
             )?,
         }
         f.write_str("; nothing was started")
@@ -746,8 +768,30 @@ pub struct Prepared {
     /// Where the bridge writes its report at exit (latency, the link's round trips), when
     /// this launch plays the bridge.
     pub bridge_report: Option<PathBuf>,
-    /// The run directory's lock, held for the group's life.
-    pub _lock: Lock,
+    /// The run directory's locks, held for the group's life.
+    pub _locks: RunLocks,
+}
+
+/// The locks a launch holds while it runs: its roles' in the data directory's `runs/` (or
+/// a `run_dir` of its own whole), and its run folder's, which keeps other launches' pruning
+/// off it. Each file is removed as its lock is let go.
+#[derive(Debug)]
+pub struct RunLocks {
+    _roles: Vec<Lock>,
+    _folder: Option<Lock>,
+}
+
+/// Takes `runs/ROLE.lock` for each role a launch plays (every role when `roles` is empty),
+/// or says which role another launch holds, naming its pid.
+fn lock_roles(runs: &Path, roles: &[Role]) -> Result<Vec<Lock>, LaunchFileError> {
+    Role::ALL
+        .into_iter()
+        .filter(|r| roles.is_empty() || roles.contains(r))
+        .map(|role| {
+            Lock::acquire(&runs.join(format!("{}.lock", role.name())), role.name())
+                .map_err(|error| LaunchFileError::RoleBusy { role, error })
+        })
+        .collect()
 }
 
 impl Prepared {
@@ -788,9 +832,9 @@ pub fn unique_service_prefix() -> String {
 pub const RESOLVED_LAUNCH_FILE: &str = "launch.toml";
 
 /// Checks every child's settings, takes the run directory for this launch and writes their
-/// settings there. A launch without a service prefix gets one of its own.
+/// settings there. A launch without a service prefix gets one of its own. The resolved launch
+/// file beside them is [`reference::write_resolved`](crate::reference::write_resolved)'s.
 pub fn prepare(file: &LaunchFile) -> Result<Prepared, LaunchFileError> {
-    let as_given = file;
     let mut file = file.clone();
     if file.launch.service_prefix.is_empty() {
         file.launch.service_prefix = unique_service_prefix();
@@ -811,9 +855,14 @@ pub fn prepare(file: &LaunchFile) -> Result<Prepared, LaunchFileError> {
     let (run_dir, fresh, lock) = match &file.launch.run_dir {
         Some(dir) => {
             std::fs::create_dir_all(dir).map_err(run_dir_error(dir))?;
+            // A run directory of the file's own holds one group's files: one launch at a time.
             let lock = Lock::acquire(&dir.join("launch.lock"), "run directory")
                 .map_err(LaunchFileError::Busy)?;
-            (dir.clone(), None, lock)
+            let locks = RunLocks {
+                _roles: vec![lock],
+                _folder: None,
+            };
+            (dir.clone(), None, locks)
         }
         None => {
             let runs = file
@@ -822,12 +871,19 @@ pub fn prepare(file: &LaunchFile) -> Result<Prepared, LaunchFileError> {
                 .clone()
                 .unwrap_or_else(|| default_data_dir().join(run_folder::RUNS));
             std::fs::create_dir_all(&runs).map_err(run_dir_error(&runs))?;
-            // One launch per data directory: the library and the runs are its.
-            let lock = Lock::acquire(&runs.join("launch.lock"), "run directory")
-                .map_err(LaunchFileError::Busy)?;
+            // One launch per role and data directory: the two sides of a split group share
+            // one (each in a run folder of its own), a second controller is refused.
+            let role_locks = lock_roles(&runs, &file.launch.roles)?;
             let dir = run_folder::create(&runs, std::time::SystemTime::now())
                 .map_err(run_dir_error(&runs))?;
-            (dir, Some((runs, file.launch.keep_runs)), lock)
+            // Held for the run: another launch's pruning keeps a folder in use.
+            let in_use = Lock::acquire(&dir.join(run_folder::IN_USE), "run folder")
+                .map_err(LaunchFileError::Busy)?;
+            let locks = RunLocks {
+                _roles: role_locks,
+                _folder: Some(in_use),
+            };
+            (dir, Some((runs, file.launch.keep_runs)), locks)
         }
     };
     // From here on a refusal removes the new run folder (the guard's drop).
@@ -837,14 +893,9 @@ pub fn prepare(file: &LaunchFile) -> Result<Prepared, LaunchFileError> {
         fresh,
         service_prefix: file.launch.service_prefix.clone(),
         bridge_report: None,
-        _lock: lock,
+        _locks: lock,
     };
     let run_dir = prepared.run_dir.clone();
-    // As given: a launch without a service prefix of its own gets a new one when rerun.
-    let resolved = reference::render_resolved(as_given)
-        .map_err(|e| unwritable("cannot write the resolved launch file".into())(e.into()))?;
-    let resolved_path = run_dir.join(RESOLVED_LAUNCH_FILE);
-    std::fs::write(&resolved_path, resolved).map_err(run_dir_error(&resolved_path))?;
     children.write_into(&run_dir);
     let plays = |role: &Role| file.launch.roles.is_empty() || file.launch.roles.contains(role);
     for role in START_ORDER.iter().filter(|r| plays(r)) {

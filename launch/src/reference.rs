@@ -18,7 +18,7 @@
 
 use std::fmt::Write as _;
 
-use crate::file::{INHERITED, Inherited, LaunchFile};
+use crate::file::{INHERITED, Inherited, LaunchFile, LaunchFileError, RESOLVED_LAUNCH_FILE};
 
 /// The reference cannot be rendered: a table's values do not serialise (a bug in a config
 /// struct), or the text cannot be written.
@@ -298,6 +298,18 @@ pub fn render_resolved(file: &LaunchFile) -> Result<String> {
         }
     }
     Ok(text)
+}
+
+/// Writes [`render_resolved`] of `file` as given (a launch without a service prefix of its
+/// own gets a new one when rerun) into the run folder `run_dir`, as [`RESOLVED_LAUNCH_FILE`].
+pub fn write_resolved(file: &LaunchFile, run_dir: &std::path::Path) -> Result<(), LaunchFileError> {
+    let resolved = render_resolved(file).map_err(|error| LaunchFileError::Write {
+        origin: file.origin.clone(),
+        what: "cannot write the resolved launch file".into(),
+        error: error.into(),
+    })?;
+    let path = run_dir.join(RESOLVED_LAUNCH_FILE);
+    std::fs::write(&path, resolved).map_err(|error| LaunchFileError::RunDir { path, error })
 }
 
 /// Where the line starting with `line` is in the `[table]` section of `text`.

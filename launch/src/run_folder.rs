@@ -95,7 +95,11 @@ pub(crate) fn list(runs: &Path) -> Vec<PathBuf> {
     folders.into_iter().map(|(_, _, p)| p).collect()
 }
 
-/// Removes the oldest run folders of `runs` beyond `keep` (0 keeps all), never `current`;
+/// The lock file a launch holds in its run folder while it runs (see [`prune`]).
+pub(crate) const IN_USE: &str = "in-use.lock";
+
+/// Removes the oldest run folders of `runs` beyond `keep` (0 keeps all), never `current` nor
+/// one another launch of the data directory still runs in (its [`IN_USE`] lock held);
 /// returns the folders removed. A folder that cannot be removed is left (and not counted).
 pub(crate) fn prune(runs: &Path, keep: u32, current: &Path) -> Vec<PathBuf> {
     if keep == 0 {
@@ -107,8 +111,19 @@ pub(crate) fn prune(runs: &Path, keep: u32, current: &Path) -> Vec<PathBuf> {
         .into_iter()
         .filter(|f| f != current)
         .take(excess)
-        .filter(|f| std::fs::remove_dir_all(f).is_ok())
+        .filter(|f| !in_use(f) && std::fs::remove_dir_all(f).is_ok())
         .collect()
+}
+
+/// Whether a launch runs in `folder` (holds its [`IN_USE`] lock). A folder whose lock is
+/// free is not: taking the lock tells, and letting it go removes the file.
+fn in_use(folder: &Path) -> bool {
+    let lock = folder.join(IN_USE);
+    lock.exists()
+        && matches!(
+            tes_runtime::lock::Lock::acquire(&lock, "run folder"),
+            Err(tes_runtime::lock::LockError::Held { .. })
+        )
 }
 
 /// Points `runs/latest` at `dir` (best effort: a file system without symbolic links just
@@ -167,6 +182,14 @@ mod tests {
             "only run folders are pruned"
         );
         assert!(prune(runs.path(), 0, newest).is_empty());
+        // A folder another launch of the data directory runs in is kept, and pruned once
+        // that launch has let it go.
+        let running = &made[10];
+        let held = tes_runtime::lock::Lock::acquire(&running.join(IN_USE), "run folder").unwrap();
+        assert_eq!(prune(runs.path(), 1, newest), vec![made[11].clone()]);
+        assert!(running.exists(), "a folder in use is kept");
+        drop(held);
+        assert_eq!(prune(runs.path(), 1, newest), vec![running.clone()]);
         point_latest_at(runs.path(), newest);
         point_latest_at(runs.path(), newest);
         assert_eq!(

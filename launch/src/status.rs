@@ -61,6 +61,10 @@ pub struct Status {
     /// iceoryx2 domains other than the default (a latency bench's, a test host's) removed
     /// first because every process in them had ended (`None` when nothing was cleaned).
     pub domains_cleaned: Option<usize>,
+    /// Lock files ended launches left in the default data directory (a killed launcher's
+    /// role locks, a killed controller's library lock), removed first (`None` when nothing
+    /// was cleaned).
+    pub locks_cleaned: Option<usize>,
     /// What the clean-up could not remove, each named with why (empty when it removed
     /// everything, or nothing was cleaned).
     #[serde(skip_serializing_if = "Vec::is_empty")]
@@ -77,7 +81,11 @@ impl Status {
     /// [`StatusError`] when the clean-up, the node registry or this process's own node fails.
     pub fn read(clean: bool, wait: Duration) -> Result<Self, StatusError> {
         let (mut cleaned, mut domains_cleaned, mut not_cleaned) = (None, None, Vec::new());
+        let mut locks_cleaned = None;
         if clean {
+            let locks = clean_stale_locks(&tes_controller::config::default_data_dir());
+            locks_cleaned = Some(locks.removed);
+            not_cleaned.extend(locks.not_removed);
             // Everything that can be removed is, whatever could not be: each failure is
             // named, not the first one made the end of the clean-up.
             let nodes = channel::clean_every_stale_resource().map_err(StatusError::Clean)?;
@@ -92,9 +100,62 @@ impl Status {
             groups,
             cleaned,
             domains_cleaned,
+            locks_cleaned,
             not_cleaned,
         })
     }
+}
+
+/// What a clean-up of lock files did.
+#[derive(Debug, Default, Clone, PartialEq, Eq)]
+pub struct LocksCleaned {
+    /// Lock files removed (their holders had ended).
+    pub removed: usize,
+    /// Those that could not be looked at or removed, each named with why.
+    pub not_removed: Vec<String>,
+}
+
+/// Removes the lock files of `data_dir` no live process holds: `*.lock` in it (the view
+/// library's) and in its `runs/` (each role's), and each run folder's in-use lock. A lock is
+/// free exactly when its holder has ended (the kernel releases a `flock` with its process),
+/// so taking it tells, and letting it go removes the file; a held one stays.
+pub fn clean_stale_locks(data_dir: &std::path::Path) -> LocksCleaned {
+    let runs = data_dir.join(crate::run_folder::RUNS);
+    let folders = crate::run_folder::list(&runs);
+    let candidates = lock_files_in(data_dir)
+        .into_iter()
+        .chain(lock_files_in(&runs))
+        .chain(folders.iter().flat_map(|f| lock_files_in(f)));
+    let mut done = LocksCleaned::default();
+    for path in candidates {
+        match tes_runtime::lock::Lock::acquire(&path, "lock file") {
+            Ok(lock) => {
+                drop(lock);
+                match std::fs::symlink_metadata(&path) {
+                    Err(e) if e.kind() == std::io::ErrorKind::NotFound => done.removed += 1,
+                    _ => done
+                        .not_removed
+                        .push(format!("the lock file {}", path.display())),
+                }
+            }
+            Err(tes_runtime::lock::LockError::Held { .. }) => {}
+            Err(e) => done.not_removed.push(e.to_string()),
+        }
+    }
+    done
+}
+
+/// The regular `*.lock` files directly in `dir` (none when it cannot be read).
+fn lock_files_in(dir: &std::path::Path) -> Vec<std::path::PathBuf> {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Vec::new();
+    };
+    entries
+        .filter_map(Result::ok)
+        .filter(|e| e.file_type().is_ok_and(|t| t.is_file()))
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|x| x == "lock"))
+        .collect()
 }
 
 /// One group: the nodes sharing a service prefix.
@@ -392,6 +453,34 @@ pub fn process_uptime(stat: &str, boot: &str, ticks_per_s: u64) -> Option<Durati
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Lock files whose holders ended are removed (the library's, each role's, a run
+    /// folder's); a held one stays; nothing else is touched.
+    #[test]
+    fn stale_lock_files_are_removed_and_held_ones_kept() {
+        let data = tempfile::tempdir().expect("temp dir");
+        let runs = data.path().join(crate::run_folder::RUNS);
+        let folder = runs.join("2026-11-30T00-53-20Z");
+        std::fs::create_dir_all(&folder).expect("run folder");
+        let stale = [
+            data.path().join("library.tesl.lock"),
+            runs.join("controller.lock"),
+            folder.join(crate::run_folder::IN_USE),
+        ];
+        for path in &stale {
+            std::fs::write(path, "4194304\n").expect("a dead holder's lock file");
+        }
+        let kept = data.path().join("library.tesl");
+        std::fs::write(&kept, "not a lock").expect("a file");
+        let held = tes_runtime::lock::Lock::acquire(&runs.join("bridge.lock"), "bridge")
+            .expect("a live lock");
+        let done = clean_stale_locks(data.path());
+        assert_eq!(done.removed, 3, "{done:?}");
+        assert!(done.not_removed.is_empty(), "{done:?}");
+        assert!(stale.iter().all(|p| !p.exists()));
+        assert!(held.path().exists() && kept.exists());
+        assert_eq!(clean_stale_locks(data.path()).removed, 0);
+    }
     use proptest::prelude::*;
 
     fn entry(name: &str, pid: i32, liveness: NodeLiveness) -> NodeEntry {
@@ -515,6 +604,7 @@ mod tests {
             groups: group_nodes(&[named("g/", BRIDGE, 5, Dead)]),
             cleaned: Some(0),
             domains_cleaned: Some(0),
+            locks_cleaned: None,
             not_cleaned: Vec::new(),
         };
         let json: serde_json::Value =
@@ -543,6 +633,7 @@ mod tests {
             groups,
             cleaned: None,
             domains_cleaned: None,
+            locks_cleaned: None,
             not_cleaned: Vec::new(),
         };
         assert_eq!(
@@ -552,7 +643,7 @@ mod tests {
              \"uptime_s\":null,\"episodes\":null,\"steps\":null},\
              \"processes\":[{\"role\":\"controller\",\"pid\":5,\"state\":\"alive\",\
              \"uptime_s\":1.5,\"episodes\":2,\"steps\":30}],\"progress_error\":null}],\
-             \"cleaned\":null,\"domains_cleaned\":null}"
+             \"cleaned\":null,\"domains_cleaned\":null,\"locks_cleaned\":null}"
         );
     }
 

@@ -83,9 +83,10 @@ pub enum LaunchError {
     /// A child cannot be polled.
     #[error("cannot poll a child")]
     Poll(#[source] std::io::Error),
-    /// The bridge's serial device does not exist or is not a terminal device.
+    /// The bridge's link cannot exist here: a serial device missing or no terminal, no USB
+    /// bus, no Bluetooth.
     #[error("[bridge] transport: {0}; nothing was started")]
-    NoBrick(tes_bridge::config::SerialDeviceError),
+    NoBrick(tes_bridge::config::DeviceError),
     /// The view library file cannot be used (corrupt, foreign, for another world).
     #[error("{0}; nothing was started (move the file away to start from an empty library)")]
     Library(tes_learning::library::store::StoreError),
@@ -179,6 +180,7 @@ impl Supervisor {
         // A refusal from here until the children run removes the new run folder (`prepared`'s
         // drop) and leaves `runs/latest` as it was.
         let mut prepared = prepare(file)?;
+        crate::reference::write_resolved(file, &prepared.run_dir)?;
         clean_stale_resources(observer);
         let prefix = prepared.service_prefix.clone();
         refuse_a_prefix_in_use(&prefix)?;
@@ -233,6 +235,9 @@ impl Supervisor {
                 role: c.spec.role,
                 pid: c.process.child.id(),
             });
+        }
+        if let Some(log) = &log_to {
+            log.send(LAUNCH_LOG, &started_line(&children, &prefix));
         }
         let pruned = prepared.commit();
         if !pruned.is_empty() {
@@ -348,6 +353,14 @@ impl Supervisor {
         let drawn = self.record.finish();
         self.relay.emit_records(&self.record, observer);
         let mut failures: Vec<String> = ending.failure.into_iter().collect();
+        if let Some(log) = &self.relay.log_to {
+            // The recording's last line: how the group went (the recorder's own end is in
+            // the file's end record).
+            let mut so_far = failures.clone();
+            self.add_failed_children(&mut so_far);
+            let line = ended_line(&so_far, ending.reason.as_deref(), self.relay.episodes);
+            log.send(LAUNCH_LOG, &line);
+        }
         self.finish_recording(&mut failures, observer);
         self.finish_ros2(&mut failures, observer);
         self.add_failed_children(&mut failures);
@@ -577,6 +590,16 @@ impl Supervisor {
             restart: self.children[i].restarts,
             max: self.file.launch.max_restarts,
         });
+        if let Some(log) = &self.relay.log_to {
+            let how = children::describe(status);
+            let text = format!(
+                "WARN launch: {} {how}; restart {} of {}",
+                role.name(),
+                self.children[i].restarts,
+                self.file.launch.max_restarts
+            );
+            log.send(LAUNCH_LOG, &text);
+        }
         if let Err(e) = channel::clean_stale_resources() {
             observer.event(&Event::Warning(e.to_string()));
         }
@@ -810,6 +833,34 @@ impl Supervisor {
     }
 }
 
+/// The name the launcher's own lines carry in a recording's `/log`.
+const LAUNCH_LOG: &str = "launch";
+
+/// The `/log` line of the group's start: each process and its pid.
+fn started_line(children: &[Running], prefix: &str) -> String {
+    let who: Vec<String> = children
+        .iter()
+        .map(|c| format!("{} (pid {})", c.spec.role.name(), c.process.child.id()))
+        .collect();
+    format!(
+        "INFO launch: the group {prefix} started: {}",
+        who.join(", ")
+    )
+}
+
+/// The `/log` line of the group's end: how it went, at the level it deserves.
+fn ended_line(failures: &[String], reason: Option<&str>, episodes: u32) -> String {
+    if failures.is_empty() {
+        let why = reason.unwrap_or("the group stopped");
+        format!("INFO launch: {why}; {episodes} episodes")
+    } else {
+        format!(
+            "ERROR launch: the group failed after {episodes} episodes: {}",
+            failures.join("; ")
+        )
+    }
+}
+
 /// Runs the launch `file` to its end: [`Supervisor::start`], [`Supervisor::step`] every
 /// [`TICK`] until the group stops, [`Supervisor::stop`].
 pub fn run(
@@ -962,8 +1013,9 @@ fn refuse_a_prefix_in_use(prefix: &str) -> Result<(), LaunchError> {
 }
 
 /// Refuses a launch whose bridge would talk to a serial device that is not there, or is no
-/// terminal (`/dev/null`, a FIFO, a file): the link could never come up, and a run that
-/// cannot happen must not start.
+/// terminal (`/dev/null`, a FIFO, a file), or to a USB or Bluetooth brick on a machine with
+/// no USB bus or no Bluetooth: the link could never come up, and a run that cannot happen
+/// must not start (said once, before any process could say it again).
 fn refuse_a_missing_brick(file: &LaunchFile) -> Result<(), LaunchError> {
     let plays_bridge = file.launch.roles.is_empty() || file.launch.roles.contains(&Role::Bridge);
     if plays_bridge {

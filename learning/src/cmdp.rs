@@ -913,6 +913,23 @@ fn l1_distance(p: &[f64], q: &[f64]) -> f64 {
 pub mod examples {
     use super::CmdpStructure;
 
+    /// Two states, two actions, two effects that both lead from state 0 to the terminal
+    /// state 1, no features and no entering rewards.
+    pub fn two_state_structure() -> CmdpStructure {
+        let no_features: &[u32] = &[];
+        CmdpStructure::new(
+            2,
+            2,
+            2,
+            0,
+            |_, _| 1,
+            vec![0.0, 0.0],
+            vec![false, true],
+            |_| no_features,
+        )
+        .unwrap()
+    }
+
     /// A corridor of `n` cells, 2 actions (left, right), 3 effects (left, right, stay); the
     /// right end is a +1 terminal, the left end a −1 terminal; −0.01 elsewhere. Feature 0 is a
     /// bias, feature 1 marks "slippery" cells. Panics if `n < 2`.
@@ -960,80 +977,6 @@ pub mod examples {
 mod tests {
     use super::examples::corridor;
     use super::*;
-
-    /// Two effects that enter the same state with different step rewards: the planner
-    /// backs up each step's own reward and takes the action whose effect pays.
-    #[test]
-    fn step_rewards_are_what_the_planner_backs_up() {
-        use crate::plan::{PlannerParams, ValueIteration};
-        let c = two_state_structure();
-        assert_eq!(c.step_reward(0, 0, 1), c.reward(1));
-        let paid = c
-            .clone()
-            .with_step_rewards(|s, _, e| if (s, e) == (0, 1) { 1.0 } else { -1.0 })
-            .unwrap();
-        assert_eq!(
-            (paid.step_reward(0, 0, 0), paid.step_reward(0, 0, 1)),
-            (-1.0, 1.0)
-        );
-        assert_eq!(paid.reward(1), 0.0);
-        let mut table = EffectTable::uniform(&paid);
-        table.set(0, 0, &[1.0, 0.0]);
-        table.set(1, 0, &[0.0, 1.0]);
-        let mut planner = ValueIteration::new(&paid, PlannerParams::default()).unwrap();
-        planner.plan(&paid, &table);
-        assert_eq!(planner.policy()[0], 1);
-        assert_eq!(planner.q_value(&paid, &table, 0, 1), 1.0);
-        assert_eq!(planner.q_value(&paid, &table, 0, 0), -1.0);
-        let refused = c.with_step_rewards(|_, a, _| if a == 1 { f64::NAN } else { 0.0 });
-        assert_eq!(
-            refused.unwrap_err(),
-            CmdpError::BadStepReward {
-                state: 0,
-                action: 1,
-                effect: 0
-            }
-        );
-    }
-
-    /// Both actions have the same effect with the same chances, from the same state to the
-    /// same next state; only what they cost differs (−5 for action 0, −1 for action 1). The
-    /// plan takes the cheaper one, and its value is what that action pays.
-    #[test]
-    fn a_reward_that_depends_on_the_action_alone_is_planned_on() {
-        use crate::plan::{PlannerParams, ValueIteration};
-        let c = two_state_structure()
-            .with_step_rewards(|_, a, _| if a == 0 { -5.0 } else { -1.0 })
-            .unwrap();
-        // Each action has each effect half the time (the uniform table): the cost is all
-        // that tells them apart.
-        let table = EffectTable::uniform(&c);
-        assert_eq!(table.probs(0, 0), table.probs(1, 0));
-        let mut planner = ValueIteration::new(&c, PlannerParams::default()).unwrap();
-        let stats = planner.plan(&c, &table);
-        assert!(stats.converged);
-        assert_eq!(planner.policy()[0], 1);
-        assert_eq!(planner.value(0), -1.0);
-        assert_eq!(planner.q_value(&c, &table, 0, 0), -5.0);
-        assert_eq!(planner.q_value(&c, &table, 0, 1), -1.0);
-    }
-
-    /// Two states, two actions, two effects that both lead from state 0 to the terminal
-    /// state 1, no features and no entering rewards.
-    fn two_state_structure() -> CmdpStructure {
-        let no_features: &[u32] = &[];
-        CmdpStructure::new(
-            2,
-            2,
-            2,
-            0,
-            |_, _| 1,
-            vec![0.0, 0.0],
-            vec![false, true],
-            |_| no_features,
-        )
-        .unwrap()
-    }
 
     #[test]
     fn structure_answers_what_it_was_given() {

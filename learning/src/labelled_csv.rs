@@ -26,6 +26,12 @@ const QUOTE_LIMIT: usize = 24;
 /// (`1700000000,…`) must be refused, not turned into a billion-class model.
 pub const MAX_LABEL: usize = 65_535;
 
+/// The largest column number a [sparse row](crate::labelled_sparse) may use. A model has a weight per class and column
+/// up to the largest one used, so a column is a promise of memory, as a label is: a hashed
+/// feature id (`2147483647:1`) must be refused, not turned into a model of billions of
+/// weights.
+pub const MAX_COLUMN: u32 = 1 << 24;
+
 /// Why a row could not be read.
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum RowError {
@@ -71,10 +77,10 @@ pub enum RowError {
         text: String,
     },
     /// A sparse row's column is above
-    /// [`MAX_COLUMN`](crate::labelled_sparse::MAX_COLUMN).
+    /// [`MAX_COLUMN`].
     #[error(
         "feature {text:?} has a column above {}, the largest supported",
-        crate::labelled_sparse::MAX_COLUMN
+        MAX_COLUMN
     )]
     ColumnTooLarge {
         /// The field's text (shortened).

@@ -24,11 +24,9 @@
 
 use crate::labelled_csv::{RowError, parse_label, quote};
 
-/// The largest column number a sparse row may use. A model has a weight per class and column
-/// up to the largest one used, so a column is a promise of memory, as a label is: a hashed
-/// feature id (`2147483647:1`) must be refused, not turned into a model of billions of
-/// weights.
-pub const MAX_COLUMN: u32 = 1 << 24;
+// Defined beside the row error that names it, so that the two row formats share one module
+// below them rather than naming each other.
+pub use crate::labelled_csv::MAX_COLUMN;
 
 /// Parses one sparse row into its label and `features`, the non-zero `(column, value)` pairs
 /// in increasing column order (`features` is cleared first; its capacity is reused).

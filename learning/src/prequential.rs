@@ -62,6 +62,8 @@ use crate::labelled_sparse::parse_sparse_row;
 use crate::mdagl::{Features, Mdagl, MdaglConfigError, MdaglError, MdaglParams, Prequential};
 use crate::tuning::{MdaglRace, RaceSchedule, Standing, auto_grid};
 
+pub mod report;
+
 /// Rows parsed before each timed batch of updates, at most.
 const CHUNK_ROWS: usize = 4096;
 

@@ -8,7 +8,7 @@ use tes_runtime::channel::{self, Inbox, IpcError, LatestOutbox, Outbox, WaitStra
 use tes_topics::wire::{Checker, Refusal, as_bytes, from_bytes};
 use tes_topics::{Command, MotorState, Observation, Progress, Role, ServiceNames, WorldMap};
 
-use crate::link::{IDLE, Shared};
+use crate::shared::{IDLE, Shared};
 use crate::topic::role_index;
 use crate::{LinkEvent, Topic};
 

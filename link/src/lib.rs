@@ -95,12 +95,14 @@ mod link;
 mod outbound;
 pub mod refusals;
 mod settings;
+mod shared;
 mod topic;
 
 pub use error::LinkError;
-pub use link::{Endpoints, Link, LinkCounts, LinkEvent};
+pub use link::{Endpoints, Link, LinkCounts};
 pub use settings::{
     DEFAULT_LEASE_MS, GROUP_NAME_MAX, LinkSection, MIN_LEASE_MS, MIN_PEER_TIMEOUT_MS, Mode,
     Security, access_control,
 };
+pub use shared::LinkEvent;
 pub use topic::Topic;

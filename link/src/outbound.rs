@@ -11,7 +11,7 @@ use tes_topics::{Command, MotorState, Observation, Progress, Role, ServiceNames,
 use zenoh::Wait;
 
 use crate::Topic;
-use crate::link::{IDLE, MAP_AGAIN};
+use crate::shared::{IDLE, MAP_AGAIN};
 
 /// The node of the forwarding threads.
 type Node = iceoryx2::prelude::Node<iceoryx2::prelude::ipc::Service>;

@@ -184,7 +184,7 @@ fn quic_refusal(text: &str) -> Option<Denial> {
         || text.contains("handshake");
     failed.then(|| {
         let reason = text.split(" Hint:").next().unwrap_or(text).trim();
-        let reason = crate::link::without_source_places(reason);
+        let reason = without_source_places(reason);
         Denial::Connection(match handshake_cause(&reason) {
             Some(cause) => format!("{cause} ({reason})"),
             None => reason,
@@ -347,6 +347,25 @@ impl Visit for Message {
             let _ = write!(self.0, " {}={value:?}", field.name());
         }
     }
+}
+
+/// `text` without the ` at PATH.rs:LINE` places Zenoh's errors end with.
+pub(crate) fn without_source_places(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    while let Some(at) = rest.find(" at ") {
+        let after = &rest[at + 4..];
+        let end = after.find(char::is_whitespace).unwrap_or(after.len());
+        if after[..end].contains(".rs:") {
+            out.push_str(&rest[..at]);
+            rest = &after[end..];
+        } else {
+            out.push_str(&rest[..at + 4]);
+            rest = after;
+        }
+    }
+    out.push_str(rest);
+    out.trim_end().to_owned()
 }
 
 #[cfg(test)]

@@ -78,7 +78,8 @@
 //!
 //! # Building the agent's CMDP
 //!
-//! Everything `tes_learning::cmdp::CmdpStructure::new` needs is here:
+//! Everything `tes_learning::cmdp::CmdpStructure::new` needs is here (the `structure`
+//! feature's `structure::arena` builds it so, for the experiments and the Python package):
 //!
 //! ```text
 //! let arena = Arena::new(ArenaId::Env3);

@@ -6,6 +6,9 @@
 //!   surface-dependent wheel slip, 8 orientations, 20 effects and the 312 camera features.
 //! * `process` — the perception-sim process: an arena and its camera over iceoryx2 (the
 //!   default `process` feature; without it the crate is the worlds alone, with no IPC).
+//! * `structure` — each world's CMDP structure as an agent is told it, and the contexts of its
+//!   true dynamics (the `structure` feature, over `tes-learning`): the one builder the
+//!   experiments and the Python package share.
 //!
 //! Every world is seeded and reproducible; per-step methods allocate nothing.
 //!
@@ -26,3 +29,5 @@ pub mod arena;
 pub mod grid;
 #[cfg(feature = "process")]
 pub mod process;
+#[cfg(feature = "structure")]
+pub mod structure;

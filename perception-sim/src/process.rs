@@ -43,6 +43,7 @@ use crate::arena::{Arena, ArenaError, ArenaId, Episode, EpisodeStatus, Pose};
 
 pub mod config;
 pub mod trajectory;
+mod world_pose;
 pub use config::{CheckedPerception, ConfigError, PerceptionConfig};
 use trajectory::{EndReason, TrajectoryLog, TrajectoryRow};
 
@@ -175,6 +176,12 @@ pub fn run_resuming(
         0,
         strategy,
     )?;
+    let world_poses = world_pose::WorldPoseOut::new(Outbox::open(
+        &node,
+        &names.world_pose,
+        &names.world_pose_event,
+        0,
+    )?);
     let mut watch = ProgressWatch::open(&node, &names)?;
     let mut progress = ProgressOutbox::open(&node, &names, Role::Perception)?;
     let map = world_map(&arena)?;
@@ -205,6 +212,7 @@ pub fn run_resuming(
         config,
         maps: &maps,
         observations: &observations,
+        world_poses: &world_poses,
         heads_up: &heads_up,
         motors: &motors,
         progress,
@@ -325,6 +333,8 @@ struct Camera<'a> {
     config: &'a PerceptionConfig,
     maps: &'a Outbox<WorldMap>,
     observations: &'a Outbox<Observation>,
+    /// Where the world has the robot, for viewers.
+    world_poses: &'a world_pose::WorldPoseOut,
     /// Where perception says, as the robot starts to settle, when the observation is due.
     heads_up: &'a Outbox<HeadsUp>,
     motors: &'a Inbox<MotorState>,
@@ -362,6 +372,8 @@ struct EpisodeRun {
     reward: f64,
     after_command: u64,
     step: u32,
+    /// The pose before the last motion (the start's at an episode's start).
+    moved_from: Pose,
     /// The last action's trajectory row, written after the observation it led to.
     pending: Option<TrajectoryRow>,
 }
@@ -412,6 +424,7 @@ impl Camera<'_> {
             reward: 0.0,
             after_command: 0,
             step: 0,
+            moved_from: pose,
             pending: None,
         };
         loop {
@@ -481,6 +494,13 @@ impl Camera<'_> {
             std::thread::yield_now();
         }
         self.summary.observations += 1;
+        self.world_poses.send(
+            self.seq,
+            run.episode,
+            run.after_command,
+            run.moved_from,
+            run.pose,
+        )?;
         self.write_pending_row(run)?;
         self.progress.report_mut().out_seq = self.seq;
         self.progress.report_mut().steps = self.summary.observations;
@@ -512,6 +532,7 @@ impl Camera<'_> {
             if self.maps_updated.elapsed() >= IDLE_TICK {
                 self.maps_updated = std::time::Instant::now();
                 self.maps.update_connections()?;
+                self.world_poses.update_connections()?;
                 self.progress.publish_due(monotonic_ns())?;
             }
             match self.motors.next(left.min(IDLE_TICK), stop)? {
@@ -571,7 +592,7 @@ impl Camera<'_> {
             seq: self.seq + 1,
             due_ns,
         })?;
-        self.loan = Some(tes_runtime::anticipate::sleep_until_with_loan(
+        self.loan = Some(tes_runtime::channel::sleep_until_with_loan(
             due_ns,
             self.observations,
         )?);
@@ -582,6 +603,7 @@ impl Camera<'_> {
     /// next observation says: the state, its reward, whether the episode ends.
     fn take_motion(&mut self, run: &mut EpisodeRun, motion: Motion) -> Result<(), PerceptionError> {
         let (pose_before, from) = (run.pose, run.state);
+        run.moved_from = pose_before;
         run.pose = self.arena.move_robot(
             run.pose,
             f64::from(motion.left),

@@ -10,11 +10,11 @@ use pyo3::prelude::*;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use tes_learning::agents::Contexts;
-use tes_learning::cmdp::CmdpStructure;
 use tes_perception_sim::arena::{
     self, Arena, ArenaId, Episode, EpisodeStatus, MarkColour, Pose, StateAttributes,
 };
 use tes_perception_sim::grid::{Dir, GridSuite, GridTask, STAY};
+use tes_perception_sim::structure::{self as world_structure, ArenaFeatures};
 
 use crate::structure::Structure;
 
@@ -193,28 +193,15 @@ impl GridWorld {
     /// factors `FEpsG` counts by.
     fn structure(&self) -> PyResult<Structure> {
         let task = &self.task;
-        let reward = (0..task.n_states()).map(|s| task.reward(s)).collect();
-        let terminal = (0..task.n_states()).map(|s| task.is_terminal(s)).collect();
-        let cmdp = CmdpStructure::new(
-            task.n_states(),
-            task.n_actions(),
-            task.n_effects(),
-            task.n_features(),
-            |s, e| task.apply_effect(s, e),
-            reward,
-            terminal,
-            |s| task.features(s),
-        )
-        .map_err(|e| PyValueError::new_err(format!("grid structure: {e}")))?;
-        let of_state: Vec<u32> = (0..task.n_states())
-            .map(|s| task.oracle_context(s) as u32)
-            .collect();
-        let contexts = Contexts::new(of_state.clone(), task.n_oracle_contexts())
+        let cmdp = world_structure::grid(task)
+            .map_err(|e| PyValueError::new_err(format!("grid structure: {e}")))?;
+        let (of_state, n_contexts) = world_structure::grid_contexts(task);
+        let contexts = Contexts::new(of_state.clone(), n_contexts)
             .ok_or_else(|| PyValueError::new_err("grid contexts out of range"))?;
         Ok(Structure {
             cmdp: Arc::new(cmdp),
             contexts,
-            factors: Some((of_state, task.n_oracle_contexts())),
+            factors: Some((of_state, n_contexts)),
         })
     }
 
@@ -459,17 +446,8 @@ impl ArenaWorld {
     /// the contexts `FEpsG` counts by.
     fn structure(&self) -> PyResult<Structure> {
         let a = &self.arena;
-        let cmdp = CmdpStructure::new(
-            a.n_states(),
-            a.n_actions(),
-            a.n_effects(),
-            a.n_features(),
-            |s, e| a.apply_effect(s, e),
-            a.rewards().to_vec(),
-            a.terminals().to_vec(),
-            |s| a.features(s),
-        )
-        .map_err(|e| PyValueError::new_err(format!("arena structure: {e}")))?;
+        let cmdp = world_structure::arena(a, ArenaFeatures::All)
+            .map_err(|e| PyValueError::new_err(format!("arena structure: {e}")))?;
         // The out state has no oracle context: it gets one of its own.
         let out = a.n_oracle_contexts();
         let of_state: Vec<u32> = (0..a.n_states())

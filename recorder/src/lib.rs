@@ -32,6 +32,7 @@
 
 mod framing;
 pub mod live;
+mod merge;
 pub mod reader;
 pub mod replay;
 pub mod schema;

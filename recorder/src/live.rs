@@ -6,41 +6,52 @@
 //! It is woken by nothing, so no process of the group notifies it, and it never waits on the
 //! loop: every half millisecond it reads one entry of the command log, and when a new
 //! command is out (the robot is moving, the next decision is a motion away) it takes
-//! everything queued and writes it; at least every 20 ms in any case. What each service guarantees decides how it
-//! is read:
+//! everything queued; at least every 20 ms in any case. It writes and draws what it took in
+//! the order of the samples' stamps, not stream by stream (`merge`): a sample
+//! published while another stream is read would otherwise be drawn before older ones. What
+//! each service guarantees decides how it is read:
 //!
-//! * observations and motor states are publish–subscribe: the recorder's subscribers (no
-//!   listener) queue up to `tes_runtime::ipc::RECORDER_BUFFER` samples each;
+//! * observations, motor states and the world's poses are publish–subscribe: the recorder's
+//!   subscribers (no listener) queue up to `tes_runtime::ipc::RECORDER_BUFFER` samples each;
 //! * the controller's commands go to the bridge over a one-entry blackboard, which a passive
 //!   reader could miss; the controller also stores each one, once it is out, in a ring of the
 //!   last `tes_runtime::ring::RING` commands (`tes/command/log`, a lock-free store into shared
 //!   memory that allocates nothing and notifies nobody), which the recorder reads;
 //! * the world map is published with history, so it reaches the recorder whenever it joins.
 //!
-//! The thread runs under `SCHED_IDLE` (else nice +19): formatting and writing take only time
-//! the group's processes do not want, and a waking process preempts it at once, so the
-//! recorder costs the acting path no wake-up delay. Nothing is formatted or written on the
-//! controller's side. A sample the recorder could not
+//! The thread runs under `SCHED_IDLE`: formatting and writing take only time the group's
+//! processes do not want, and a waking process preempts it at once, so the recorder costs
+//! the acting path no wake-up delay. On a machine whose cores are all busy at normal priority
+//! such a thread gets almost no CPU, and a recorder that does not drain the services while
+//! the group runs loses what they held: a subscriber's queued samples go with their publisher
+//! when it exits (perception at the end of its episodes), so a run recorded under full load
+//! came out with no observation and no world map. A watcher at normal priority
+//! ([`LAG_LIMIT`]) raises the recorder back to normal scheduling, for the rest of the run, once
+//! it has not drained for that long; where this process cannot undo `SCHED_IDLE` (no
+//! `CAP_SYS_NICE`), the recorder keeps normal priority from the start. Nothing is formatted or
+//! written on the controller's side. A sample the recorder could not
 //! take in time (a machine that kept it from running for a whole buffer's worth of actions)
 //! is counted from the gaps in the sequence numbers and written in the file's end record.
 
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
+use tes_controller::priority::Background;
 use tes_runtime::channel::{self, IpcError};
 use tes_runtime::ipc::RECORDER_BUFFER;
 use tes_runtime::ring::RingReader;
-use tes_topics::{Command, MotorState, Observation, ServiceNames, WorldMap};
+use tes_topics::{Command, MotorState, Observation, ServiceNames, WorldMap, WorldPose};
 use tes_viewer::canvas::{Canvas, Drawing};
 use tes_viewer::live::{LiveError, LiveServer};
 use tes_viewer::scene::{Scene, SceneSettings};
 
+use crate::merge::{Merge, Sample};
 use crate::writer::{RecordCounts, RunInfo, RunWriter, WriteError};
 
 /// Why the recorder stopped with an error.
@@ -108,12 +119,61 @@ const LOOK_EVERY: Duration = Duration::from_micros(500);
 /// fastest real-time factor (`RECORDER_BUFFER` samples; about 17 motor states per action).
 const DRAIN_AT_LEAST: Duration = Duration::from_millis(20);
 
+/// How long the recorder may go without draining the services before the watcher raises it
+/// to normal priority: five times `DRAIN_AT_LEAST`, far less than a buffer's worth of
+/// actions, and far more than a healthy recorder on an idle machine ever lags.
+pub const LAG_LIMIT: Duration = Duration::from_millis(100);
+
+/// How often the watcher looks at the recorder's last drain.
+const WATCH_EVERY: Duration = Duration::from_millis(10);
+
+/// What the recorder thread and its watcher share: the recorder's scheduling and when it
+/// last drained the services.
+#[derive(Debug, Default)]
+struct Pace {
+    background: Background,
+    /// Monotonic ns of the last drain (0: none yet).
+    last_drain_ns: AtomicU64,
+}
+
+impl Pace {
+    fn drained(&self) {
+        self.last_drain_ns
+            .store(tes_runtime::clock::monotonic_ns(), Ordering::Relaxed);
+    }
+
+    /// How long since the last drain (or since `since_ns`, before the first).
+    fn lag(&self, since_ns: u64) -> Duration {
+        let last = self.last_drain_ns.load(Ordering::Relaxed).max(since_ns);
+        Duration::from_nanos(tes_runtime::clock::monotonic_ns().saturating_sub(last))
+    }
+}
+
+/// The watcher: raises the recorder to normal priority once it lags by [`LAG_LIMIT`] (for
+/// the rest of the run: the machine has shown it is busy), and ends then or at the stop.
+fn watch(pace: &Pace, stop: &AtomicBool) {
+    let since_ns = tes_runtime::clock::monotonic_ns();
+    while !stop.load(Ordering::SeqCst) {
+        std::thread::sleep(WATCH_EVERY);
+        if pace.lag(since_ns) >= LAG_LIMIT {
+            let raised = pace.background.restore();
+            tracing::debug!(
+                raised,
+                "the recorder had not drained the services for {LAG_LIMIT:?} (a busy \
+                 machine): it runs at normal priority from now on"
+            );
+            return;
+        }
+    }
+}
+
 /// A running recorder (a file, a live Foxglove server, or both); [`stop`](Self::stop)
 /// finishes the file.
 #[derive(Debug)]
 pub struct Recorder {
     stop: Arc<AtomicBool>,
     handle: Option<std::thread::JoinHandle<Result<RecordCounts, RecordError>>>,
+    watcher: Option<std::thread::JoinHandle<()>>,
     path: Option<PathBuf>,
     foxglove: Option<SocketAddr>,
     lines: mpsc::Sender<LogLine>,
@@ -198,18 +258,34 @@ impl Recorder {
         let (lines, line_rx) = mpsc::channel();
         let path = outputs.file.as_ref().map(|(p, _)| p.clone());
         let (prefix, flag) = (service_prefix.to_owned(), stop.clone());
+        let pace = Arc::new(Pace::default());
+        let recorder_pace = pace.clone();
         let handle = std::thread::Builder::new()
             .name("recorder".into())
-            .spawn(move || record(&prefix, outputs, &flag, &line_rx, ready_tx))
+            .spawn(move || {
+                let pace = recorder_pace;
+                record(&prefix, outputs, &flag, &line_rx, ready_tx, &pace)
+            })
             .map_err(|_| RecordError::Thread("could not start"))?;
         match ready.recv() {
-            Ok(Ok(foxglove)) => Ok(Self {
-                stop,
-                handle: Some(handle),
-                path,
-                foxglove,
-                lines,
-            }),
+            Ok(Ok(foxglove)) => {
+                let mut recorder = Self {
+                    stop,
+                    handle: Some(handle),
+                    watcher: None,
+                    path,
+                    foxglove,
+                    lines,
+                };
+                let flag = recorder.stop.clone();
+                // A recorder without its watcher is stopped (by the drop) and refused.
+                let watcher = std::thread::Builder::new()
+                    .name("recorder-watch".into())
+                    .spawn(move || watch(&pace, &flag))
+                    .map_err(|_| RecordError::Thread("could not start its watcher"))?;
+                recorder.watcher = Some(watcher);
+                Ok(recorder)
+            }
             Ok(Err(e)) => {
                 let _ = handle.join();
                 Err(e)
@@ -239,6 +315,9 @@ impl Recorder {
     /// Takes what is still queued, finishes the file and returns what was written and missed.
     pub fn stop(mut self) -> Result<RecordCounts, RecordError> {
         self.stop.store(true, Ordering::SeqCst);
+        if let Some(watcher) = self.watcher.take() {
+            let _ = watcher.join();
+        }
         match self.handle.take().map(|h| h.join()) {
             Some(Ok(result)) => result,
             _ => Err(RecordError::Thread("panicked")),
@@ -249,6 +328,9 @@ impl Recorder {
 impl Drop for Recorder {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::SeqCst);
+        if let Some(watcher) = self.watcher.take() {
+            let _ = watcher.join();
+        }
         if let Some(h) = self.handle.take() {
             let _ = h.join();
         }
@@ -281,6 +363,7 @@ struct Ports {
     maps: Sub<WorldMap>,
     observations: Sub<Observation>,
     motor_states: Sub<MotorState>,
+    world_poses: Sub<WorldPose>,
     commands: RingReader<Command>,
 }
 
@@ -291,6 +374,7 @@ fn open_ports(prefix: &str) -> Result<Ports, RecordError> {
         maps: subscriber::<WorldMap>(&node, &names.world_map, 1, 1)?,
         observations: subscriber::<Observation>(&node, &names.observation, 0, RECORDER_BUFFER)?,
         motor_states: subscriber::<MotorState>(&node, &names.motor_state, 0, RECORDER_BUFFER)?,
+        world_poses: subscriber::<WorldPose>(&node, &names.world_pose, 0, RECORDER_BUFFER)?,
         commands: RingReader::<Command>::open(&node, &names.command_log)?,
         _node: node,
     })
@@ -303,6 +387,8 @@ struct Tap {
     scene: Scene,
     seen: [Gaps; 3],
     have_map: bool,
+    /// The samples taken, handed on in the order of their stamps.
+    merge: Merge,
 }
 
 impl Tap {
@@ -316,50 +402,30 @@ impl Tap {
         )
     }
 
-    /// Takes everything queued: in the order of the loop, observations, the commands
-    /// answering them, the motion; then the log lines.
+    /// Takes everything queued and hands on, in the order of their stamps, every sample no
+    /// stream can still bring an older one than ([`Merge`]); then the log lines.
     fn drain(
         &mut self,
         ports: &mut Ports,
         lines: &mpsc::Receiver<LogLine>,
         stopping: bool,
     ) -> Result<(), RecordError> {
+        // Before any stream is read: a sample stamped well before this is queued by now.
+        let read_ns = tes_runtime::clock::monotonic_ns();
+        self.take(ports, stopping)?;
+        // What is drawn once is drawn no later than the oldest sample still to draw, so
+        // every channel stays in time order.
+        let drawn_ns = self.merge.oldest_ns().map_or(read_ns, |o| o.min(read_ns));
         if !self.have_map {
-            drain(&ports.maps, |m| self.world_map(&m))?;
+            drain(&ports.maps, |m| self.world_map(&m, drawn_ns))?;
         }
         if self.live.as_ref().is_some_and(LiveServer::take_joined) {
             let (scene, mut canvas) = self.canvas();
-            scene.redraw(tes_runtime::clock::monotonic_ns(), &mut canvas)?;
+            scene.redraw(drawn_ns, &mut canvas)?;
         }
-        drain(&ports.observations, |o| {
-            self.seen[0].see(o.seq);
-            if let Some(file) = &mut self.file {
-                file.observation(&o)?;
-            }
-            let (scene, mut canvas) = self.canvas();
-            Ok(scene.observation(&o, &mut canvas)?)
-        })?;
-        let new_commands = if stopping {
-            ports.commands.take_new_scanning()
-        } else {
-            ports.commands.take_new()
-        };
-        for c in new_commands {
-            self.seen[1].see(c.seq);
-            if let Some(file) = &mut self.file {
-                file.command(c)?;
-            }
-            let (scene, mut canvas) = self.canvas();
-            scene.command(c, &mut canvas)?;
+        while let Some(sample) = self.merge.next_ready(read_ns, stopping) {
+            self.sample(sample)?;
         }
-        drain(&ports.motor_states, |m| {
-            self.seen[2].see(m.seq);
-            if let Some(file) = &mut self.file {
-                file.motor_state(&m)?;
-            }
-            let (scene, mut canvas) = self.canvas();
-            Ok(scene.motor_state(&m, &mut canvas)?)
-        })?;
         while let Ok(line) = lines.try_recv() {
             let (scene, mut canvas) = self.canvas();
             scene.log_line(line.role, &line.text, line.stamp_ns, &mut canvas)?;
@@ -367,12 +433,77 @@ impl Tap {
         Ok(())
     }
 
-    fn world_map(&mut self, map: &WorldMap) -> Result<(), RecordError> {
+    /// Reads every stream into the merge: what each queued since the last drain and the
+    /// commands logged since (at the stop, the whole command log scanned once more).
+    fn take(&mut self, ports: &mut Ports, stopping: bool) -> Result<(), RecordError> {
+        let merge = &mut self.merge;
+        drain(&ports.observations, |o| {
+            merge.push(Sample::Observation(o));
+            Ok(())
+        })?;
+        let commands = if stopping {
+            ports.commands.take_new_scanning()
+        } else {
+            ports.commands.take_new()
+        };
+        for c in commands {
+            merge.push(Sample::Command(*c));
+        }
+        drain(&ports.world_poses, |w| {
+            merge.push(Sample::WorldPose(w));
+            Ok(())
+        })?;
+        drain(&ports.motor_states, |m| {
+            merge.push(Sample::MotorState(m));
+            Ok(())
+        })
+    }
+
+    /// Writes and draws one sample.
+    fn sample(&mut self, sample: Sample) -> Result<(), RecordError> {
+        match sample {
+            Sample::Observation(o) => self.observation(&o),
+            Sample::Command(c) => self.command(&c),
+            Sample::MotorState(m) => self.motor_state(&m),
+            Sample::WorldPose(w) => {
+                let (scene, mut canvas) = self.canvas();
+                Ok(scene.world_pose(&w, &mut canvas)?)
+            }
+        }
+    }
+
+    fn motor_state(&mut self, m: &MotorState) -> Result<(), RecordError> {
+        self.seen[2].see(m.seq);
+        if let Some(file) = &mut self.file {
+            file.motor_state(m)?;
+        }
+        let (scene, mut canvas) = self.canvas();
+        Ok(scene.motor_state(m, &mut canvas)?)
+    }
+
+    fn observation(&mut self, o: &Observation) -> Result<(), RecordError> {
+        self.seen[0].see(o.seq);
+        if let Some(file) = &mut self.file {
+            file.observation(o)?;
+        }
+        let (scene, mut canvas) = self.canvas();
+        Ok(scene.observation(o, &mut canvas)?)
+    }
+
+    fn command(&mut self, c: &Command) -> Result<(), RecordError> {
+        self.seen[1].see(c.seq);
+        if let Some(file) = &mut self.file {
+            file.command(c)?;
+        }
+        let (scene, mut canvas) = self.canvas();
+        Ok(scene.command(c, &mut canvas)?)
+    }
+
+    fn world_map(&mut self, map: &WorldMap, now: u64) -> Result<(), RecordError> {
         if self.have_map {
             return Ok(());
         }
         self.have_map = true;
-        let now = tes_runtime::clock::monotonic_ns();
         if let Some(file) = &mut self.file {
             file.world_map(map, now)?;
         }
@@ -388,9 +519,14 @@ fn record(
     stop: &AtomicBool,
     lines: &mpsc::Receiver<LogLine>,
     ready: mpsc::Sender<Result<Option<SocketAddr>, RecordError>>,
+    pace: &Pace,
 ) -> Result<RecordCounts, RecordError> {
-    // Recording works at any priority, at some cost to the group's latency.
-    tes_runtime::affinity::make_this_a_background_thread("the recorder");
+    // Recording works at any priority, at some cost to the group's latency; a lowering the
+    // watcher could not undo would lose the run on a busy machine.
+    pace.background.lower_if_restorable();
+    if let Err(e) = tes_runtime::affinity::pin_off_the_acting_cpu() {
+        tracing::debug!("the recorder stays unpinned: {e}");
+    }
     let scene = Scene::new(outputs.scene);
     let opened = (|| -> Result<_, RecordError> {
         let ports = open_ports(prefix)?;
@@ -418,6 +554,7 @@ fn record(
         scene,
         seen: [Gaps::default(); 3],
         have_map: false,
+        merge: Merge::with_capacity(RECORDER_BUFFER),
     };
     let (mut last_flush, mut last_drain) = (Instant::now(), Instant::now());
     loop {
@@ -431,7 +568,10 @@ fn record(
         }
         last_drain = Instant::now();
         tap.drain(&mut ports, lines, stopping)?;
+        pace.drained();
         if stopping {
+            let (scene, mut canvas) = tap.canvas();
+            scene.finish(&mut canvas)?;
             break;
         }
         if last_flush.elapsed() >= FLUSH_EVERY

@@ -134,6 +134,9 @@ pub struct ReplayOutcome {
     pub divergence: Option<Divergence>,
     /// Observations fed to the acting loop.
     pub observations: u64,
+    /// Recorded commands answering an observation the recording does not hold (a recorder
+    /// that fell behind): they cannot be compared, and the replay cannot vouch for the run.
+    pub unanswerable: u64,
 }
 
 impl std::fmt::Display for ReplayOutcome {
@@ -143,9 +146,22 @@ impl std::fmt::Display for ReplayOutcome {
                 f,
                 "{} of {} commands identical",
                 self.identical, self.compared
-            ),
-            Some(d) => write!(f, "{d}; {} commands identical before it", self.identical),
+            )?,
+            Some(d) => write!(f, "{d}; {} commands identical before it", self.identical)?,
         }
+        if self.unanswerable > 0 {
+            let (commands, answer) = if self.unanswerable == 1 {
+                ("command answers", "an observation")
+            } else {
+                ("commands answer", "observations")
+            };
+            write!(
+                f,
+                "; {} recorded {commands} {answer} the recording does not hold (not compared)",
+                self.unanswerable
+            )?;
+        }
+        Ok(())
     }
 }
 
@@ -162,6 +178,7 @@ pub fn replay(recording: &Recording) -> Result<ReplayOutcome, ReplayError> {
         identical: 0,
         divergence: None,
         observations: 0,
+        unanswerable: script.unanswerable(recording),
     };
     for (i, obs) in script.observations.iter().enumerate() {
         let recorded = Recorded {
@@ -228,6 +245,17 @@ struct Script<'a> {
 }
 
 impl<'a> Script<'a> {
+    /// The recorded commands answering an observation the recording does not hold.
+    fn unanswerable(&self, recording: &Recording) -> u64 {
+        let held: std::collections::HashSet<u64> =
+            recording.observations.iter().map(|o| o.seq).collect();
+        recording
+            .commands
+            .iter()
+            .filter(|c| !held.contains(&c.answers))
+            .count() as u64
+    }
+
     fn of(recording: &'a Recording) -> Self {
         let by_answer: HashMap<u64, &Command> =
             recording.commands.iter().map(|c| (c.answers, c)).collect();
@@ -349,4 +377,32 @@ fn decide(
         }
         Step::EpisodeEnded { .. } | Step::Refused(_) => None,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Commands whose observations the recording lacks are said, singular and plural.
+    #[test]
+    fn commands_without_their_observation_are_said() {
+        let outcome = |unanswerable| ReplayOutcome {
+            compared: 0,
+            identical: 0,
+            divergence: None,
+            observations: 0,
+            unanswerable,
+        };
+        assert_eq!(outcome(0).to_string(), "0 of 0 commands identical");
+        assert_eq!(
+            outcome(1).to_string(),
+            "0 of 0 commands identical; 1 recorded command answers an observation the \
+             recording does not hold (not compared)"
+        );
+        assert_eq!(
+            outcome(95).to_string(),
+            "0 of 0 commands identical; 95 recorded commands answer observations the \
+             recording does not hold (not compared)"
+        );
+    }
 }

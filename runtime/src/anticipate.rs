@@ -355,24 +355,6 @@ pub fn sleep_until(due_ns: u64) {
     }
 }
 
-/// How long before a message is due its sender loans its sample
-/// ([`sleep_until_with_loan`]), ns: inside [`sleep_until`]'s final poll of the clock.
-const LOAN_AHEAD_NS: u64 = 100_000;
-
-/// [`sleep_until`] for a sender whose message, sent by `outbox`, is due at `due_ns`: returns
-/// then with the message's sample loaned shortly before, so that the send at the due time
-/// only writes and publishes memory this CPU has just touched (a loan after an idle settle
-/// finds the publisher's memory cold).
-pub fn sleep_until_with_loan<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service>(
-    due_ns: u64,
-    outbox: &crate::channel::Outbox<T, S>,
-) -> Result<crate::channel::Loan<T, S>, IpcError> {
-    sleep_until(due_ns.saturating_sub(LOAN_AHEAD_NS));
-    let loan = outbox.loan()?;
-    sleep_until(due_ns);
-    Ok(loan)
-}
-
 /// Timed wake-ups as precise as the kernel makes them: a normal thread's timers may fire up
 /// to 50 µs late by default (its timer slack), which the guard would have to absorb.
 fn set_fine_timer_slack() {

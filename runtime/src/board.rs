@@ -9,8 +9,8 @@ use iceoryx2::prelude::*;
 use iceoryx2::service::Service;
 
 use crate::anticipate::Anticipation;
-use crate::channel::{Idle, Listener, wait_next};
-use crate::ipc::{IpcError, ipc_err, listener, notifier, service_name};
+use crate::ipc::{IpcError, Listener, ipc_err, listener, notifier, service_name};
+use crate::receive::{Idle, wait_next};
 use crate::wait::WaitStrategy;
 
 /// The one key of every latest-value board.

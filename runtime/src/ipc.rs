@@ -8,7 +8,17 @@ use iceoryx2::service::Service;
 
 use tes_topics::{Role, ServiceNames};
 
-use crate::channel::{BUFFER, Listener};
+/// A process's iceoryx2 node ([`group_node`]): its ports are opened on it, and it outlives
+/// them.
+pub type ProcessNode = Node<ipc::Service>;
+
+/// The listening end of an event service.
+pub(crate) type Listener<S = ipc::Service> = iceoryx2::port::listener::Listener<S>;
+
+/// Samples a subscriber can hold before the oldest is dropped. The control loop has one sample
+/// in flight; the slack absorbs a receiver descheduled on a loaded machine, and receivers
+/// detect any loss by the payloads' sequence numbers.
+pub const BUFFER: usize = 16;
 
 /// An iceoryx2 failure; `context` says which step.
 #[derive(Debug, thiserror::Error)]
@@ -502,15 +512,16 @@ pub fn pubsub<T: ZeroCopySend + Copy + fmt::Debug + 'static, S: Service>(
 /// ([`RECORDED_BUFFER_SERVICES`]), so that a recorder that polls now and then misses nothing:
 /// at the fastest pace the bridge publishes about 17 motor states per action, 8 000 a second,
 /// so this rides out half a second in which a busy machine gives the (`SCHED_IDLE`) recorder
-/// no time.
+/// no time (and the observations and world poses, one an action each, far longer).
 pub const RECORDER_BUFFER: usize = 4096;
 
 /// The services (by the end of their names) whose subscribers may hold up to
 /// [`RECORDER_BUFFER`] samples: small payloads published every action. Subscribers of the
 /// group itself still ask for [`BUFFER`].
-pub const RECORDED_BUFFER_SERVICES: [&str; 2] = [
+pub const RECORDED_BUFFER_SERVICES: [&str; 3] = [
     tes_topics::service::OBSERVATION,
     tes_topics::service::MOTOR_STATE,
+    tes_topics::service::WORLD_POSE,
 ];
 
 /// The most samples a subscriber of the service `name` may hold.

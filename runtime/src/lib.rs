@@ -34,6 +34,7 @@ pub mod latency;
 pub mod lock;
 pub mod logging;
 pub mod progress;
+mod receive;
 pub mod ring;
 pub mod settings;
 pub mod signals;

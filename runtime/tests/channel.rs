@@ -119,7 +119,7 @@ fn announced_messages(tag: &str, loan_ahead: bool) {
             let due_ns = monotonic_ns() + 20_000_000;
             heads_up.send(HeadsUp { seq, due_ns }).unwrap();
             let loan = if loan_ahead {
-                let loan = tes_runtime::anticipate::sleep_until_with_loan(due_ns, &outbox);
+                let loan = tes_runtime::channel::sleep_until_with_loan(due_ns, &outbox);
                 Some(loan.unwrap())
             } else {
                 tes_runtime::anticipate::sleep_until(due_ns);

@@ -1,25 +1,23 @@
 //! `tes experiment`: rerun the paper's experiments and write tables and plots.
 
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
-use std::sync::Once;
 
 use anyhow::{Context, Result, bail};
 use clap::{Args, Subcommand};
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use tes_experiments::console;
 use tes_experiments::experiment::Experiment;
 use tes_experiments::fig4::{self, Fig4Config};
 use tes_experiments::grid::{self, GridConfig};
 use tes_experiments::jobs::{self, JobOptions, Manifest, Shard};
 use tes_experiments::lifelong::{self, LifelongConfig};
-use tes_experiments::method::Method;
-use tes_experiments::progress::ProgressLines;
 use tes_experiments::report::Results;
 use tes_experiments::robot::{self, RobotConfig};
-use tes_experiments::study::{self, Study, StudyConfigs};
+use tes_experiments::settings::{Settings, SettingsArgs};
+use tes_experiments::study::{self, Study};
 use tes_experiments::transfer::{self, TransferConfig};
-use tes_learning::agents::ExampleStore;
+
+mod progress;
+use progress::{stop_on_interrupt, with_progress};
 
 /// Arguments of `tes experiment`.
 #[derive(Debug, Args)]
@@ -60,6 +58,9 @@ enum Which {
     /// all), its paired differences from a default run (`--against BASE`), or every generated
     /// block of a document rewritten (`--sync FILE`) or checked (`--check FILE`).
     Report(ReportArgs),
+    /// Every experiment's settings as Markdown tables: each flag, its default, its value
+    /// under `--quick` and what it sets (docs/experiments.md is this).
+    Settings,
     /// Redraw the figures a result folder's summary.json holds the data of (grid: fig3c.svg;
     /// transfer: table2.svg), without rerunning anything.
     Replot(ReplotArgs),
@@ -175,19 +176,8 @@ struct SummariseArgs {
 /// Summarises the complete folder `dir` of whichever experiment its manifest names, printing
 /// what the experiment prints.
 fn summarise_folder(dir: &Path) -> Result<()> {
-    let manifest = Manifest::read(dir)?;
-    match manifest.experiment.as_str() {
-        GridConfig::NAME => summarise::<GridConfig>(dir),
-        TransferConfig::NAME => summarise::<TransferConfig>(dir),
-        RobotConfig::NAME => summarise::<RobotConfig>(dir),
-        Fig4Config::NAME => summarise::<Fig4Config>(dir),
-        LifelongConfig::NAME => summarise::<LifelongConfig>(dir),
-        other => bail!("unknown experiment {other:?} in {}", dir.display()),
-    }
-}
-
-fn summarise<E: Experiment>(dir: &Path) -> Result<()> {
-    print_summary(E::console(&E::summarise_dir(dir)?, dir))
+    print!("{}", study::summarise_folder(dir)?);
+    Ok(())
 }
 
 #[derive(Debug, Args)]
@@ -215,27 +205,14 @@ struct ReportArgs {
 
 fn run_report(args: &ReportArgs) -> Result<()> {
     use tes_experiments::report;
-    if let Some(file) = args.sync.as_ref().or(args.check.as_ref()) {
-        let doc = std::fs::read_to_string(file)
-            .with_context(|| format!("cannot read {}", file.display()))?;
-        if args.sync.is_some() {
-            let synced = report::sync(&doc, &args.root)?;
-            std::fs::write(file, &synced)
-                .with_context(|| format!("cannot write {}", file.display()))?;
-            println!("rewrote the generated blocks of {}", file.display());
-        } else {
-            let stale = report::stale_blocks(&doc, &args.root)?;
-            if !stale.is_empty() {
-                bail!(
-                    "{} block(s) of {} no longer say what their folders hold (run `tes experiment report --sync {}`): {}",
-                    stale.len(),
-                    file.display(),
-                    file.display(),
-                    stale.join("; ")
-                );
-            }
-            println!("every generated block of {} holds", file.display());
-        }
+    if let Some(file) = &args.sync {
+        report::sync_file(file, &args.root)?;
+        println!("rewrote the generated blocks of {}", file.display());
+        return Ok(());
+    }
+    if let Some(file) = &args.check {
+        report::check_file(file, &args.root)?;
+        println!("every generated block of {} holds", file.display());
         return Ok(());
     }
     let dir = args.dir.as_ref().context("a result folder is needed")?;
@@ -257,24 +234,11 @@ struct ReplotArgs {
 
 #[derive(Debug, Args)]
 struct RobotArgs {
-    /// Independent repeats [default: 20; --quick: 3].
-    #[arg(long)]
-    runs: Option<usize>,
-    /// Episodes on Env 3 [default: 50; --quick: 15].
-    #[arg(long)]
-    episodes: Option<usize>,
-    /// Episodes in each arena experienced before Env 3 [default: 50; --quick: 15].
-    #[arg(long)]
-    train_episodes: Option<usize>,
+    #[command(flatten)]
+    settings: SettingsArgs<RobotConfig>,
     /// Directory for summary.json, episodes.csv and the SVG plots.
     #[arg(long, default_value = "results/robot")]
     out: PathBuf,
-    /// Small settings for a first look: seconds.
-    #[arg(long)]
-    quick: bool,
-    /// Base seed; run r uses seed + r [default: 1].
-    #[arg(long)]
-    seed: Option<u64>,
     /// Worker threads [default: all cores].
     #[arg(long)]
     threads: Option<usize>,
@@ -284,30 +248,11 @@ struct RobotArgs {
 
 #[derive(Debug, Args)]
 struct LifelongArgs {
-    /// Independent runs of the whole sequence [default: 20; --quick: 2].
-    #[arg(long)]
-    runs: Option<usize>,
-    /// Episodes on each task of the sequence [default: 50; --quick: 8].
-    #[arg(long)]
-    episodes: Option<usize>,
-    /// Shuffled passes over every world [default: 4; --quick: 2].
-    #[arg(long)]
-    rounds: Option<usize>,
-    /// The recency decay μ of the library's track record [default: 0.1].
-    #[arg(long)]
-    recency: Option<f64>,
+    #[command(flatten)]
+    settings: SettingsArgs<LifelongConfig>,
     /// Directory for summary.json and the SVG plots.
     #[arg(long, default_value = "results/lifelong")]
     out: PathBuf,
-    /// Small settings for a first look: seconds.
-    #[arg(long)]
-    quick: bool,
-    /// Base agent seed [default: 1].
-    #[arg(long)]
-    seed: Option<u64>,
-    /// Seed of the worlds and of the sequence [default: 2017].
-    #[arg(long)]
-    world_seed: Option<u64>,
     /// Worker threads [default: all cores].
     #[arg(long)]
     threads: Option<usize>,
@@ -315,73 +260,18 @@ struct LifelongArgs {
     jobs: JobArgs,
 }
 
-impl LifelongArgs {
-    fn settings_given(&self) -> bool {
-        self.runs.is_some()
-            || self.episodes.is_some()
-            || self.rounds.is_some()
-            || self.recency.is_some()
-            || self.quick
-            || self.seed.is_some()
-            || self.world_seed.is_some()
-    }
-
-    fn config(&self) -> LifelongConfig {
-        let mut config = if self.quick {
-            LifelongConfig::quick()
-        } else {
-            LifelongConfig::standard()
-        };
-        if let Some(runs) = self.runs {
-            config.runs = runs;
-        }
-        if let Some(n) = self.episodes {
-            config.episodes = n;
-        }
-        if let Some(n) = self.rounds {
-            config.rounds = n;
-        }
-        if let Some(mu) = self.recency {
-            config.recency = mu;
-        }
-        if let Some(seed) = self.seed {
-            config.seed = seed;
-        }
-        if let Some(seed) = self.world_seed {
-            config.world_seed = seed;
-        }
-        config
-    }
-}
-
 fn run_lifelong(args: &LifelongArgs) -> Result<()> {
-    run_experiment(
-        &args.out,
-        args.threads,
-        &args.jobs,
-        args.settings_given(),
-        || args.config(),
-    )?;
+    run_experiment(&args.out, args.threads, &args.jobs, &args.settings)?;
     Ok(())
 }
 
 #[derive(Debug, Args)]
 struct Fig4Args {
-    /// Independent runs of each pair and of the long run [default: 20; --quick: 2].
-    #[arg(long)]
-    runs: Option<usize>,
-    /// Episodes of the long run (Fig. 4c) [default: 500; --quick: 40].
-    #[arg(long)]
-    long_episodes: Option<usize>,
+    #[command(flatten)]
+    settings: SettingsArgs<Fig4Config>,
     /// Directory for summary.json, episodes.csv and the SVG plots.
     #[arg(long, default_value = "results/fig4")]
     out: PathBuf,
-    /// Small settings for a first look: seconds.
-    #[arg(long)]
-    quick: bool,
-    /// Base seed, as the transfer experiment's [default: 1].
-    #[arg(long)]
-    seed: Option<u64>,
     /// Worker threads [default: all cores].
     #[arg(long)]
     threads: Option<usize>,
@@ -389,128 +279,37 @@ struct Fig4Args {
     jobs: JobArgs,
 }
 
-impl Fig4Args {
-    fn settings_given(&self) -> bool {
-        self.runs.is_some() || self.long_episodes.is_some() || self.quick || self.seed.is_some()
-    }
-
-    fn config(&self) -> Fig4Config {
-        let mut config = if self.quick {
-            Fig4Config::quick()
-        } else {
-            Fig4Config::paper()
-        };
-        if let Some(runs) = self.runs {
-            config.runs = runs;
-        }
-        if let Some(n) = self.long_episodes {
-            config.convergence_episodes = n;
-        }
-        if let Some(seed) = self.seed {
-            config.seed = seed;
-        }
-        config
-    }
-}
-
 fn run_fig4(args: &Fig4Args) -> Result<()> {
-    run_experiment(
-        &args.out,
-        args.threads,
-        &args.jobs,
-        args.settings_given(),
-        || args.config(),
-    )?;
+    run_experiment(&args.out, args.threads, &args.jobs, &args.settings)?;
     Ok(())
 }
 
 #[derive(Debug, Args)]
 struct TransferArgs {
-    /// Independent runs per test task [default: 20; --quick: 2].
-    #[arg(long)]
-    runs: Option<usize>,
+    #[command(flatten)]
+    settings: SettingsArgs<TransferConfig>,
     /// Directory for summary.json, episodes.csv and the SVG plots.
     #[arg(long, default_value = "results/transfer")]
     out: PathBuf,
-    /// Small settings for a first look (and CI): finishes in under two minutes on two cores.
-    #[arg(long)]
-    quick: bool,
-    /// Held-out test tasks, comma-separated suite indices [default: all 15; --quick: 1,2,10].
-    #[arg(long, value_delimiter = ',')]
-    tasks: Option<Vec<usize>>,
-    /// Episodes on each training task [default: 100; --quick: 25].
-    #[arg(long)]
-    train_episodes: Option<usize>,
-    /// Episodes on the test task [default: 50; --quick: 12].
-    #[arg(long)]
-    test_episodes: Option<usize>,
-    /// Base seed; the job of (task t, run r) uses seed + 1000 r + t [default: 1].
-    #[arg(long)]
-    seed: Option<u64>,
-    /// Seed of the grid suite (layouts, dynamics, irrelevant features) [default: 2017].
-    #[arg(long)]
-    world_seed: Option<u64>,
     /// Worker threads [default: all cores].
     #[arg(long)]
     threads: Option<usize>,
     #[command(flatten)]
     jobs: JobArgs,
-    /// Plan every re-plan to the tolerance, instead of stopping it once no value moves by
-    /// more than the model change that triggered it (see `tes_learning::plan`).
-    #[arg(long)]
-    converge_plans: bool,
-    /// The most views the library keeps (M) [default: 20, the paper's]; a larger M prunes
-    /// less, an ablation of the library's pruning.
-    #[arg(long)]
-    max_views: Option<usize>,
-    /// Prune one view per task as Algorithm 2 writes it (`if |T| > M then remove the least
-    /// valuable`), which lets a task that adds several views leave the library above M,
-    /// instead of pruning down to M (the default).
-    #[arg(long)]
-    prune_one_per_task: bool,
 }
 
 #[derive(Debug, Args)]
 struct GridArgs {
-    /// Independent runs per algorithm and feature count [default: 20; --quick: 3].
-    #[arg(long)]
-    runs: Option<usize>,
-    /// Episodes per run [default: 800; --quick: 60].
-    #[arg(long)]
-    episodes: Option<usize>,
+    #[command(flatten)]
+    settings: SettingsArgs<GridConfig>,
     /// Directory for summary.json, episodes.csv and the SVG plots.
     #[arg(long, default_value = "results/grid")]
     out: PathBuf,
-    /// Small settings for a first look (and CI): finishes in about two minutes on two cores.
-    #[arg(long)]
-    quick: bool,
-    /// First agent seed; run r uses seed + r [default: 1].
-    #[arg(long)]
-    seed: Option<u64>,
-    /// Seed of the grid suite (layouts, dynamics, irrelevant features) [default: 2017].
-    #[arg(long)]
-    world_seed: Option<u64>,
     /// Worker threads [default: all cores].
     #[arg(long)]
     threads: Option<usize>,
     #[command(flatten)]
     jobs: JobArgs,
-    /// Plan every re-plan to the tolerance, instead of stopping it once no value moves by
-    /// more than the model change that triggered it (see `tes_learning::plan`).
-    #[arg(long)]
-    converge_plans: bool,
-    /// RL-DT keeps per-state effect counts instead of the list of all examples: the same
-    /// trees and rewards, induced in time bounded by the states rather than the steps (our
-    /// shortcut; the default list is Hester & Stone's and what Table 1 compares against).
-    #[arg(long)]
-    rl_dt_per_state_counts: bool,
-    /// fEpsG's exploration ε [default: 0.1, the paper's; loreRL explores with 0.05].
-    #[arg(long, value_name = "EPSILON", value_parser = epsilon)]
-    fepsg_epsilon: Option<f64>,
-    /// Only these algorithms, comma-separated names as in the figures (e.g. `loreRL,fEpsG`)
-    /// [default: every figure's].
-    #[arg(long, value_delimiter = ',', value_parser = method)]
-    methods: Option<Vec<Method>>,
     /// Also draw the study's run 0 of loreRL at the first feature count (the same task and
     /// seed, so the same episodes) to this MCAP file, as Foxglove and Rerun show a run of the
     /// group: the grid, the agent moving, its path, decisions and episode rewards.
@@ -534,6 +333,10 @@ pub fn run(args: &ExperimentArgs) -> Result<()> {
         Which::Replot(r) => run_replot(r),
         Which::Report(r) => run_report(r),
         Which::Summarise(s) => summarise_folder(&s.dir),
+        Which::Settings => {
+            print!("{}", study::settings_reference());
+            Ok(())
+        }
     }
 }
 
@@ -562,94 +365,26 @@ fn print_summary(summary: Result<String, std::fmt::Error>) -> Result<()> {
     Ok(())
 }
 
-fn set_threads(threads: Option<usize>) -> Result<()> {
-    if let Some(threads) = threads {
-        if threads == 0 {
-            bail!("--threads must be at least 1");
-        }
-        // Only the first call in a process can size the global pool; a failure means it was
-        // already built, which is harmless.
-        let _ = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build_global();
-    }
-    Ok(())
-}
-
-impl TransferArgs {
-    fn settings_given(&self) -> bool {
-        self.runs.is_some()
-            || self.quick
-            || self.tasks.is_some()
-            || self.train_episodes.is_some()
-            || self.test_episodes.is_some()
-            || self.seed.is_some()
-            || self.world_seed.is_some()
-            || self.converge_plans
-            || self.max_views.is_some()
-            || self.prune_one_per_task
-    }
-
-    fn config(&self) -> TransferConfig {
-        let mut config = if self.quick {
-            TransferConfig::quick()
-        } else {
-            TransferConfig::paper()
-        };
-        if let Some(runs) = self.runs {
-            config.runs = runs;
-        }
-        if let Some(tasks) = &self.tasks {
-            config.test_tasks.clone_from(tasks);
-        }
-        if let Some(n) = self.train_episodes {
-            config.train_episodes = n;
-        }
-        if let Some(n) = self.test_episodes {
-            config.test_episodes = n;
-        }
-        if let Some(seed) = self.seed {
-            config.seed = seed;
-        }
-        if let Some(seed) = self.world_seed {
-            config.world_seed = seed;
-        }
-        config.stop_at_drift = !self.converge_plans;
-        if let Some(m) = self.max_views {
-            config.max_views = m;
-        }
-        config.prune_one_per_task = self.prune_one_per_task;
-        config
-    }
-}
-
 fn run_transfer(args: &TransferArgs) -> Result<()> {
-    run_experiment(
-        &args.out,
-        args.threads,
-        &args.jobs,
-        args.settings_given(),
-        || args.config(),
-    )?;
+    run_experiment(&args.out, args.threads, &args.jobs, &args.settings)?;
     Ok(())
 }
 
 /// Runs one experiment from its command line: the settings given (or a resumed folder's),
 /// the jobs with progress, and the console summary of a complete run. Returns the settings
 /// that ran.
-fn run_experiment<E: Experiment>(
+fn run_experiment<E: Experiment + Settings>(
     out: &Path,
     threads: Option<usize>,
     jobs: &JobArgs,
-    settings_given: bool,
-    config: impl FnOnce() -> E,
+    settings: &SettingsArgs<E>,
 ) -> Result<E> {
-    set_threads(threads)?;
-    let (options, out, resumed) = jobs.resolve(out, E::NAME, settings_given)?;
+    jobs::use_threads(threads)?;
+    let (options, out, resumed) = jobs.resolve(out, E::NAME, settings.any_given())?;
     stop_on_interrupt(&out, E::NAME, std::slice::from_ref(&out))?;
     let config = match &resumed {
         Some(m) => m.settings()?,
-        None => config(),
+        None => settings.config().map_err(anyhow::Error::msg)?,
     };
     if let Some(report) = with_progress(&config, &out, options, options.resume)? {
         print_summary(E::console(&report, &out))?;
@@ -657,207 +392,8 @@ fn run_experiment<E: Experiment>(
     Ok(config)
 }
 
-/// Runs (a share of) an experiment with a line saying what runs (`resuming`: an interrupted
-/// run goes on) and a progress bar; `None` for a shard.
-fn with_progress<E: Experiment>(
-    config: &E,
-    out: &Path,
-    options: JobOptions,
-    resuming: bool,
-) -> Result<Option<E::Report>> {
-    eprintln!(
-        "{} experiment: {}{} -> {}",
-        E::NAME,
-        config.describe(),
-        shard_note(options, resuming),
-        out.display()
-    );
-    let bar = progress_bar(E::NAME);
-    let report = config.run_with(out, options, &bar.callback())?;
-    bar.finish(out, E::NAME, options);
-    Ok(report)
-}
-
-/// Ctrl-C or SIGTERM stops the run at once and says how to go on: every finished run is
-/// already on disk in one of `folders` (its record is written whole or not at all), and
-/// `tes experiment WHICH --resume OUT` runs the rest. Installed by the command itself, so a
-/// run started with SIGINT ignored (a script's background job) still stops when told to.
-fn stop_on_interrupt(out: &Path, which: &str, folders: &[PathBuf]) -> Result<()> {
-    use signal_hook::consts::{SIGINT, SIGTERM};
-    let mut signals = signal_hook::iterator::Signals::new([SIGINT, SIGTERM])
-        .context("cannot install the signal handlers")?;
-    let (out, which, folders) = (out.to_owned(), which.to_owned(), folders.to_owned());
-    std::thread::Builder::new()
-        .name("interrupt".into())
-        .spawn(move || {
-            let Some(signal) = signals.forever().next() else {
-                return;
-            };
-            let kept: usize = folders
-                .iter()
-                .map(|f| jobs::recorded(f).map_or(0, |r| r.len()))
-                .sum();
-            eprintln!(
-                "\nexperiment {which}: interrupted; the {kept} runs recorded in {} are kept; \
-                 run the rest with `tes experiment {which} --resume {}`",
-                out.display(),
-                out.display()
-            );
-            std::process::exit(128 + signal);
-        })
-        .context("cannot start the signal thread")?;
-    Ok(())
-}
-
-fn shard_note(options: JobOptions, resuming: bool) -> String {
-    let mut note = String::new();
-    if !options.shard.is_all() {
-        note.push_str(&format!(", shard {}", options.shard));
-    }
-    if resuming {
-        note.push_str(", resuming");
-    }
-    note
-}
-
-/// Progress on stderr: a bar (runs done, elapsed, the time left) on a terminal; elsewhere (a
-/// batch job's log, `nohup`) a plain line at most every [`PROGRESS_LINE_EVERY`](tes_experiments::progress::PROGRESS_LINE_EVERY) and at the
-/// end. The estimate is made from the runs finished in this invocation, not those found on
-/// resume.
-struct Progress {
-    bar: ProgressBar,
-    first: Once,
-    plain: Option<std::sync::Mutex<ProgressLines>>,
-}
-
-impl Progress {
-    /// The `progress(done, total)` callback the experiments call.
-    fn callback(&self) -> impl Fn(u64, u64) + Sync + '_ {
-        move |done, total| {
-            self.bar.set_length(total);
-            self.bar.set_position(done);
-            // The first call reports the runs found on resume: the estimate starts after it.
-            self.first.call_once(|| self.bar.reset_eta());
-            if let Some(plain) = &self.plain
-                && let Ok(mut plain) = plain.lock()
-            {
-                plain.update(done, total);
-            }
-        }
-    }
-
-    fn finish(&self, out: &Path, experiment: &str, options: JobOptions) {
-        self.bar.finish_and_clear();
-        if !options.shard.is_all() {
-            println!(
-                "shard {} of the {experiment} experiment written to {}; combine the shards with `tes experiment merge DIR... --out DIR`",
-                options.shard,
-                out.display()
-            );
-        }
-    }
-}
-
-fn progress_bar(what: &str) -> Progress {
-    if std::io::stderr().is_terminal() {
-        let bar = ProgressBar::with_draw_target(Some(1), ProgressDrawTarget::stderr());
-        if let Ok(style) = ProgressStyle::with_template(
-            "{msg} [{bar:40}] {pos}/{len} runs ({elapsed} elapsed, ~{eta} left)",
-        ) {
-            bar.set_style(style.progress_chars("=> "));
-        }
-        bar.set_message(what.to_owned());
-        Progress {
-            bar,
-            first: Once::new(),
-            plain: None,
-        }
-    } else {
-        let now = std::time::Instant::now();
-        Progress {
-            bar: ProgressBar::hidden(),
-            first: Once::new(),
-            plain: Some(std::sync::Mutex::new(ProgressLines::new(
-                format!("{what} experiment"),
-                now,
-            ))),
-        }
-    }
-}
-
-impl GridArgs {
-    fn settings_given(&self) -> bool {
-        self.runs.is_some()
-            || self.episodes.is_some()
-            || self.quick
-            || self.seed.is_some()
-            || self.world_seed.is_some()
-            || self.converge_plans
-            || self.rl_dt_per_state_counts
-            || self.fepsg_epsilon.is_some()
-            || self.methods.is_some()
-    }
-
-    fn config(&self) -> GridConfig {
-        let mut config = if self.quick {
-            GridConfig::quick()
-        } else {
-            GridConfig::paper(20, 800)
-        };
-        if let Some(runs) = self.runs {
-            config.runs = runs;
-        }
-        if let Some(episodes) = self.episodes {
-            config.episodes = episodes;
-        }
-        if let Some(seed) = self.seed {
-            config.seed = seed;
-        }
-        if let Some(seed) = self.world_seed {
-            config.world_seed = seed;
-        }
-        config.stop_at_drift = !self.converge_plans;
-        if self.rl_dt_per_state_counts {
-            config.rl_dt_examples = ExampleStore::PerStateCounts;
-        }
-        if let Some(e) = self.fepsg_epsilon {
-            config.fepsg_epsilon = e;
-        }
-        config.methods.clone_from(&self.methods);
-        config
-    }
-}
-
-/// An exploration probability, in [0, 1].
-fn epsilon(text: &str) -> Result<f64, String> {
-    let e: f64 = text
-        .parse()
-        .map_err(|_| format!("{text:?} is not a number"))?;
-    if (0.0..=1.0).contains(&e) {
-        Ok(e)
-    } else {
-        Err(format!("{e} is not a probability in [0, 1]"))
-    }
-}
-
-/// A method by the name the figures give it.
-fn method(text: &str) -> Result<Method, String> {
-    Method::from_name(text).ok_or_else(|| {
-        format!(
-            "{text:?} is no method; the grid's are {}",
-            grid::METHODS.map(|m| m.name().into_owned()).join(", ")
-        )
-    })
-}
-
 fn run_grid(args: &GridArgs) -> Result<()> {
-    let config = run_experiment(
-        &args.out,
-        args.threads,
-        &args.jobs,
-        args.settings_given(),
-        || args.config(),
-    )?;
+    let config = run_experiment(&args.out, args.threads, &args.jobs, &args.settings)?;
     if let Some(path) = &args.draw {
         draw_grid_run(&config, path, args.draw_episodes)?;
     }
@@ -889,73 +425,20 @@ fn draw_grid_run(config: &GridConfig, path: &Path, episodes: usize) -> Result<()
     Ok(())
 }
 
-impl RobotArgs {
-    fn settings_given(&self) -> bool {
-        self.runs.is_some()
-            || self.episodes.is_some()
-            || self.train_episodes.is_some()
-            || self.quick
-            || self.seed.is_some()
-    }
-
-    fn config(&self) -> RobotConfig {
-        let mut config = if self.quick {
-            RobotConfig::quick()
-        } else {
-            RobotConfig::paper()
-        };
-        if let Some(n) = self.runs {
-            config.runs = n;
-        }
-        if let Some(n) = self.episodes {
-            config.episodes = n;
-        }
-        if let Some(n) = self.train_episodes {
-            config.train_episodes = n;
-        }
-        if let Some(seed) = self.seed {
-            config.seed = seed;
-        }
-        config
-    }
-}
-
 fn run_robot(args: &RobotArgs) -> Result<()> {
-    run_experiment(
-        &args.out,
-        args.threads,
-        &args.jobs,
-        args.settings_given(),
-        || args.config(),
-    )?;
+    run_experiment(&args.out, args.threads, &args.jobs, &args.settings)?;
     Ok(())
 }
 
 fn run_all(args: &AllArgs) -> Result<()> {
-    set_threads(args.threads)?;
-    let study = match &args.jobs.resume {
-        Some(dir) => {
-            if args.jobs.shard.is_some() || args.runs.is_some() || args.quick {
-                bail!(
-                    "--resume takes the settings and shard from the manifests in {}; give no other setting",
-                    dir.display()
-                );
-            }
-            Study::resume(dir)?
-        }
-        None => {
-            let configs = if args.quick {
-                StudyConfigs::quick()
-            } else {
-                StudyConfigs::paper()
-            };
-            let configs = match args.runs {
-                Some(runs) => configs.with_runs(runs),
-                None => configs,
-            };
-            Study::prepare(&args.out, configs, args.jobs.shard.unwrap_or(Shard::ALL))?
-        }
-    };
+    jobs::use_threads(args.threads)?;
+    let study = Study::open(
+        &args.out,
+        args.jobs.resume.as_deref(),
+        args.quick,
+        args.runs,
+        args.jobs.shard,
+    )?;
     let folders: Vec<PathBuf> = study::EXPERIMENTS.map(|e| study.dir(e)).into();
     stop_on_interrupt(&study.out, "all", &folders)?;
     // Every experiment of a study skips the runs its folder already holds (none in a

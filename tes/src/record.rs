@@ -62,5 +62,11 @@ pub fn run(args: &ReplayArgs) -> Result<()> {
     if outcome.divergence.is_some() {
         bail!("the replay diverged from the recording");
     }
+    if outcome.unanswerable > 0 {
+        bail!(
+            "{} misses observations its commands answer: the run cannot be checked whole",
+            args.file.display()
+        );
+    }
     Ok(())
 }

@@ -18,7 +18,8 @@ pub struct StatusArgs {
     /// Print one JSON object (for machines) instead of the table.
     #[arg(long)]
     json: bool,
-    /// First remove the iceoryx2 resources that dead processes (crashed groups) left behind.
+    /// First remove what dead processes (crashed groups) left behind: iceoryx2 resources,
+    /// and the lock files of ended launches in the default data directory.
     #[arg(long)]
     clean: bool,
     /// How long to wait for the processes' progress reports, ms (each process reports a few
@@ -80,6 +81,13 @@ pub(crate) fn render(status: &Status) -> String {
         let _ = writeln!(
             out,
             "removed {n} iceoryx2 domain{} whose processes had all ended",
+            if n == 1 { "" } else { "s" }
+        );
+    }
+    if let Some(n) = status.locks_cleaned.filter(|&n| n > 0) {
+        let _ = writeln!(
+            out,
+            "removed {n} lock file{} of ended launches",
             if n == 1 { "" } else { "s" }
         );
     }
@@ -187,6 +195,7 @@ mod tests {
             groups: group_nodes(&[entry("other", 3, Alive)]),
             cleaned: None,
             domains_cleaned: None,
+            locks_cleaned: None,
             not_cleaned: Vec::new(),
         };
         assert_eq!(render(&status), format!("{NONE_RUNNING}\n"));
@@ -194,6 +203,7 @@ mod tests {
             groups: Vec::new(),
             cleaned: Some(2),
             domains_cleaned: Some(0),
+            locks_cleaned: Some(0),
             not_cleaned: Vec::new(),
         };
         assert_eq!(
@@ -210,6 +220,7 @@ mod tests {
             groups: Vec::new(),
             cleaned: Some(1),
             domains_cleaned: Some(0),
+            locks_cleaned: Some(0),
             not_cleaned: vec!["node \"x/controller\" (pid 7): InternalError".into()],
         };
         assert_eq!(
@@ -246,6 +257,7 @@ mod tests {
             groups,
             cleaned: None,
             domains_cleaned: None,
+            locks_cleaned: None,
             not_cleaned: Vec::new(),
         });
         let lines: Vec<&str> = text.lines().collect();
@@ -269,6 +281,7 @@ mod tests {
             groups: vec![silent],
             cleaned: None,
             domains_cleaned: None,
+            locks_cleaned: None,
             not_cleaned: Vec::new(),
         });
         assert!(

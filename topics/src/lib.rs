@@ -113,6 +113,12 @@ pub mod service {
     /// ([`crate::Progress`]): the launcher watches them for a group that stopped making
     /// progress and names the process that went silent.
     pub const PROGRESS: &str = "tes/progress";
+    /// Publish–subscribe service (no event: nothing waits on it) carrying the
+    /// [`crate::WorldPose`]s perception publishes after each observation: where the simulated
+    /// world has the robot, for viewers (the recorder), never for the controller.
+    pub const WORLD_POSE: &str = "tes/world/pose";
+    /// Event service of [`WORLD_POSE`] (notified; nobody listens to it).
+    pub const WORLD_POSE_EVENT: &str = "tes/world/pose/event";
 }
 
 /// Every service name of one process group, each [`service`] name behind the group's prefix
@@ -150,6 +156,10 @@ pub struct ServiceNames {
     pub world_map_event: String,
     /// [`service::PROGRESS`] of each [`Role`], in [`Role::ALL`] order.
     pub progress: [String; 3],
+    /// [`service::WORLD_POSE`].
+    pub world_pose: String,
+    /// [`service::WORLD_POSE_EVENT`].
+    pub world_pose_event: String,
 }
 
 impl Default for ServiceNames {
@@ -175,6 +185,8 @@ impl ServiceNames {
             world_map: name(service::WORLD_MAP),
             world_map_event: name(service::WORLD_MAP_EVENT),
             progress: Role::ALL.map(|r| name(&format!("{}/{}", service::PROGRESS, r.name()))),
+            world_pose: name(service::WORLD_POSE),
+            world_pose_event: name(service::WORLD_POSE_EVENT),
         }
     }
 
@@ -605,6 +617,32 @@ pub const KEEP_ALIVE_ACTION: u32 = u32::MAX;
 /// [`MotorState::action`] when the command's action id does not fit.
 pub const NO_ACTION: u16 = u16::MAX;
 
+/// Where the simulated world has the robot, published by perception after each observation:
+/// the pose before and after the motion that led to it (both the same at an episode's
+/// start). The camera discretises this pose into the observation's state; the controller
+/// never sees it. A viewer draws the robot from it (moving it along the motion as the
+/// wheels turn) beside what the controller believes.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[cfg_attr(feature = "ipc", derive(ZeroCopySend), type_name("tes::WorldPose"))]
+#[repr(C)]
+pub struct WorldPose {
+    /// The observation this pose was seen at ([`Observation::seq`]).
+    pub observation: u64,
+    /// Monotonic clock (ns) when it was published.
+    pub stamp_ns: u64,
+    /// The command whose motion went from `from` to `to` (0 at an episode's start).
+    pub after_command: u64,
+    /// Episode index, from 0.
+    pub episode: u32,
+    /// Padding; always 0.
+    pub reserved: u32,
+    /// Before the motion: x and y (cm from the arena's south-west corner) and heading (rad,
+    /// counter-clockwise from east).
+    pub from: [f64; 3],
+    /// After the motion, as `from`.
+    pub to: [f64; 3],
+}
+
 /// Motor run states as the NXT firmware reports them.
 pub mod run_state {
     /// Motor is idle (coasting or braked, not running a command).
@@ -703,6 +741,7 @@ mod tests {
         assert_eq!(core::mem::size_of::<Command>(), 64);
         assert_eq!(core::mem::size_of::<MotorState>(), 64);
         assert_eq!(core::mem::size_of::<Progress>(), 64);
+        assert_eq!(core::mem::size_of::<WorldPose>(), 80);
         assert_eq!(FEATURE_CAPACITY, 320);
     }
 

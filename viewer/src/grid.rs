@@ -153,9 +153,29 @@ pub struct GridRun<'t> {
     clock_ns: u64,
     pose: FloorPose,
     path: Vec<DVec2>,
+    /// The agent's cell.
+    state: usize,
     episode: u32,
     step: u32,
     reward: f64,
+}
+
+/// How many transforms a move between two cells is drawn with: the agent glides from cell to
+/// cell, a quarter of a cell at a time, instead of jumping.
+const GLIDE_STEPS: u64 = 4;
+
+/// How a grid episode ended, from the cell it ended on: `exit`, `fire`, or `cut short` (the
+/// step cap, or an episode not `finished`).
+pub fn outcome(task: &GridTask, state: usize, finished: bool) -> &'static str {
+    if !finished {
+        "cut short"
+    } else if task.is_exit(state) {
+        "exit"
+    } else if task.surface(state) == Surface::Fire {
+        "fire"
+    } else {
+        "cut short"
+    }
 }
 
 impl<'t> GridRun<'t> {
@@ -173,6 +193,7 @@ impl<'t> GridRun<'t> {
                 heading: 0.0,
             },
             path: Vec::new(),
+            state: 0,
             episode: 0,
             step: 0,
             reward: 0.0,
@@ -199,6 +220,8 @@ impl<'t> GridRun<'t> {
         (self.episode, self.step, self.reward) = (episode, 0, 0.0);
         self.path.clear();
         self.clock_ns += STEP_NS;
+        // A new episode puts the agent at its start: the one jump that is not a move.
+        self.state = state;
         self.arrive(state, None, canvas)
     }
 
@@ -225,11 +248,12 @@ impl<'t> GridRun<'t> {
         let latency = Sample::of(agent_us);
         self.painter
             .put(|c| &c.latency_series, &latency, self.clock_ns, canvas)?;
-        self.clock_ns += STEP_NS;
         (self.step, self.reward) = (self.step + 1, self.reward + reward);
         if let Some(h) = heading_of(action) {
             self.pose.heading = h;
         }
+        self.glide(next, canvas)?;
+        self.clock_ns += STEP_NS / GLIDE_STEPS;
         let said = format!(
             "episode {} step {}: {} → {}",
             self.episode,
@@ -240,28 +264,46 @@ impl<'t> GridRun<'t> {
         self.arrive(next, Some(said), canvas)
     }
 
-    /// The episode ended: `finished` (an exit or fire) or cut off at the step cap.
+    /// The episode ended: `finished` (on an exit or fire) or cut off at the step cap; its
+    /// outcome is the cell the agent ended on ([`outcome`]).
     pub fn end_episode<C: Canvas>(
         &mut self,
         finished: bool,
         canvas: &mut C,
     ) -> Result<(), C::Error> {
-        let outcome = match (finished, self.reward > 0.0) {
-            (false, _) => "cut short",
-            (true, true) => "exit",
-            (true, false) => "fire",
-        };
         let end = EpisodeEnd {
             episode: self.episode,
             reward: self.reward,
             actions: self.step,
-            outcome: outcome.into(),
+            outcome: outcome(self.task, self.state, finished).into(),
         };
         self.painter
             .put(|c| &c.episode, &end, self.clock_ns, canvas)?;
         let reward = Sample::of(self.reward);
         self.painter
             .put(|c| &c.reward_series, &reward, self.clock_ns, canvas)
+    }
+
+    /// Moves the agent from its cell towards `next`'s over the step's time, a transform every
+    /// [`GLIDE_STEPS`]th of it (none when it stayed), up to just before it arrives.
+    fn glide<C: Canvas>(&mut self, next: usize, canvas: &mut C) -> Result<(), C::Error> {
+        let (from, to) = (centre(self.task, self.state), centre(self.task, next));
+        self.state = next;
+        for k in 1..GLIDE_STEPS {
+            self.clock_ns += STEP_NS / GLIDE_STEPS;
+            if from == to {
+                continue;
+            }
+            let along = from.lerp(to, k as f64 / GLIDE_STEPS as f64);
+            let pose = FloorPose {
+                position: along / crate::arena::M_PER_CM,
+                ..self.pose
+            };
+            let t = self.painter.timestamp(self.clock_ns);
+            self.painter
+                .put(|c| &c.tf, &pose.transform(t), self.clock_ns, canvas)?;
+        }
+        Ok(())
     }
 
     /// Draws the agent in `state`'s cell with its path and what it did last.
@@ -317,18 +359,67 @@ mod tests {
             .on(TF)
             .map(|b| FrameTransform::decode(b).expect("decodes"))
             .collect();
-        assert_eq!(tf.len(), 2);
+        // The start, three on the way, the arrival.
+        assert_eq!(tf.len(), 2 + 3);
         // Cell 6 is the south-west corner; cell 3 is north of it.
-        let (a, b) = (
-            tf[0].translation.expect("at"),
-            tf[1].translation.expect("at"),
-        );
+        let ys: Vec<f64> = tf.iter().map(|t| t.translation.expect("at").y).collect();
+        let a = tf[0].translation.expect("at");
         assert!(
             (a.x - 0.05).abs() < 1e-9 && (a.y - 0.05).abs() < 1e-9,
             "{a:?}"
         );
-        assert!((b.y - 0.15).abs() < 1e-9 && b.x == a.x, "{b:?}");
+        assert!((ys[4] - 0.15).abs() < 1e-9, "{ys:?}");
+        // Gliding: no transform moves the agent more than a quarter of a cell.
+        assert!(
+            ys.windows(2)
+                .all(|w| (w[1] - w[0]).abs() <= CELL_M / 4.0 + 1e-9),
+            "{ys:?}"
+        );
         assert_eq!(drawn.on(ROBOT).count(), 3, "the body, then one per arrival");
         assert_eq!(drawn.on(EPISODE).count(), 1);
+    }
+
+    /// An episode's end as the file holds it (the derived schema numbers the fields 1..=n).
+    #[derive(Clone, PartialEq, prost::Message)]
+    struct EndTwin {
+        #[prost(uint32, tag = "1")]
+        episode: u32,
+        #[prost(double, tag = "2")]
+        reward: f64,
+        #[prost(uint32, tag = "3")]
+        actions: u32,
+        #[prost(string, tag = "4")]
+        outcome: String,
+    }
+
+    /// A long episode that reaches the exit has a negative total (−0.01 a step): it is an
+    /// exit all the same; one that walks into fire is fire, one stopped at the cap cut short.
+    #[test]
+    fn an_episode_ends_as_the_cell_it_ended_on_whatever_its_total() {
+        let task = GridTask::from_map("..E\nF#.\n:..", 0, 0, 1).expect("a small task");
+        let mut drawn = Collected::default();
+        let ok = |r: Result<(), std::convert::Infallible>| r.unwrap_or_else(|e| match e {});
+        let mut run = GridRun::start(&task, &mut drawn).unwrap_or_else(|e| match e {});
+        // From cell 1 west and back many times, then east onto the exit (cell 2).
+        ok(run.begin_episode(0, 1, &mut drawn));
+        for _ in 0..60 {
+            ok(run.step(3, 3, 0, -0.01, 1.0, &mut drawn));
+            ok(run.step(1, 1, 1, -0.01, 1.0, &mut drawn));
+        }
+        ok(run.step(1, 1, 2, 1.0, 1.0, &mut drawn));
+        ok(run.end_episode(true, &mut drawn));
+        // From the soil (cell 6) north into the fire (cell 3).
+        ok(run.begin_episode(1, 6, &mut drawn));
+        ok(run.step(0, 0, 3, -1.0, 1.0, &mut drawn));
+        ok(run.end_episode(true, &mut drawn));
+        ok(run.begin_episode(2, 7, &mut drawn));
+        ok(run.end_episode(false, &mut drawn));
+        let ends: Vec<EndTwin> = drawn
+            .on(EPISODE)
+            .map(|b| EndTwin::decode(b).expect("decodes"))
+            .collect();
+        assert!(ends[0].reward < 0.0, "{:?}", ends[0]);
+        let outcomes: Vec<&str> = ends.iter().map(|e| e.outcome.as_str()).collect();
+        assert_eq!(outcomes, ["exit", "fire", "cut short"]);
     }
 }

@@ -4,8 +4,9 @@
 //! |---|---|---|
 //! | `/arena` | `foxglove.SceneUpdate` | the arena, once (again for a late live client) |
 //! | `/arena/points` | `foxglove.PointCloud` | the same as coloured points (Rerun draws these) |
-//! | `/tf` | `foxglove.FrameTransform` | `arena → robot`, at each observation and as it moves |
-//! | `/robot` | `foxglove.SceneUpdate` | the robot's body, its episode's path, its last decision |
+//! | `/tf` | `foxglove.FrameTransform` | `arena → robot`: where the world has the robot, moving as its wheels turn |
+//! | `/tf/belief` | `foxglove.FrameTransform` | `arena → belief`: what the controller believes (the observed cell, odometry between) |
+//! | `/robot` | `foxglove.SceneUpdate` | the robot's body, the belief's outline, its episode's path, its last decision |
 //! | `/robot/pose` | `foxglove.PoseInFrame` | the robot's pose at each observation |
 //! | `/robot/path` | `foxglove.PosesInFrame` | the episode's poses so far |
 //! | `/log` | `foxglove.Log` | the processes' log lines |
@@ -21,20 +22,25 @@ use foxglove::messages::{
 };
 use tes_perception_sim::arena::{self, Arena, ArenaId, Effect};
 use tes_topics::{
-    Command, KEEP_ALIVE_ACTION, MotorState, Observation, WorldMap, motor_flags, observation_flags,
+    Command, KEEP_ALIVE_ACTION, MotorState, Observation, WorldMap, WorldPose, motor_flags,
+    observation_flags,
 };
 
 use crate::arena::{ARENA_FRAME, arena_points, arena_scene, at, rgb};
 use crate::canvas::{Canvas, Channel, Drawing};
-use crate::robot::{FloorPose, Odometry, ROBOT_FRAME, body};
+use crate::robot::{
+    BELIEF_FRAME, FloorPose, Odometry, ROBOT_FRAME, WorldMotion, belief_body, body,
+};
 use crate::series::Sample;
 
 /// Topic of the arena's scene.
 pub const ARENA: &str = "/arena";
 /// Topic of the arena's points.
 pub const ARENA_POINTS: &str = "/arena/points";
-/// Topic of the robot's transforms.
+/// Topic of the robot's transforms (`arena → robot`, where the world has it).
 pub const TF: &str = "/tf";
+/// Topic of the belief's transforms (`arena → belief`, what the controller believes).
+pub const TF_BELIEF: &str = "/tf/belief";
 /// Topic of the robot's scene entities.
 pub const ROBOT: &str = "/robot";
 /// Topic of the robot's observed poses.
@@ -86,6 +92,7 @@ pub(crate) struct Channels {
     pub(crate) arena: Channel,
     pub(crate) arena_points: Channel,
     pub(crate) tf: Channel,
+    pub(crate) tf_belief: Channel,
     pub(crate) robot: Channel,
     pub(crate) robot_pose: Channel,
     pub(crate) robot_path: Channel,
@@ -102,6 +109,7 @@ impl Channels {
             arena: Channel::of::<SceneUpdate>(ARENA),
             arena_points: Channel::of::<foxglove::messages::PointCloud>(ARENA_POINTS),
             tf: Channel::of::<foxglove::messages::FrameTransform>(TF),
+            tf_belief: Channel::of::<foxglove::messages::FrameTransform>(TF_BELIEF),
             robot: Channel::of::<SceneUpdate>(ROBOT),
             robot_pose: Channel::of::<PoseInFrame>(ROBOT_POSE),
             robot_path: Channel::of::<PosesInFrame>(ROBOT_PATH),
@@ -114,11 +122,12 @@ impl Channels {
     }
 
     /// Every channel, in the order of the table above.
-    fn all(&self) -> [&Channel; 11] {
+    fn all(&self) -> [&Channel; 12] {
         [
             &self.arena,
             &self.arena_points,
             &self.tf,
+            &self.tf_belief,
             &self.robot,
             &self.robot_pose,
             &self.robot_path,
@@ -156,9 +165,59 @@ struct EpisodeTrack {
     number: Option<u32>,
     path: Vec<FloorPose>,
     reward: f64,
-    actions: u32,
     last_state: Option<usize>,
-    last_action: Option<u32>,
+}
+
+/// How long after the first observation a world that has sent no pose is taken to send none
+/// (its perception runs on another host), ns. Its poses follow each observation at once, but
+/// the recorder takes a whole batch of observations before their poses, so a count of
+/// observations would give up on a world that has one.
+const WORLD_SILENT_NS: u64 = 1_000_000_000;
+
+/// How many recent observations and decisions the scene remembers to label what answers or
+/// follows them: far more than come between two drains of the recorder at the fastest pace.
+const REMEMBERED: usize = 64;
+
+/// Where in the run an observation was, as a decision answering it is labelled.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Observed {
+    episode: u32,
+    step: u32,
+}
+
+/// The last [`REMEMBERED`] items of a kind, found by their sequence number: the recorder
+/// hands over observations and commands in batches, so "the last one seen" is not the one a
+/// message refers to.
+#[derive(Debug)]
+struct Recent<T> {
+    items: std::collections::VecDeque<(u64, T)>,
+}
+
+impl<T: Copy> Recent<T> {
+    fn new() -> Self {
+        Self {
+            items: std::collections::VecDeque::with_capacity(REMEMBERED),
+        }
+    }
+
+    fn remember(&mut self, seq: u64, item: T) {
+        if self.items.len() == REMEMBERED {
+            self.items.pop_front();
+        }
+        self.items.push_back((seq, item));
+    }
+
+    fn find(&self, seq: u64) -> Option<T> {
+        self.items
+            .iter()
+            .rev()
+            .find(|(s, _)| *s == seq)
+            .map(|(_, t)| *t)
+    }
+
+    fn newest_seq(&self) -> Option<u64> {
+        self.items.back().map(|(s, _)| *s)
+    }
 }
 
 /// How a drawing may be delivered.
@@ -171,12 +230,14 @@ pub(crate) enum Delivery {
 }
 
 /// Encodes messages onto the scene's channels, each once into a buffer it keeps, with times
-/// moved to the wall clock.
+/// moved to the wall clock; each channel's times never go back.
 #[derive(Debug)]
 pub(crate) struct Painter {
     channels: Channels,
     buffer: Vec<u8>,
     wall_offset_ns: i128,
+    /// The time of each channel's last drawing (in the order of [`Channels::all`]).
+    drawn_ns: [u64; 12],
 }
 
 impl Painter {
@@ -185,6 +246,7 @@ impl Painter {
             channels: Channels::new(),
             buffer: Vec::with_capacity(4096),
             wall_offset_ns,
+            drawn_ns: [0; 12],
         }
     }
 
@@ -224,9 +286,26 @@ impl Painter {
             tracing::warn!("cannot encode a drawing: {e}");
             return Ok(());
         }
+        let channel = pick(&self.channels);
+        // The recorder hands samples on in time order; a straggler it could not wait for
+        // (a publisher descheduled for longer than it waits) is drawn at its channel's last
+        // time rather than before it, since viewers and MCAP readers expect each channel in
+        // time order.
+        let index = self
+            .channels
+            .all()
+            .iter()
+            .position(|c| std::ptr::eq(*c, channel));
+        let stamp_ns = match index.and_then(|i| self.drawn_ns.get_mut(i)) {
+            Some(last) => {
+                *last = (*last).max(stamp_ns);
+                *last
+            }
+            None => stamp_ns,
+        };
         let wall_ns = self.wall_ns(stamp_ns);
         canvas.draw(Drawing {
-            channel: pick(&self.channels),
+            channel,
             data: &self.buffer,
             stamp_ns,
             wall_ns,
@@ -235,7 +314,7 @@ impl Painter {
     }
 
     /// Every channel, in the order of the module's table.
-    pub(crate) fn channels(&self) -> [&Channel; 11] {
+    pub(crate) fn channels(&self) -> [&Channel; 12] {
         self.channels.all()
     }
 }
@@ -247,10 +326,30 @@ pub struct Scene {
     painter: Painter,
     arena: Option<Arena>,
     odometry: Odometry,
+    /// The world's motion of the robot, drawn from its poses and the wheels' reports.
+    world: WorldMotion,
+    /// The world's last pose of the robot: `None` until perception's first (a group whose
+    /// perception runs on another host never sends one; the belief is drawn as `robot` then).
+    world_pose: Option<FloorPose>,
+    /// When the first observation was published: a world that has sent no pose
+    /// [`WORLD_SILENT_NS`] after it is taken to send none, and the belief is drawn as `robot`.
+    first_observed_ns: Option<u64>,
+    /// The time of the last `arena → robot` transform: the world's motion is drawn after
+    /// the fact, and never back in time.
+    world_drawn_ns: u64,
+    /// The command whose motion was drawn last.
+    world_after: u64,
     /// When the last observation was published: motor reports from before it tell of a
     /// motion its pose already holds.
     observed_ns: u64,
     episode: EpisodeTrack,
+    /// Recent observations, for the decisions answering them.
+    observed: Recent<Observed>,
+    /// Recent decisions' actions, for the observations they led to.
+    decided: Recent<u32>,
+    /// Decisions whose observation has not been drawn yet (the recorder took the command
+    /// first), drawn as soon as it is.
+    waiting: std::collections::VecDeque<Command>,
     /// The world number of a map that is not an arena, said once.
     not_drawn: Option<u32>,
 }
@@ -263,8 +362,16 @@ impl Scene {
             painter: Painter::new(settings.wall_offset_ns),
             arena: None,
             odometry: Odometry::default(),
+            world: WorldMotion::default(),
+            world_pose: None,
+            first_observed_ns: None,
+            world_drawn_ns: 0,
+            world_after: 0,
             observed_ns: 0,
             episode: EpisodeTrack::default(),
+            observed: Recent::new(),
+            decided: Recent::new(),
+            waiting: std::collections::VecDeque::new(),
             not_drawn: None,
         }
     }
@@ -310,12 +417,83 @@ impl Scene {
             .put(|c| &c.arena_points, &points, stamp_ns, canvas)?;
         let robot = SceneUpdate {
             deletions: Vec::new(),
-            entities: vec![body(t, 1.0)],
+            entities: vec![body(t, 1.0), belief_body(t)],
         };
         self.painter.put(|c| &c.robot, &robot, stamp_ns, canvas)?;
         if let Some(pose) = self.odometry.pose() {
+            let belief = pose.transform_of(BELIEF_FRAME, t);
             self.painter
-                .put(|c| &c.tf, &pose.transform(t), stamp_ns, canvas)?;
+                .put(|c| &c.tf_belief, &belief, stamp_ns, canvas)?;
+        }
+        if let Some(pose) = self.world_pose.or(self.odometry.pose()) {
+            let at = stamp_ns.max(self.world_drawn_ns);
+            let t = self.timestamp(at);
+            self.painter
+                .put(|c| &c.tf, &pose.transform(t), at, canvas)?;
+        }
+        Ok(())
+    }
+
+    /// Where the world has the robot (perception's [`WorldPose`] after an observation): the
+    /// robot drawn along the motion that led there, at each wheel report's time, then at
+    /// its end.
+    pub fn world_pose<C: Canvas>(&mut self, w: &WorldPose, canvas: &mut C) -> Result<(), C::Error> {
+        if self.arena.is_none() {
+            return Ok(());
+        }
+        let pose = |p: [f64; 3]| FloorPose {
+            position: glam::DVec2::new(p[0], p[1]),
+            heading: p[2],
+        };
+        let (from, to) = (pose(w.from), pose(w.to));
+        self.world_pose = Some(to);
+        if w.after_command != 0 && w.after_command == self.world_after {
+            // An observation published again (no motion report came): the motion is drawn.
+            return self.draw_world(to, w.stamp_ns, canvas);
+        }
+        self.world_after = w.after_command;
+        for (stamp_ns, p) in self.world.along(w.after_command, from, to, w.stamp_ns) {
+            self.draw_world(p, stamp_ns, canvas)?;
+        }
+        Ok(())
+    }
+
+    /// The robot at `pose` at `stamp_ns` (or just after the last drawn), as frame `robot`.
+    fn draw_world<C: Canvas>(
+        &mut self,
+        pose: FloorPose,
+        stamp_ns: u64,
+        canvas: &mut C,
+    ) -> Result<(), C::Error> {
+        let at = stamp_ns.max(self.world_drawn_ns);
+        self.world_drawn_ns = at;
+        let t = self.timestamp(at);
+        self.painter
+            .put_as(|c| &c.tf, &pose.transform(t), at, Delivery::Motion, canvas)
+    }
+
+    /// What the controller believes at `stamp_ns`, as frame `belief` (and as `robot` while
+    /// the world has said nothing).
+    fn draw_belief<C: Canvas>(
+        &mut self,
+        pose: FloorPose,
+        stamp_ns: u64,
+        canvas: &mut C,
+    ) -> Result<(), C::Error> {
+        let t = self.timestamp(stamp_ns);
+        let belief = pose.transform_of(BELIEF_FRAME, t);
+        self.painter.put_as(
+            |c| &c.tf_belief,
+            &belief,
+            stamp_ns,
+            Delivery::Motion,
+            canvas,
+        )?;
+        let silent = self
+            .first_observed_ns
+            .is_some_and(|first| stamp_ns > first + WORLD_SILENT_NS);
+        if self.world_pose.is_none() && silent {
+            self.draw_world(pose, stamp_ns, canvas)?;
         }
         Ok(())
     }
@@ -346,20 +524,21 @@ impl Scene {
             self.episode.reward += f64::from(o.reward);
         }
         let effect = self.effect_of_last_decision(state, o.flags);
-        self.episode.actions = o.step;
         self.episode.last_state = state;
+        self.first_observed_ns.get_or_insert(o.stamp_ns);
+        self.observed.remember(
+            o.seq,
+            Observed {
+                episode: o.episode,
+                step: o.step,
+            },
+        );
         self.odometry.observed(pose);
         self.observed_ns = self.observed_ns.max(o.stamp_ns);
         let t = self.timestamp(o.stamp_ns);
         if let Some(p) = pose {
             self.episode.path.push(p);
-            self.painter.put_as(
-                |c| &c.tf,
-                &p.transform(t),
-                o.stamp_ns,
-                Delivery::Motion,
-                canvas,
-            )?;
+            self.draw_belief(p, o.stamp_ns, canvas)?;
             let observed = PoseInFrame {
                 timestamp: Some(t),
                 frame_id: ARENA_FRAME.into(),
@@ -398,7 +577,7 @@ impl Scene {
             self.painter
                 .put(|c| &c.reward_series, &reward, o.stamp_ns, canvas)?;
         }
-        Ok(())
+        self.draw_waiting_decisions(canvas)
     }
 
     /// The effect the last decision had, when it is known: the robot went from one state of
@@ -422,15 +601,17 @@ impl Scene {
         )
     }
 
+    /// The text over the robot at observation `o`: where it is in the run and, when known,
+    /// the decision whose motion led here (`o.after_command`) and the effect it had.
     fn decision_entity(
         &self,
         t: Timestamp,
         o: &Observation,
         effect: Option<Effect>,
     ) -> SceneEntity {
-        let action = self
-            .episode
-            .last_action
+        let action = (o.after_command != 0)
+            .then(|| self.decided.find(o.after_command))
+            .flatten()
             .and_then(|a| arena::ACTION_NAMES.get(a as usize).copied());
         let text = match (action, effect) {
             (Some(a), Some(e)) => format!("episode {} step {}: {a} → {e}", o.episode, o.step),
@@ -457,15 +638,55 @@ impl Scene {
         }
     }
 
-    /// A command: a decision (keep-alives are not drawn).
+    /// A command: a decision (keep-alives are not drawn), labelled with the observation it
+    /// answers; one whose observation is not drawn yet waits for it.
     pub fn command<C: Canvas>(&mut self, c: &Command, canvas: &mut C) -> Result<(), C::Error> {
         if c.action == KEEP_ALIVE_ACTION {
             return Ok(());
         }
-        self.episode.last_action = Some(c.action);
+        self.decided.remember(c.seq, c.action);
+        let ahead = self.observed.newest_seq().is_none_or(|s| c.answers > s);
+        // Behind one that waits, a decision waits too: decisions are drawn in their order.
+        if (ahead || !self.waiting.is_empty()) && self.waiting.len() < REMEMBERED {
+            self.waiting.push_back(*c);
+            return Ok(());
+        }
+        self.decision(c, canvas)
+    }
+
+    /// The run is over: draws the decisions still waiting for an observation that will not
+    /// come, each labelled with the newest one.
+    pub fn finish<C: Canvas>(&mut self, canvas: &mut C) -> Result<(), C::Error> {
+        while let Some(c) = self.waiting.pop_front() {
+            self.decision(&c, canvas)?;
+        }
+        Ok(())
+    }
+
+    /// Draws the decisions that waited for an observation drawn now (or for one that will
+    /// never come: an observation the recorder missed).
+    fn draw_waiting_decisions<C: Canvas>(&mut self, canvas: &mut C) -> Result<(), C::Error> {
+        let newest = self.observed.newest_seq().unwrap_or(0);
+        while let Some(c) = self.waiting.front().copied() {
+            if c.answers > newest {
+                break;
+            }
+            self.waiting.pop_front();
+            self.decision(&c, canvas)?;
+        }
+        Ok(())
+    }
+
+    /// Draws decision `c`: its action and latency, labelled with the observation it answers
+    /// (else the newest one: an observation the recorder missed).
+    fn decision<C: Canvas>(&mut self, c: &Command, canvas: &mut C) -> Result<(), C::Error> {
+        let answered = self.observed.find(c.answers).or_else(|| {
+            let newest = self.observed.newest_seq()?;
+            self.observed.find(newest)
+        });
         let decision = Decision {
-            episode: self.episode.number.unwrap_or(0),
-            step: self.episode.actions,
+            episode: answered.map_or(0, |o| o.episode),
+            step: answered.map_or(0, |o| o.step),
             action: c.action,
             action_name: arena::ACTION_NAMES
                 .get(c.action as usize)
@@ -483,7 +704,8 @@ impl Scene {
             .put(|ch| &ch.latency_series, &latency, c.stamp_ns, canvas)
     }
 
-    /// A motor report: the robot moved by its wheels' rotation.
+    /// A motor report: the robot moved by its wheels' rotation (the belief dead-reckons it;
+    /// the world's motion is drawn from it when the world's pose comes).
     pub fn motor_state<C: Canvas>(
         &mut self,
         m: &MotorState,
@@ -496,21 +718,14 @@ impl Scene {
         let (Some(&left), Some(&right)) = (m.tacho_count.get(l), m.tacho_count.get(r)) else {
             return Ok(());
         };
+        self.world
+            .report(m.stamp_ns, m.after_command, [left, right]);
         if m.stamp_ns <= self.observed_ns {
             self.odometry.rebase([left, right]);
             return Ok(());
         }
         match self.odometry.wheels([left, right]) {
-            Some(pose) => {
-                let t = self.timestamp(m.stamp_ns);
-                self.painter.put_as(
-                    |c| &c.tf,
-                    &pose.transform(t),
-                    m.stamp_ns,
-                    Delivery::Motion,
-                    canvas,
-                )
-            }
+            Some(pose) => self.draw_belief(pose, m.stamp_ns, canvas),
             None => Ok(()),
         }
     }

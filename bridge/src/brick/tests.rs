@@ -2,6 +2,7 @@ use std::time::Duration;
 
 use super::*;
 use crate::nxt::{Mode, PortSelector, RegulationMode, RunState, SetOutputState};
+use proptest::prelude::*;
 
 fn run(port: Port, power: i8, limit: u32, brake: bool) -> Request {
     let mut mode = Mode::MOTOR_ON | Mode::REGULATED;
@@ -280,4 +281,31 @@ fn bad_configs_name_the_key() {
         ..SimBrickConfig::default()
     };
     assert_eq!(SimBrick::new(cfg, 0).expect_err("long name").key, "name");
+}
+
+proptest! {
+    /// The simulated brick survives any telegram sequence and only ever answers with
+    /// well-formed replies to the opcode it was asked.
+    #[test]
+    fn brick_handles_arbitrary_telegrams(
+        telegrams in prop::collection::vec(
+            prop_oneof![
+                prop::collection::vec(any::<u8>(), 0..70),
+                (crate::nxt::proptests::request(), any::<bool>()).prop_map(|(r, rr)| r.encode(rr).as_bytes().to_vec()),
+            ],
+            1..30,
+        ),
+        steps_ms in prop::collection::vec(0u64..300, 30),
+    ) {
+        let mut brick = SimBrick::new(SimBrickConfig::default(), 0).map_err(|e| TestCaseError::fail(e.to_string()))?;
+        for (t, dt) in telegrams.iter().zip(steps_ms) {
+            brick.advance(std::time::Duration::from_millis(dt));
+            if let Some(reply) = brick.handle(t) {
+                prop_assert!(t.first().is_some_and(|ty| ty & 0x80 == 0));
+                let decoded = crate::nxt::Reply::decode(reply.as_bytes());
+                prop_assert!(decoded.is_ok(), "brick sent undecodable {:?}: {:?}", reply, decoded);
+                prop_assert_eq!(reply.opcode(), t[1]);
+            }
+        }
+    }
 }

@@ -702,4 +702,4 @@ mod tests {
 }
 
 #[cfg(test)]
-mod proptests;
+pub(crate) mod proptests;

@@ -200,6 +200,23 @@ pub(crate) fn kernel_refusal(e: &std::io::Error) -> Option<OpenFailure> {
     }
 }
 
+/// Whether the kernel offers Bluetooth RFCOMM sockets (an error no retry cures when it has
+/// none). Shared by the launch's check before anything starts and `tes-bridge scan`.
+pub(crate) fn kernel_support() -> Result<(), OpenFailure> {
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_io()
+        .build()
+        .map_err(|e| OpenFailure::bare(format!("cannot start the Bluetooth runtime: {e}")))?;
+    runtime
+        .block_on(async { bluer::rfcomm::Socket::new() })
+        .map(drop)
+        .map_err(|e| {
+            kernel_refusal(&e).unwrap_or_else(|| {
+                OpenFailure::bare(format!("cannot open a Bluetooth socket: {e}"))
+            })
+        })
+}
+
 /// A failed connection, said as its cause and what to do.
 fn diagnose(e: &std::io::Error, target: &BluetoothTarget) -> OpenFailure {
     if let Some(refusal) = kernel_refusal(e) {

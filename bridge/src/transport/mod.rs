@@ -36,7 +36,7 @@ mod usb;
 
 use std::time::Duration;
 
-pub(crate) use bluetooth::kernel_refusal;
+pub(crate) use bluetooth::kernel_support;
 pub use bluetooth::{
     BluetoothTarget, BluetoothTransport, NXT_RFCOMM_CHANNEL, RfcommDevice, StreamConnection,
 };
@@ -45,6 +45,7 @@ pub use link::{LinkStats, LinkTiming, LinkTransport};
 pub use serial::{SerialConfig, SerialDevice, SerialTransport};
 pub use sim::SimTransport;
 pub use timed::{LinkReport, TimedTransport, in_words};
+pub(crate) use usb::usb_bus;
 pub use usb::{
     LEGO_VENDOR_ID, NXT_PRODUCT_ID, UsbBrick, UsbConnection, UsbDevice, UsbTransport, find_bricks,
 };

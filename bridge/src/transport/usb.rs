@@ -65,6 +65,12 @@ pub fn find_bricks() -> Result<Vec<UsbBrick>, OpenFailure> {
         .collect())
 }
 
+/// Whether this machine shows a USB bus at all (an error no retry cures when it does not).
+/// The launch checks it before anything starts.
+pub(crate) fn usb_bus() -> Result<(), OpenFailure> {
+    nxt_devices().map(drop)
+}
+
 /// The NXTs among the USB devices.
 fn nxt_devices() -> Result<Vec<nusb::DeviceInfo>, OpenFailure> {
     let devices = nusb::list_devices().wait().map_err(|e| {

@@ -20,3 +20,16 @@ fn every_generated_block_of_the_results_page_holds() {
         "run `tes experiment report --sync docs/results.md`: {stale:?}"
     );
 }
+
+/// docs/experiments.md is what `tes experiment settings` prints: the settings' table cannot
+/// drift from the definitions the flags come from.
+#[test]
+fn the_settings_page_is_the_settings_definitions() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let page = std::fs::read_to_string(root.join("docs/experiments.md")).unwrap();
+    assert_eq!(
+        page,
+        tes_experiments::study::settings_reference(),
+        "run `tes experiment settings > docs/experiments.md`"
+    );
+}

@@ -8,5 +8,6 @@ mod fig4;
 mod figures;
 mod lifelong;
 mod robot;
+mod settings;
 mod shards;
 mod transfer;

@@ -1,6 +1,7 @@
 use super::*;
+use crate::cmdp::CmdpError;
 use crate::cmdp::EffectTable;
-use crate::cmdp::examples::corridor;
+use crate::cmdp::examples::{corridor, two_state_structure};
 use std::sync::Arc;
 
 fn tight() -> PlannerParams {
@@ -540,4 +541,59 @@ fn a_sweep_over_an_unchanged_model_backs_up_nothing() {
     let row = model.table().probs(0, 3).to_vec();
     model.set(0, 3, &row);
     assert!(!model.table.parts().fresh[3]);
+}
+
+/// Two effects that enter the same state with different step rewards: the planner
+/// backs up each step's own reward and takes the action whose effect pays.
+#[test]
+fn step_rewards_are_what_the_planner_backs_up() {
+    let c = two_state_structure();
+    assert_eq!(c.step_reward(0, 0, 1), c.reward(1));
+    let paid = c
+        .clone()
+        .with_step_rewards(|s, _, e| if (s, e) == (0, 1) { 1.0 } else { -1.0 })
+        .unwrap();
+    assert_eq!(
+        (paid.step_reward(0, 0, 0), paid.step_reward(0, 0, 1)),
+        (-1.0, 1.0)
+    );
+    assert_eq!(paid.reward(1), 0.0);
+    let mut table = EffectTable::uniform(&paid);
+    table.set(0, 0, &[1.0, 0.0]);
+    table.set(1, 0, &[0.0, 1.0]);
+    let mut planner = ValueIteration::new(&paid, PlannerParams::default()).unwrap();
+    planner.plan(&paid, &table);
+    assert_eq!(planner.policy()[0], 1);
+    assert_eq!(planner.q_value(&paid, &table, 0, 1), 1.0);
+    assert_eq!(planner.q_value(&paid, &table, 0, 0), -1.0);
+    let refused = c.with_step_rewards(|_, a, _| if a == 1 { f64::NAN } else { 0.0 });
+    assert_eq!(
+        refused.unwrap_err(),
+        CmdpError::BadStepReward {
+            state: 0,
+            action: 1,
+            effect: 0
+        }
+    );
+}
+
+/// Both actions have the same effect with the same chances, from the same state to the
+/// same next state; only what they cost differs (−5 for action 0, −1 for action 1). The
+/// plan takes the cheaper one, and its value is what that action pays.
+#[test]
+fn a_reward_that_depends_on_the_action_alone_is_planned_on() {
+    let c = two_state_structure()
+        .with_step_rewards(|_, a, _| if a == 0 { -5.0 } else { -1.0 })
+        .unwrap();
+    // Each action has each effect half the time (the uniform table): the cost is all
+    // that tells them apart.
+    let table = EffectTable::uniform(&c);
+    assert_eq!(table.probs(0, 0), table.probs(1, 0));
+    let mut planner = ValueIteration::new(&c, PlannerParams::default()).unwrap();
+    let stats = planner.plan(&c, &table);
+    assert!(stats.converged);
+    assert_eq!(planner.policy()[0], 1);
+    assert_eq!(planner.value(0), -1.0);
+    assert_eq!(planner.q_value(&c, &table, 0, 0), -5.0);
+    assert_eq!(planner.q_value(&c, &table, 0, 1), -1.0);
 }

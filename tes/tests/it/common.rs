@@ -200,6 +200,18 @@ impl Group {
         Self::launch_with(dir, Some(&config), episodes, args, env)
     }
 
+    /// Launches the launch file `config` with `args` and `env`, its data directory
+    /// `dir/data` (which launches given the same `dir` share).
+    pub fn start_with_config(
+        dir: &Path,
+        config: &Path,
+        episodes: u32,
+        args: &[&str],
+        env: &[(&str, &str)],
+    ) -> Self {
+        Self::launch_with(dir, Some(config), episodes, args, env)
+    }
+
     fn launch_with(
         dir: &Path,
         config: Option<&Path>,
@@ -477,4 +489,33 @@ pub fn assert_braked_at_the_deadline(lines: &[String]) {
         (1000..=1200).contains(&silence_ms),
         "braked after {silence_ms} ms of silence: {line}"
     );
+}
+
+/// Busy processes at normal priority, two per core, killed on drop.
+pub struct CpuHogs(Vec<Child>);
+
+impl CpuHogs {
+    /// `sh -c 'while :; do :; done'`, twice per core.
+    pub fn two_per_core() -> Self {
+        let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
+        let hogs = (0..2 * cores)
+            .map(|_| {
+                Command::new("sh")
+                    .args(["-c", "while :; do :; done"])
+                    .stdin(Stdio::null())
+                    .spawn()
+                    .expect("a busy shell starts")
+            })
+            .collect();
+        Self(hogs)
+    }
+}
+
+impl Drop for CpuHogs {
+    fn drop(&mut self) {
+        for hog in &mut self.0 {
+            let _ = hog.kill();
+            let _ = hog.wait();
+        }
+    }
 }

@@ -58,7 +58,12 @@ fn a_failed_link_launch(dir: &Path, bridge: &str, library: &Path, before: &[u8])
         "{bridge}: the library changed"
     );
     assert!(!group.children_alive());
-    err.join("\n")
+    // Everything the launch said, on either stream.
+    out.iter()
+        .chain(&err)
+        .cloned()
+        .collect::<Vec<_>>()
+        .join("\n")
 }
 
 /// A link to the brick that never comes up stops the launch with an error naming the
@@ -86,12 +91,15 @@ fn a_dead_link_stops_the_launch_and_leaves_the_library_as_it_was() {
 }
 
 /// A brick's own links on a machine that lacks them (this build machine has no Bluetooth in
-/// its kernel and no USB bus): each launch stops at once with the cause and the fix, exits
-/// non-zero, runs no episode and leaves the library byte for byte.
+/// its kernel and no USB bus): each launch is refused before anything starts, saying the
+/// cause and the fix once, with no warning about settings the launch file did not write
+/// (`brick.time_scale`, which the launcher fills in), runs no episode and leaves the library
+/// byte for byte. A machine that has the bus but no brick retries until the link's timeout.
 #[test]
 fn bluetooth_and_usb_launches_say_why_they_cannot_run_and_leave_the_library() {
     let dir = tempfile::tempdir().expect("temp dir");
     let (library, before) = library_from_a_good_run(dir.path());
+    let no_usb_bus = !Path::new("/sys/bus/usb/devices").exists();
     for (transport, described, causes) in [
         (
             "bluetooth:00:16:53:01:02:03",
@@ -118,6 +126,23 @@ fn bluetooth_and_usb_launches_say_why_they_cannot_run_and_leave_the_library() {
             causes.iter().any(|c| said.contains(c)),
             "{transport}: no cause named: {said}"
         );
+        assert!(!said.contains("time_scale"), "{transport}: {said}");
+        let impossible = [
+            "this machine has no Bluetooth",
+            "this machine shows no USB bus",
+        ];
+        if let Some(cause) = impossible.iter().find(|c| said.contains(*c)) {
+            assert_eq!(
+                said.matches(cause).count(),
+                1,
+                "{transport}: said again: {said}"
+            );
+            assert!(said.contains("nothing was started"), "{said}");
+            assert!(!said.contains(" WARN "), "{transport}: {said}");
+        }
+        if transport == "usb" && no_usb_bus {
+            assert!(said.contains("this machine shows no USB bus"), "{said}");
+        }
     }
 }
 

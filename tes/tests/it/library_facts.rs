@@ -62,15 +62,10 @@ fn counts(text: &str) -> (usize, u32) {
     (numbers[0] as usize, numbers[1] as u32)
 }
 
-#[test]
-fn a_launch_states_the_library_facts_and_tes_library_show_finds_the_library() {
-    let dir = tempfile::tempdir().expect("temp dir");
-    let data = dir.path().join("data");
-    let library = data.join("library.tesl");
-
-    // No library yet: `show` and `export` without a path say so and fail.
+/// No library yet: `show` and `export` without a path say so and fail.
+fn no_library_yet_is_said(data: &Path, library: &Path) {
     for args in [&["show"][..], &["export", "--json"]] {
-        let none = tes_library(&data, args);
+        let none = tes_library(data, args);
         let err = String::from_utf8_lossy(&none.stderr);
         assert!(!none.status.success(), "{args:?}: {err}");
         assert!(
@@ -80,6 +75,61 @@ fn a_launch_states_the_library_facts_and_tes_library_show_finds_the_library() {
         );
         assert!(none.stdout.is_empty(), "{args:?}");
     }
+}
+
+/// The arena's actions, as `tes library show` names them.
+const ACTIONS: [&str; 3] = [
+    "forward (both wheels 246°)",
+    "spin right (left 90°, right -90°)",
+    "pivot right (left 90°, right 0°)",
+];
+
+/// Checks that `tes library show`'s `text` names every view's action and every selected
+/// feature; returns the view lines.
+fn views_and_names_shown(text: &str) -> Vec<&str> {
+    let view_lines: Vec<&str> = text
+        .lines()
+        .filter(|l| {
+            l.strip_prefix("view ")
+                .is_some_and(|r| r.starts_with(|c: char| c.is_ascii_digit()))
+        })
+        .collect();
+    assert!(!view_lines.is_empty(), "{text}");
+    for line in &view_lines {
+        assert!(
+            ACTIONS
+                .iter()
+                .enumerate()
+                .any(|(a, name)| line.contains(&format!("action {a} ({name})"))),
+            "an unnamed action: {line}"
+        );
+    }
+    // Every selected feature is shown by its name, none by its bare number.
+    let features: Vec<&str> = text
+        .lines()
+        .filter_map(|l| l.trim().strip_prefix("selected features ("))
+        .filter_map(|l| l.split_once("): ").map(|(_, names)| names))
+        .filter(|names| *names != "none")
+        .flat_map(|names| names.split(", "))
+        .collect();
+    assert!(!features.is_empty(), "no view selected a feature: {text}");
+    for name in features {
+        assert!(
+            name.contains(" ring ") || name.starts_with("facing ") || name.ends_with("in cell"),
+            "an unnamed feature {name:?}: {text}"
+        );
+    }
+
+    view_lines
+}
+
+#[test]
+fn a_launch_states_the_library_facts_and_tes_library_show_finds_the_library() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let data = dir.path().join("data");
+    let library = data.join("library.tesl");
+
+    no_library_yet_is_said(&data, &library);
 
     // The first launch starts empty and saves.
     let out = launch(dir.path(), 3);
@@ -128,43 +178,7 @@ fn a_launch_states_the_library_facts_and_tes_library_show_finds_the_library() {
         text.contains(&format!("{} views", counts(after).0)),
         "{text}"
     );
-    let actions = [
-        "forward (both wheels 246°)",
-        "spin right (left 90°, right -90°)",
-        "pivot right (left 90°, right 0°)",
-    ];
-    let view_lines: Vec<&str> = text
-        .lines()
-        .filter(|l| {
-            l.strip_prefix("view ")
-                .is_some_and(|r| r.starts_with(|c: char| c.is_ascii_digit()))
-        })
-        .collect();
-    assert!(!view_lines.is_empty(), "{text}");
-    for line in &view_lines {
-        assert!(
-            actions
-                .iter()
-                .enumerate()
-                .any(|(a, name)| line.contains(&format!("action {a} ({name})"))),
-            "an unnamed action: {line}"
-        );
-    }
-    // Every selected feature is shown by its name, none by its bare number.
-    let features: Vec<&str> = text
-        .lines()
-        .filter_map(|l| l.trim().strip_prefix("selected features ("))
-        .filter_map(|l| l.split_once("): ").map(|(_, names)| names))
-        .filter(|names| *names != "none")
-        .flat_map(|names| names.split(", "))
-        .collect();
-    assert!(!features.is_empty(), "no view selected a feature: {text}");
-    for name in features {
-        assert!(
-            name.contains(" ring ") || name.starts_with("facing ") || name.ends_with("in cell"),
-            "an unnamed feature {name:?}: {text}"
-        );
-    }
+    let view_lines = views_and_names_shown(&text);
 
     // `export` without a path: the same library, names included; JSON with or without the
     // flag.
@@ -181,7 +195,7 @@ fn a_launch_states_the_library_facts_and_tes_library_show_finds_the_library() {
     assert!(
         views.iter().all(|v| v["action_name"]
             .as_str()
-            .is_some_and(|n| actions.contains(&n))),
+            .is_some_and(|n| ACTIONS.contains(&n))),
         "{json}"
     );
 }

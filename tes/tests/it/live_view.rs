@@ -191,7 +191,7 @@ fn advertised(s: &mut TcpStream, count: usize) -> Vec<(String, u64)> {
 }
 
 /// The scene's channels, advertised to every viewer.
-const CHANNELS: usize = 11;
+const CHANNELS: usize = 12;
 
 /// A viewer that subscribes to every channel and never reads again.
 fn non_reader(addr: SocketAddr) -> TcpStream {

@@ -302,6 +302,85 @@ fn learns_and_saves_on_the_controllers_side(carrier: &Carrier, test: &str) {
     }
 }
 
+/// One host, defaults: the two launches of a split group, with no settings but the link's
+/// group, share the default data directory (each role's lock is its own, each launch has a
+/// run folder of its own), run the group's episodes and each reports them; a second
+/// controller on that data directory is refused, naming the first's launcher; nothing is left
+/// locked.
+#[test]
+fn one_host_split_launches_share_the_default_data_directory() {
+    let carrier = Carrier::private();
+    let (link, _) = carrier.split(&group_name("one-dir"), 0);
+    let host = tempfile::tempdir().expect("temp dir");
+    let config = |name: &str| {
+        let path = host.path().join(name);
+        let text = format!(
+            "[launch]\nseed = 3\n[launch.link]\nmulticast_scouting = false\nrestamp = false\n\
+             {link}\n"
+        );
+        std::fs::write(&path, text).expect("launch file");
+        path
+    };
+    let (learner_toml, robot_toml) = (config("learner.toml"), config("robot.toml"));
+    let mut learner = Group::start_with_config(
+        host.path(),
+        &learner_toml,
+        6,
+        &["--roles", "controller"],
+        &[],
+    );
+    let mut robot = Group::start_with_config(
+        host.path(),
+        &robot_toml,
+        6,
+        &["--roles", "perception-sim,bridge"],
+        &[],
+    );
+    learner.wait_for_episodes(1, Duration::from_secs(300));
+    let mut second = Group::start_with_config(
+        host.path(),
+        &learner_toml,
+        6,
+        &["--roles", "controller"],
+        &[],
+    );
+    let (ok, out, err) = second.finish(Duration::from_secs(60));
+    assert!(!ok, "a second controller must be refused: {out:?}");
+    let said = err.join("\n");
+    assert!(
+        said.contains("the controller of the runs in")
+            && said.contains(&format!(
+                "is in use by another tes launch (pid {})",
+                learner.launcher.id()
+            )),
+        "{said}"
+    );
+    let (ok_r, out_r, err_r) = robot.finish(Duration::from_secs(600));
+    let (ok_l, out_l, err_l) = learner.finish(Duration::from_secs(60));
+    assert!(
+        ok_r && ok_l,
+        "robot: {out_r:?}\n{err_r:?}\nlearner: {out_l:?}\n{err_l:?}"
+    );
+    for (side, out) in [("robot", &out_r), ("learner", &out_l)] {
+        assert!(
+            out.iter().any(|l| l.starts_with("launch: 6 episodes")),
+            "{side} reports the group's episodes: {out:?}"
+        );
+    }
+    let runs = host.path().join("data").join("runs");
+    let left: Vec<String> = std::fs::read_dir(&runs)
+        .expect("the shared runs directory")
+        .filter_map(Result::ok)
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        !left.iter().any(|n| n.ends_with(".lock")),
+        "locks left: {left:?}"
+    );
+    let folders = left.iter().filter(|n| n.starts_with("20")).count();
+    assert_eq!(folders, 2, "a run folder per launch: {left:?}");
+}
+
 /// Ctrl-C on either host stops both launches cleanly (exit 0, the library saved).
 #[test]
 fn ctrl_c_on_either_host_stops_the_other_cleanly() {
@@ -851,6 +930,29 @@ fn on_an_insecure_link_a_strangers_commands_do_not_stop_the_controllers() {
     }
 }
 
+/// The robot's half of a group (perception-sim and bridge) listening on QUIC at `port` with
+/// `keys`' first host certificate, once it waits for its controller.
+fn robot_listening_on_quic(keys: &tes_link::keys::KeySet, group: &str, port: u16) -> Host {
+    let mut robot = Host::new("s");
+    let link = format!(
+        "group = \"{group}\"\nlisten = [\"quic/127.0.0.1:{port}\"]\nconnect = []\n\
+         peer_timeout_ms = 60000\ntls_ca = {:?}\ntls_cert = {:?}\ntls_key = {:?}\n",
+        keys.authority.display().to_string(),
+        keys.hosts[0].cert.display().to_string(),
+        keys.hosts[0].key.display().to_string(),
+    );
+    robot.start(
+        "roles = [\"perception-sim\", \"bridge\"]\nreal_time_factor = 0.01",
+        &link,
+        10_000,
+        &[],
+    );
+    robot
+        .group()
+        .wait_for_stderr("waiting for the controller", Duration::from_secs(60));
+    robot
+}
+
 /// An independent client, PyPI's Zenoh, tries to join a robot's host over QUIC: with no
 /// certificate, with another authority's, and over plain TCP it reaches no peer and the
 /// launch logs the refused connections; with a valid certificate of the wrong role (the robot
@@ -875,23 +977,7 @@ fn strangers_are_kept_out_and_a_wrong_role_cannot_command() {
         .and_then(|s| s.local_addr())
         .map(|a| a.port())
         .expect("a free UDP port");
-    let mut robot = Host::new("s");
-    let link = format!(
-        "group = \"{group}\"\nlisten = [\"quic/127.0.0.1:{port}\"]\nconnect = []\n\
-         peer_timeout_ms = 60000\ntls_ca = {:?}\ntls_cert = {:?}\ntls_key = {:?}\n",
-        keys.authority.display().to_string(),
-        keys.hosts[0].cert.display().to_string(),
-        keys.hosts[0].key.display().to_string(),
-    );
-    robot.start(
-        "roles = [\"perception-sim\", \"bridge\"]\nreal_time_factor = 0.01",
-        &link,
-        10_000,
-        &[],
-    );
-    robot
-        .group()
-        .wait_for_stderr("waiting for the controller", Duration::from_secs(60));
+    let mut robot = robot_listening_on_quic(keys, &group, port);
     let quic = format!("quic/127.0.0.1:{port}");
     let path = |p: &PathBuf| p.display().to_string();
     let ca = |set: &tes_link::keys::KeySet| vec!["--ca".to_owned(), path(&set.authority)];

@@ -176,6 +176,46 @@ fn a_recorded_run_replays_identically_with_planning_between_polls() {
     );
 }
 
+/// The same under full load (two busy processes per core at normal priority): the recorder,
+/// a `SCHED_IDLE` thread such a machine starves, is raised before it falls behind, so it
+/// misses nothing and the run replays identically. Before, it drained the services only once
+/// the group had stopped, when the observations and the world map had gone with their
+/// publishers: a file of commands alone, or missing observations that made the replay
+/// diverge.
+#[test]
+fn a_recorded_run_replays_identically_under_full_load() {
+    let _alone = alone_on_the_machine();
+    let _hogs = CpuHogs::two_per_core();
+    for round in 0..3 {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let file = dir.path().join("run.mcap");
+        let toml = launch_file(
+            dir.path(),
+            &format!(
+                "record = \"{}\"\nwait = \"spin-then-block:200\"\n[controller]\n\
+                 planning = \"between-polls\"\n",
+                file.display()
+            ),
+        );
+        let mut group = Group::start(dir.path(), &toml, 4);
+        let (ok, out, err) = group.finish(Duration::from_secs(600));
+        assert!(ok, "round {round}: the launch failed: {out:?} {err:?}");
+        let recorded = err
+            .iter()
+            .find(|l| l.starts_with("launch: recorded "))
+            .unwrap_or_else(|| panic!("round {round}: {err:?}"));
+        assert!(!recorded.contains("missed"), "round {round}: {recorded}");
+        let actions = reported_actions(&out);
+        let (ok, stdout, stderr) = replay(&file, &[]);
+        assert!(ok, "round {round}: {recorded}\n{stdout} {stderr}");
+        assert_eq!(
+            stdout.trim(),
+            format!("replay: {actions} of {actions} commands identical"),
+            "round {round}: {recorded}"
+        );
+    }
+}
+
 /// Ctrl-C mid-run leaves a complete file; a killed launcher (and recorder) leaves one that is
 /// read up to its last flushed chunk, and `tes replay` says how far it got.
 #[test]

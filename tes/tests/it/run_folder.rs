@@ -41,6 +41,53 @@ fn csv_rows(path: &Path) -> Vec<Vec<String>> {
         .collect()
 }
 
+/// The run folder's episodes.csv has one row per episode, each with why it ended and its
+/// decision latency, and trajectory.csv one row per action whose rewards add up to them.
+fn episodes_and_trajectory_agree(last: &Path) {
+    let episodes = csv_rows(&last.join("episodes.csv"));
+    assert_eq!(
+        episodes[0].join(","),
+        "episode,reward,steps,end,decision_p50_us,decision_p99_us,decision_max_us,misses"
+    );
+    assert_eq!(episodes.len(), 4, "{episodes:?}");
+    let ends = ["ball", "death-spot", "left-arena", "stuck", "step-cap"];
+    let mut steps = 0;
+    for (i, row) in episodes[1..].iter().enumerate() {
+        assert_eq!(row[0], i.to_string());
+        assert!(ends.contains(&row[3].as_str()), "{row:?}");
+        let (p50, p99, max): (u64, u64, u64) = (
+            row[4].parse().unwrap(),
+            row[5].parse().unwrap(),
+            row[6].parse().unwrap(),
+        );
+        assert!(p50 > 0 && p50 <= p99 && p99 <= max, "{row:?}");
+        steps += row[2].parse::<usize>().unwrap();
+    }
+    // One row per action, and the episodes' rewards add up from them.
+    let trajectory = csv_rows(&last.join("trajectory.csv"));
+    assert_eq!(trajectory.len() - 1, steps);
+    let reward_column = trajectory[0].iter().position(|c| c == "reward").unwrap();
+    let action_column = trajectory[0].iter().position(|c| c == "action").unwrap();
+    for (i, row) in episodes[1..].iter().enumerate() {
+        let sum: f64 = trajectory[1..]
+            .iter()
+            .filter(|r| r[0] == i.to_string())
+            .map(|r| r[reward_column].parse::<f64>().unwrap())
+            .sum();
+        let reported: f64 = row[1].parse().unwrap();
+        assert!(
+            (sum - reported).abs() < 0.006,
+            "episode {i}: {sum} vs {reported}"
+        );
+    }
+    assert!(
+        trajectory[1..]
+            .iter()
+            .all(|r| ["0", "1", "2"].contains(&r[action_column].as_str())),
+        "every action is one of the three"
+    );
+}
+
 #[test]
 fn a_launch_leaves_a_run_folder_with_tables_reports_logs_and_pictures() {
     let dir = tempfile::tempdir().expect("temp dir");
@@ -93,49 +140,7 @@ fn a_launch_leaves_a_run_folder_with_tables_reports_logs_and_pictures() {
         assert!(last.join(file).is_file(), "{file} in {}", last.display());
     }
 
-    // One row per episode, each with why it ended and its decision latency.
-    let episodes = csv_rows(&last.join("episodes.csv"));
-    assert_eq!(
-        episodes[0].join(","),
-        "episode,reward,steps,end,decision_p50_us,decision_p99_us,decision_max_us,misses"
-    );
-    assert_eq!(episodes.len(), 4, "{episodes:?}");
-    let ends = ["ball", "death-spot", "left-arena", "stuck", "step-cap"];
-    let mut steps = 0;
-    for (i, row) in episodes[1..].iter().enumerate() {
-        assert_eq!(row[0], i.to_string());
-        assert!(ends.contains(&row[3].as_str()), "{row:?}");
-        let (p50, p99, max): (u64, u64, u64) = (
-            row[4].parse().unwrap(),
-            row[5].parse().unwrap(),
-            row[6].parse().unwrap(),
-        );
-        assert!(p50 > 0 && p50 <= p99 && p99 <= max, "{row:?}");
-        steps += row[2].parse::<usize>().unwrap();
-    }
-    // One row per action, and the episodes' rewards add up from them.
-    let trajectory = csv_rows(&last.join("trajectory.csv"));
-    assert_eq!(trajectory.len() - 1, steps);
-    let reward_column = trajectory[0].iter().position(|c| c == "reward").unwrap();
-    let action_column = trajectory[0].iter().position(|c| c == "action").unwrap();
-    for (i, row) in episodes[1..].iter().enumerate() {
-        let sum: f64 = trajectory[1..]
-            .iter()
-            .filter(|r| r[0] == i.to_string())
-            .map(|r| r[reward_column].parse::<f64>().unwrap())
-            .sum();
-        let reported: f64 = row[1].parse().unwrap();
-        assert!(
-            (sum - reported).abs() < 0.006,
-            "episode {i}: {sum} vs {reported}"
-        );
-    }
-    assert!(
-        trajectory[1..]
-            .iter()
-            .all(|r| ["0", "1", "2"].contains(&r[action_column].as_str())),
-        "every action is one of the three"
-    );
+    episodes_and_trajectory_agree(last);
 
     // The pictures: the arena with the episodes' paths, rewards and latency per episode.
     let arena = std::fs::read_to_string(last.join("arena.svg")).expect("arena.svg");

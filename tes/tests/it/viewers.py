@@ -2,6 +2,10 @@
 
     viewers.py mcap FILE.mcap        PyPI's mcap and Foxglove's Protobuf schemas read a recording
     viewers.py rerun FILE.mcap RRD   Rerun converts it, checks it and reads the result back
+    viewers.py native FILE.mcap RRD  python/tes/rerun_view.py draws it with Rerun's own
+                                     archetypes; rerun-sdk's reader reads the .rrd back
+    viewers.py native-live HOST:PORT RRD SECONDS
+                                     the same, following a live group
     viewers.py live HOST:PORT N      a Foxglove WebSocket client follows a live group for N episodes
     viewers.py names HOST:PORT       a client offering each name of the protocol, one after the other
 
@@ -103,6 +107,56 @@ def facts_of_rerun(mcap_path, rrd_path):
     return facts
 
 
+def rerun_view():
+    """python/tes/rerun_view.py, as a script (it needs nothing of the compiled package)."""
+    import os
+    here = os.path.dirname(os.path.abspath(__file__))
+    return os.path.join(here, "..", "..", "..", "python", "tes", "rerun_view.py")
+
+
+def facts_of_rrd(rrd_path):
+    """Each entity's archetype columns and rows, the boxes' sizes and the texts, as
+    rerun-sdk's own reader reads them back."""
+    import rerun.chunk as chunk
+    rows, boxes, texts, said = {}, [], {}, []
+    for c in chunk.RrdReader(rrd_path).stream():
+        batch = c.to_record_batch()
+        for name in batch.schema.names:
+            if ":" in name and not name.startswith("rerun."):
+                key = f"{c.entity_path} {name}"
+                rows[key] = rows.get(key, 0) + batch.num_rows
+        if "Boxes3D:half_sizes" in batch.schema.names and c.entity_path.startswith("/arena/arena"):
+            for sizes in batch.column("Boxes3D:half_sizes").to_pylist():
+                boxes.extend(sizes or [])
+        if "TextLog:text" in batch.schema.names:
+            texts.setdefault(c.entity_path, []).extend(
+                t[0] for t in batch.column("TextLog:text").to_pylist() if t)
+        if "Points3D:labels" in batch.schema.names:
+            said.extend(t[0] for t in batch.column("Points3D:labels").to_pylist() if t)
+    return {"rows": rows, "arena_boxes": len(boxes),
+            "largest_box_m": max((2 * max(b) for b in boxes), default=0.0),
+            "texts": {k: v[:5] + v[-2:] for k, v in texts.items()},
+            "text_rows": {k: len(v) for k, v in texts.items()}, "said": said[:3]}
+
+
+def facts_of_native(mcap_path, rrd_path):
+    run = subprocess.run([sys.executable, rerun_view(), mcap_path, "-o", rrd_path],
+                         capture_output=True, text=True, env={"RERUN_ANALYTICS": "0",
+                                                              "PATH": "/usr/bin:/bin"})
+    if run.returncode != 0:
+        raise SystemExit(f"rerun_view.py failed: {run.stderr}")
+    return facts_of_rrd(rrd_path)
+
+
+def facts_of_native_live(addr, rrd_path, seconds):
+    run = subprocess.run([sys.executable, rerun_view(), "--live", addr, "-o", rrd_path,
+                          "--seconds", seconds], capture_output=True, text=True,
+                         env={"RERUN_ANALYTICS": "0", "PATH": "/usr/bin:/bin"})
+    if run.returncode != 0:
+        raise SystemExit(f"rerun_view.py --live failed: {run.stderr}")
+    return facts_of_rrd(rrd_path)
+
+
 def facts_of_live(addr, episodes):
     """Connects, checks the advertised channels, subscribes and follows the run; tries bad
     requests; opens a second client that never reads."""
@@ -134,7 +188,7 @@ def facts_of_live(addr, episodes):
 def follow_live(client, deadline, facts, episodes, message_class):
     ws = client()
     channels = {}
-    while len(channels) < 11 and time.monotonic() < deadline:
+    while len(channels) < 12 and time.monotonic() < deadline:
         m = ws.recv(timeout=10)
         if isinstance(m, str):
             j = json.loads(m)
@@ -183,7 +237,7 @@ def follow_live(client, deadline, facts, episodes, message_class):
     # A client that subscribes to everything and never reads again.
     slow = client()
     slow_channels = {}
-    while len(slow_channels) < 11:
+    while len(slow_channels) < 12:
         j = slow.recv(timeout=10)
         if isinstance(j, str) and json.loads(j).get("op") == "advertise":
             for c in json.loads(j)["channels"]:
@@ -217,7 +271,7 @@ def facts_of_names(addr):
         with connect(f"ws://{addr}", subprotocols=[name], open_timeout=10,
                      max_size=None) as ws:
             channels = {}
-            while len(channels) < 11 and time.monotonic() < deadline:
+            while len(channels) < 12 and time.monotonic() < deadline:
                 m = ws.recv(timeout=10)
                 if isinstance(m, str) and json.loads(m).get("op") == "advertise":
                     for c in json.loads(m)["channels"]:
@@ -242,6 +296,10 @@ def main():
         facts = facts_of_rerun(sys.argv[2], sys.argv[3])
     elif mode == "live":
         facts = facts_of_live(sys.argv[2], int(sys.argv[3]))
+    elif mode == "native":
+        facts = facts_of_native(sys.argv[2], sys.argv[3])
+    elif mode == "native-live":
+        facts = facts_of_native_live(sys.argv[2], sys.argv[3], sys.argv[4])
     elif mode == "names":
         facts = facts_of_names(sys.argv[2])
     else:
