@@ -42,6 +42,7 @@ pub(crate) fn compare(
         let mut file = block_file.clone();
         match watcher {
             Watcher::Recorder => file.launch.record = with.then(|| mcap.clone()),
+            Watcher::Ros2 => file.launch.ros2 = with,
             Watcher::Foxglove | Watcher::Rerun => {
                 file.launch.foxglove = with.then(|| "127.0.0.1:0".to_owned());
             }

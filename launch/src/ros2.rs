@@ -96,8 +96,14 @@ mod built_in {
         } else {
             None
         };
+        let range = if file.launch.ros2 {
+            tes_ros2::dds::range_from_env().map_err(|e| Ros2Error::Start(e.into()))?
+        } else {
+            tes_ros2::dds::DiscoveryRange::Default
+        };
         let outputs = Outputs {
             domain,
+            range,
             bag: file.launch.rosbag.clone(),
             scene: SceneSettings::from_now([file.perception.left_port, file.perception.right_port]),
         };

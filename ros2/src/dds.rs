@@ -2,10 +2,13 @@
 //! `ROS_DOMAIN_ID`, named `/tes/<name>`, with a publisher per [`Topic`] at the QoS ROS 2's
 //! own publishers of those topics use.
 //!
-//! What it reaches: RustDDS discovers peers by UDP multicast and answers them on every
-//! network interface of the host, and cannot be confined to loopback as ROS 2's
-//! `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST` confines rclcpp: [`Reach`] says which
-//! interfaces carry it, for the launch to say at start.
+//! What it reaches: RustDDS (0.11) discovers peers by UDP multicast and answers them on every
+//! network interface of the host that has multicast, never on loopback
+//! (`rustdds::network::util` leaves loopback out, and its participant builder's
+//! `only_networks` is a placeholder that nothing reads), so it cannot be confined to the host
+//! as ROS 2's `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST` confines rclcpp. [`Reach`] says which
+//! interfaces carry it, for the launch to say at start; a launch whose environment asks for
+//! localhost only ([`DiscoveryRange`]) is refused rather than published wider.
 
 use ros2_client::ros2::{QosPolicies, QosPolicyBuilder, policy};
 use ros2_client::{Context, ContextOptions, MessageTypeName, Name, NodeName, NodeOptions};
@@ -22,6 +25,25 @@ pub enum DdsError {
     /// `ROS_DOMAIN_ID` is not a domain id.
     #[error("ROS_DOMAIN_ID={0:?} is not a ROS 2 domain id (0 to {DOMAIN_MAX})")]
     Domain(String),
+    /// `ROS_AUTOMATIC_DISCOVERY_RANGE` is not one of ROS 2's values.
+    #[error(
+        "ROS_AUTOMATIC_DISCOVERY_RANGE={0:?} is not one of ROS 2's ranges (SYSTEM_DEFAULT, \
+         SUBNET, LOCALHOST, OFF)"
+    )]
+    Range(String),
+    /// The environment asks for this host only, which RustDDS cannot keep to.
+    #[error(
+        "{asked} asks to keep ROS 2 on this host, but TES's DDS (RustDDS) discovers and \
+         answers on every multicast interface and never on loopback, so it would be seen on \
+         {interfaces}; unset it to publish with that reach, or run in a network namespace \
+         without those interfaces"
+    )]
+    CannotKeepLocal {
+        /// The setting, as the environment has it.
+        asked: String,
+        /// The interfaces beyond loopback.
+        interfaces: String,
+    },
     /// The DDS participant, node, topic or publisher cannot be created.
     #[error("cannot create the ROS 2 {what}: {reason}")]
     Create {
@@ -37,6 +59,49 @@ pub fn domain_from_env() -> Result<u16, DdsError> {
     match std::env::var("ROS_DOMAIN_ID") {
         Ok(text) if !text.trim().is_empty() => parse_domain(&text),
         _ => Ok(0),
+    }
+}
+
+/// How far ROS 2 discovery may reach, as ROS 2's environment says it.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub enum DiscoveryRange {
+    /// ROS 2's default (`SUBNET` since Iron, the whole network before): RustDDS's own reach.
+    #[default]
+    Default,
+    /// This host only (`ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST` or `OFF`, or Humble's
+    /// `ROS_LOCALHOST_ONLY=1`); the setting as given.
+    HostOnly(String),
+}
+
+/// The range ROS 2's environment asks for: `ROS_AUTOMATIC_DISCOVERY_RANGE`, else
+/// `ROS_LOCALHOST_ONLY`.
+pub fn range_from_env() -> Result<DiscoveryRange, DdsError> {
+    let var = |name| {
+        std::env::var(name)
+            .ok()
+            .filter(|v: &String| !v.trim().is_empty())
+    };
+    parse_range(
+        var("ROS_AUTOMATIC_DISCOVERY_RANGE").as_deref(),
+        var("ROS_LOCALHOST_ONLY").as_deref(),
+    )
+}
+
+/// [`range_from_env`] on given values.
+pub fn parse_range(
+    automatic: Option<&str>,
+    localhost_only: Option<&str>,
+) -> Result<DiscoveryRange, DdsError> {
+    match automatic.map(str::trim) {
+        Some(r @ ("LOCALHOST" | "OFF")) => Ok(DiscoveryRange::HostOnly(format!(
+            "ROS_AUTOMATIC_DISCOVERY_RANGE={r}"
+        ))),
+        Some("SUBNET" | "SYSTEM_DEFAULT") => Ok(DiscoveryRange::Default),
+        Some(other) => Err(DdsError::Range(other.to_owned())),
+        None if localhost_only.map(str::trim) == Some("1") => {
+            Ok(DiscoveryRange::HostOnly("ROS_LOCALHOST_ONLY=1".to_owned()))
+        }
+        None => Ok(DiscoveryRange::Default),
     }
 }
 
@@ -71,13 +136,28 @@ impl Reach {
     pub fn is_local(&self) -> bool {
         self.beyond_loopback.is_empty()
     }
+
+    /// Refuses a reach wider than `range` allows.
+    pub fn allowed_by(&self, range: &DiscoveryRange) -> Result<(), DdsError> {
+        match range {
+            DiscoveryRange::HostOnly(asked) if !self.is_local() => Err(DdsError::CannotKeepLocal {
+                asked: asked.clone(),
+                interfaces: self.beyond_loopback.join(", "),
+            }),
+            _ => Ok(()),
+        }
+    }
 }
 
 impl std::fmt::Display for Reach {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "ROS 2 domain {}", self.domain)?;
         if self.is_local() {
-            write!(f, ", this host only (no other interface is up)")
+            write!(
+                f,
+                ", no interface but loopback is up (RustDDS never uses loopback: no peer may \
+                 hear it)"
+            )
         } else {
             write!(
                 f,
@@ -162,9 +242,12 @@ pub fn qos_of(topic: Topic) -> QosPolicies {
 }
 
 impl RosNode {
-    /// Joins `domain` as node `/tes/<name>` and creates its publishers. RustDDS starts its
-    /// own threads here, with the calling thread's priority and CPU placement.
-    pub fn start(domain: u16, name: &str) -> Result<Self, DdsError> {
+    /// Joins `domain` as node `/tes/<name>` and creates its publishers, unless `range` asks
+    /// for less reach than RustDDS has here. RustDDS starts its own threads here, with the
+    /// calling thread's priority and CPU placement.
+    pub fn start(domain: u16, range: &DiscoveryRange, name: &str) -> Result<Self, DdsError> {
+        let reach = Reach::of_this_host(domain);
+        reach.allowed_by(range)?;
         let context = create(
             "DDS participant",
             Context::with_options(ContextOptions::new().domain_id(domain)),
@@ -204,7 +287,7 @@ impl RosNode {
             rosout: publisher!(Topic::Rosout),
             _node: node,
             _context: context,
-            reach: Reach::of_this_host(domain),
+            reach,
         })
     }
 
@@ -257,9 +340,11 @@ mod tests {
             domain: 3,
             beyond_loopback: vec![],
         };
-        assert_eq!(
-            local.to_string(),
-            "ROS 2 domain 3, this host only (no other interface is up)"
+        assert!(
+            local
+                .to_string()
+                .starts_with("ROS 2 domain 3, no interface but loopback is up"),
+            "{local}"
         );
         let wide = Reach {
             domain: 0,
@@ -269,5 +354,48 @@ mod tests {
             wide.to_string()
                 .contains("reachable beyond this host on eth0 192.0.2.2")
         );
+    }
+
+    #[test]
+    fn localhost_only_is_refused_when_other_interfaces_are_up() {
+        let host_only = parse_range(Some("LOCALHOST"), None).unwrap();
+        assert_eq!(
+            host_only,
+            DiscoveryRange::HostOnly("ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST".into())
+        );
+        assert_eq!(
+            parse_range(None, Some("1")).unwrap(),
+            DiscoveryRange::HostOnly("ROS_LOCALHOST_ONLY=1".into())
+        );
+        // The newer setting wins over the older, as in ROS 2.
+        assert_eq!(
+            parse_range(Some("SUBNET"), Some("1")).unwrap(),
+            DiscoveryRange::Default
+        );
+        assert_eq!(
+            parse_range(None, Some("0")).unwrap(),
+            DiscoveryRange::Default
+        );
+        assert!(
+            parse_range(Some("LAN"), None)
+                .unwrap_err()
+                .to_string()
+                .contains("LAN")
+        );
+        let wide = Reach {
+            domain: 0,
+            beyond_loopback: vec!["eth0 192.0.2.2".into()],
+        };
+        let e = wide.allowed_by(&host_only).unwrap_err().to_string();
+        assert!(
+            e.contains("LOCALHOST") && e.contains("eth0 192.0.2.2"),
+            "{e}"
+        );
+        assert!(wide.allowed_by(&DiscoveryRange::Default).is_ok());
+        let local = Reach {
+            domain: 0,
+            beyond_loopback: vec![],
+        };
+        assert!(local.allowed_by(&host_only).is_ok());
     }
 }

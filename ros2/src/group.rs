@@ -3,9 +3,11 @@
 //! messages ([`RosScene`]), to a ROS 2 node ([`RosNode`]), a rosbag2 bag ([`BagWriter`]), or
 //! both.
 //!
-//! The thread runs under `SCHED_IDLE` (else nice +19) and off the acting thread's CPU, and so
-//! do the DDS threads RustDDS starts from it (a thread inherits its creator's policy and
-//! placement): publishing takes only time the group does not want. No process of the group
+//! The thread runs off the acting thread's CPU, and so do the DDS threads RustDDS starts from
+//! it (a thread inherits its creator's placement and scheduling). Those DDS threads run at
+//! nice +19 under the normal policy: at `SCHED_IDLE` they got no time for DDS discovery on a
+//! machine whose cores were busy, and no peer ever matched them. The thread itself then reads
+//! the group at `SCHED_IDLE`: publishing takes only time the group does not want. No process of the group
 //! notifies it or waits for it: it looks every half millisecond whether a new command is out
 //! (one entry of the command log read) and then takes everything queued, at least every
 //! 20 ms. The node gets the robot's motion (`/tf`, `/tes/path`) at a screen's pace
@@ -27,7 +29,7 @@ use tes_topics::{Command, MotorState, Observation, ServiceNames, WorldMap};
 use tes_viewer::live::MotionPace;
 
 use crate::bag::{BagError, BagSummary, BagWriter};
-use crate::dds::{DdsError, Reach, RosNode};
+use crate::dds::{DdsError, DiscoveryRange, Reach, RosNode};
 use crate::scene::{Delivery, RosMessage, RosScene, SceneSettings, Sink};
 
 /// How often the thread looks whether a new command is out.
@@ -57,6 +59,8 @@ pub enum GroupError {
 pub struct Outputs {
     /// Publish on ROS 2 in this domain (`None`: no node, no socket).
     pub domain: Option<u16>,
+    /// How far ROS 2's environment lets the node reach (checked before it starts).
+    pub range: DiscoveryRange,
     /// Write a rosbag2 bag to this new directory.
     pub bag: Option<PathBuf>,
     /// Times and wheels.
@@ -282,11 +286,11 @@ impl Tap {
 }
 
 /// Opens the ports, the node and the bag (in this thread, so RustDDS's threads inherit its
-/// priority).
+/// placement and nice value).
 fn open(prefix: &str, outputs: &Outputs) -> Result<(Ports, Outlets), GroupError> {
     let ports = open_ports(prefix)?;
     let node = match outputs.domain {
-        Some(domain) => Some(RosNode::start(domain, "group")?),
+        Some(domain) => Some(RosNode::start(domain, &outputs.range, "group")?),
         None => None,
     };
     let bag = match &outputs.bag {
@@ -302,6 +306,29 @@ fn open(prefix: &str, outputs: &Outputs) -> Result<(Ports, Outlets), GroupError>
     Ok((ports, outlets))
 }
 
+/// Pins the calling thread off the acting thread's CPU and sets its nice value to +19 (under
+/// the normal policy), for the threads it starts to inherit. Best effort, as
+/// `make_this_a_background_thread`: a refusal is logged and the thread runs anyway.
+fn keep_off_the_acting_cpu_at_nice_19() {
+    if let Err(e) = tes_runtime::affinity::pin_off_the_acting_cpu() {
+        tracing::debug!("the ROS 2 side stays unpinned: {e}");
+    }
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: plain syscalls on the calling thread's own id; no memory is shared.
+        let nice = unsafe {
+            let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
+            libc::setpriority(libc::PRIO_PROCESS, tid, 19)
+        };
+        if nice != 0 {
+            tracing::debug!(
+                error = %std::io::Error::last_os_error(),
+                "the ROS 2 side could not lower its nice value"
+            );
+        }
+    }
+}
+
 /// The thread.
 fn run(
     prefix: &str,
@@ -310,8 +337,12 @@ fn run(
     lines: &mpsc::Receiver<(&'static str, String, u64)>,
     ready: mpsc::Sender<Result<Option<Reach>, GroupError>>,
 ) -> Result<Published, GroupError> {
-    tes_runtime::affinity::make_this_a_background_thread("the ROS 2 publisher");
-    let (mut ports, outlets) = match open(prefix, &outputs) {
+    keep_off_the_acting_cpu_at_nice_19();
+    let opened = open(prefix, &outputs);
+    if !tes_runtime::affinity::lower_this_threads_priority() {
+        tracing::warn!("the ROS 2 publisher runs at nice +19, not SCHED_IDLE");
+    }
+    let (mut ports, outlets) = match opened {
         Ok(opened) => opened,
         Err(e) => {
             let _ = ready.send(Err(e));

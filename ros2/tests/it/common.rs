@@ -20,16 +20,9 @@ pub fn own_prefix_and_domain(test: &str) -> (String, u16) {
     (format!("tes-ros2-it-{pid}-{test}/"), 1 + (pid % 200) as u16)
 }
 
-/// The Python the peers run on (as `build.rs` chose it).
-pub fn python() -> String {
-    if let Ok(p) = std::env::var("TES_ROS2_PYTHON") {
-        return p;
-    }
-    let venv = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../target/ros2-venv/bin/python");
-    if venv.exists() {
-        return venv.display().to_string();
-    }
-    "python3".into()
+/// The Python the peers run on: the one `build.rs` probed.
+pub fn python() -> &'static str {
+    env!("TES_ROS2_PYTHON")
 }
 
 /// A Python peer from `tests/peers/`, killed when dropped.

@@ -44,6 +44,7 @@ fn a_cyclone_dds_peer_decodes_every_topic_with_ros2_names_and_types() {
             domain: Some(domain),
             bag: None,
             scene: SceneSettings::from_now([1, 2]),
+            ..Outputs::default()
         },
     )
     .expect("the ROS 2 side starts");
@@ -114,6 +115,7 @@ fn rosbags_reads_the_bag_topic_by_topic_with_ros2_types() {
             domain: None,
             bag: Some(bag.clone()),
             scene: SceneSettings::from_now([1, 2]),
+            ..Outputs::default()
         },
     )
     .expect("the ROS 2 side starts");
