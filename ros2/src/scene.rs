@@ -543,16 +543,38 @@ fn cm(p: arena::DVec2, z: f64) -> Point {
 /// other surfaces, the death spots, the marks, the ball, the cell grid; and the robot's body
 /// in [`ROBOT_FRAME`] (namespace `robot`), which moves with `/tf`.
 pub fn arena_markers(arena: &Arena, header: &Header) -> MarkerArray {
-    let side = arena.side_cm() * M_PER_CM;
-    let cell = arena.cell_cm() * M_PER_CM;
-    let base = |id: i32, r#type: i32| Marker {
+    let [floor, surfaces, death] = ground_markers(arena, header);
+    let [marks, ball] = object_markers(arena, header);
+    MarkerArray {
+        markers: vec![
+            floor,
+            surfaces,
+            death,
+            marks,
+            ball,
+            grid_marker(arena, header),
+            robot_body(header),
+        ],
+    }
+}
+
+/// A marker `id` of `type` in namespace `arena`, with `header`, to fill in.
+fn arena_marker(header: &Header, id: i32, r#type: i32) -> Marker {
+    Marker {
         header: header.clone(),
         ns: "arena".into(),
         id,
         r#type,
         action: marker::ADD,
         ..Marker::default()
-    };
+    }
+}
+
+/// The floor, the tiles of other surfaces and the death spots.
+fn ground_markers(arena: &Arena, header: &Header) -> [Marker; 3] {
+    let side = arena.side_cm() * M_PER_CM;
+    let cell = arena.cell_cm() * M_PER_CM;
+    let base = |id: i32, r#type: i32| arena_marker(header, id, r#type);
     let n = arena.cells();
     let cells = || (0..n).flat_map(move |y| (0..n).map(move |x| (x, y)));
     let floor = Marker {
@@ -600,6 +622,12 @@ pub fn arena_markers(arena: &Arena, header: &Header) -> MarkerArray {
         color: colour(tes_viewer::arena::DEATH),
         ..base(2, marker::CUBE_LIST)
     };
+    [floor, surfaces, death]
+}
+
+/// The marks and the ball.
+fn object_markers(arena: &Arena, header: &Header) -> [Marker; 2] {
+    let base = |id: i32, r#type: i32| arena_marker(header, id, r#type);
     let marks: Vec<(arena::DVec2, MarkColour)> = [MarkColour::Blue, MarkColour::Green]
         .into_iter()
         .flat_map(|c| arena.marks(c).iter().map(move |&m| (m, c)))
@@ -630,7 +658,15 @@ pub fn arena_markers(arena: &Arena, header: &Header) -> MarkerArray {
         color: colour(tes_viewer::arena::BALL),
         ..base(4, marker::SPHERE)
     };
-    let grid = Marker {
+    [marks, ball]
+}
+
+/// The cell grid's lines.
+fn grid_marker(arena: &Arena, header: &Header) -> Marker {
+    let side = arena.side_cm() * M_PER_CM;
+    let cell = arena.cell_cm() * M_PER_CM;
+    let n = arena.cells();
+    Marker {
         pose: at(0.0, 0.0, 0.0),
         scale: Vector3 {
             x: 0.003,
@@ -649,9 +685,13 @@ pub fn arena_markers(arena: &Arena, header: &Header) -> MarkerArray {
             b: 0.15,
             a: 0.5,
         },
-        ..base(5, marker::LINE_LIST)
-    };
-    let body = Marker {
+        ..arena_marker(header, 5, marker::LINE_LIST)
+    }
+}
+
+/// The robot's body in [`ROBOT_FRAME`] (namespace `robot`, frame-locked: it moves with `/tf`).
+fn robot_body(header: &Header) -> Marker {
+    Marker {
         header: Header {
             stamp: header.stamp,
             frame_id: ROBOT_FRAME.into(),
@@ -670,10 +710,7 @@ pub fn arena_markers(arena: &Arena, header: &Header) -> MarkerArray {
             a: 1.0,
         },
         frame_locked: true,
-        ..base(0, marker::CUBE)
-    };
-    MarkerArray {
-        markers: vec![floor, surfaces, death, marks, ball, grid, body],
+        ..arena_marker(header, 0, marker::CUBE)
     }
 }
 
