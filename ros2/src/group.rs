@@ -5,12 +5,12 @@
 //!
 //! The thread runs off the acting thread's CPU, and so do the DDS threads RustDDS starts from
 //! it (a thread inherits its creator's placement and scheduling). Those DDS threads run at
-//! nice +19 under the normal policy, not `SCHED_IDLE`: DDS discovery already takes seconds
-//! (docs/ros2.md), and a busy machine would starve it further. The thread itself then reads
-//! the group at `SCHED_IDLE`: publishing takes only time the group does not want. No process
-//! of the group notifies it or waits for it: it looks every half millisecond whether a new
-//! command is out (one entry of the command log read) and then takes everything queued, at
-//! least every 20 ms. The node gets the robot's motion (`/tf`, `/tes/path`) at a screen's pace
+//! nice +19 under the normal policy, not `SCHED_IDLE`: a caution — DDS discovery already
+//! takes seconds (docs/ros2.md), though a run with them at `SCHED_IDLE` matched its peer as
+//! soon. The thread itself then reads the group at `SCHED_IDLE`: publishing takes only time
+//! the group does not want. No process of the group notifies it or waits for it: it looks
+//! every half millisecond whether a new command is out (one entry of the command log read)
+//! and then takes everything queued, at least every 20 ms. The node gets the robot's motion (`/tf`, `/tes/path`) at a screen's pace
 //! (`tes_viewer::live::MotionPace`, 30 a second per topic), the rest whole; the bag gets
 //! everything.
 
