@@ -10,9 +10,9 @@
 //! soon. The thread itself then reads the group at `SCHED_IDLE`: publishing takes only time
 //! the group does not want. No process of the group notifies it or waits for it: it looks
 //! every half millisecond whether a new command is out (one entry of the command log read)
-//! and then takes everything queued, at least every 20 ms. The node gets the robot's motion (`/tf`, `/tes/path`) at a screen's pace
-//! (`tes_viewer::live::MotionPace`, 30 a second per topic), the rest whole; the bag gets
-//! everything.
+//! and then takes everything queued, at least every 20 ms. The node gets the robot's motion
+//! (`/tf`, `/tes/path`) at a screen's pace (`tes_viewer::live::MotionPace`, 30 a second per
+//! topic), the rest whole; the bag gets everything.
 
 use std::path::PathBuf;
 use std::sync::Arc;
