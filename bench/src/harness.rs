@@ -157,7 +157,12 @@ pub struct LatencySettings {
     /// blocks as `--record`'s.
     #[arg(long, value_name = "SCRIPT")]
     pub rerun: Option<PathBuf>,
-    /// With `--record`, `--foxglove` or `--rerun`: blocks of each kind; each measures
+    /// Also compare the group with and without its ROS 2 side (`tes launch --ros2`: a DDS
+    /// node publishing the run, in the domain of `ROS_DOMAIN_ID`), in alternating blocks as
+    /// `--record`'s. Needs a tes built with `--features ros2`.
+    #[arg(long)]
+    pub ros2: bool,
+    /// With `--record`, `--foxglove`, `--rerun` or `--ros2`: blocks of each kind; each measures
     /// `--actions / N` actions after the warm-up.
     #[arg(long, default_value_t = LatencySettings::default().record_blocks, value_name = "N")]
     pub record_blocks: u64,
@@ -204,6 +209,7 @@ impl Default for LatencySettings {
             record: false,
             foxglove: false,
             rerun: None,
+            ros2: false,
             record_blocks: 4,
             via: Via::Shm,
             pace: Pace::Fastest,
@@ -244,7 +250,9 @@ impl LatencySettings {
         let placement = controller.placement(self.wait, planning).map_err(|e| {
             BenchError::Settings(format!("--{}: {}", e.key.replace('_', "-"), e.reason))
         })?;
-        if (self.record || self.foxglove || self.rerun.is_some()) && self.record_blocks == 0 {
+        if (self.record || self.foxglove || self.rerun.is_some() || self.ros2)
+            && self.record_blocks == 0
+        {
             return Err(BenchError::Settings(
                 "--record-blocks must be at least 1".into(),
             ));
@@ -430,6 +438,7 @@ impl fmt::Display for Note {
                     Watcher::Recorder => "recorder",
                     Watcher::Foxglove => "Foxglove server and a viewer",
                     Watcher::Rerun => "Foxglove server and Rerun's viewer",
+                    Watcher::Ros2 => "ROS 2 node",
                 }
             ),
         }
@@ -538,12 +547,16 @@ pub struct LatencyResult {
     /// With `rerun`: the group with and without the live Foxglove server and Rerun's own
     /// viewer following it (`rerun_view.py --live`), in alternating blocks (null without).
     pub rerun: Option<RecorderComparison>,
+    /// With `ros2`: the group with and without its ROS 2 side publishing the run on DDS, in
+    /// alternating blocks (null without).
+    pub ros2: Option<RecorderComparison>,
 }
 
 impl LatencyResult {
-    /// The observers' comparisons this run made (recorder, Foxglove, Rerun), in that order.
+    /// The observers' comparisons this run made (recorder, Foxglove, Rerun, ROS 2), in that
+    /// order.
     pub fn observers(&self) -> impl Iterator<Item = &RecorderComparison> {
-        [&self.recorder, &self.foxglove, &self.rerun]
+        [&self.recorder, &self.foxglove, &self.rerun, &self.ros2]
             .into_iter()
             .flatten()
     }
@@ -648,6 +661,8 @@ pub enum Watcher {
     /// The launcher's live Foxglove server, followed by Rerun's own viewer
     /// (`rerun_view.py --live`, logging every drawing through rerun-sdk).
     Rerun,
+    /// The launcher's ROS 2 side (`tes launch --ros2`), publishing the run on DDS.
+    Ros2,
 }
 
 impl Watcher {
@@ -657,6 +672,7 @@ impl Watcher {
             Self::Recorder => "recorder",
             Self::Foxglove => "Foxglove server",
             Self::Rerun => "Rerun viewer",
+            Self::Ros2 => "ROS 2 node",
         }
     }
 }

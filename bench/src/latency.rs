@@ -112,12 +112,17 @@ pub fn run(latency: &CheckedLatency, harness: &mut Harness<'_>) -> Result<Latenc
     } else {
         None
     };
+    let ros2 = if s.ros2 {
+        Some(recorder_cost::compare(&group, s, harness, Watcher::Ros2)?)
+    } else {
+        None
+    };
     Ok(result(
         latency,
         ours,
         floor,
         floor_awake,
-        [recorder, foxglove, rerun],
+        [recorder, foxglove, rerun, ros2],
     ))
 }
 
@@ -237,7 +242,7 @@ fn result(
     ours: Ours,
     floor: Floor,
     floor_awake: Option<Floor>,
-    [recorder, foxglove, rerun]: [Option<RecorderComparison>; 3],
+    [recorder, foxglove, rerun, ros2]: [Option<RecorderComparison>; 4],
 ) -> LatencyResult {
     let s = &latency.settings;
     let Ours {
@@ -302,5 +307,6 @@ fn result(
         recorder,
         foxglove,
         rerun,
+        ros2,
     }
 }

@@ -1,6 +1,7 @@
 //! What an observer of the group costs it: the recorder (`tes bench latency --record`), the
-//! live Foxglove server with a viewer reading every channel (`--foxglove`), or the same server
-//! followed by Rerun's own viewer (`--rerun`, [`crate::rerun_client`]). The measured group
+//! live Foxglove server with a viewer reading every channel (`--foxglove`), the same server
+//! followed by Rerun's own viewer (`--rerun`, [`crate::rerun_client`]), or the group's ROS 2
+//! side publishing the run on DDS (`--ros2`; its subscribers are outside). The measured group
 //! runs in blocks without and with it, alternating, each from the same starting library,
 //! compared by the medians over the blocks of each kind.
 
@@ -42,6 +43,7 @@ pub(crate) fn compare(
         let mut file = block_file.clone();
         match watcher {
             Watcher::Recorder => file.launch.record = with.then(|| mcap.clone()),
+            Watcher::Ros2 => file.launch.ros2 = with,
             Watcher::Foxglove | Watcher::Rerun => {
                 file.launch.foxglove = with.then(|| "127.0.0.1:0".to_owned());
             }

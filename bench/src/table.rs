@@ -163,6 +163,7 @@ fn observer_cost(out: &mut String, r: &RecorderComparison) {
         Watcher::Recorder => "written obs/cmd/motor",
         Watcher::Foxglove => "viewer received",
         Watcher::Rerun => "Rerun drew",
+        Watcher::Ros2 => "-",
     };
     let _ = writeln!(
         out,

@@ -138,6 +138,8 @@ pub enum Event {
         /// Whether that is beyond loopback: anyone who reaches it sees the run.
         exposed: bool,
     },
+    /// The run is on ROS 2, or written to a rosbag2 bag, or both.
+    Ros2(crate::ros2::Ros2Started),
     /// A child started.
     ProcessStarted {
         /// Its role.
@@ -220,6 +222,8 @@ pub enum Event {
     LinkClosed(LinkCounts),
     /// The recording is complete.
     Recorded(Recorded),
+    /// The ROS 2 side stopped: what it published and wrote.
+    Ros2Done(crate::ros2::Ros2Done),
     /// The run folder is complete (`drawn`: its pictures) or not (why).
     RunFolder {
         /// The folder.

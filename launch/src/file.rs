@@ -146,6 +146,23 @@ pub struct LaunchSection {
     ///
     /// Example: `"127.0.0.1:8765"`.
     pub foxglove: Option<String>,
+    /// Publish the run on ROS 2 (`tes launch --ros2` sets it): the robot's pose on `/tf`, the
+    /// arena as markers, the episode's path, each decision, latency, reward and episode's end,
+    /// and the processes' logs on `/rosout`, in the domain of `ROS_DOMAIN_ID` (docs/ros2.md).
+    /// Where peers can reach it is said at start. Needs a `tes` built with `--features ros2`.
+    ///
+    /// Values: `true` | `false`.
+    pub ros2: bool,
+    /// Write the run's ROS 2 topics (those `ros2` publishes) to a rosbag2 bag in this new
+    /// directory (`tes launch --rosbag` overrides it): MCAP storage, CDR messages, as `ros2
+    /// bag` reads it; no DDS node is needed for it. A relative path is taken from the
+    /// directory `tes launch` runs in. Unset: no bag. Needs a `tes` built with `--features
+    /// ros2`.
+    ///
+    /// Values: path of a directory that does not exist yet.
+    ///
+    /// Example: `"run-bag"`.
+    pub rosbag: Option<PathBuf>,
     /// The processes this launch starts (`tes launch --roles` overrides it); the others run
     /// on other hosts, reached through the link (`[launch.link]`, docs/multi-host.md).
     /// Empty: all three on this host, over shared memory only, and no link.
@@ -201,6 +218,8 @@ impl Default for LaunchSection {
             stall_timeout_ms: 10_000,
             record: None,
             foxglove: None,
+            ros2: false,
+            rosbag: None,
             roles: Vec::new(),
             link: tes_link::LinkSection::default(),
         }

@@ -49,6 +49,7 @@ pub mod logs;
 pub mod recording;
 pub mod reference;
 pub mod role;
+pub mod ros2;
 pub mod run_folder;
 pub mod run_record;
 pub mod status;

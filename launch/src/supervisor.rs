@@ -77,6 +77,9 @@ pub enum LaunchError {
     /// The recording cannot start.
     #[error(transparent)]
     Recording(#[from] RecordingError),
+    /// The group's ROS 2 side cannot start.
+    #[error(transparent)]
+    Ros2(#[from] crate::ros2::Ros2Error),
     /// A child cannot be polled.
     #[error("cannot poll a child")]
     Poll(#[source] std::io::Error),
@@ -139,6 +142,7 @@ pub struct Supervisor {
     watch: ProgressWatch,
     link: Option<Link>,
     recorder: Option<Recorder>,
+    ros2: Option<crate::ros2::Running>,
     record: RunRecord,
     children: Vec<Running>,
     lines: mpsc::Receiver<ChildLine>,
@@ -218,6 +222,11 @@ impl Supervisor {
             });
         }
         let log_to = recorder.as_ref().map(Recorder::log_lines);
+        let ros2 = crate::ros2::start(file, &prefix)?.map(|(running, started)| {
+            observer.event(&Event::Ros2(started));
+            running
+        });
+        let ros2_lines = ros2.as_ref().map(crate::ros2::lines);
         let (lines_tx, lines) = mpsc::channel::<ChildLine>();
         let following = Arc::new(AtomicBool::new(false));
         let children = start_children(&options.command, &prepared, &lines_tx, &following)?;
@@ -245,12 +254,14 @@ impl Supervisor {
             watch,
             link,
             recorder,
+            ros2,
             record,
             children,
             lines,
             following,
             relay: Relay {
                 log_to,
+                ros2_lines,
                 ..Relay::default()
             },
             library,
@@ -351,6 +362,7 @@ impl Supervisor {
             log.send(LAUNCH_LOG, &line);
         }
         self.finish_recording(&mut failures, observer);
+        self.finish_ros2(&mut failures, observer);
         self.add_failed_children(&mut failures);
         self.relay
             .held_errors
@@ -754,6 +766,15 @@ impl Supervisor {
         }
     }
 
+    fn finish_ros2(&mut self, failures: &mut Vec<String>, observer: &mut dyn Observer) {
+        if let Some(r) = self.ros2.take() {
+            match crate::ros2::finish(r) {
+                Ok(done) => observer.event(&Event::Ros2Done(done)),
+                Err(e) => failures.push(format!("ROS 2: {}", error_chain(&e))),
+            }
+        }
+    }
+
     fn finish_recording(&mut self, failures: &mut Vec<String>, observer: &mut dyn Observer) {
         if let Some(r) = self.recorder.take() {
             match recording::finish(r) {
@@ -881,6 +902,8 @@ struct Relay {
     robot_told: Option<RobotAt>,
     /// The recorder's `/log`, when a recording or a live view draws the run.
     log_to: Option<tes_recorder::live::LogLines>,
+    /// The ROS 2 side's `/rosout`, when the run is on ROS 2.
+    ros2_lines: Option<crate::ros2::Lines>,
 }
 
 impl Relay {
@@ -908,6 +931,9 @@ impl Relay {
                 kept.push_back(text.clone());
                 if let Some(log) = &self.log_to {
                     log.send(role.name(), &text);
+                }
+                if let Some(lines) = &self.ros2_lines {
+                    crate::ros2::send_line(lines, role, &text);
                 }
                 match text.trim().strip_prefix("error: ") {
                     Some(error) => {

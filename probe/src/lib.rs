@@ -18,6 +18,7 @@
 //! The tests then gate on the flag:
 //! `#[cfg_attr(not(tes_nxt_python), ignore = "nxt-python is not installed: ...")]`.
 
+use std::path::Path;
 use std::process::{Command, Stdio};
 
 /// A client some tests check against.
@@ -32,6 +33,12 @@ pub struct Client {
 /// Declares each client's flag, sets the flags of those that can be imported (all of them
 /// under CI), and says when to probe again. Call it once from `build.rs`'s `main`.
 pub fn tell_tests(clients: &[Client]) {
+    tell_tests_using("python3", clients);
+}
+
+/// [`tell_tests`], the clients imported by `python` (a virtual environment's interpreter,
+/// say) rather than `python3`.
+pub fn tell_tests_using(python: &str, clients: &[Client]) {
     for client in clients {
         println!("cargo::rustc-check-cfg=cfg({})", client.cfg);
     }
@@ -40,7 +47,7 @@ pub fn tell_tests(clients: &[Client]) {
     println!("cargo::rerun-if-changed=build.rs");
     let under_ci = under_ci(std::env::var("CI").ok().as_deref());
     for client in clients {
-        if under_ci || imports(client.imports) {
+        if under_ci || imports(python, client.imports) {
             println!("cargo::rustc-cfg={}", client.cfg);
         }
     }
@@ -51,9 +58,27 @@ fn under_ci(ci: Option<&str>) -> bool {
     ci.is_some_and(|v| !v.is_empty() && v != "false")
 }
 
-/// Whether `python3 -c CODE` succeeds.
-fn imports(code: &str) -> bool {
-    Command::new("python3")
+/// The Python the ROS 2 peers (PyPI's `cyclonedds` and `rosbags`) run on: `TES_ROS2_PYTHON`,
+/// else the virtual environment `.ci/run` installs them in (`target/ros2-venv` of the
+/// workspace holding `manifest_dir`, a crate's directory), else `python3`. A build script
+/// that calls it is probed again when `TES_ROS2_PYTHON` changes.
+pub fn ros2_peers_python(manifest_dir: &Path) -> String {
+    println!("cargo::rerun-if-env-changed=TES_ROS2_PYTHON");
+    if let Ok(python) = std::env::var("TES_ROS2_PYTHON")
+        && !python.is_empty()
+    {
+        return python;
+    }
+    let venv = manifest_dir.join("../target/ros2-venv/bin/python");
+    if venv.exists() {
+        return venv.display().to_string();
+    }
+    "python3".into()
+}
+
+/// Whether `PYTHON -c CODE` succeeds.
+fn imports(python: &str, code: &str) -> bool {
+    Command::new(python)
         .args(["-c", code])
         .stdout(Stdio::null())
         .stderr(Stdio::null())
@@ -74,6 +99,7 @@ mod tests {
     #[test]
     fn a_statement_that_fails_is_no_import() {
         // Whatever is installed, this raises; and `python3` missing is no import either.
-        assert!(!imports("raise SystemExit(1)"));
+        assert!(!imports("python3", "raise SystemExit(1)"));
+        assert!(!imports("/nonexistent/python", "pass"));
     }
 }

@@ -55,7 +55,7 @@ pub struct LaunchArgs {
         num_args = 0..=1,
         require_equals = true,
         default_missing_value = "toml",
-        conflicts_with_all = ["config", "episodes", "tui", "record", "foxglove", "roles"]
+        conflicts_with_all = ["config", "episodes", "tui", "record", "foxglove", "ros2", "rosbag", "roles"]
     )]
     print_config: Option<Format>,
     /// Record the run to this MCAP file (overrides `[launch] record`): every observation,
@@ -72,6 +72,15 @@ pub struct LaunchArgs {
         default_missing_value = tes_viewer::live::DEFAULT_ADDR
     )]
     foxglove: Option<String>,
+    /// Publish the run on ROS 2 (sets `[launch] ros2`): /tf, the arena's markers, the path,
+    /// decisions, rewards and /rosout, in the domain of ROS_DOMAIN_ID (docs/ros2.md). Needs a
+    /// tes built with `--features ros2`.
+    #[arg(long)]
+    ros2: bool,
+    /// Write the run's ROS 2 topics to a rosbag2 bag in this new directory (overrides
+    /// `[launch] rosbag`). Needs a tes built with `--features ros2`.
+    #[arg(long, value_name = "DIR")]
+    rosbag: Option<PathBuf>,
     /// Start only these processes (comma-separated: perception-sim, controller, bridge;
     /// overrides `[launch] roles`); the others run on other hosts, reached over Zenoh
     /// (`[launch.link]`, docs/multi-host.md).
@@ -140,6 +149,12 @@ fn launch_file(args: &LaunchArgs) -> Result<LaunchFile> {
     }
     if let Some(path) = &args.record {
         file.launch.record = Some(path.clone());
+    }
+    if args.ros2 {
+        file.launch.ros2 = true;
+    }
+    if let Some(dir) = &args.rosbag {
+        file.launch.rosbag = Some(dir.clone());
     }
     if let Some(addr) = &args.foxglove {
         file.launch.foxglove = Some(addr.clone());

@@ -94,6 +94,25 @@ pub(crate) fn lines_of(event: &Event, echo: bool) -> Vec<(To, String)> {
     }
 }
 
+/// The group on ROS 2: where its node is reachable (a warning beyond this host) and its bag.
+fn ros2_line(started: &tes_launch::ros2::Ros2Started) -> Option<Said> {
+    let mut line = match &started.reach {
+        Some(reach) => format!("launch: on ROS 2 as node /tes/group, {reach}"),
+        None => "launch: not on ROS 2 (no --ros2)".to_owned(),
+    };
+    if let Some(bag) = &started.bag {
+        line.push_str(&format!(
+            "; writing its topics to the rosbag2 bag {}",
+            bag.display()
+        ));
+    }
+    if started.beyond_this_host {
+        warn(format!("{line}; WARNING: peers on the network see the run"))
+    } else {
+        note(line)
+    }
+}
+
 /// The lines of the run as a whole: its plan, its library and recording, its episodes and
 /// its end.
 fn run_line(event: &Event) -> Option<Said> {
@@ -143,6 +162,8 @@ fn run_line(event: &Event) -> Option<Said> {
                 note(line)
             }
         }
+        Event::Ros2(started) => ros2_line(started),
+        Event::Ros2Done(done) => note(format!("launch: {done}")),
         Event::EpisodeEnded { text, .. } | Event::Output { text, .. } => out(text.clone()),
         Event::Recorded(recorded) => note(format!("launch: {recorded}")),
         Event::Verdict(v) if v.failures.is_empty() => out(format!(

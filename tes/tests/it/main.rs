@@ -19,6 +19,7 @@ mod library_facts;
 mod live_view;
 mod multi_host;
 mod recording;
+mod ros2;
 mod run_folder;
 mod shutdown;
 mod status;
