@@ -21,6 +21,13 @@ before Ctrl-C (SIGINT to its process group); it passes if it then ends with stat
 
     <!-- snippet: stop after 3 s -->
 
+A block of long runs (a benchmark, an experiment at the paper's settings: minutes to hours)
+says how long to let each of its commands run: each line runs on its own and passes if it
+ends with status 0 within that time, or is still running then and ends with 0 or 130 when
+stopped — so every flag it names parses and the run starts, without taking its hours:
+
+    <!-- snippet: each command stops after 10 s -->
+
 The reason is required; `--list` prints every block with what will become of it. Files not
 covered: docs/python.md (its blocks need the package installed; `python/tests` run it) and
 docs/reliability.md (its fuzz and soak commands run for hours).
@@ -42,21 +49,37 @@ LANGUAGES = {"sh": "sh", "bash": "sh", "python": "python"}
 FENCE = re.compile(r"^(\s*)```(\w+)\s*$")
 SKIP = re.compile(r"^\s*<!--\s*snippet:\s*skip\s*\((.+)\)\s*-->\s*$")
 STOP = re.compile(r"^\s*<!--\s*snippet:\s*stop after\s+(\d+(?:\.\d+)?)\s*s\s*-->\s*$")
-# The exit statuses of a block stopped by Ctrl-C: finished anyway, or 128 + SIGINT.
-STOPPED_OK = {0, 130}
+EACH = re.compile(
+    r"^\s*<!--\s*snippet:\s*each command stops after\s+(\d+(?:\.\d+)?)\s*s\s*-->\s*$")
+# The exit statuses of a block stopped by Ctrl-C: finished anyway, 128 + SIGINT, or (a
+# command run without a shell in between, which SIGINT ended) killed by SIGINT.
+STOPPED_OK = {0, 130, -signal.SIGINT}
 NOT_COVERED = {
     "docs/python.md": "its blocks need the tes Python package installed; python/tests run it",
     "docs/reliability.md": "its fuzz and soak commands run for hours",
 }
-LINKED = ["data", "docs", "bench", "python", "scripts", "bridge"]
+LINKED = ["data", "bench", "python", "scripts", "bridge"]
+# Copied, not linked: a started experiment writes its folder under docs/results/.
+COPIED = ["docs"]
 LIMIT_S = 600
 
 
 class Block:
-    def __init__(self, path, line, language, code, skip, stop_after=None):
+    def __init__(self, path, line, language, code, skip, stop_after=None, each=False):
         self.path, self.line, self.language, self.code, self.skip = (
             path, line, language, code, skip)
         self.stop_after = stop_after
+        # Whether each line is a command of its own, stopped after `stop_after`.
+        self.each = each
+
+    def commands(self):
+        """The block's commands: each line on its own (`each`), else the whole block."""
+        if not self.each:
+            return [self]
+        return [Block(self.path, self.line + 1 + k, self.language, line, None,
+                      self.stop_after)
+                for k, line in enumerate(self.code.split("\n"))
+                if line.strip() and not line.strip().startswith("#")]
 
     def where(self):
         return f"{self.path}:{self.line}"
@@ -78,10 +101,13 @@ def blocks_of(path):
         if language in LANGUAGES:
             skip = SKIP.match(lines[i - 1]) if i > 0 else None
             stop = STOP.match(lines[i - 1]) if i > 0 else None
+            each = EACH.match(lines[i - 1]) if i > 0 else None
+            stop = stop or each
             code = "\n".join(l[indent:] for l in lines[i + 1:end])
             found.append(Block(path, i + 1, LANGUAGES[language], code,
                                skip.group(1) if skip else None,
-                               float(stop.group(1)) if stop else None))
+                               float(stop.group(1)) if stop else None,
+                               each is not None))
         i = end + 1
     return found
 
@@ -97,6 +123,9 @@ def scratch_for(tes, tmp):
     for name in LINKED:
         if (ROOT / name).exists():
             (work / name).symlink_to(ROOT / name)
+    for name in COPIED:
+        if (ROOT / name).exists():
+            shutil.copytree(ROOT / name, work / name)
     bin_dir = work / ".bin"
     bin_dir.mkdir()
     (bin_dir / "tes").symlink_to(Path(tes).resolve())
@@ -166,22 +195,24 @@ def main():
                     print(f"{block.where()}: skipped ({block.skip})")
                     continue
                 if args.list:
-                    how = (f" (stopped after {block.stop_after:g} s)"
+                    each = " each command" if block.each else ""
+                    how = (f" ({each.strip()} stopped after {block.stop_after:g} s)"
                            if block.stop_after is not None else "")
                     print(f"{block.where()}: runs{how}")
                     continue
                 if work is None:
                     work, env = scratch_for(args.tes, tmp)
-                ok, seconds, output = run(block, work, env)
-                ran += 1
-                print(f"{block.where()}: {'ok' if ok else 'FAILED'} in {seconds:.1f} s",
-                      flush=True)
-                if not ok:
-                    failures.append(block.where())
-                    print("    " + output.strip().replace("\n", "\n    "))
+                for command in block.commands():
+                    ok, seconds, output = run(command, work, env)
+                    ran += 1
+                    print(f"{command.where()}: {'ok' if ok else 'FAILED'} in {seconds:.1f} s",
+                          flush=True)
+                    if not ok:
+                        failures.append(command.where())
+                        print("    " + output.strip().replace("\n", "\n    "))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    print(f"{ran} blocks ran, {skipped} skipped, {len(failures)} failed")
+    print(f"{ran} blocks or commands ran, {skipped} blocks skipped, {len(failures)} failed")
     if failures:
         print("failed: " + ", ".join(failures))
         sys.exit(1)

@@ -6,6 +6,7 @@
 //! prints the results.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
@@ -15,7 +16,9 @@ use tes_bench::scaling::{self, ScalingSettings};
 use tes_bench::{Harness, LatencySettings, Note, Programs};
 use tes_runtime::channel::WaitStrategy;
 
-use crate::launch::{Printer, stop_on_signals, this_executable};
+use crate::launch::{
+    Printer, exit_as_signalled, signal_received, stop_on_signals, this_executable,
+};
 
 /// Arguments of `tes bench`.
 #[derive(Debug, Args)]
@@ -176,13 +179,16 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         ..Printer::default()
     };
     let mut notes = |note: &Note| eprintln!("{note}");
+    let signalled = signal_received()?;
     let mut harness = Harness {
         programs: programs()?,
         stop: stop_on_signals()?,
         observer: &mut printer,
         notes: &mut notes,
     };
-    let result = tes_bench::latency::run(&checked, &mut harness)?;
+    let result = tes_bench::latency::run(&checked, &mut harness);
+    exit_if_stopped(&signalled, "tes bench latency");
+    let result = result?;
     if args.json {
         println!("{}", serde_json::to_string(&result)?);
     } else {
@@ -192,6 +198,16 @@ fn latency(args: &LatencyArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// A bench that Ctrl-C or SIGTERM stopped has no figures to give (its runs were cut short):
+/// it says so, instead of the shortfall the cut left, and exits as a signalled command does
+/// (130 after Ctrl-C, 143 after SIGTERM).
+fn exit_if_stopped(signalled: &AtomicUsize, what: &str) {
+    if signalled.load(Ordering::Relaxed) != 0 {
+        eprintln!("{what}: stopped before its runs were complete; no figures");
+        exit_as_signalled(signalled);
+    }
 }
 
 /// `tes bench scaling`: the sweep, a row per point as it is measured (or one JSON array at
