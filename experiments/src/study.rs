@@ -34,6 +34,7 @@ pub fn summarise_folder(dir: &Path) -> Result<String> {
         E::console(&E::summarise_dir(dir)?, dir).context("cannot write the experiment's summary")
     }
     let manifest = Manifest::read(dir)?;
+    jobs::record_summariser(dir)?;
     match manifest.experiment.as_str() {
         GridConfig::NAME => summarise::<GridConfig>(dir),
         TransferConfig::NAME => summarise::<TransferConfig>(dir),
