@@ -75,7 +75,7 @@ fn by_run(
     (!a.is_empty() && a.len() == b.len()).then(|| a.iter().zip(b).map(|(a, b)| f(a, b)).collect())
 }
 
-fn cell<'a>(runs: &'a RunsByCell, m: Method, level: usize) -> Option<&'a [RunOutcome]> {
+fn cell(runs: &RunsByCell, m: Method, level: usize) -> Option<&[RunOutcome]> {
     runs.get(&*m.name())?.get(&level).map(Vec::as_slice)
 }
 
@@ -613,7 +613,7 @@ mod tests {
     #[test]
     fn a_large_run_count_uses_seeded_random_flips() {
         let runs: Vec<f64> = (0..50).map(|i| f64::from(i % 7) - 2.0).collect();
-        let a = run_level_sign_flip(&[runs.clone()]);
+        let a = run_level_sign_flip(std::slice::from_ref(&runs));
         let b = run_level_sign_flip(&[runs]);
         assert_eq!(a, b);
         assert!(a > 0.0 && a <= 1.0);

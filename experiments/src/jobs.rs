@@ -332,9 +332,15 @@ pub enum RunError {
 
 /// Refuses a full run from a modified tree unless `options` allow it.
 fn refuse_dirty(manifest: &Manifest, options: JobOptions) -> Result<()> {
-    let version = code_version();
-    if is_dirty(&version) && !manifest.is_quick() && !options.allow_dirty {
-        return Err(RunError::DirtyTree { version }.into());
+    dirty_refusal(&code_version(), manifest, options).map_err(Into::into)
+}
+
+/// The refusal of a full run of `manifest` by a binary of `version`, if it is one.
+fn dirty_refusal(version: &str, manifest: &Manifest, options: JobOptions) -> Result<(), RunError> {
+    if is_dirty(version) && !manifest.is_quick() && !options.allow_dirty {
+        return Err(RunError::DirtyTree {
+            version: version.to_owned(),
+        });
     }
     Ok(())
 }
@@ -661,14 +667,22 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Manifest> {
             }
         }
     }
+    let merged = merged_manifest(&manifests);
+    merged.write(out)?;
+    Ok(merged)
+}
+
+/// The manifest of shards merged into one folder: the first's run, the whole experiment, and
+/// every shard's writers, machines and run time, with this binary as the last writer.
+fn merged_manifest(manifests: &[Manifest]) -> Manifest {
     let mut merged = Manifest {
         shard: Shard::ALL,
         written_by: Vec::new(),
         machines: Vec::new(),
         run_seconds: None,
-        ..first.clone()
+        ..manifests[0].clone()
     };
-    for m in &manifests {
+    for m in manifests {
         for v in &m.written_by {
             if !merged.written_by.contains(v) {
                 merged.written_by.push(v.clone());
@@ -684,8 +698,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Manifest> {
         }
     }
     merged.written_by_too(code_version());
-    merged.write(out)?;
-    Ok(merged)
+    merged
 }
 
 /// `summary` (the `summary.json` of any experiment) without what depends on the clock: wall
@@ -769,6 +782,87 @@ mod tests {
         assert_eq!(
             " 2 / 3 ".trim().parse::<Shard>().unwrap().to_string(),
             "2/3"
+        );
+    }
+
+    #[test]
+    fn a_full_run_from_a_modified_tree_is_refused_unless_allowed() {
+        let full =
+            Manifest::new("test", &serde_json::json!({"quick": false}), 1, Shard::ALL).unwrap();
+        let quick =
+            Manifest::new("test", &serde_json::json!({"quick": true}), 1, Shard::ALL).unwrap();
+        let dirty = "0.1.0 (5d359f9-dirty)";
+        let refused = dirty_refusal(dirty, &full, JobOptions::default());
+        assert!(
+            matches!(refused, Err(RunError::DirtyTree { .. })),
+            "{refused:?}"
+        );
+        let allowed = JobOptions {
+            allow_dirty: true,
+            ..JobOptions::default()
+        };
+        assert_eq!(dirty_refusal(dirty, &full, allowed), Ok(()));
+        assert_eq!(dirty_refusal(dirty, &quick, JobOptions::default()), Ok(()));
+        assert_eq!(
+            dirty_refusal("0.1.0 (5d359f9)", &full, JobOptions::default()),
+            Ok(())
+        );
+        // As written by a clean binary (this test's own build may be dirty).
+        let mut written = Manifest {
+            code_version: "0.1.0 (5d359f9)".to_owned(),
+            written_by: vec!["0.1.0 (5d359f9)".to_owned()],
+            ..full.clone()
+        };
+        assert!(!written.is_dirty());
+        written.written_by_too(dirty.to_owned());
+        assert!(written.is_dirty(), "a dirty re-summariser marks the folder");
+    }
+
+    #[test]
+    fn a_run_records_its_time_machine_and_writer_and_a_merge_keeps_them() {
+        let dirs = [tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap()];
+        let options = |k| JobOptions {
+            shard: Shard { index: k, count: 2 },
+            resume: false,
+            allow_dirty: true,
+        };
+        for (k, dir) in dirs.iter().enumerate() {
+            let manifest = Manifest::new(
+                "test",
+                &serde_json::json!({"x": 1}),
+                4,
+                options(k + 1).shard,
+            )
+            .unwrap();
+            run_jobs(dir.path(), &manifest, options(k + 1), &|_, _| {}, |i| {
+                Ok(i as f64)
+            })
+            .unwrap();
+            let written = Manifest::read(dir.path()).unwrap();
+            assert!(written.run_seconds.is_some_and(|s| s >= 0.0));
+            assert_eq!(written.machines, [Machine::this()]);
+            assert_eq!(written.written_by, [code_version()]);
+        }
+        let out = tempfile::tempdir().unwrap();
+        let shards: Vec<PathBuf> = dirs.iter().map(|d| d.path().to_owned()).collect();
+        let merged = merge(&shards, out.path()).unwrap();
+        let each: Vec<f64> = dirs
+            .iter()
+            .map(|d| Manifest::read(d.path()).unwrap().run_seconds.unwrap())
+            .collect();
+        assert_eq!(
+            merged.run_seconds,
+            Some(each[0] + each[1]),
+            "the shards' times summed"
+        );
+        assert_eq!(merged.machines.len(), 1);
+        // Reading a complete folder back runs nothing and records nothing new.
+        read_all::<f64>(out.path(), &merged).unwrap();
+        assert_eq!(Manifest::read(out.path()).unwrap(), merged);
+        record_summariser(out.path()).unwrap();
+        assert_eq!(
+            Manifest::read(out.path()).unwrap().written_by,
+            [code_version()]
         );
     }
 
