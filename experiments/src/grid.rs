@@ -32,13 +32,12 @@ use crate::episode::{
 use crate::experiment::Experiment;
 use crate::jobs::{self, JobOptions, Manifest};
 use crate::method::Method;
+use crate::prereg;
 use crate::settings::{Kind, Setting, Settings, comma_separated, number, on_off, probability};
 pub use crate::stats::Summary;
 use crate::stats::summarise;
 use crate::svg::{BandPoint, LineChart, Series};
-use crate::verdict::{
-    Side, TIME_RATIO_TEST, TargetCheck, Verdict, difference, paired, paired_family, ratio,
-};
+use crate::verdict::{Side, TargetCheck, Verdict, difference, paired, paired_family, ratio};
 use tes_learning::plan::PlannerParams;
 
 /// A grid task as an experiment sees it.
@@ -892,8 +891,9 @@ fn targets(quick: bool, runs: &RunsByCell) -> Vec<TargetCheck> {
         (Some(a), Some(b)) => a.iter().zip(b).map(|(a, b)| f(a, b)).collect(),
         _ => Vec::new(),
     };
+    let share_of_fepsg = prereg::GRID_SHARE_OF_FEPSG.threshold.value();
     let share = paired_by_run(Method::LoreRl, Method::FEpsG, &|l, f| {
-        l.accumulated - 0.9 * f.accumulated
+        l.accumulated - share_of_fepsg * f.accumulated
     });
     let share = paired(&share);
     let above = paired_family(&[
@@ -933,9 +933,9 @@ fn targets(quick: bool, runs: &RunsByCell) -> Vec<TargetCheck> {
     vec![
         unless_left_out(
             TargetCheck::new(
-                "200 irrelevant features: loreRL's accumulated reward >= 90 % of fEpsG's",
-                "paired t-test over runs of loreRL − 0.9 × fEpsG, two-sided 5 %",
-                format!("loreRL − 0.9 × fEpsG {}", difference(&share)),
+                prereg::GRID_SHARE_OF_FEPSG.target,
+                prereg::GRID_SHARE_OF_FEPSG.test,
+                format!("loreRL − {share_of_fepsg} × fEpsG {}", difference(&share)),
                 quick,
                 Verdict::of_side(share.side),
             ),
@@ -943,8 +943,8 @@ fn targets(quick: bool, runs: &RunsByCell) -> Vec<TargetCheck> {
         ),
         unless_left_out(
             TargetCheck::new(
-                "200 irrelevant features: loreRL's accumulated reward above bloreRL's and fRmax's",
-                "paired t-tests over runs, Holm's correction over the two, family-wise 5 %",
+                prereg::GRID_ABOVE_BLORE_FRMAX.target,
+                prereg::GRID_ABOVE_BLORE_FRMAX.test,
                 format!(
                     "loreRL − bloreRL {}; loreRL − fRmax {}",
                     difference(&above[0]),
@@ -957,21 +957,24 @@ fn targets(quick: bool, runs: &RunsByCell) -> Vec<TargetCheck> {
         ),
         unless_left_out(
             TargetCheck::new(
-                "Table 1: loreRL / fEpsG time per episode <= 2.5 (paper: 2.2)",
-                TIME_RATIO_TEST,
+                prereg::TABLE1_LORE_OVER_FEPSG.target,
+                prereg::TABLE1_LORE_OVER_FEPSG.test,
                 ratio(&lore_fepsg),
                 quick,
-                Verdict::at_most(&lore_fepsg, 2.5),
+                Verdict::at_most(
+                    &lore_fepsg,
+                    prereg::TABLE1_LORE_OVER_FEPSG.threshold.value(),
+                ),
             ),
             &[Method::LoreRl, Method::FEpsG],
         ),
         unless_left_out(
             TargetCheck::new(
-                "Table 1: RL-DT / loreRL time per episode >= 10 (paper: 16.5)",
-                TIME_RATIO_TEST,
+                prereg::TABLE1_RLDT_OVER_LORE.target,
+                prereg::TABLE1_RLDT_OVER_LORE.test,
                 ratio(&rldt_lore),
                 quick,
-                Verdict::at_least(&rldt_lore, 10.0),
+                Verdict::at_least(&rldt_lore, prereg::TABLE1_RLDT_OVER_LORE.threshold.value()),
             ),
             &[Method::RlDt, Method::LoreRl],
         ),

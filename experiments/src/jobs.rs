@@ -118,6 +118,67 @@ pub struct Manifest {
     pub jobs: usize,
     /// The share of them this folder holds.
     pub shard: Shard,
+    /// The code version of every binary that ran jobs into, merged or re-summarised this
+    /// folder, in the order they did (appended; `code_version` is the first's).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub written_by: Vec<String>,
+    /// The machines its jobs ran on.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub machines: Vec<Machine>,
+    /// Wall-clock seconds spent running its jobs, summed over every process (and shard) that
+    /// ran some — the run's own time, where `summary.json`'s `wall_seconds` is the last
+    /// summary's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub run_seconds: Option<f64>,
+}
+
+/// A machine jobs ran on, as Linux describes it (`unknown` and 0 elsewhere).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Machine {
+    /// The CPU model (`/proc/cpuinfo`'s `model name`).
+    pub cpu: String,
+    /// Logical cores the process may use.
+    pub cores: usize,
+    /// Memory in MiB (`/proc/meminfo`'s `MemTotal`).
+    pub memory_mib: u64,
+}
+
+impl Machine {
+    /// This machine.
+    pub fn this() -> Self {
+        let cpuinfo = fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
+        let meminfo = fs::read_to_string("/proc/meminfo").unwrap_or_default();
+        Self {
+            cpu: field(&cpuinfo, "model name").unwrap_or_else(|| "unknown".to_owned()),
+            cores: std::thread::available_parallelism().map_or(0, usize::from),
+            memory_mib: field(&meminfo, "MemTotal")
+                .and_then(|v| v.trim_end_matches("kB").trim().parse::<u64>().ok())
+                .map_or(0, |kib| kib / 1024),
+        }
+    }
+}
+
+impl fmt::Display for Machine {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "{}, {} cores, {} MiB",
+            self.cpu, self.cores, self.memory_mib
+        )
+    }
+}
+
+/// The value of the first `key: value` line of a `/proc` file.
+fn field(text: &str, key: &str) -> Option<String> {
+    text.lines().find_map(|line| {
+        let (k, v) = line.split_once(':')?;
+        (k.trim() == key).then(|| v.trim().to_owned())
+    })
+}
+
+/// Whether `version` (a [`code_version`]) was built from a tree with uncommitted changes.
+pub fn is_dirty(version: &str) -> bool {
+    version.contains("-dirty")
 }
 
 impl Manifest {
@@ -135,7 +196,28 @@ impl Manifest {
             settings: serde_json::to_value(settings).context("cannot encode the settings")?,
             jobs,
             shard,
+            written_by: vec![code_version()],
+            machines: Vec::new(),
+            run_seconds: None,
         })
+    }
+
+    /// Whether any binary that wrote or re-summarised the folder was built from a modified
+    /// tree.
+    pub fn is_dirty(&self) -> bool {
+        is_dirty(&self.code_version) || self.written_by.iter().any(|v| is_dirty(v))
+    }
+
+    /// Whether the run is a `--quick` one (its settings say so).
+    fn is_quick(&self) -> bool {
+        self.settings.get("quick") == Some(&Value::Bool(true))
+    }
+
+    /// Records `version` among the binaries that wrote the folder, unless it is the last.
+    fn written_by_too(&mut self, version: String) {
+        if self.written_by.last() != Some(&version) {
+            self.written_by.push(version);
+        }
     }
 
     /// The settings, decoded.
@@ -219,6 +301,9 @@ pub struct JobOptions {
     /// Keep the records a folder already holds (from the same settings, code and shard) and
     /// run only the missing jobs; otherwise earlier records in the folder are removed first.
     pub resume: bool,
+    /// Write a full (not `--quick`) run from a binary built from a modified tree; refused
+    /// otherwise, since its results could not be traced to a commit.
+    pub allow_dirty: bool,
 }
 
 impl Default for JobOptions {
@@ -226,8 +311,58 @@ impl Default for JobOptions {
         Self {
             shard: Shard::ALL,
             resume: false,
+            allow_dirty: false,
         }
     }
+}
+
+/// Why a run was refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum RunError {
+    /// A full run from a binary built from a modified tree, not allowed.
+    #[error(
+        "refusing to write a full run from a binary built from a modified tree ({version}): \
+         commit first, or pass --allow-dirty (the folder is then marked in every table)"
+    )]
+    DirtyTree {
+        /// The binary's code version.
+        version: String,
+    },
+}
+
+/// Refuses a full run from a modified tree unless `options` allow it.
+fn refuse_dirty(manifest: &Manifest, options: JobOptions) -> Result<()> {
+    dirty_refusal(&code_version(), manifest, options).map_err(Into::into)
+}
+
+/// The refusal of a full run of `manifest` by a binary of `version`, if it is one.
+fn dirty_refusal(version: &str, manifest: &Manifest, options: JobOptions) -> Result<(), RunError> {
+    if is_dirty(version) && !manifest.is_quick() && !options.allow_dirty {
+        return Err(RunError::DirtyTree {
+            version: version.to_owned(),
+        });
+    }
+    Ok(())
+}
+
+/// Adds a finished stretch of jobs to `out`'s manifest: `seconds` of wall time, this machine
+/// and this binary's code version.
+fn record_run(out: &Path, seconds: f64) -> Result<()> {
+    let mut manifest = Manifest::read(out)?;
+    manifest.run_seconds = Some(manifest.run_seconds.unwrap_or(0.0) + seconds);
+    let machine = Machine::this();
+    if !manifest.machines.contains(&machine) {
+        manifest.machines.push(machine);
+    }
+    manifest.written_by_too(code_version());
+    manifest.write(out)
+}
+
+/// Records in `dir`'s manifest that this binary re-summarised it.
+pub fn record_summariser(dir: &Path) -> Result<()> {
+    let mut manifest = Manifest::read(dir)?;
+    manifest.written_by_too(code_version());
+    manifest.write(dir)
 }
 
 /// Runs the jobs on `threads` worker threads (`None`: one per core). Only the first call in
@@ -271,6 +406,7 @@ where
         JobOptions {
             shard: Shard::ALL,
             resume: true,
+            allow_dirty: true,
         },
         &|_, _| {},
         |index| anyhow::bail!("job {index} of {total} is missing from {}", out.display()),
@@ -295,6 +431,7 @@ where
 {
     fs::create_dir_all(out.join(JOBS))
         .with_context(|| format!("cannot create {}", out.join(JOBS).display()))?;
+    refuse_dirty(manifest, options)?;
     let mut have = Vec::new();
     if options.resume {
         let earlier = Manifest::read(out)?;
@@ -327,14 +464,21 @@ where
     let total = mine.len() as u64;
     let done = AtomicU64::new(total - todo.len() as u64);
     progress(done.load(Ordering::Relaxed), total);
-    todo.par_iter().try_for_each(|&index| -> Result<()> {
+    let started = std::time::Instant::now();
+    let ran = todo.par_iter().try_for_each(|&index| -> Result<()> {
         let result = job(index)?;
         let json = serde_json::to_vec(&Record { index, result })
             .with_context(|| format!("cannot encode job {index}"))?;
         write_atomically(&record_path(out, index), &json)?;
         progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
         Ok(())
-    })?;
+    });
+    // An interrupted stretch counts too (a resume adds the rest); reading a complete folder
+    // back runs nothing and records nothing.
+    if done.load(Ordering::Relaxed) > total - todo.len() as u64 {
+        record_run(out, started.elapsed().as_secs_f64())?;
+    }
+    ran?;
     mine.into_iter()
         .map(|i| Ok((i, read_record(out, i)?)))
         .collect()
@@ -523,12 +667,38 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Manifest> {
             }
         }
     }
-    let merged = Manifest {
-        shard: Shard::ALL,
-        ..first.clone()
-    };
+    let merged = merged_manifest(&manifests);
     merged.write(out)?;
     Ok(merged)
+}
+
+/// The manifest of shards merged into one folder: the first's run, the whole experiment, and
+/// every shard's writers, machines and run time, with this binary as the last writer.
+fn merged_manifest(manifests: &[Manifest]) -> Manifest {
+    let mut merged = Manifest {
+        shard: Shard::ALL,
+        written_by: Vec::new(),
+        machines: Vec::new(),
+        run_seconds: None,
+        ..manifests[0].clone()
+    };
+    for m in manifests {
+        for v in &m.written_by {
+            if !merged.written_by.contains(v) {
+                merged.written_by.push(v.clone());
+            }
+        }
+        for machine in &m.machines {
+            if !merged.machines.contains(machine) {
+                merged.machines.push(machine.clone());
+            }
+        }
+        if let Some(s) = m.run_seconds {
+            merged.run_seconds = Some(merged.run_seconds.unwrap_or(0.0) + s);
+        }
+    }
+    merged.written_by_too(code_version());
+    merged
 }
 
 /// `summary` (the `summary.json` of any experiment) without what depends on the clock: wall
@@ -616,6 +786,87 @@ mod tests {
     }
 
     #[test]
+    fn a_full_run_from_a_modified_tree_is_refused_unless_allowed() {
+        let full =
+            Manifest::new("test", &serde_json::json!({"quick": false}), 1, Shard::ALL).unwrap();
+        let quick =
+            Manifest::new("test", &serde_json::json!({"quick": true}), 1, Shard::ALL).unwrap();
+        let dirty = "0.1.0 (5d359f9-dirty)";
+        let refused = dirty_refusal(dirty, &full, JobOptions::default());
+        assert!(
+            matches!(refused, Err(RunError::DirtyTree { .. })),
+            "{refused:?}"
+        );
+        let allowed = JobOptions {
+            allow_dirty: true,
+            ..JobOptions::default()
+        };
+        assert_eq!(dirty_refusal(dirty, &full, allowed), Ok(()));
+        assert_eq!(dirty_refusal(dirty, &quick, JobOptions::default()), Ok(()));
+        assert_eq!(
+            dirty_refusal("0.1.0 (5d359f9)", &full, JobOptions::default()),
+            Ok(())
+        );
+        // As written by a clean binary (this test's own build may be dirty).
+        let mut written = Manifest {
+            code_version: "0.1.0 (5d359f9)".to_owned(),
+            written_by: vec!["0.1.0 (5d359f9)".to_owned()],
+            ..full.clone()
+        };
+        assert!(!written.is_dirty());
+        written.written_by_too(dirty.to_owned());
+        assert!(written.is_dirty(), "a dirty re-summariser marks the folder");
+    }
+
+    #[test]
+    fn a_run_records_its_time_machine_and_writer_and_a_merge_keeps_them() {
+        let dirs = [tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap()];
+        let options = |k| JobOptions {
+            shard: Shard { index: k, count: 2 },
+            resume: false,
+            allow_dirty: true,
+        };
+        for (k, dir) in dirs.iter().enumerate() {
+            let manifest = Manifest::new(
+                "test",
+                &serde_json::json!({"x": 1}),
+                4,
+                options(k + 1).shard,
+            )
+            .unwrap();
+            run_jobs(dir.path(), &manifest, options(k + 1), &|_, _| {}, |i| {
+                Ok(i as f64)
+            })
+            .unwrap();
+            let written = Manifest::read(dir.path()).unwrap();
+            assert!(written.run_seconds.is_some_and(|s| s >= 0.0));
+            assert_eq!(written.machines, [Machine::this()]);
+            assert_eq!(written.written_by, [code_version()]);
+        }
+        let out = tempfile::tempdir().unwrap();
+        let shards: Vec<PathBuf> = dirs.iter().map(|d| d.path().to_owned()).collect();
+        let merged = merge(&shards, out.path()).unwrap();
+        let each: Vec<f64> = dirs
+            .iter()
+            .map(|d| Manifest::read(d.path()).unwrap().run_seconds.unwrap())
+            .collect();
+        assert_eq!(
+            merged.run_seconds,
+            Some(each[0] + each[1]),
+            "the shards' times summed"
+        );
+        assert_eq!(merged.machines.len(), 1);
+        // Reading a complete folder back runs nothing and records nothing new.
+        read_all::<f64>(out.path(), &merged).unwrap();
+        assert_eq!(Manifest::read(out.path()).unwrap(), merged);
+        record_summariser(out.path()).unwrap();
+        assert_eq!(
+            Manifest::read(out.path()).unwrap().written_by,
+            [code_version()]
+        );
+    }
+
+    #[test]
     fn a_resumed_run_runs_only_the_missing_jobs() {
         let dir = tempfile::tempdir().unwrap();
         let manifest = Manifest::new("test", &serde_json::json!({"x": 1}), 5, Shard::ALL).unwrap();
@@ -628,7 +879,10 @@ mod tests {
         let first = run_jobs(
             dir.path(),
             &manifest,
-            JobOptions::default(),
+            JobOptions {
+                allow_dirty: true,
+                ..JobOptions::default()
+            },
             &|_, _| {},
             job,
         );
@@ -636,6 +890,7 @@ mod tests {
         assert!(!recorded(dir.path()).unwrap().contains(&3));
         let resume = JobOptions {
             resume: true,
+            allow_dirty: true,
             ..JobOptions::default()
         };
         let all = run_jobs(dir.path(), &manifest, resume, &|_, _| {}, |i| {

@@ -17,6 +17,12 @@
 //!   every method in one colour across all of them;
 //! * [`verdict`] — the paper's targets and whether a run meets them (a `--quick` run is too
 //!   small to judge);
+//! * [`prereg`] — the preregistration: every target's sentence of the paper, test and
+//!   threshold, with the earlier forms of any changed after results existed, and the worlds and
+//!   defaults the results depend on, each fingerprinted so a change without a record fails a
+//!   test;
+//! * [`claims`] — the paper's claims the experiments' own targets leave out, judged from a
+//!   committed `summary.json` alone, with a run-level sign-flip test beside the pooled ones;
 //! * [`jobs`] — every experiment as a list of independent jobs: `--shard K/N`, `--resume`,
 //!   merging shard folders;
 //! * [`report`] — `report.md`, every table and figure of the whole study in one page;
@@ -26,6 +32,7 @@
 //!
 //! Every run is seeded and records its seeds; the same settings give the same numbers.
 
+pub mod claims;
 pub mod console;
 pub mod episode;
 pub mod experiment;
@@ -34,6 +41,7 @@ pub mod grid;
 pub mod jobs;
 pub mod lifelong;
 pub mod method;
+pub mod prereg;
 pub mod progress;
 pub mod replot;
 pub mod report;

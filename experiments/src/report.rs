@@ -18,6 +18,7 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 use serde::de::DeserializeOwned;
 
+use crate::claims;
 use crate::episode::{End, RunOutcome, write_file};
 use crate::fig4::{self, Fig4Report};
 use crate::grid::{self, GridReport};
@@ -72,15 +73,23 @@ impl Results {
     /// The names of the tables this experiment's folders give, in report order.
     pub fn table_names(&self) -> &'static [&'static str] {
         match self {
-            Self::Grid(_) => &["targets", "fig3a", "fig3b", "fig3c", "table1"],
+            Self::Grid(_) => &["targets", "claims", "fig3a", "fig3b", "fig3c", "table1"],
             Self::Transfer(_) => &[
                 "targets",
+                "claims",
                 "table2",
                 "first-episode-ends",
                 "late-caps",
                 "times",
             ],
-            Self::Robot(_) => &["targets", "accumulated", "by-range", "table5", "times"],
+            Self::Robot(_) => &[
+                "targets",
+                "claims",
+                "accumulated",
+                "by-range",
+                "table5",
+                "times",
+            ],
             Self::Fig4(_) => &["targets", "fig4a", "fig4c"],
             Self::Lifelong(_) => &["targets", "sequence", "times"],
         }
@@ -90,6 +99,9 @@ impl Results {
     pub fn table(&self, name: &str) -> Result<String> {
         let table = match (self, name) {
             (_, "targets") => targets(self.targets()),
+            (Self::Grid(g), "claims") => claims::table(&claims::grid(g)),
+            (Self::Transfer(t), "claims") => claims::table(&claims::transfer(t)),
+            (Self::Robot(r), "claims") => claims::table(&claims::robot(r)),
             (Self::Grid(g), "fig3a") => grid_finals(g, &g.fig3a_final, 0),
             (Self::Grid(g), "fig3b") => grid_finals(g, &g.fig3b_final, 200),
             (Self::Grid(g), "fig3c") => grid_fig3c(g),
@@ -162,7 +174,25 @@ pub fn against(this: &Results, base: &Results) -> Result<String> {
         (Results::Grid(t), Results::Grid(b)) => grid_against(t, b),
         _ => String::new(),
     };
-    md.push_str("| target | default | this run |\n|---|---|---|\n");
+    md.push_str(&verdicts_side_by_side(this, base));
+    Ok(md)
+}
+
+/// The verdicts of `this` and `base` (runs of one experiment) side by side, target by target:
+/// `report DIR --table targets --against BASE`.
+pub fn targets_against(this: &Results, base: &Results) -> Result<String> {
+    if this.experiment() != base.experiment() {
+        bail!(
+            "a {} folder cannot be compared with a {} folder",
+            this.experiment(),
+            base.experiment()
+        );
+    }
+    Ok(verdicts_side_by_side(this, base))
+}
+
+fn verdicts_side_by_side(this: &Results, base: &Results) -> String {
+    let mut md = String::from("| target | default | this run |\n|---|---|---|\n");
     for (t, b) in this.targets().iter().zip(base.targets()) {
         let _ = writeln!(
             md,
@@ -172,7 +202,7 @@ pub fn against(this: &Results, base: &Results) -> Result<String> {
             t.verdict.text()
         );
     }
-    Ok(md)
+    md
 }
 
 fn ci(s: &Summary) -> String {
@@ -758,15 +788,53 @@ impl BlockCommand {
         })
     }
 
-    /// The Markdown the block holds, its folders read under `root`.
+    /// The Markdown the block holds, its folders read under `root`: a note first for a
+    /// folder written from a modified tree.
     pub fn render(&self, root: &Path) -> Result<String> {
+        let mut md = provenance_note(&root.join(&self.dir))?;
+        if let Some(base) = &self.against {
+            md.push_str(&provenance_note(&root.join(base))?);
+        }
+        md.push_str(&self.tables(root)?);
+        Ok(md)
+    }
+
+    fn tables(&self, root: &Path) -> Result<String> {
         let this = Results::read(&root.join(&self.dir))?;
         match (&self.against, &self.table) {
+            (Some(base), Some(table)) if table == "targets" => {
+                targets_against(&this, &Results::read(&root.join(base))?)
+            }
             (Some(base), _) => against(&this, &Results::read(&root.join(base))?),
             (None, Some(table)) => this.table(table),
             (None, None) => this.all_tables(),
         }
     }
+}
+
+/// A note for a table from folder `dir` when a binary built from a modified tree wrote or
+/// re-summarised it (its manifest's code versions end in `-dirty`): its numbers cannot be
+/// traced to one commit. Empty otherwise.
+pub fn provenance_note(dir: &Path) -> Result<String> {
+    let manifest = Manifest::read(dir)?;
+    if !manifest.is_dirty() {
+        return Ok(String::new());
+    }
+    let mut versions = vec![manifest.code_version.clone()];
+    for v in &manifest.written_by {
+        if !versions.contains(v) {
+            versions.push(v.clone());
+        }
+    }
+    let name = dir.file_name().map_or_else(
+        || dir.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    );
+    Ok(format!(
+        "*`{name}` was written from a modified tree ({}): its figures cannot be traced to one \
+         commit.*\n\n",
+        versions.join(", ")
+    ))
 }
 
 /// A generated block of a document: its command, and the lines it holds now.

@@ -41,12 +41,12 @@ use crate::episode::{End, Episode, RunOutcome, write_episodes_csv, write_file, w
 use crate::experiment::Experiment;
 use crate::jobs::{self, JobOptions, Manifest};
 use crate::method::Method;
+use crate::prereg;
 use crate::settings::{Kind, Setting, Settings, number};
 use crate::stats::{ALPHA, Summary, holm, sign_test, summarise};
 use crate::svg::{BandPoint, LineChart, Series};
 use crate::verdict::{
-    Paired, Side, TIME_RATIO_TEST, TargetCheck, Verdict, difference, p_value, paired,
-    paired_family, ratio,
+    Paired, Side, TargetCheck, Verdict, difference, p_value, paired, paired_family, ratio,
 };
 
 /// Settings of `tes experiment robot`.
@@ -597,25 +597,25 @@ fn targets(quick: bool, runs: &RunsByMethod) -> Vec<TargetCheck> {
         accumulated(Method::TesWoRi, Method::Lwt),
     ]);
     let wo_ri_loses = paired(&accumulated(Method::LoreRl, Method::TesWoRi));
+    let share_of_lore = prereg::ROBOT_WORI_NOT_BY_MUCH.threshold.value();
     let not_by_much = paired(&by_run(Method::TesWoRi, Method::LoreRl, &|w, l| {
-        w.accumulated - 0.9 * l.accumulated
+        w.accumulated - share_of_lore * l.accumulated
     }));
     let jumpstart = first_episode_wins(of(Method::Tes), &fig9_others.map(of));
     let time_ratio = summarise(&by_run(Method::LoreRl, Method::ManLoreRl, &|l, m| {
         l.seconds_per_episode / m.seconds_per_episode
     }));
-    let holm = "paired t-tests over runs, Holm's correction over the comparisons, family-wise 5 %";
     vec![
         TargetCheck::new(
-            "Fig. 9: TES accumulates more than TES-woRi, loreRL and LWT (every difference to TES below 0)",
-            holm,
+            prereg::FIG9_TES_AHEAD.target,
+            prereg::FIG9_TES_AHEAD.test,
             format!("TES − {}", listed(&fig9_others, &fig9)),
             quick,
             Verdict::all(fig9.iter().map(|p| Verdict::of_side(p.side))),
         ),
         TargetCheck::new(
-            "§5.2.3: LWT accumulates least (below loreRL and TES-woRi)",
-            holm,
+            prereg::ROBOT_LWT_LEAST.target,
+            prereg::ROBOT_LWT_LEAST.test,
             format!(
                 "loreRL − LWT {}; TES-woRi − LWT {}",
                 difference(&lwt_least[0]),
@@ -625,22 +625,25 @@ fn targets(quick: bool, runs: &RunsByMethod) -> Vec<TargetCheck> {
             Verdict::all(lwt_least.iter().map(|p| Verdict::of_side(p.side))),
         ),
         TargetCheck::new(
-            "§5.2.3: TES-woRi loses to loreRL",
-            "paired t-test over runs of loreRL − TES-woRi, two-sided 5 %",
+            prereg::ROBOT_WORI_LOSES.target,
+            prereg::ROBOT_WORI_LOSES.test,
             format!("loreRL − TES-woRi {}", difference(&wo_ri_loses)),
             quick,
             Verdict::of_side(wo_ri_loses.side),
         ),
         TargetCheck::new(
-            "§5.2.3: ... but not to a large extent (ours: by less than 10 % of loreRL's accumulated reward)",
-            "paired t-test over runs of TES-woRi − 0.9 × loreRL, two-sided 5 %",
-            format!("TES-woRi − 0.9 × loreRL {}", difference(&not_by_much)),
+            prereg::ROBOT_WORI_NOT_BY_MUCH.target,
+            prereg::ROBOT_WORI_NOT_BY_MUCH.test,
+            format!(
+                "TES-woRi − {share_of_lore} × loreRL {}",
+                difference(&not_by_much)
+            ),
             quick,
             Verdict::of_side(not_by_much.side),
         ),
         TargetCheck::new(
-            "Table 5: TES's first-episode reward beats loreRL's, LWT's and TES-woRi's",
-            "sign test over runs (draws left out), Holm's correction over the three, family-wise 5 %",
+            prereg::TABLE5_FIRST_EPISODE.target,
+            prereg::TABLE5_FIRST_EPISODE.test,
             jumpstart
                 .iter()
                 .zip(&fig9_others)
@@ -651,11 +654,11 @@ fn targets(quick: bool, runs: &RunsByMethod) -> Vec<TargetCheck> {
             Verdict::all(jumpstart.iter().map(|w| Verdict::of_side(w.side))),
         ),
         TargetCheck::new(
-            "Table 3: loreRL's time per episode only slightly above man-loreRL's (ours: at most 1.5 times; paper 1.16)",
-            TIME_RATIO_TEST,
+            prereg::TABLE3_LORE_OVER_MAN.target,
+            prereg::TABLE3_LORE_OVER_MAN.test,
             ratio(&time_ratio),
             quick,
-            Verdict::at_most(&time_ratio, 1.5),
+            Verdict::at_most(&time_ratio, prereg::TABLE3_LORE_OVER_MAN.threshold.value()),
         ),
     ]
 }

@@ -34,6 +34,7 @@ pub fn summarise_folder(dir: &Path) -> Result<String> {
         E::console(&E::summarise_dir(dir)?, dir).context("cannot write the experiment's summary")
     }
     let manifest = Manifest::read(dir)?;
+    jobs::record_summariser(dir)?;
     match manifest.experiment.as_str() {
         GridConfig::NAME => summarise::<GridConfig>(dir),
         TransferConfig::NAME => summarise::<TransferConfig>(dir),
@@ -62,7 +63,8 @@ pub fn settings_reference() -> String {
          `tes experiment settings > docs/experiments.md`; do not edit by hand. -->\n\n\
          Every setting of every `tes experiment` sub-command: its flag, its default, its value \
          under `--quick` and what it sets. Besides these, each takes `--out DIR`, \
-         `--threads N`, `--shard K/N` and `--resume DIR` (see the README).\n\n{}",
+         `--threads N`, `--shard K/N`, `--resume DIR` and `--allow-dirty` (see the README; a full \
+         run from a modified tree is refused without it).\n\n{}",
         tables.join("\n")
     )
 }

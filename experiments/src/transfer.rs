@@ -44,6 +44,7 @@ use crate::experiment::Experiment;
 use crate::grid::GridEnv;
 use crate::jobs::{self, JobOptions, Manifest};
 use crate::method::Method;
+use crate::prereg;
 use crate::settings::{Kind, Setting, Settings, comma_separated, number, numbers, on_off};
 use crate::stats::{Summary, summarise};
 use crate::svg::{CategoryChart, CategorySeries, Interval, LineChart, Series};
@@ -959,25 +960,25 @@ impl Claim {
         Claim {
             measure: Measure::Jumpstart,
             other: Method::LoreRl,
-            needed: 12,
+            needed: prereg::TABLE2_JUMPSTART_LORE.threshold.count(),
             source: "Table 2 (paper: 14 of 15)",
         },
         Claim {
             measure: Measure::Jumpstart,
             other: Method::Lwt,
-            needed: 10,
+            needed: prereg::TABLE2_JUMPSTART_LWT.threshold.count(),
             source: "Table 2 (paper: 12 of 15)",
         },
         Claim {
             measure: Measure::Accumulated,
             other: Method::LoreRl,
-            needed: 8,
+            needed: prereg::FIG4B_ACCUMULATED_LORE.threshold.count(),
             source: "Fig. 4b, §5.1.2 (paper: no count)",
         },
         Claim {
             measure: Measure::Accumulated,
             other: Method::FEpsG,
-            needed: 8,
+            needed: prereg::FIG4B_ACCUMULATED_FEPSG.threshold.count(),
             source: "Fig. 4b, §5.1.2 (paper: no count)",
         },
     ];

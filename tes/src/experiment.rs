@@ -16,6 +16,7 @@ use tes_experiments::settings::{Settings, SettingsArgs};
 use tes_experiments::study::{self, Study};
 use tes_experiments::transfer::{self, TransferConfig};
 
+mod full;
 mod progress;
 use progress::{stop_on_interrupt, with_progress};
 
@@ -77,6 +78,10 @@ struct JobArgs {
     /// settings, seeds and shard DIR's manifest.json records (no other setting may be given).
     #[arg(long, value_name = "DIR")]
     resume: Option<PathBuf>,
+    /// Write a full run although this binary was built from a tree with uncommitted changes
+    /// (refused otherwise; every table of such a folder says so).
+    #[arg(long)]
+    allow_dirty: bool,
 }
 
 impl JobArgs {
@@ -93,6 +98,7 @@ impl JobArgs {
                 JobOptions {
                     shard: self.shard.unwrap_or(Shard::ALL),
                     resume: false,
+                    allow_dirty: self.allow_dirty,
                 },
                 out.to_owned(),
                 None,
@@ -116,6 +122,7 @@ impl JobArgs {
                     JobOptions {
                         shard: manifest.shard,
                         resume: true,
+                        allow_dirty: self.allow_dirty,
                     },
                     dir.clone(),
                     Some(manifest),
@@ -137,6 +144,14 @@ struct AllArgs {
     /// Each experiment's --quick settings.
     #[arg(long)]
     quick: bool,
+    /// Regenerate every committed result folder of --from (the 100-run, ablation and
+    /// converged ones too), each from its manifest's settings, into OUT/NAME; `--resume OUT`
+    /// (or the same --out again) goes on where it stopped.
+    #[arg(long, conflicts_with_all = ["quick", "runs", "shard"])]
+    full: bool,
+    /// The committed result folders --full regenerates.
+    #[arg(long, default_value = "docs/results", requires = "full")]
+    from: PathBuf,
     /// Worker threads [default: all cores].
     #[arg(long)]
     threads: Option<usize>,
@@ -154,6 +169,9 @@ struct AllJobArgs {
     /// Continue an interrupted `tes experiment all` in DIR with its recorded settings.
     #[arg(long, value_name = "DIR")]
     resume: Option<PathBuf>,
+    /// Write full runs although this binary was built from a tree with uncommitted changes.
+    #[arg(long)]
+    allow_dirty: bool,
 }
 
 #[derive(Debug, Args)]
@@ -217,7 +235,15 @@ fn run_report(args: &ReportArgs) -> Result<()> {
     }
     let dir = args.dir.as_ref().context("a result folder is needed")?;
     let this = Results::read(dir)?;
+    let mut notes = report::provenance_note(dir)?;
+    if let Some(base) = &args.against {
+        notes.push_str(&report::provenance_note(base)?);
+    }
+    print!("{notes}");
     let md = match (&args.against, &args.table) {
+        (Some(base), Some(table)) if table == "targets" => {
+            report::targets_against(&this, &Results::read(base)?)?
+        }
         (Some(base), _) => report::against(&this, &Results::read(base)?)?,
         (None, Some(table)) => this.table(table)?,
         (None, None) => this.all_tables()?,
@@ -432,6 +458,10 @@ fn run_robot(args: &RobotArgs) -> Result<()> {
 
 fn run_all(args: &AllArgs) -> Result<()> {
     jobs::use_threads(args.threads)?;
+    if args.full {
+        let out = args.jobs.resume.as_ref().unwrap_or(&args.out);
+        return full::run_full(&args.from, out, args.jobs.allow_dirty);
+    }
     let study = Study::open(
         &args.out,
         args.jobs.resume.as_deref(),
@@ -446,6 +476,7 @@ fn run_all(args: &AllArgs) -> Result<()> {
     let options = JobOptions {
         shard: study.shard,
         resume: true,
+        allow_dirty: args.jobs.allow_dirty,
     };
     let resuming = args.jobs.resume.is_some();
     let started = std::time::Instant::now();

@@ -33,3 +33,47 @@ fn the_settings_page_is_the_settings_definitions() {
         "run `tes experiment settings > docs/experiments.md`"
     );
 }
+
+/// Every target a committed folder judged is in the preregistration (`prereg.rs`): its current
+/// form, an earlier form kept in its history, or the family entry of an experiment whose
+/// targets the registry holds as one (Fig. 4, lifelong, the pooled transfer tests).
+#[test]
+fn every_committed_target_is_preregistered() {
+    use tes_experiments::prereg::{TARGETS, Target};
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/results");
+    let family = |t: &Target| t.id.ends_with(".targets") || t.id == "transfer.pooled";
+    let mut checked = 0;
+    for entry in std::fs::read_dir(&root).unwrap() {
+        let summary = entry.unwrap().path().join("summary.json");
+        let Ok(text) = std::fs::read_to_string(&summary) else {
+            continue;
+        };
+        let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let Some(targets) = json["targets"].as_array() else {
+            continue;
+        };
+        for t in targets {
+            let words = t["target"].as_str().unwrap();
+            let experiment = summary
+                .parent()
+                .unwrap()
+                .file_name()
+                .unwrap()
+                .to_string_lossy();
+            let registered = TARGETS.iter().any(|r| {
+                r.target == words
+                    || r.history.iter().any(|h| h.target == words)
+                    || (family(r)
+                        && experiment.starts_with(r.experiment)
+                        && (r.id != "transfer.pooled" || words.contains("across tasks")))
+            });
+            assert!(
+                registered,
+                "{}: {words:?} is not preregistered",
+                summary.display()
+            );
+            checked += 1;
+        }
+    }
+    assert!(checked >= 60, "only {checked} targets found");
+}

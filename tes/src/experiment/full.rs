@@ -1,0 +1,93 @@
+//! `tes experiment all --full`: every committed result folder regenerated, each from the
+//! settings its manifest records, one after another with progress, resumable.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use tes_experiments::experiment::Experiment;
+use tes_experiments::fig4::Fig4Config;
+use tes_experiments::grid::GridConfig;
+use tes_experiments::jobs::{JobOptions, Manifest, Shard};
+use tes_experiments::lifelong::LifelongConfig;
+use tes_experiments::robot::RobotConfig;
+use tes_experiments::transfer::TransferConfig;
+
+use super::print_summary;
+use super::progress::{stop_on_interrupt, with_progress};
+
+/// The result folders of `from` (those with an experiment's manifest), by name.
+pub(super) fn committed_folders(from: &Path) -> Result<Vec<(String, Manifest)>> {
+    let mut folders = Vec::new();
+    let entries =
+        std::fs::read_dir(from).with_context(|| format!("cannot list {}", from.display()))?;
+    for entry in entries {
+        let dir = entry
+            .with_context(|| format!("cannot list {}", from.display()))?
+            .path();
+        if !dir.join("manifest.json").is_file() {
+            continue;
+        }
+        let manifest = Manifest::read(&dir)?;
+        let name = dir
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .context("a result folder without a name")?;
+        folders.push((name, manifest));
+    }
+    folders.sort_by(|a, b| a.0.cmp(&b.0));
+    if folders.is_empty() {
+        bail!("{} holds no result folder", from.display());
+    }
+    Ok(folders)
+}
+
+/// Regenerates every result folder of `from` into `out/NAME`; a folder `out/NAME` already
+/// holds is resumed (its finished runs kept), so an interrupted `--full` goes on where it
+/// stopped when given the same `--out` again.
+pub(super) fn run_full(from: &Path, out: &Path, allow_dirty: bool) -> Result<()> {
+    let folders = committed_folders(from)?;
+    let dirs: Vec<PathBuf> = folders.iter().map(|(name, _)| out.join(name)).collect();
+    stop_on_interrupt(out, "all --full", &dirs)?;
+    let started = std::time::Instant::now();
+    for (i, ((name, manifest), dir)) in folders.iter().zip(&dirs).enumerate() {
+        eprintln!(
+            "[{}/{}] {name}: regenerating {} from {}",
+            i + 1,
+            folders.len(),
+            manifest.experiment,
+            from.join(name).display()
+        );
+        let options = JobOptions {
+            shard: Shard::ALL,
+            resume: dir.join("manifest.json").is_file(),
+            allow_dirty,
+        };
+        match manifest.experiment.as_str() {
+            GridConfig::NAME => one::<GridConfig>(manifest, dir, options)?,
+            TransferConfig::NAME => one::<TransferConfig>(manifest, dir, options)?,
+            RobotConfig::NAME => one::<RobotConfig>(manifest, dir, options)?,
+            Fig4Config::NAME => one::<Fig4Config>(manifest, dir, options)?,
+            LifelongConfig::NAME => one::<LifelongConfig>(manifest, dir, options)?,
+            other => bail!(
+                "unknown experiment {other:?} in {}",
+                from.join(name).display()
+            ),
+        }
+    }
+    println!(
+        "regenerated {} result folders into {} in {:.0} s",
+        folders.len(),
+        out.display(),
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+/// One folder: its manifest's settings, run with progress, its summary printed.
+fn one<E: Experiment>(manifest: &Manifest, dir: &Path, options: JobOptions) -> Result<()> {
+    let config: E = manifest.settings()?;
+    if let Some(report) = with_progress(&config, dir, options, options.resume)? {
+        print_summary(E::console(&report, dir))?;
+    }
+    Ok(())
+}
