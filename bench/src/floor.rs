@@ -56,14 +56,16 @@ pub fn relay_floor(
 ) -> Result<Floor> {
     let report = dir.join("floor.json");
     let hop_report = dir.join("floor-first-hop.json");
+    let second_hop_report = dir.join("floor-second-hop.json");
     let cfg = RelayConfig {
         service_prefix: format!("{prefix}floor/"),
-        wait: settings.wait,
+        wait: settings.acting_wait(),
         messages: settings.actions() + settings.warmup(),
         warmup: settings.warmup(),
         budget_us: settings.budget_us,
         report: Some(report.clone()),
         hop_report: Some(hop_report.clone()),
+        second_hop_report: Some(second_hop_report.clone()),
         // The source's own round trip is part of the cycle.
         gap_us: cycle_us.saturating_sub(50),
         hop_cpu: helps.hop_cpu,
@@ -100,6 +102,7 @@ pub fn relay_floor(
     Ok(Floor {
         round_trip: load(&report)?,
         first_hop: load(&hop_report)?,
+        second_hop: load(&second_hop_report)?,
         cpu,
     })
 }
@@ -277,7 +280,7 @@ pub fn zenoh_floor(
         connect: endpoint,
         group,
         prefix: format!("tes-bench-{pid}/floor-desk/"),
-        wait: settings.wait,
+        wait: settings.acting_wait(),
         hop_cpu,
         answer: total,
         warmup: settings.warmup(),
@@ -446,7 +449,7 @@ fn round_trips(
     cycle_us: u64,
 ) -> Result<LatencyReport> {
     wait_for_peer(robot, "robot's")?;
-    let mut side = RobotSide::open(names, settings.wait)?;
+    let mut side = RobotSide::open(names, settings.acting_wait())?;
     side.probe()?;
     let mut round = LatencyRecorder::new(settings.budget_us, settings.warmup());
     let gap = Duration::from_micros(cycle_us);

@@ -141,11 +141,16 @@ impl Group {
 
 impl Group {
     /// Each process's CPU over the measured actions, from the reports of the last run and the
-    /// controller's `summary`; and the anticipating receivers' catches.
-    pub(crate) fn cpu_and_catches(
+    /// controller's `summary`; the anticipating receivers' catches; and the bridge's command
+    /// hop (command published → received).
+    pub(crate) fn bridge_and_perception(
         &self,
         summary: &ControllerSummary,
-    ) -> Result<(BTreeMap<String, CpuUse>, BTreeMap<String, Catches>)> {
+    ) -> Result<(
+        BTreeMap<String, CpuUse>,
+        BTreeMap<String, Catches>,
+        LatencyReport,
+    )> {
         let bridge = BridgeReport::load(&self.files.bridge_report).map_err(BenchError::io(
             format!("no bridge report at {}", self.files.bridge_report.display()),
         ))?;
@@ -169,7 +174,7 @@ impl Group {
             .into_iter()
             .filter_map(|(name, c)| c.map(|c| (name.to_owned(), c)))
             .collect();
-        Ok((cpu, catches))
+        Ok((cpu, catches, bridge.command_hop))
     }
 }
 

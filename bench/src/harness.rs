@@ -13,6 +13,8 @@ use tes_controller::config::{ControllerConfig, Order, PlanningMode, ThreadPlacem
 use tes_controller::process::ControllerSummary;
 use tes_launch::ChildCommand;
 use tes_launch::event::Observer;
+use tes_launch::file::ChosenWait;
+use tes_perception_sim::process::PerceptionConfig;
 use tes_runtime::affinity::Placement;
 use tes_runtime::channel::Catches;
 use tes_runtime::channel::WaitStrategy;
@@ -100,8 +102,10 @@ pub struct LatencySettings {
     /// The per-action budget, µs.
     #[arg(long, default_value_t = LatencySettings::default().budget_us)]
     pub budget_us: u64,
-    /// How every process waits: block, spin, spin-then-block, spin-then-block:<µs> or
-    /// anticipate.
+    /// How every process waits: auto (the controller and the bridge anticipate at the
+    /// robot's pace, where perception announces each observation, and block at the fastest),
+    /// block, spin, spin-then-block, spin-then-block:<µs> or anticipate. The floor's hop and
+    /// sink wait as the controller and the bridge do.
     #[arg(long, default_value_t = LatencySettings::default().wait)]
     pub wait: WaitStrategy,
     /// Views in the controller's library (trained in Env 1 and Env 2).
@@ -196,7 +200,7 @@ impl Default for LatencySettings {
         Self {
             actions: None,
             budget_us: tes_runtime::settings::DEFAULT_BUDGET_US,
-            wait: WaitStrategy::Block,
+            wait: WaitStrategy::Auto,
             views: 9,
             warmup: None,
             seed: 1,
@@ -228,6 +232,29 @@ impl LatencySettings {
         self.warmup.unwrap_or(self.pace.default_warmup())
     }
 
+    /// How `wait` comes out for the controller at this pace: the launch's own choice
+    /// ([`ChosenWait`]), with perception's default settle time.
+    pub fn chosen_wait(&self) -> ChosenWait {
+        let real_time_factor = match self.pace {
+            Pace::Fastest => 0.0,
+            Pace::Real => 1.0,
+        };
+        // Split, the controller's launch runs without perception, whose heads-ups stay on
+        // the robot's side.
+        ChosenWait::new(
+            self.wait,
+            real_time_factor,
+            PerceptionConfig::default().settle_ms,
+            !self.via.is_split(),
+        )
+    }
+
+    /// How the measured receivers wait (the controller and the bridge, the floor's hop and
+    /// sink): `wait`, with `auto` resolved.
+    pub fn acting_wait(&self) -> WaitStrategy {
+        self.chosen_wait().acting()
+    }
+
     /// Checks the settings once, and resolves where the controller's threads (and so the
     /// floor's hop) run on this machine. Errors name the flag.
     pub fn check(self) -> Result<CheckedLatency> {
@@ -236,18 +263,19 @@ impl LatencySettings {
                 "--actions, --budget-us and --views must be at least 1".into(),
             ));
         }
+        let wait = self.acting_wait();
         let controller = ControllerConfig {
-            wait: self.wait,
+            wait,
             acting_cpu: self.acting_cpu,
             planner_cpu: self.planner_cpu,
             planning: self.planning,
             ..ControllerConfig::default()
         };
         let planning = controller
-            .planning_for(self.wait)
+            .planning_for(wait)
             .map_err(|e| BenchError::Settings(format!("--planning: {}", e.reason)))?;
         // Resolved here, so that the floor's hop gets the acting thread's very CPU.
-        let placement = controller.placement(self.wait, planning).map_err(|e| {
+        let placement = controller.placement(wait, planning).map_err(|e| {
             BenchError::Settings(format!("--{}: {}", e.key.replace('_', "-"), e.reason))
         })?;
         if (self.record || self.foxglove || self.rerun.is_some() || self.ros2)
@@ -296,7 +324,7 @@ impl CheckedLatency {
             planner_idle_spin_us: s.planner_idle_spin_us,
             ..ControllerConfig::default()
         };
-        config.planner_idle_spin(s.wait).as_micros() as u64
+        config.planner_idle_spin(s.acting_wait()).as_micros() as u64
     }
 }
 
@@ -341,6 +369,8 @@ pub enum Note {
         total: u64,
         /// At which pace.
         pace: Pace,
+        /// How its processes wait, and why.
+        wait: ChosenWait,
     },
     /// The floor runs.
     Floor {
@@ -380,18 +410,21 @@ impl fmt::Display for Note {
             Self::Ours {
                 total,
                 pace: Pace::Fastest,
+                wait,
             } => write!(
                 f,
-                "bench: ours — perception-sim → controller → bridge on Env 3, {total} actions"
+                "bench: ours — perception-sim → controller → bridge on Env 3, {total} actions, \
+                 wait {wait}"
             ),
             Self::Ours {
                 total,
                 pace: Pace::Real,
+                wait,
             } => write!(
                 f,
                 "bench: ours — perception-sim → controller → bridge on Env 3, {total} actions \
-                 at the robot's pace (200 ms settle, Bluetooth-like link delay): about {} \
-                 minutes, and as long again for the floor",
+                 at the robot's pace (200 ms settle, Bluetooth-like link delay), wait {wait}: \
+                 about {} minutes, and as long again for the floor",
                 (total * 800).div_ceil(60_000)
             ),
             Self::Floor {
@@ -450,8 +483,11 @@ impl fmt::Display for Note {
 pub struct LatencyResult {
     /// How the processes reached each other: `shm` or `zenoh`.
     pub via: Via,
-    /// How the measured receivers waited.
+    /// `--wait` as given (`auto` by default).
     pub wait: String,
+    /// How the measured receivers waited (the controller and the bridge, the floor's hop and
+    /// sink): `wait`, with `auto` resolved.
+    pub wait_chosen: String,
     /// Actions measured.
     pub actions: u64,
     /// The per-action budget, µs.
@@ -502,6 +538,11 @@ pub struct LatencyResult {
     /// The floor's first hop alone (observation stamped → the hop's command published): the
     /// counterpart of `decision` with no work.
     pub floor_decision: LatencyReport,
+    /// Ours' second hop: the command published → received by the bridge (its wake-up).
+    pub command_hop: LatencyReport,
+    /// The floor's second hop: the hop's command published → received at the sink (empty
+    /// over Zenoh).
+    pub floor_second_hop: LatencyReport,
     /// Ours over the floor's, at the median.
     pub ratio_p50: f64,
     /// Ours over the floor's, at the 99th percentile.
@@ -605,6 +646,8 @@ pub struct AwakeFloor {
     pub round_trip: LatencyReport,
     /// Observation stamped → the hop's command published.
     pub first_hop: LatencyReport,
+    /// The hop's command published → received at the sink.
+    pub second_hop: LatencyReport,
     /// Ours over this floor's, at the median.
     pub ratio_p50: f64,
     /// Ours over this floor's, at the 99th percentile.
@@ -622,6 +665,7 @@ impl AwakeFloor {
         Self {
             round_trip: floor.round_trip,
             first_hop: floor.first_hop,
+            second_hop: floor.second_hop,
             ratio_p50,
             ratio_p99,
             comparable: comparable(ratio_p50, ratio_p99),
@@ -636,6 +680,7 @@ pub(crate) struct Ours {
     pub(crate) controller: ControllerSummary,
     pub(crate) cpu: std::collections::BTreeMap<String, CpuUse>,
     pub(crate) catches: std::collections::BTreeMap<String, Catches>,
+    pub(crate) command_hop: LatencyReport,
     pub(crate) cycle_us: u64,
 }
 
@@ -646,6 +691,9 @@ pub struct Floor {
     pub round_trip: LatencyReport,
     /// Observation stamped → the hop's command published.
     pub first_hop: LatencyReport,
+    /// The hop's command published → received at the sink (empty over Zenoh, where the
+    /// link's hops are not timed apart).
+    pub second_hop: LatencyReport,
     /// Each role's CPU (`source`, `hop`, `sink`; empty where not measured).
     pub cpu: std::collections::BTreeMap<String, CpuUse>,
 }

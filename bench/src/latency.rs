@@ -137,6 +137,7 @@ fn measure_ours(
     (harness.notes)(&Note::Ours {
         total,
         pace: s.pace,
+        wait: s.chosen_wait(),
     });
     let started = Instant::now();
     let (report, controller) = match s.via {
@@ -145,7 +146,7 @@ fn measure_ours(
             group.run_split(&Carrier::for_via(s.via, &group.dir)?, harness)?
         }
     };
-    let (cpu, catches) = group.cpu_and_catches(&controller)?;
+    let (cpu, catches, command_hop) = group.bridge_and_perception(&controller)?;
     let elapsed = started.elapsed();
     if report.count < s.actions() {
         return Err(BenchError::Run(format!(
@@ -166,6 +167,7 @@ fn measure_ours(
         controller,
         cpu,
         catches,
+        command_hop,
         cycle_us,
     })
 }
@@ -184,7 +186,7 @@ fn measure_floor(
     (harness.notes)(&Note::Floor {
         via: s.via,
         total: latency.total(),
-        wait: s.wait,
+        wait: s.acting_wait(),
         cycle_us,
         awake,
     });
@@ -230,6 +232,8 @@ fn floor_of_via(
             Ok(Floor {
                 round_trip,
                 first_hop,
+                // The link's two hops are timed on its two sides: only the whole is measured.
+                second_hop: Default::default(),
                 cpu: Default::default(),
             })
         }
@@ -250,11 +254,13 @@ fn result(
         controller,
         cpu,
         catches,
+        command_hop,
         cycle_us,
     } = ours;
     let Floor {
         round_trip: floor,
         first_hop: floor_decision,
+        second_hop: floor_second_hop,
         cpu: floor_cpu,
     } = floor;
     let (ratio_p50, ratio_p99) = (
@@ -265,6 +271,7 @@ fn result(
     LatencyResult {
         via: s.via,
         wait: s.wait.to_string(),
+        wait_chosen: s.acting_wait().to_string(),
         actions: report.count,
         budget_us: s.budget_us,
         views: s.views,
@@ -289,6 +296,8 @@ fn result(
         floor_max_us: floor.max_us,
         floor_misses: floor.misses,
         floor_decision,
+        command_hop,
+        floor_second_hop,
         ratio_p50,
         ratio_p99,
         floor_comparable: comparable(ratio_p50, ratio_p99),

@@ -57,6 +57,9 @@ pub struct RelayConfig {
     /// Where the sink writes the first hop's [`LatencyReport`]: observation stamped → the
     /// hop's command published, the floor's counterpart of the controller's decision latency.
     pub hop_report: Option<PathBuf>,
+    /// Where the sink writes the second hop's latencies alone (the hop's command published →
+    /// received at the sink), if anywhere.
+    pub second_hop_report: Option<PathBuf>,
     /// Give up after this long without a message, ms.
     pub idle_timeout_ms: u64,
     /// Pause between an acknowledgement and the next observation, µs (the loop's cadence).
@@ -89,6 +92,7 @@ impl Default for RelayConfig {
             budget_us: tes_runtime::settings::DEFAULT_BUDGET_US,
             report: None,
             hop_report: None,
+            second_hop_report: None,
             idle_timeout_ms: 10_000,
             gap_us: 0,
             hop_cpu: None,
@@ -447,6 +451,7 @@ fn sink(
     let mut cpu = CpuMeter::process();
     let mut latency = LatencyRecorder::new(cfg.budget_us, cfg.warmup);
     let mut first_hop = LatencyRecorder::new(cfg.budget_us, cfg.warmup);
+    let mut second_hop = LatencyRecorder::new(cfg.budget_us, cfg.warmup);
     let mut last_seq = 0;
     loop {
         let cmd = match commands.next(idle, stop)? {
@@ -457,8 +462,10 @@ fn sink(
         // Recorded on arrival, as the bridge does; a resent observation's second answer is
         // not a new round trip.
         if cmd.seq > last_seq {
-            latency.record_ns(monotonic_ns().saturating_sub(cmd.observed_ns));
+            let now = monotonic_ns();
+            latency.record_ns(now.saturating_sub(cmd.observed_ns));
             first_hop.record_ns(cmd.stamp_ns.saturating_sub(cmd.observed_ns));
+            second_hop.record_ns(now.saturating_sub(cmd.stamp_ns));
             last_seq = cmd.seq;
         }
         acks.send(MotorState {
@@ -477,6 +484,7 @@ fn sink(
     for (path, report) in [
         (&cfg.report, &report),
         (&cfg.hop_report, &first_hop.report()),
+        (&cfg.second_hop_report, &second_hop.report()),
     ] {
         if let Some(path) = path {
             report.save(path).map_err(|error| RelayError::Report {
@@ -530,6 +538,7 @@ mod tests {
             service_prefix: format!("relay-test-{}/", std::process::id()),
             report: Some(dir.path().join("floor.json")),
             hop_report: Some(dir.path().join("hop.json")),
+            second_hop_report: Some(dir.path().join("second-hop.json")),
             messages: 300,
             warmup: 50,
             idle_timeout_ms: 20_000,
@@ -556,6 +565,10 @@ mod tests {
         let hop = LatencyReport::load(&dir.path().join("hop.json")).unwrap();
         assert_eq!((hop.count, hop.warmup), (250, 50));
         assert!(hop.p50_us <= report.p50_us && hop.max_us <= report.max_us);
+        // So is the second.
+        let second = LatencyReport::load(&dir.path().join("second-hop.json")).unwrap();
+        assert_eq!((second.count, second.warmup), (250, 50));
+        assert!(second.p50_us <= report.p50_us && second.max_us <= report.max_us);
         assert!(matches!(
             run("relay-nope", &cfg, &stop),
             Err(RelayError::Role(_))

@@ -24,10 +24,15 @@ pub fn latency(result: &LatencyResult, warmup: u64) -> String {
     let on = |c: Option<usize>| c.map_or("unpinned".to_owned(), |c| format!("CPU {c}"));
     let _ = writeln!(
         out,
-        "tes bench latency: pace {}, wait {}, {}, {} actions measured (+{warmup} warm-up), {} views, budget {} us, one action every {} us; \
+        "tes bench latency: pace {}, wait {}{}, {}, {} actions measured (+{warmup} warm-up), {} views, budget {} us, one action every {} us; \
          acting thread and floor hop {}, planner (and the floor's helper) {}, polling {} us after each plan",
         result.pace,
         result.wait,
+        if result.wait == result.wait_chosen {
+            String::new()
+        } else {
+            format!(" ({})", result.wait_chosen)
+        },
         result.order,
         result.actions,
         result.views,
@@ -52,9 +57,15 @@ pub fn latency(result: &LatencyResult, warmup: u64) -> String {
         &result.floor(),
     );
     row(&mut out, "floor: first hop only", &result.floor_decision);
+    if result.floor_second_hop.count > 0 {
+        row(&mut out, "floor: second hop only", &result.floor_second_hop);
+    }
     if let Some(awake) = &result.floor_awake {
         row(&mut out, "floor, every CPU kept awake", &awake.round_trip);
         row(&mut out, "  its first hop only", &awake.first_hop);
+        if awake.second_hop.count > 0 {
+            row(&mut out, "  its second hop only", &awake.second_hop);
+        }
     }
     row(&mut out, "ours: observation -> bridge", &result.ours());
     row(&mut out, "ours: controller decision only", &result.decision);
@@ -64,6 +75,13 @@ pub fn latency(result: &LatencyResult, warmup: u64) -> String {
         "  of which: received -> published",
         &result.compute,
     );
+    if result.command_hop.count > 0 {
+        row(
+            &mut out,
+            "ours: command -> bridge only",
+            &result.command_hop,
+        );
+    }
     if result.learn.count > 0 {
         row(&mut out, "learning after the command", &result.learn);
     }
@@ -95,6 +113,7 @@ pub fn latency(result: &LatencyResult, warmup: u64) -> String {
             }
         );
     }
+    p50_by_hop(&mut out, result);
     cpu(&mut out, result);
     result.observers().for_each(|r| observer_cost(&mut out, r));
     // A planner thread yields to everything: where the measured loops keep both CPUs busy
@@ -115,6 +134,47 @@ pub fn latency(result: &LatencyResult, warmup: u64) -> String {
         (result.actions + warmup) as f64 / result.plans.max(1) as f64
     );
     out
+}
+
+/// Where ours and the floor differ at the median, hop by hop: each hop's wake-up (the first
+/// hop's from the observation's stamp to the controller's receiving it, the floor's hop
+/// doing no work), the controller's compute, and the second hop (the command's publication
+/// to its receiver's having it), against the floor and the floor kept awake. Medians of the
+/// parts do not add up exactly to the median of the whole: the rest is said.
+fn p50_by_hop(out: &mut String, r: &LatencyResult) {
+    if r.command_hop.count == 0 || r.floor_second_hop.count == 0 {
+        return;
+    }
+    let signed = |a: u64, b: u64| a as i64 - b as i64;
+    let mut against = |name: &str, round_trip: u64, first_hop: u64, second_hop: u64| {
+        let total = signed(r.p50_us, round_trip);
+        let wake = signed(r.wake.p50_us, first_hop);
+        let compute = r.compute.p50_us as i64;
+        let second = signed(r.command_hop.p50_us, second_hop);
+        let _ = writeln!(
+            out,
+            "p50 ours - {name}: {total:+} us = first hop's wake-up {wake:+} ({} vs {first_hop}) \
+             + compute {compute:+} + second hop's wake-up {second:+} ({} vs {second_hop}) \
+             + {:+} (medians of parts do not add up exactly)",
+            r.wake.p50_us,
+            r.command_hop.p50_us,
+            total - wake - compute - second
+        );
+    };
+    against(
+        "floor",
+        r.floor_p50_us,
+        r.floor_decision.p50_us,
+        r.floor_second_hop.p50_us,
+    );
+    if let Some(awake) = &r.floor_awake {
+        against(
+            "floor kept awake",
+            awake.round_trip.p50_us,
+            awake.first_hop.p50_us,
+            awake.second_hop.p50_us,
+        );
+    }
 }
 
 /// Each process's CPU, the group's then the floor's, and the anticipating receivers' catches.

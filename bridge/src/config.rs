@@ -469,9 +469,11 @@ pub struct IpcConfig {
     /// Values: text, at most [`SERVICE_PREFIX_MAX`](tes_runtime::settings::SERVICE_PREFIX_MAX)
     /// bytes.
     pub service_prefix: String,
-    /// How the bridge waits for commands.
+    /// How the bridge waits for commands (`auto`: anticipate announced messages
+    /// only, block for any other; a launch resolves it, see `[launch] wait`).
     ///
-    /// Values: `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>` | `anticipate`.
+    /// Values: `auto` | `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>` |
+    /// `anticipate`.
     pub wait: WaitStrategy,
     /// The per-action budget the observation-to-command latency is held to; overruns are
     /// counted in the latency report.

@@ -81,6 +81,9 @@ pub struct RunSummary {
     pub interrupted: bool,
     /// Observation → command latency of the commands received (keep-alives left out).
     pub latency: LatencyReport,
+    /// Its last hop alone: command published → received here (the controller's wake-up of
+    /// the bridge), with the same budget and warm-up.
+    pub command_hop: LatencyReport,
     /// Set when the loop stopped because the link to the brick stayed down (or never came
     /// up) for longer than the link timeout.
     pub link_down: Option<LinkDown>,
@@ -247,13 +250,21 @@ pub fn run_with<T: Transport, C: Clock>(
     tracing::info!(command = %names.command, motor_state = %names.motor_state, %wait, "bridge loop running");
 
     let mut summary = RunSummary::default();
+    let mut command_hop = latency.alike();
     // A command on the board that the predecessor of a respawned bridge did not carry out.
     if let Some(cmd) = in_flight_at_start(&node, names, &commands, &stop)? {
         tracing::info!(
             seq = cmd.seq,
             "taking over the command in flight (its motion was never reported)"
         );
-        on_command(bridge, clock, latency, cmd, &mut summary, &mut cpu);
+        on_command(
+            bridge,
+            clock,
+            (&mut *latency, &mut command_hop),
+            cmd,
+            &mut summary,
+            &mut cpu,
+        );
     }
     let mut link = LinkWatch::new(link_timeout);
     let mut was_down = false;
@@ -265,10 +276,24 @@ pub fn run_with<T: Transport, C: Clock>(
             .clamp(Duration::from_micros(20), IDLE_TICK);
         match commands.next(timeout, &stop)? {
             Ok(cmd) => {
-                on_command(bridge, clock, latency, cmd, &mut summary, &mut cpu);
+                on_command(
+                    bridge,
+                    clock,
+                    (&mut *latency, &mut command_hop),
+                    cmd,
+                    &mut summary,
+                    &mut cpu,
+                );
                 // Take every other pending command too.
                 while let Some(cmd) = commands.try_next()? {
-                    on_command(bridge, clock, latency, cmd, &mut summary, &mut cpu);
+                    on_command(
+                        bridge,
+                        clock,
+                        (&mut *latency, &mut command_hop),
+                        cmd,
+                        &mut summary,
+                        &mut cpu,
+                    );
                 }
             }
             Err(Idle::Timeout) => {
@@ -300,6 +325,7 @@ pub fn run_with<T: Transport, C: Clock>(
     }
     bridge.stop();
     summary.latency = latency.report();
+    summary.command_hop = command_hop.report();
     summary.cpu = cpu.report();
     summary.catches = commands.catches();
     tracing::info!(%summary, "bridge loop stopped");
@@ -333,18 +359,21 @@ fn report_progress<T: Transport>(
     }
 }
 
-/// One received command: its latency recorded first, then handed to the brick; the CPU
-/// meter is marked once the warm-up is over.
+/// One received command: its latencies recorded first (from the observation, and from the
+/// command's own publication), then handed to the brick; the CPU meter is marked once the
+/// warm-up is over.
 fn on_command<T: Transport, C: Clock>(
     bridge: &mut Bridge<T>,
     clock: &C,
-    latency: &mut LatencyRecorder,
+    (latency, command_hop): (&mut LatencyRecorder, &mut LatencyRecorder),
     cmd: Command,
     summary: &mut RunSummary,
     cpu: &mut CpuMeter,
 ) {
     if cmd.observed_ns != 0 {
-        latency.record_ns(monotonic_ns().saturating_sub(cmd.observed_ns));
+        let now = monotonic_ns();
+        latency.record_ns(now.saturating_sub(cmd.observed_ns));
+        command_hop.record_ns(now.saturating_sub(cmd.stamp_ns));
         if latency.warmed_up() {
             cpu.mark();
         }

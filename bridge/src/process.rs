@@ -145,6 +145,9 @@ pub struct BridgeReport {
     /// Waiting by `anticipate`: how commands came against their poll windows.
     #[serde(default)]
     pub catches: Option<tes_runtime::channel::Catches>,
+    /// The last hop alone: command published → received by the bridge.
+    #[serde(default)]
+    pub command_hop: LatencyReport,
 }
 
 impl BridgeReport {
@@ -157,6 +160,7 @@ impl BridgeReport {
             run_ms,
             cpu: summary.cpu,
             catches: summary.catches,
+            command_hop: summary.command_hop,
         }
     }
 

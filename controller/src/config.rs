@@ -83,9 +83,11 @@ pub struct ControllerConfig {
     ///
     /// Values: µs, at least [`MIN_BUDGET_US`](tes_runtime::settings::MIN_BUDGET_US).
     pub budget_us: u64,
-    /// How the acting loop waits for observations.
+    /// How the acting loop waits for observations (`auto`: anticipate announced messages
+    /// only, block for any other; a launch resolves it, see `[launch] wait`).
     ///
-    /// Values: `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>` | `anticipate`.
+    /// Values: `auto` | `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>` |
+    /// `anticipate`.
     pub wait: WaitStrategy,
     /// Seed of the exploration.
     ///

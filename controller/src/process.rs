@@ -528,7 +528,7 @@ impl Shell {
         &mut self,
         stop: &AtomicBool,
     ) -> Result<Option<Observation>, ControllerError> {
-        let anticipating = self.ports.observations.strategy() == WaitStrategy::Anticipate;
+        let anticipating = self.ports.observations.strategy().anticipates();
         loop {
             let acting = &mut self.acting;
             // Anticipating, the work between polls is the poll window's: just before the

@@ -8,7 +8,6 @@ pub use tes_bridge::transport::in_words;
 
 use tes_controller::summary::EpisodeLine;
 use tes_link::{LinkCounts, Mode, Topic};
-use tes_runtime::channel::WaitStrategy;
 use tes_topics::wire::Refusal;
 use tes_topics::{Progress, Role};
 
@@ -36,8 +35,8 @@ pub enum Event {
         episodes: u32,
         /// The real-time factor (0: as fast as possible).
         real_time_factor: f64,
-        /// How the processes wait.
-        wait: WaitStrategy,
+        /// How the processes wait: `[launch] wait`, and what `auto` chose.
+        wait: crate::file::ChosenWait,
         /// What happens when a child dies.
         restart: Restart,
         /// The group's iceoryx2 service prefix.

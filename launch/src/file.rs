@@ -57,20 +57,20 @@ pub struct LaunchSection {
     ///
     /// Values: factor, finite, at least 0.
     pub real_time_factor: f64,
-    /// How every process waits for its next input: `block` sleeps until notified (no CPU
-    /// while idle); `spin` busy-polls (lowest latency, a core per process);
-    /// `spin-then-block` busy-polls for 200 µs (or the µs given), then sleeps; `anticipate`
-    /// sleeps until shortly before the next message is due (perception announces each
-    /// observation as the robot starts to settle; otherwise the gap between messages is
-    /// learned), polls for at most 2 ms then, and blocks if it is late. What each costs at
-    /// the robot's pace on a 2-vCPU VM (decision p50 / p99, the controller's share of a
-    /// core): `block`
-    /// 113 / 768 µs at 0.17 %, `spin-then-block` 50 / 140 µs at 1 %, `spin` 11 / 79 µs at a
-    /// whole core (the bridge 30 %), `anticipate` 8 / 39 µs at 0.26 %; at the fastest pace
-    /// `block` 12 µs at 16 % and `spin` 1 µs at a core, while `anticipate`, with nothing
-    /// announced there, misses its windows (the machine and the runs: docs/performance.md).
+    /// How every process waits for its next input: `auto` anticipates where the input is
+    /// announced and blocks where it is not — at a real-time factor above 0 (with a settle
+    /// time) the controller and the bridge `anticipate` (perception announces each
+    /// observation as the robot starts to settle) and perception blocks; at the fastest pace,
+    /// where nothing is announced, every process blocks; the launch says at start what it
+    /// chose. `block` sleeps until notified (no CPU while idle); `spin` busy-polls (lowest
+    /// latency, a core per process); `spin-then-block` busy-polls for 200 µs (or the µs
+    /// given), then sleeps; `anticipate` sleeps until shortly before the next message is due
+    /// (announced, or learned from the gaps between messages), polls for at most 2 ms then,
+    /// and blocks if it is late. What each costs, decision p50 / p99 and the controller's
+    /// share of a core, by machine and pace: docs/performance.md.
     ///
-    /// Values: `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>` | `anticipate`.
+    /// Values: `auto` | `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>` |
+    /// `anticipate`.
     pub wait: WaitStrategy,
     /// What to do when a child dies: `never` stops the others and exits non-zero;
     /// `on-failure` respawns it, at most `max_restarts` times.
@@ -197,6 +197,61 @@ impl LaunchSection {
     }
 }
 
+/// How `[launch] wait` comes out for each process of a launch, and why: said at start.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ChosenWait {
+    /// `[launch] wait` as set.
+    pub setting: WaitStrategy,
+    /// Whether perception announces each observation to this launch's processes (a
+    /// real-time factor above 0, a settle time, and perception on this host: its heads-ups
+    /// do not cross the link): what `auto` goes by.
+    pub announced: bool,
+}
+
+impl ChosenWait {
+    /// The choice of a launch whose perception settles for `settle_ms` at `real_time_factor`,
+    /// on this host (`perception_here`) or on another.
+    pub fn new(
+        setting: WaitStrategy,
+        real_time_factor: f64,
+        settle_ms: u64,
+        perception_here: bool,
+    ) -> Self {
+        Self {
+            setting,
+            announced: real_time_factor > 0.0 && settle_ms > 0 && perception_here,
+        }
+    }
+
+    /// How the controller and the bridge wait: their inputs (an observation, the command that
+    /// follows it) are what perception announces.
+    pub fn acting(&self) -> WaitStrategy {
+        self.setting.resolve(self.announced)
+    }
+
+    /// How perception waits: its input, the brick's motion report, is never announced.
+    pub fn perception(&self) -> WaitStrategy {
+        self.setting.resolve(false)
+    }
+}
+
+impl std::fmt::Display for ChosenWait {
+    /// The setting, and with `auto` what it chose and why.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match (self.setting, self.announced) {
+            (WaitStrategy::Auto, true) => f.write_str(
+                "auto: anticipate for the controller and the bridge (perception announces \
+                 each observation as the robot settles), block for perception",
+            ),
+            (WaitStrategy::Auto, false) => f.write_str(
+                "auto: block (nothing is announced here to anticipate: no settle time, or \
+                 perception on another host)",
+            ),
+            (other, _) => write!(f, "{other}"),
+        }
+    }
+}
+
 /// The least `[launch] stall_timeout_ms`: a stall is longer than any healthy pause.
 pub const MIN_STALL_TIMEOUT_MS: u64 = 500;
 
@@ -206,7 +261,7 @@ impl Default for LaunchSection {
             episodes: 20,
             arena: 3,
             real_time_factor: 0.0,
-            wait: WaitStrategy::Block,
+            wait: WaitStrategy::Auto,
             restart: Restart::Never,
             max_restarts: 3,
             grace_ms: 3000,
@@ -289,8 +344,8 @@ pub const INHERITED: &[Inherited] = &[
     Inherited {
         table: "perception",
         key: "wait",
-        value: "`[launch] wait`",
-        apply: |l, c| c.perception.wait = l.wait,
+        value: "`[launch] wait` (`auto`: `block`)",
+        apply: |l, c| c.perception.wait = chosen_wait(l, c).perception(),
     },
     Inherited {
         table: "perception",
@@ -307,8 +362,8 @@ pub const INHERITED: &[Inherited] = &[
     Inherited {
         table: "controller",
         key: "wait",
-        value: "`[launch] wait`",
-        apply: |l, c| c.controller.wait = l.wait,
+        value: AUTO_ACTING,
+        apply: |l, c| c.controller.wait = chosen_wait(l, c).acting(),
     },
     Inherited {
         table: "controller",
@@ -343,8 +398,8 @@ pub const INHERITED: &[Inherited] = &[
     Inherited {
         table: "bridge",
         key: "ipc.wait",
-        value: "`[launch] wait`",
-        apply: |l, c| c.bridge.ipc.wait = l.wait,
+        value: AUTO_ACTING,
+        apply: |l, c| c.bridge.ipc.wait = chosen_wait(l, c).acting(),
     },
     Inherited {
         table: "bridge",
@@ -360,6 +415,27 @@ pub const INHERITED: &[Inherited] = &[
         apply: |l, c| c.bridge.watchdog.deadline_ms = watchdog_deadline_ms(l, &c.bridge),
     },
 ];
+
+/// What the reference says the controller's and the bridge's `wait` get.
+const AUTO_ACTING: &str = "`[launch] wait` (`auto`: `anticipate` when perception announces its \
+                           observations, at a real-time factor above 0 with a settle time, \
+                           on this host; else `block`)";
+
+/// How the launch's `wait` comes out for the children `c` (perception's settle time as its
+/// table sets it).
+fn chosen_wait(l: &LaunchSection, c: &Children) -> ChosenWait {
+    ChosenWait::new(
+        l.wait,
+        l.real_time_factor,
+        c.perception.settle_ms,
+        plays_perception(l),
+    )
+}
+
+/// Whether the launch runs perception itself (no roles: all three).
+fn plays_perception(l: &LaunchSection) -> bool {
+    l.roles.is_empty() || l.roles.contains(&Role::Perception)
+}
 
 /// The seed the children get: `[launch] seed`, at most `i64::MAX` (TOML integers end there;
 /// a larger seed set in code is written as that).
@@ -527,6 +603,16 @@ impl LaunchFile {
     /// `error`, about a key of `table`, placed at its line in the file.
     fn place(&self, error: SettingError, table: &str) -> SettingError {
         error.in_file(self.origin.clone(), Some(table), self.text.as_deref())
+    }
+
+    /// How `[launch] wait` comes out for each process (said at start).
+    pub fn chosen_wait(&self) -> ChosenWait {
+        ChosenWait::new(
+            self.launch.wait,
+            self.launch.real_time_factor,
+            self.perception.settle_ms,
+            plays_perception(&self.launch),
+        )
     }
 
     /// The children's settings: the tables with the launch-wide values set where a table
@@ -1311,6 +1397,46 @@ mod tests {
 
     /// What a child reads from the run directory is exactly the typed settings the launcher
     /// checked: typed → TOML → typed is the identity for each child.
+    /// With no `wait` set, the controller and the bridge anticipate where perception announces
+    /// its observations (a real-time factor above 0 and a settle time) and every process
+    /// blocks at the fastest pace; the launch says which, and why.
+    #[test]
+    fn the_default_wait_anticipates_at_the_robots_pace_and_blocks_at_the_fastest() {
+        let mut file = LaunchFile::default();
+        assert_eq!(file.launch.wait, WaitStrategy::Auto);
+        let c = file.children().expect("valid");
+        for wait in [c.perception.wait, c.controller.wait, c.bridge.ipc.wait] {
+            assert_eq!(wait, WaitStrategy::Block);
+        }
+        assert!(file.chosen_wait().to_string().starts_with("auto: block"));
+
+        file.launch.real_time_factor = 1.0;
+        let c = file.children().expect("valid");
+        assert_eq!(c.perception.wait, WaitStrategy::Block);
+        assert_eq!(c.controller.wait, WaitStrategy::Anticipate);
+        assert_eq!(c.bridge.ipc.wait, WaitStrategy::Anticipate);
+        let said = file.chosen_wait().to_string();
+        assert!(
+            said.starts_with("auto: anticipate for the controller and the bridge"),
+            "{said}"
+        );
+
+        // Perception on another host: its heads-ups stay there.
+        file.launch.roles = vec![Role::Controller];
+        let c = file.children().expect("valid");
+        assert_eq!(c.controller.wait, WaitStrategy::Block);
+        file.launch.roles = Vec::new();
+        // No settle time: nothing is announced, whatever the pace.
+        file.perception.settle_ms = 0;
+        let c = file.children().expect("valid");
+        assert_eq!(c.controller.wait, WaitStrategy::Block);
+        // A strategy set is used as it is.
+        file.launch.wait = WaitStrategy::Anticipate;
+        let c = file.children().expect("valid");
+        assert_eq!(c.perception.wait, WaitStrategy::Anticipate);
+        assert_eq!(file.chosen_wait().to_string(), "anticipate");
+    }
+
     #[test]
     fn the_children_read_back_exactly_what_the_launcher_checked() {
         for extra in [

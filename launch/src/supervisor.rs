@@ -1070,7 +1070,7 @@ fn say_the_plan(file: &LaunchFile, prepared: &Prepared, observer: &mut dyn Obser
         arena: u32::from(launch.arena),
         episodes: launch.episodes,
         real_time_factor: launch.real_time_factor,
-        wait: launch.wait,
+        wait: file.chosen_wait(),
         restart: launch.restart,
         service_prefix: prepared.service_prefix.clone(),
         run_dir: prepared.run_dir.clone(),

@@ -134,6 +134,9 @@ pub struct ArrivalModel {
     /// Whether the sender announces its messages: then an unannounced message (a
     /// keep-alive, a re-publication) is not expected, and gaps are not learned.
     announces: bool,
+    /// Whether messages are expected from the gaps between them when none is announced
+    /// (`anticipate`); `auto` left unresolved expects announced messages only.
+    learns_gaps: bool,
     /// The current expectation's window passed with no message.
     window_spent: bool,
     catches: Catches,
@@ -148,6 +151,7 @@ impl Default for ArrivalModel {
             last_arrival_ns: None,
             due_ns: None,
             announces: false,
+            learns_gaps: true,
             window_spent: false,
             catches: Catches::default(),
         }
@@ -155,6 +159,15 @@ impl Default for ArrivalModel {
 }
 
 impl ArrivalModel {
+    /// A model that expects announced messages only: with no heads-up, it always blocks
+    /// (the `auto` wait of a receiver outside a launch).
+    pub fn announced_only() -> Self {
+        Self {
+            learns_gaps: false,
+            ..Self::default()
+        }
+    }
+
     /// A heads-up: the next message is due at `due_ns`.
     pub fn announce(&mut self, due_ns: u64) {
         self.due_ns = Some(due_ns);
@@ -176,7 +189,7 @@ impl ArrivalModel {
                 due + self.lateness.max().unwrap_or(0),
                 MAX_WINDOW_NS,
             ),
-            (None, Some(last)) if !self.announces => {
+            (None, Some(last)) if !self.announces && self.learns_gaps => {
                 let (shortest, longest) = (self.gaps.min()?, self.gaps.max()?);
                 (
                     last + shortest,
@@ -276,17 +289,22 @@ impl<S: Service> fmt::Debug for Anticipation<S> {
 }
 
 impl<S: Service> Anticipation<S> {
-    /// What a receiver waiting by `strategy` keeps: an anticipation with `anticipate`,
-    /// nothing with any other.
+    /// What a receiver waiting by `strategy` keeps: an anticipation with `anticipate`, one
+    /// of announced messages only with `auto`, nothing with any other.
     pub(crate) fn for_strategy(strategy: crate::wait::WaitStrategy) -> Option<Box<Self>> {
-        (strategy == crate::wait::WaitStrategy::Anticipate).then(|| Box::new(Self::new()))
+        use crate::wait::WaitStrategy;
+        match strategy {
+            WaitStrategy::Anticipate => Some(Box::new(Self::new(ArrivalModel::default()))),
+            WaitStrategy::Auto => Some(Box::new(Self::new(ArrivalModel::announced_only()))),
+            _ => None,
+        }
     }
 
-    /// Learned timing only, until [`listen`](Self::listen) adds a heads-up channel.
-    fn new() -> Self {
+    /// `model`'s timing only, until [`listen`](Self::listen) adds a heads-up channel.
+    fn new(model: ArrivalModel) -> Self {
         set_fine_timer_slack();
         Self {
-            model: RefCell::new(ArrivalModel::default()),
+            model: RefCell::new(model),
             alone: false,
             heads_up: None,
         }
@@ -429,6 +447,21 @@ mod tests {
         assert_eq!(m.step(4_100 * MS), Step::Block);
         assert_eq!(m.catches().missed_windows, 0);
         assert_eq!(m.gaps.len, 0);
+    }
+
+    #[test]
+    fn announced_only_never_expects_an_unannounced_message_but_polls_for_an_announced_one() {
+        let mut m = ArrivalModel::announced_only();
+        // Regular messages, none announced: nothing is learned to poll for.
+        for i in 1..=20u64 {
+            m.arrived(i * 10 * MS, false);
+        }
+        assert_eq!(m.window(), None);
+        assert_eq!(m.step(205 * MS), Step::Block);
+        // Once announced, it polls for it as `anticipate` does.
+        m.announce(400 * MS);
+        assert!(matches!(m.step(300 * MS), Step::SleepUntil(f) if f < 400 * MS));
+        assert_eq!(m.catches().missed_windows, 0);
     }
 
     #[test]

@@ -3,10 +3,12 @@
 //! waits by.
 //!
 //! * [`Outbox`] — publishes a payload (written straight into shared memory) and notifies.
-//! * [`Inbox`] — receives the next payload, waiting by its strategy:
-//!   * `block` (default) — sleep on the event listener until notified: no CPU burnt while idle;
+//! * [`Inbox`] — receives the next payload, waiting by its strategy ([`crate::wait`]):
+//!   * `auto` (default) — `anticipate` for announced messages, else `block`;
+//!   * `block` — sleep on the event listener until notified: no CPU burnt while idle;
 //!   * `spin` — busy-poll the subscriber: lowest latency, one core fully used;
-//!   * `spin-then-block` — busy-poll for a bounded time, then sleep.
+//!   * `spin-then-block` — busy-poll for a bounded time, then sleep;
+//!   * `anticipate` — sleep until shortly before the next message is due, then poll.
 //! * [`LatestOutbox`] / [`LatestInbox`] — the same over a one-entry iceoryx2 blackboard: the
 //!   receiver sees the latest value, each once. Sending allocates nothing (the publisher of
 //!   0.10 allocates one small object per sample), so the controller sends its commands this

@@ -141,6 +141,11 @@ impl LatencyRecorder {
         }
     }
 
+    /// A recorder of another quantity with the same budget and warm-up (and no windows).
+    pub fn alike(&self) -> Self {
+        Self::new(self.budget_ns / 1000, self.warmup)
+    }
+
     /// Also reports every consecutive `size` samples after the warm-up as a window of their
     /// own ([`LatencyRecorder::windows`]); `size` 0 turns windows off. A finished window's
     /// report is kept in a list (one small allocation per window, none per sample).

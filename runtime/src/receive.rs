@@ -47,7 +47,7 @@ where
     }
     let start = Instant::now();
     let spin_for = match strategy {
-        WaitStrategy::Block | WaitStrategy::Anticipate => Duration::ZERO,
+        WaitStrategy::Block | WaitStrategy::Anticipate | WaitStrategy::Auto => Duration::ZERO,
         WaitStrategy::Spin => timeout,
         WaitStrategy::SpinThenBlock(d) => d.min(timeout),
     };

@@ -1,7 +1,13 @@
 //! How a process waits for its next input: the [`WaitStrategy`] every TES process takes from
 //! its `wait` key.
 //!
-//! * `block` (default) — sleep on the event listener until notified: no CPU burnt while idle;
+//! * `auto` (default) — `anticipate` for a receiver whose messages are announced, `block` for
+//!   one whose are not: a launch at the robot's pace (real-time factor above 0, where
+//!   perception announces each observation) has the controller and the bridge anticipate and
+//!   perception block; at the fastest pace, where nothing is announced, every process blocks
+//!   ([`WaitStrategy::resolve`]). A receiver left with `auto` (outside a launch) anticipates
+//!   announced messages only, and blocks for any other;
+//! * `block` — sleep on the event listener until notified: no CPU burnt while idle;
 //! * `spin` — busy-poll the subscriber: lowest latency, one core fully used;
 //! * `spin-then-block` — busy-poll for a bounded time, then sleep;
 //! * `anticipate` — sleep until shortly before the next message is due (announced by its
@@ -38,8 +44,11 @@ pub const IDLE_TICK: Duration = Duration::from_millis(100);
 /// How a process waits for its next input.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum WaitStrategy {
-    /// Sleep on the event until notified (no CPU while idle).
+    /// `Anticipate` where the messages are announced, `Block` where they are not
+    /// ([`WaitStrategy::resolve`]).
     #[default]
+    Auto,
+    /// Sleep on the event until notified (no CPU while idle).
     Block,
     /// Busy-poll the subscriber (for a dedicated core).
     Spin,
@@ -59,11 +68,37 @@ impl WaitStrategy {
     pub fn spins(self) -> bool {
         matches!(self, Self::Spin | Self::SpinThenBlock(_))
     }
+
+    /// What a receiver waits by when its messages are `announced` (a heads-up before each,
+    /// as perception gives at the robot's pace) or not: `auto` becomes `anticipate` or
+    /// `block`; any other strategy stays as it is.
+    ///
+    /// ```
+    /// use tes_runtime::wait::WaitStrategy;
+    ///
+    /// assert_eq!(WaitStrategy::Auto.resolve(true), WaitStrategy::Anticipate);
+    /// assert_eq!(WaitStrategy::Auto.resolve(false), WaitStrategy::Block);
+    /// assert_eq!(WaitStrategy::Spin.resolve(true), WaitStrategy::Spin);
+    /// ```
+    pub fn resolve(self, announced: bool) -> WaitStrategy {
+        match self {
+            Self::Auto if announced => Self::Anticipate,
+            Self::Auto => Self::Block,
+            other => other,
+        }
+    }
+
+    /// Whether a receiver waiting by it may anticipate its messages: `anticipate`, and
+    /// `auto` left unresolved (which anticipates announced messages only).
+    pub fn anticipates(self) -> bool {
+        matches!(self, Self::Anticipate | Self::Auto)
+    }
 }
 
 impl fmt::Display for WaitStrategy {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
+            WaitStrategy::Auto => f.write_str("auto"),
             WaitStrategy::Block => f.write_str("block"),
             WaitStrategy::Spin => f.write_str("spin"),
             WaitStrategy::Anticipate => f.write_str("anticipate"),
@@ -75,10 +110,11 @@ impl fmt::Display for WaitStrategy {
     }
 }
 
-/// A wait strategy that is not `block`, `spin`, `spin-then-block` or `spin-then-block:<µs>`.
+/// A wait strategy that is not `auto`, `block`, `spin`, `spin-then-block`,
+/// `spin-then-block:<µs>` or `anticipate`.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error(
-    "unknown wait strategy {0:?}: expected block, spin, spin-then-block, spin-then-block:<microseconds> or anticipate"
+    "unknown wait strategy {0:?}: expected auto, block, spin, spin-then-block, spin-then-block:<microseconds> or anticipate"
 )]
 pub struct BadWaitStrategy(pub String);
 
@@ -87,6 +123,7 @@ impl FromStr for WaitStrategy {
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         match s {
+            "auto" => Ok(Self::Auto),
             "block" => Ok(Self::Block),
             "spin" => Ok(Self::Spin),
             "anticipate" => Ok(Self::Anticipate),
@@ -115,7 +152,7 @@ impl<'de> serde::Deserialize<'de> for WaitStrategy {
 
             fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
                 f.write_str(
-                    "a wait strategy: block, spin, spin-then-block, spin-then-block:<microseconds> or anticipate",
+                    "a wait strategy: auto, block, spin, spin-then-block, spin-then-block:<microseconds> or anticipate",
                 )
             }
 
@@ -134,6 +171,7 @@ mod tests {
     #[test]
     fn wait_strategies_parse_and_print() {
         for (text, strategy) in [
+            ("auto", WaitStrategy::Auto),
             ("block", WaitStrategy::Block),
             ("spin", WaitStrategy::Spin),
             ("anticipate", WaitStrategy::Anticipate),
@@ -152,12 +190,16 @@ mod tests {
         for bad in [
             "",
             "Block",
+            "Auto",
             "spin-then-block:",
             "spin-then-block:0",
             "sleep",
         ] {
             let err = bad.parse::<WaitStrategy>().unwrap_err();
-            assert!(err.to_string().contains("expected block, spin"), "{err}");
+            assert!(
+                err.to_string().contains("expected auto, block, spin"),
+                "{err}"
+            );
         }
     }
 
@@ -169,6 +211,7 @@ mod tests {
     #[test]
     fn wait_strategies_are_read_and_written_as_their_string_form() {
         for text in [
+            "auto",
             "block",
             "spin",
             "spin-then-block",
@@ -189,5 +232,21 @@ mod tests {
         }
         let err = toml::from_str::<Settings>("wait = 5").expect_err("a number");
         assert!(err.message().contains("a wait strategy"), "{err}");
+    }
+
+    #[test]
+    fn auto_anticipates_what_is_announced_and_blocks_for_the_rest() {
+        assert_eq!(WaitStrategy::default(), WaitStrategy::Auto);
+        assert_eq!(WaitStrategy::Auto.resolve(true), WaitStrategy::Anticipate);
+        assert_eq!(WaitStrategy::Auto.resolve(false), WaitStrategy::Block);
+        for other in [
+            WaitStrategy::Block,
+            WaitStrategy::Spin,
+            WaitStrategy::SpinThenBlock(WaitStrategy::DEFAULT_SPIN),
+            WaitStrategy::Anticipate,
+        ] {
+            assert_eq!(other.resolve(true), other);
+            assert_eq!(other.resolve(false), other);
+        }
     }
 }

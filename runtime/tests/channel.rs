@@ -12,7 +12,7 @@ fn names(tag: &str) -> (String, String) {
     (format!("{base}/payload"), format!("{base}/event"))
 }
 
-fn round_trip(strategy: WaitStrategy, tag: &str) {
+fn round_trip(strategy: WaitStrategy, tag: &str) -> Inbox<Command> {
     let (payload, event) = names(tag);
     let node = channel::node(false).unwrap();
     let inbox: Inbox<Command> = Inbox::open(&node, &payload, &event, 0, strategy).unwrap();
@@ -57,6 +57,7 @@ fn round_trip(strategy: WaitStrategy, tag: &str) {
         inbox.next(Duration::from_secs(5), &stop).unwrap(),
         Err(Idle::Stopped)
     );
+    inbox
 }
 
 #[test]
@@ -82,21 +83,41 @@ fn anticipate_round_trip() {
     round_trip(WaitStrategy::Anticipate, "anticipate");
 }
 
+/// `auto` outside a launch, with no heads-up: it never polls for an unannounced message
+/// (no window opened, none missed), so it waits as `block` does.
+#[test]
+fn auto_without_heads_ups_round_trip_never_polls() {
+    let inbox = round_trip(WaitStrategy::Auto, "auto");
+    let catches = inbox.catches().expect("an auto inbox keeps score");
+    assert_eq!(
+        (catches.polled, catches.missed_windows),
+        (0, 0),
+        "{catches:?}"
+    );
+    assert_eq!(catches.woken, 50, "{catches:?}");
+}
+
+/// `auto` with heads-ups anticipates them as `anticipate` does.
+#[test]
+fn auto_catches_announced_messages_polling() {
+    announced_messages("heads-up-auto", false, WaitStrategy::Auto);
+}
+
 /// A sender that announces each message 20 ms ahead: the anticipating receiver sleeps, then
 /// polls, and catches most messages polling (a loaded machine may make a few late, which it
 /// still receives by blocking).
 #[test]
 fn announced_messages_are_caught_polling() {
-    announced_messages("heads-up", false);
+    announced_messages("heads-up", false, WaitStrategy::Anticipate);
 }
 
 /// The same with a sender that loans each message's sample just before it is due.
 #[test]
 fn announced_messages_are_caught_polling_sent_in_samples_loaned_ahead() {
-    announced_messages("heads-up-loaned", true);
+    announced_messages("heads-up-loaned", true, WaitStrategy::Anticipate);
 }
 
-fn announced_messages(tag: &str, loan_ahead: bool) {
+fn announced_messages(tag: &str, loan_ahead: bool, strategy: WaitStrategy) {
     let base = format!("tes-test/{}/{tag}", std::process::id());
     let (payload, event, due, due_event) = (
         format!("{base}/payload"),
@@ -105,7 +126,7 @@ fn announced_messages(tag: &str, loan_ahead: bool) {
         format!("{base}/due/event"),
     );
     let node = channel::node(false).unwrap();
-    let inbox: Inbox<Command> = Inbox::open(&node, &payload, &event, 0, WaitStrategy::Anticipate)
+    let inbox: Inbox<Command> = Inbox::open(&node, &payload, &event, 0, strategy)
         .unwrap()
         .with_heads_up(&node, &due, &due_event)
         .unwrap();

@@ -46,9 +46,11 @@ pub struct PerceptionConfig {
     ///
     /// Values: count, at least 1.
     pub step_cap: u32,
-    /// How perception waits for motion reports.
+    /// How perception waits for motion reports (`auto`: anticipate announced messages
+    /// only, block for any other; a launch resolves it, see `[launch] wait`).
     ///
-    /// Values: `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>` | `anticipate`.
+    /// Values: `auto` | `block` | `spin` | `spin-then-block` | `spin-then-block:<µs>` |
+    /// `anticipate`.
     pub wait: WaitStrategy,
     /// Prefixed to every iceoryx2 service name (to run groups side by side).
     ///

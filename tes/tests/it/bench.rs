@@ -177,13 +177,40 @@ fn latency_runs_both_paths_and_reports_every_key() {
     assert_eq!(v["planner_cpu"], planner, "{v}");
     // The decision splits into its wake-up and its compute; deciding first (the default),
     // the learning follows each command and is timed on its own.
-    for part in ["decision", "wake", "compute", "learn", "floor_decision"] {
+    for part in [
+        "decision",
+        "wake",
+        "compute",
+        "learn",
+        "floor_decision",
+        "command_hop",
+        "floor_second_hop",
+    ] {
         assert_eq!(v[part]["count"], 150, "{part}: {v}");
     }
+    // The second hops (command published → received) are parts of the round trips: never
+    // longer than them, sample by sample, so neither at the median.
+    for (hop, whole) in [
+        ("command_hop", "p50_us"),
+        ("floor_second_hop", "floor_p50_us"),
+    ] {
+        assert!(v[hop]["p50_us"].as_u64() <= v[whole].as_u64(), "{hop}: {v}");
+    }
+    assert_eq!(awake["second_hop"]["count"], 150, "{v}");
     assert_eq!(v["order"], "decide-first", "{v}");
     let overran = v["learning_overran"].as_u64().expect("a count");
     assert!(overran <= 150, "{v}");
-    assert_eq!(v["wait"], "block");
+    // No --wait: auto, which blocks at the fastest pace (nothing is announced there).
+    assert_eq!(
+        (v["wait"].as_str(), v["wait_chosen"].as_str()),
+        (Some("auto"), Some("block")),
+        "{v}"
+    );
+    assert!(
+        v["catches"].as_object().is_some_and(|c| c.is_empty()),
+        "{v}"
+    );
+    assert!(stderr.contains("wait auto: block"), "{stderr}");
     assert_eq!(v["planning"], "thread", "{v}");
     assert_eq!(v["actions"], 150);
     // The planner thread planned (at least the first plan, before the first action) and the
@@ -207,6 +234,7 @@ fn latency_runs_both_paths_and_reports_every_key() {
         &[
             "floor.json",
             "floor-first-hop.json",
+            "floor-second-hop.json",
             "bridge.json",
             "controller.json",
             "library.tesl",
@@ -215,11 +243,11 @@ fn latency_runs_both_paths_and_reports_every_key() {
 }
 
 /// At the robot's pace (the settle time, the brick in real time, a Bluetooth-like link
-/// delay), anticipating receivers catch the observations and commands that perception
-/// announces, the floor runs at the same cadence with the same help, and the CPU is
-/// reported for both.
+/// delay) with no `--wait`, the controller and the bridge anticipate the observations and
+/// commands that perception announces and catch them inside their poll windows; the floor
+/// runs at the same cadence with the same help, and the CPU is reported for both.
 #[test]
-fn latency_at_the_robots_pace_anticipates_and_reports_cpu() {
+fn latency_at_the_robots_pace_anticipates_by_default_and_catches_in_the_windows() {
     let dir = tempfile::tempdir().unwrap();
     let (ok, stdout, stderr) = run(
         &[
@@ -227,8 +255,6 @@ fn latency_at_the_robots_pace_anticipates_and_reports_cpu() {
             "latency",
             "--pace",
             "real",
-            "--wait",
-            "anticipate",
             "--actions",
             "20",
             "--warmup",
@@ -242,10 +268,18 @@ fn latency_at_the_robots_pace_anticipates_and_reports_cpu() {
     );
     assert!(ok, "bench failed:\n{stderr}");
     assert!(stderr.contains("at the robot's pace"), "{stderr}");
+    assert!(
+        stderr.contains("wait auto: anticipate for the controller and the bridge"),
+        "the choice is said at start: {stderr}"
+    );
     let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
     assert_eq!(
-        (v["pace"].as_str(), v["wait"].as_str()),
-        (Some("real"), Some("anticipate")),
+        (
+            v["pace"].as_str(),
+            v["wait"].as_str(),
+            v["wait_chosen"].as_str()
+        ),
+        (Some("real"), Some("auto"), Some("anticipate")),
         "{v}"
     );
     // The settle time alone is 200 ms an action.
@@ -257,11 +291,23 @@ fn latency_at_the_robots_pace_anticipates_and_reports_cpu() {
     assert!(v["floor_awake"].is_null(), "{v}");
     assert_floor_consistent(&v);
     assert_cpu_reported(&v);
-    // Both anticipating receivers kept score of every message they took.
+    // Both anticipating receivers took every message (25, warm-up included), and caught
+    // most inside their poll windows: a window that opens too late or closes too early
+    // leaves its message to a blocking wake-up, counted as woken, and its window as missed.
     for who in ["controller", "bridge"] {
         let c = &v["catches"][who];
-        let taken = c["polled"].as_u64().unwrap() + c["woken"].as_u64().unwrap();
-        assert!(taken >= 25, "{who}: {v}");
+        let count = |key: &str| {
+            c[key]
+                .as_u64()
+                .unwrap_or_else(|| panic!("{who} {key}: {v}"))
+        };
+        let (caught, woken, missed) = (count("polled"), count("woken"), count("missed_windows"));
+        assert!(caught + woken >= 25, "{who}: {v}");
+        assert!(
+            caught >= (caught + woken) / 2,
+            "{who}: most windows caught: {v}"
+        );
+        assert!(missed <= (caught + woken) / 2, "{who}: {v}");
     }
     assert_eq!(v["allocations"], 0, "{v}");
 }

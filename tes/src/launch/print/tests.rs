@@ -84,7 +84,12 @@ fn the_plan_is_said_in_the_files_words() {
         arena: 3,
         episodes: 1,
         real_time_factor: 0.0,
-        wait: tes_runtime::channel::WaitStrategy::default(),
+        wait: tes_launch::file::ChosenWait::new(
+            tes_runtime::channel::WaitStrategy::default(),
+            0.0,
+            200,
+            true,
+        ),
         restart: tes_launch::file::Restart::Never,
         service_prefix: "tes-1-2/".into(),
         run_dir: "runs/x".into(),
@@ -93,7 +98,8 @@ fn the_plan_is_said_in_the_files_words() {
     let line = &lines[0].1;
     assert!(
         line.starts_with("launch: arena Env 3, 1 episode, real-time factor 0,")
-            && line.contains(", restart never,"),
+            && line.contains(", restart never,")
+            && line.contains("wait auto: block (nothing is announced here"),
         "{line}"
     );
     let ended = Event::Verdict(Verdict {
