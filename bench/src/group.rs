@@ -139,18 +139,18 @@ impl Group {
     }
 }
 
+/// Each process's CPU, the anticipating receivers' catches, the bridge's command hop.
+type RunExtras = (
+    BTreeMap<String, CpuUse>,
+    BTreeMap<String, Catches>,
+    LatencyReport,
+);
+
 impl Group {
     /// Each process's CPU over the measured actions, from the reports of the last run and the
     /// controller's `summary`; the anticipating receivers' catches; and the bridge's command
     /// hop (command published → received).
-    pub(crate) fn bridge_and_perception(
-        &self,
-        summary: &ControllerSummary,
-    ) -> Result<(
-        BTreeMap<String, CpuUse>,
-        BTreeMap<String, Catches>,
-        LatencyReport,
-    )> {
+    pub(crate) fn bridge_and_perception(&self, summary: &ControllerSummary) -> Result<RunExtras> {
         let bridge = BridgeReport::load(&self.files.bridge_report).map_err(BenchError::io(
             format!("no bridge report at {}", self.files.bridge_report.display()),
         ))?;

@@ -19,6 +19,7 @@ fn row(out: &mut String, name: &str, r: &LatencyReport) {
 
 /// The latency run as a table: the floor, ours and the controller's parts, the ratios, the
 /// recorder's cost, and the planner's work.
+#[allow(clippy::too_many_lines, reason = "one row of the table a statement")]
 pub fn latency(result: &LatencyResult, warmup: u64) -> String {
     let mut out = String::new();
     let on = |c: Option<usize>| c.map_or("unpinned".to_owned(), |c| format!("CPU {c}"));

@@ -303,11 +303,9 @@ fn latency_at_the_robots_pace_anticipates_by_default_and_catches_in_the_windows(
         };
         let (caught, woken, missed) = (count("polled"), count("woken"), count("missed_windows"));
         assert!(caught + woken >= 25, "{who}: {v}");
-        assert!(
-            caught >= (caught + woken) / 2,
-            "{who}: most windows caught: {v}"
-        );
-        assert!(missed <= (caught + woken) / 2, "{who}: {v}");
+        // Of the 25 announced messages (the bridge also wakes for keep-alives, unannounced).
+        assert!(caught >= 25 / 2, "{who}: most windows caught: {v}");
+        assert!(missed <= 25 / 2, "{who}: {v}");
     }
     assert_eq!(v["allocations"], 0, "{v}");
 }
