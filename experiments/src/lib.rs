@@ -39,6 +39,7 @@ pub mod experiment;
 pub mod fig4;
 pub mod grid;
 pub mod jobs;
+pub mod ledger;
 pub mod lifelong;
 pub mod method;
 pub mod prereg;
