@@ -100,6 +100,46 @@ fn assert_kept(out: &std::path::Path, files: &[&str]) {
     }
 }
 
+/// The decision splits into its wake-up and its compute; deciding first (the default), the
+/// learning follows each command and is timed on its own; each second hop is timed too.
+fn assert_parts_timed(v: &serde_json::Value, actions: u64) {
+    let awake = &v["floor_awake"];
+    for part in [
+        "decision",
+        "wake",
+        "compute",
+        "learn",
+        "floor_decision",
+        "command_hop",
+        "floor_second_hop",
+    ] {
+        assert_eq!(v[part]["count"], actions, "{part}: {v}");
+    }
+    // The second hops (command published → received) are parts of the round trips: never
+    // longer than them, sample by sample, so neither at the median.
+    for (hop, whole) in [
+        ("command_hop", "p50_us"),
+        ("floor_second_hop", "floor_p50_us"),
+    ] {
+        assert!(v[hop]["p50_us"].as_u64() <= v[whole].as_u64(), "{hop}: {v}");
+    }
+    assert_eq!(awake["second_hop"]["count"], actions, "{v}");
+}
+
+/// No --wait: auto, which blocks at the fastest pace (nothing is announced there).
+fn assert_auto_blocked(v: &serde_json::Value, stderr: &str) {
+    assert_eq!(
+        (v["wait"].as_str(), v["wait_chosen"].as_str()),
+        (Some("auto"), Some("block")),
+        "{v}"
+    );
+    assert!(
+        v["catches"].as_object().is_some_and(|c| c.is_empty()),
+        "{v}"
+    );
+    assert!(stderr.contains("wait auto: block"), "{stderr}");
+}
+
 #[test]
 fn latency_runs_both_paths_and_reports_every_key() {
     let dir = tempfile::tempdir().unwrap();
@@ -175,42 +215,11 @@ fn latency_runs_both_paths_and_reports_every_key() {
     assert_cpu_reported(&v);
     assert_eq!(v["acting_cpu"], acting, "{v}");
     assert_eq!(v["planner_cpu"], planner, "{v}");
-    // The decision splits into its wake-up and its compute; deciding first (the default),
-    // the learning follows each command and is timed on its own.
-    for part in [
-        "decision",
-        "wake",
-        "compute",
-        "learn",
-        "floor_decision",
-        "command_hop",
-        "floor_second_hop",
-    ] {
-        assert_eq!(v[part]["count"], 150, "{part}: {v}");
-    }
-    // The second hops (command published → received) are parts of the round trips: never
-    // longer than them, sample by sample, so neither at the median.
-    for (hop, whole) in [
-        ("command_hop", "p50_us"),
-        ("floor_second_hop", "floor_p50_us"),
-    ] {
-        assert!(v[hop]["p50_us"].as_u64() <= v[whole].as_u64(), "{hop}: {v}");
-    }
-    assert_eq!(awake["second_hop"]["count"], 150, "{v}");
+    assert_parts_timed(&v, 150);
     assert_eq!(v["order"], "decide-first", "{v}");
     let overran = v["learning_overran"].as_u64().expect("a count");
     assert!(overran <= 150, "{v}");
-    // No --wait: auto, which blocks at the fastest pace (nothing is announced there).
-    assert_eq!(
-        (v["wait"].as_str(), v["wait_chosen"].as_str()),
-        (Some("auto"), Some("block")),
-        "{v}"
-    );
-    assert!(
-        v["catches"].as_object().is_some_and(|c| c.is_empty()),
-        "{v}"
-    );
-    assert!(stderr.contains("wait auto: block"), "{stderr}");
+    assert_auto_blocked(&v, &stderr);
     assert_eq!(v["planning"], "thread", "{v}");
     assert_eq!(v["actions"], 150);
     // The planner thread planned (at least the first plan, before the first action) and the
