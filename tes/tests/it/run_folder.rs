@@ -246,11 +246,15 @@ fn a_refused_launch_leaves_the_data_directory_as_it_was() {
     );
     // In use: a group of this data directory runs meanwhile.
     let running = Group::start_with(dir.path(), &config, 1000);
-    let started = std::time::Instant::now();
-    while data_dir_state(&data) == before && started.elapsed() < Duration::from_secs(30) {
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    // Once an episode has ended every process of the group holds what it holds for the run
+    // (its role locks, the controller's library lock, the run folder): before that, the
+    // snapshot could miss a file the group was about to make.
+    running.wait_for_episodes(1, Duration::from_secs(60));
     let during = data_dir_state(&data);
+    assert_ne!(
+        during, before,
+        "the running group shows in the data directory"
+    );
     let path = dir.path().join("second.toml");
     std::fs::write(&path, refused_file("")).expect("launch file");
     let out = tes_command()
