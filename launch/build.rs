@@ -24,6 +24,7 @@ const SOURCES: &[&str] = &[
     "../bridge/src/actions.rs",
     "../bridge/src/brick/mod.rs",
     "../runtime/src/settings.rs",
+    "../ros2/src/world.rs",
 ];
 
 /// The struct a launch file is read into (in src/file.rs): its fields are the top tables.

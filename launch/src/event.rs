@@ -29,8 +29,8 @@ pub enum Event {
     Warning(String),
     /// The launch is about to start: what it runs and where.
     Planned {
-        /// The arena (1–3).
-        arena: u32,
+        /// The world: `arena Env 3`, or a ROS 2 robot's.
+        world: String,
         /// Episodes to run.
         episodes: u32,
         /// The real-time factor (0: as fast as possible).

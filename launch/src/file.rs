@@ -6,6 +6,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 use tes_bridge::config::{BridgeSettings, TransportKind};
+
+use crate::ros2::WorldSettings;
 use tes_controller::config::{ControllerConfig, default_data_dir};
 use tes_perception_sim::process::PerceptionConfig;
 use tes_runtime::channel::WaitStrategy;
@@ -291,6 +293,7 @@ pub fn process_of(table: &str) -> Option<&'static str> {
         "perception" => Some(tes_perception_sim::process::config::PROCESS),
         "controller" => Some(tes_controller::config::PROCESS),
         "bridge" => Some(tes_bridge::config::PROCESS),
+        "ros2_world" => Some(crate::ros2::WORLD),
         _ => None,
     }
 }
@@ -428,8 +431,14 @@ fn chosen_wait(l: &LaunchSection, c: &Children) -> ChosenWait {
         l.wait,
         l.real_time_factor,
         c.perception.settle_ms,
-        plays_perception(l),
+        announces(l, c.ros2_world.is_some()),
     )
+}
+
+/// Whether perception-sim runs here and announces its observations: a ROS 2 robot's world
+/// does not (its steps come when the robot sends them).
+fn announces(l: &LaunchSection, ros2_world: bool) -> bool {
+    plays_perception(l) && !ros2_world
 }
 
 /// Whether the launch runs perception itself (no roles: all three).
@@ -475,6 +484,7 @@ pub struct Tables {
     perception: PerceptionConfig,
     controller: ControllerConfig,
     bridge: BridgeSettings,
+    ros2_world: Option<WorldSettings>,
 }
 
 /// A whole launch file: each table typed as its process reads it, and where it came from.
@@ -488,6 +498,10 @@ pub struct LaunchFile {
     pub controller: ControllerConfig,
     /// `[bridge]`: the bridge's settings, before the launch-wide values go in.
     pub bridge: BridgeSettings,
+    /// `[ros2_world]`: a ROS 2 robot as the world, in place of perception-sim and the bridge
+    /// (docs/ros2.md; its keys are `tes_ros2::world::WorldSettings`, checked by a `tes` built
+    /// with ROS 2).
+    pub ros2_world: Option<WorldSettings>,
     /// The [`INHERITED`] keys the children's tables set themselves, as `table.key`
     /// (`perception.wait`): the launch-wide values do not replace them.
     pub own: BTreeSet<String>,
@@ -504,12 +518,14 @@ impl Default for LaunchFile {
             perception,
             controller,
             bridge,
+            ros2_world,
         } = Tables::default();
         Self {
             launch,
             perception,
             controller,
             bridge,
+            ros2_world,
             own: BTreeSet::new(),
             origin: Origin::Defaults,
             text: None,
@@ -527,6 +543,8 @@ pub struct Children {
     pub controller: ControllerConfig,
     /// perception-sim's.
     pub perception: PerceptionConfig,
+    /// The ROS 2 world's, when the launch's world is a ROS 2 robot.
+    pub ros2_world: Option<WorldSettings>,
 }
 
 /// The trajectory perception writes in the run folder, unless its table names a file.
@@ -564,6 +582,7 @@ impl LaunchFile {
             perception: t.perception,
             controller: t.controller,
             bridge: t.bridge,
+            ros2_world: t.ros2_world,
             own,
             origin,
             text: Some(text.to_owned()),
@@ -586,9 +605,12 @@ impl LaunchFile {
         (!roles.is_empty() && roles.len() < Role::ALL.len()).then_some(roles)
     }
 
-    /// The arena perception runs: its own `arena` if its table sets one, else `[launch] arena`.
+    /// The arena perception runs: its own `arena` if its table sets one, else `[launch] arena`;
+    /// 0 when the world is a ROS 2 robot's.
     pub fn arena(&self) -> u32 {
-        if self.inherits("perception", "arena") {
+        if self.ros2_world.is_some() {
+            0
+        } else if self.inherits("perception", "arena") {
             u32::from(self.launch.arena)
         } else {
             self.perception.arena
@@ -605,13 +627,21 @@ impl LaunchFile {
         error.in_file(self.origin.clone(), Some(table), self.text.as_deref())
     }
 
+    /// The world, as the start of a launch says it: `arena Env 3`, or a ROS 2 robot's.
+    pub fn world_name(&self) -> String {
+        match self.arena() {
+            0 => "the world of a ROS 2 robot ([ros2_world])".to_owned(),
+            n => format!("arena Env {n}"),
+        }
+    }
+
     /// How `[launch] wait` comes out for each process (said at start).
     pub fn chosen_wait(&self) -> ChosenWait {
         ChosenWait::new(
             self.launch.wait,
             self.launch.real_time_factor,
             self.perception.settle_ms,
-            plays_perception(&self.launch),
+            announces(&self.launch, self.ros2_world.is_some()),
         )
     }
 
@@ -620,10 +650,29 @@ impl LaunchFile {
     /// file).
     pub fn children(&self) -> Result<Children, SettingError> {
         check_launch(&self.launch).map_err(|e| self.place(e, "launch"))?;
+        let ros2_world = match &self.ros2_world {
+            Some(table) => {
+                if !self.launch.roles.is_empty() {
+                    return Err(self.place(
+                        SettingError::new(
+                            LAUNCH,
+                            "roles",
+                            "a ROS 2 robot's world ([ros2_world]) runs with the controller on \
+                             one host; the robot's own node is the other side",
+                        ),
+                        "launch",
+                    ));
+                }
+                crate::ros2::check_world(table).map_err(|e| self.place(e, "ros2_world"))?;
+                Some(table.clone())
+            }
+            None => None,
+        };
         let mut children = Children {
             bridge: self.bridge.clone(),
             controller: self.controller.clone(),
             perception: self.perception.clone(),
+            ros2_world,
         };
         for inherited in INHERITED {
             if self.inherits(inherited.table, inherited.key) {
@@ -642,6 +691,8 @@ impl LaunchFile {
             bridge,
             controller,
             perception,
+            // Checked as it was taken in (`children`).
+            ros2_world: _,
         } = children;
         let bridge_cfg = bridge.check().map_err(|e| self.place(e, "bridge"))?;
         controller
@@ -983,12 +1034,20 @@ pub fn prepare(file: &LaunchFile) -> Result<Prepared, LaunchFileError> {
     };
     let run_dir = prepared.run_dir.clone();
     children.write_into(&run_dir);
-    let plays = |role: &Role| file.launch.roles.is_empty() || file.launch.roles.contains(role);
+    // A ROS 2 robot's world plays perception and the bridge both (its node is the robot).
+    let world = children.ros2_world.clone();
+    let plays = |role: &Role| {
+        (file.launch.roles.is_empty() || file.launch.roles.contains(role))
+            && !(world.is_some() && *role == Role::Bridge)
+    };
     for role in START_ORDER.iter().filter(|r| plays(r)) {
-        let text = match role {
-            Role::Bridge => toml::to_string(&children.bridge),
-            Role::Controller => toml::to_string(&children.controller),
-            Role::Perception => toml::to_string(&children.perception),
+        let text = match (role, &world) {
+            (Role::Bridge, _) => toml::to_string(&children.bridge),
+            (Role::Controller, _) => toml::to_string(&children.controller),
+            (Role::Perception, None) => toml::to_string(&children.perception),
+            (Role::Perception, Some(world)) => {
+                crate::ros2::world_file(world, &file.launch, &run_dir)
+            }
         }
         .map_err(|e| {
             unwritable(format!("cannot write the {}'s settings", role.name()))(e.into())

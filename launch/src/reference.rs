@@ -164,6 +164,20 @@ pub const TABLES: &[Table] = &[
                 one, ids unique. The default is the paper's three (section 5.2): forward, \
                 turn left, turn right. Entries written in the file replace the whole table.",
     },
+    Table {
+        name: "ros2_world",
+        array: false,
+        about: "A ROS 2 robot as the world, in place of perception-sim and the bridge (a `tes` \
+                built with `--features ros2`; docs/ros2.md): what its node sends (the counts \
+                every map and step is checked against) and what each action does. Absent by \
+                default: the world is the simulated arena.",
+    },
+    Table {
+        name: "ros2_world.twist",
+        array: true,
+        about: "For a wheeled base: each action's velocity on `cmd_vel`, held for its time, \
+                then a stop. Absent: actions go out by index only.",
+    },
 ];
 
 include!(concat!(env!("OUT_DIR"), "/keys.rs"));
@@ -332,7 +346,9 @@ fn render_values(tables: &toml::Table, header: &[&str], set_all: bool) -> Result
         let value = lookup(defaults, table.name);
         out.push('\n');
         comment(&mut out, table.about);
-        if table.array {
+        if value.is_none() && OPTIONAL_TABLES.contains(&table.name) {
+            write_absent(&mut out, table, set_all)?;
+        } else if table.array {
             let items = value.and_then(toml::Value::as_array);
             for (i, item) in items.into_iter().flatten().enumerate() {
                 if i > 0 {
@@ -353,6 +369,29 @@ fn render_values(tables: &toml::Table, header: &[&str], set_all: bool) -> Result
         }
     }
     Ok(out)
+}
+
+/// The tables a launch file may add that its defaults do not have.
+pub const OPTIONAL_TABLES: &[&str] = &["ros2_world", "ros2_world.twist"];
+
+/// Writes an optional table the values do not have: commented out, each key with its
+/// example — or, `set_all`, written out (one entry of an array of tables) for the parser.
+fn write_absent(out: &mut String, table: &Table, set_all: bool) -> Result<()> {
+    let mark = if set_all { "" } else { "# " };
+    if table.array {
+        writeln!(out, "{mark}[[{}]]", table.name)?;
+    } else {
+        writeln!(out, "{mark}[{}]", table.name)?;
+    }
+    for (name, k) in keys_of(table, None) {
+        out.push('\n');
+        comment(out, k.meaning);
+        comment(out, &format!("{}.", k.allowed));
+        if let Some(example) = k.example {
+            writeln!(out, "{mark}{name} = {example}")?;
+        }
+    }
+    Ok(())
 }
 
 /// Writes `name` of `table`, described by `k`, where the table's (or the array entry's)
@@ -636,6 +675,26 @@ mod tests {
         ]
     }
 
+    /// The tables a launch file may add that its defaults do not have, as the parser's
+    /// field names: a build without ROS 2 reads `[ros2_world]` as any table (and refuses
+    /// it), so only a build with it knows the keys.
+    fn optional_struct_fields() -> Vec<(&'static str, &'static [&'static str])> {
+        #[cfg(feature = "ros2")]
+        {
+            vec![
+                ("ros2_world", fields_of::<tes_ros2::world::WorldSettings>()),
+                (
+                    "ros2_world.twist",
+                    fields_of::<tes_ros2::world::TwistAction>(),
+                ),
+            ]
+        }
+        #[cfg(not(feature = "ros2"))]
+        {
+            Vec::new()
+        }
+    }
+
     /// The dotted tables and keys of `value` (a table at `path`), into `tables` and `keys`.
     fn walk(
         path: &str,
@@ -677,7 +736,8 @@ mod tests {
             "a table of the launch file has no struct in struct_fields() (or one is gone): \
              add it there and to TABLES in launch/src/reference.rs"
         );
-        for (table, fields) in typed {
+        tables.extend(OPTIONAL_TABLES.iter().map(ToString::to_string));
+        for (table, fields) in typed.into_iter().chain(optional_struct_fields()) {
             for field in fields {
                 let at = format!("{table}.{field}");
                 if !tables.contains(&at) {
@@ -689,7 +749,12 @@ mod tests {
     }
 
     fn reference_keys() -> BTreeSet<String> {
-        KEYS.iter().map(Key::path).collect()
+        let known_to_this_build =
+            |k: &&Key| cfg!(feature = "ros2") || !k.table.starts_with("ros2_world");
+        KEYS.iter()
+            .filter(known_to_this_build)
+            .map(Key::path)
+            .collect()
     }
 
     /// Adding a field to any config struct without describing it fails here, naming it.
@@ -718,11 +783,8 @@ mod tests {
             "keys in the reference (launch/build.rs) that no config struct's parser knows: \
              {unknown:?}"
         );
-        assert_eq!(
-            reference_keys().len(),
-            KEYS.len(),
-            "a key is described twice"
-        );
+        let described: BTreeSet<String> = KEYS.iter().map(Key::path).collect();
+        assert_eq!(described.len(), KEYS.len(), "a key is described twice");
         for table in KEYS.iter().map(|k| k.table) {
             assert!(TABLES.iter().any(|t| t.name == table), "no table {table}");
         }

@@ -18,7 +18,7 @@ use tes_link::{Link, LinkError, LinkEvent};
 use tes_recorder::live::Recorder;
 use tes_runtime::channel::{self, IpcError};
 use tes_runtime::progress::{ProgressWatch, holdup};
-use tes_topics::{Role, ServiceNames};
+use tes_topics::{Role, ServiceNames, progress_flags};
 
 use crate::IoError;
 use crate::children::{self, ChildCommand, Running, SpawnError};
@@ -640,7 +640,13 @@ impl Supervisor {
         self.emit_progress(observer);
         let steps = self.watch.latest(Role::Controller).map(|p| p.steps);
         let timeout = stall_timeout(&self.file);
-        if steps.is_some() && steps != self.last_steps {
+        // A ROS 2 robot takes the time it takes (a real base moves for seconds, a reset
+        // between episodes for longer): the ROS 2 world says so while it waits for it.
+        let awaiting_peer = self
+            .watch
+            .latest(Role::Perception)
+            .is_some_and(|p| p.flags & progress_flags::AWAITING_PEER != 0);
+        if awaiting_peer || (steps.is_some() && steps != self.last_steps) {
             self.last_steps = steps;
             self.stall_deadline = Instant::now() + timeout;
         } else if Instant::now() > self.stall_deadline {
@@ -1067,7 +1073,7 @@ fn refuse_a_missing_brick(file: &LaunchFile) -> Result<(), LaunchError> {
 fn say_the_plan(file: &LaunchFile, prepared: &Prepared, observer: &mut dyn Observer) {
     let launch = &file.launch;
     observer.event(&Event::Planned {
-        arena: u32::from(launch.arena),
+        world: file.world_name(),
         episodes: launch.episodes,
         real_time_factor: launch.real_time_factor,
         wait: file.chosen_wait(),

@@ -7,6 +7,7 @@
 //!   arena's markers, the episode's path, decisions, rewards, `/rosout`);
 //! * [`dds`] — the ROS 2 node (RustDDS through `ros2-client`) that publishes them;
 //! * [`bag`] — the same topics as a rosbag2 bag (MCAP storage, `ros2msg` schemas, CDR);
+//! * [`world`] — a ROS 2 robot as the group's world: its map and steps in, actions out;
 //! * [`group`] — the thread that reads a running group's iceoryx2 services, off the acting
 //!   path, into the node and the bag.
 //!
@@ -30,3 +31,4 @@ pub mod dds;
 pub mod group;
 pub mod msg;
 pub mod scene;
+pub mod world;

@@ -260,6 +260,20 @@ string function\nuint32 line\n"
         "MultiArrayLayout layout\nfloat32[] data\n"
     );
     definition!(
+        FLOAT64_MULTI_ARRAY,
+        "std_msgs",
+        "Float64MultiArray",
+        [MULTI_ARRAY_LAYOUT],
+        "MultiArrayLayout layout\nfloat64[] data\n"
+    );
+    definition!(
+        UINT32_MULTI_ARRAY,
+        "std_msgs",
+        "UInt32MultiArray",
+        [MULTI_ARRAY_LAYOUT],
+        "MultiArrayLayout layout\nuint32[] data\n"
+    );
+    definition!(
         MULTI_ARRAY_LAYOUT,
         "std_msgs",
         "MultiArrayLayout",
@@ -611,6 +625,79 @@ pub struct Twist {
     pub angular: Vector3,
 }
 message!(Twist, TWIST);
+
+/// `std_msgs/msg/MultiArrayDimension`: one dimension of a multi-array's layout.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct MultiArrayDimension {
+    /// What the dimension counts (`states`, `columns`, `step`).
+    pub label: String,
+    /// Its size.
+    pub size: u32,
+    /// Its stride: the elements one step of the dimension above skips.
+    pub stride: u32,
+}
+
+/// `std_msgs/msg/MultiArrayLayout`.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct MultiArrayLayout {
+    /// The dimensions, outermost first.
+    pub dim: Vec<MultiArrayDimension>,
+    /// Elements before the first.
+    pub data_offset: u32,
+}
+
+impl MultiArrayLayout {
+    /// A layout of `dims` (label, size), strides derived, no offset.
+    pub fn of(dims: &[(&str, u32)]) -> Self {
+        let mut stride: u32 = dims.iter().map(|d| d.1).product();
+        let dim = dims
+            .iter()
+            .map(|&(label, size)| {
+                let d = MultiArrayDimension {
+                    label: label.to_owned(),
+                    size,
+                    stride,
+                };
+                stride = stride.checked_div(size).unwrap_or(0);
+                d
+            })
+            .collect();
+        Self {
+            dim,
+            data_offset: 0,
+        }
+    }
+}
+
+/// `std_msgs/msg/Float32MultiArray`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Float32MultiArray {
+    /// How `data` is laid out.
+    pub layout: MultiArrayLayout,
+    /// The numbers.
+    pub data: Vec<f32>,
+}
+message!(Float32MultiArray, FLOAT32_MULTI_ARRAY);
+
+/// `std_msgs/msg/Float64MultiArray`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Float64MultiArray {
+    /// How `data` is laid out.
+    pub layout: MultiArrayLayout,
+    /// The numbers.
+    pub data: Vec<f64>,
+}
+message!(Float64MultiArray, FLOAT64_MULTI_ARRAY);
+
+/// `std_msgs/msg/UInt32MultiArray`.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct UInt32MultiArray {
+    /// How `data` is laid out.
+    pub layout: MultiArrayLayout,
+    /// The numbers.
+    pub data: Vec<u32>,
+}
+message!(UInt32MultiArray, UINT32_MULTI_ARRAY);
 
 #[cfg(test)]
 mod tests {

@@ -56,9 +56,13 @@ enum Command {
 
 /// Children log to stderr (their log file in the run directory, which the launcher relays to
 /// its terminal), level from `RUST_LOG` (default: warnings and errors only; the launcher
-/// prints the per-episode lines).
+/// prints the per-episode lines). RustDDS's own lines are left out by default: a ROS 2
+/// world's DDS logs every send to a peer's IPv6 locator this host cannot reach as a warning,
+/// and a large map's fragment bookkeeping as an error, while the exchange works; what
+/// matters is said by the world itself (no map, no step from the robot).
+/// `RUST_LOG=warn,rustdds=warn` shows them.
 fn init_child_logging() {
-    tes_runtime::logging::init("warn");
+    tes_runtime::logging::init("warn,rustdds=off");
 }
 
 /// Counts the controller child's acting-path allocations for its report.

@@ -459,6 +459,9 @@ pub mod progress_flags {
     pub const LINK_DOWN: u32 = 1;
     /// The bridge's link has not been up yet since the bridge started.
     pub const LINK_NEVER_UP: u32 = 1 << 1;
+    /// Perception waits on a peer outside the group that sets its own pace — a ROS 2
+    /// robot's next step — so a group without new commands is not stalled.
+    pub const AWAITING_PEER: u32 = 1 << 2;
 }
 
 /// How far one process of the group got: published on [`service::PROGRESS`] a few times a

@@ -173,3 +173,34 @@ class String(IdlStruct, typename=ros("std_msgs", "String")):
 class Twist(IdlStruct, typename=ros("geometry_msgs", "Twist")):
     linear: Vector3
     angular: Vector3
+
+
+@dataclass
+class MultiArrayDimension(IdlStruct, typename=ros("std_msgs", "MultiArrayDimension")):
+    label: str
+    size: uint32
+    stride: uint32
+
+
+@dataclass
+class MultiArrayLayout(IdlStruct, typename=ros("std_msgs", "MultiArrayLayout")):
+    dim: sequence[MultiArrayDimension]
+    data_offset: uint32
+
+
+@dataclass
+class Float32MultiArray(IdlStruct, typename=ros("std_msgs", "Float32MultiArray")):
+    layout: MultiArrayLayout
+    data: sequence[float32]
+
+
+@dataclass
+class Float64MultiArray(IdlStruct, typename=ros("std_msgs", "Float64MultiArray")):
+    layout: MultiArrayLayout
+    data: sequence[float64]
+
+
+@dataclass
+class UInt32MultiArray(IdlStruct, typename=ros("std_msgs", "UInt32MultiArray")):
+    layout: MultiArrayLayout
+    data: sequence[uint32]

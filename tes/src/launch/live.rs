@@ -21,8 +21,6 @@ struct Live {
     episodes_planned: u32,
     budget_us: u64,
     arena: Option<ArenaId>,
-    /// The arena perception runs, as the header says it.
-    arena_number: u32,
     processes: Vec<ProcessRow>,
     episodes: Vec<EpisodeRow>,
     robot: Option<RobotAt>,
@@ -33,13 +31,13 @@ impl Observer for Live {
         self.printer.event(event);
         match event {
             Event::Planned {
+                world,
                 service_prefix,
                 run_dir,
                 ..
             } => {
                 self.title = format!(
-                    "TES launch: arena Env {}, services {service_prefix}*, run folder {}",
-                    self.arena_number,
+                    "TES launch: {world}, services {service_prefix}*, run folder {}",
                     run_dir.display()
                 );
             }
@@ -123,7 +121,6 @@ pub(crate) fn run(file: &LaunchFile, options: Options) -> Result<Verdict> {
         episodes_planned: file.launch.episodes,
         budget_us: file.controller.budget_us,
         arena: ArenaId::from_number(file.arena()).ok(),
-        arena_number: file.arena(),
         processes: Vec::new(),
         episodes: Vec::new(),
         robot: None,

@@ -122,7 +122,7 @@ fn run_line(event: &Event) -> Option<Said> {
         )),
         Event::Warning(w) => warn(format!("launch: warning: {w}")),
         Event::Planned {
-            arena,
+            world,
             episodes,
             real_time_factor,
             wait,
@@ -130,7 +130,7 @@ fn run_line(event: &Event) -> Option<Said> {
             service_prefix,
             run_dir,
         } => note(format!(
-            "launch: arena Env {arena}, {}, real-time factor {real_time_factor}, wait {wait}, \
+            "launch: {world}, {}, real-time factor {real_time_factor}, wait {wait}, \
              restart {restart}, services {service_prefix}*, run folder {}",
             count(u64::from(*episodes), "episode"),
             run_dir.display()

@@ -310,3 +310,241 @@ mod on_ros2 {
         }
     }
 }
+
+/// A ROS 2 robot as the world (`[ros2_world]`, docs/ros2.md): an independent robot node on
+/// Eclipse Cyclone DDS (`ros2/tests/peers/grid_robot.py`, no TES package: standard messages
+/// only) plays one of the paper's §5.1 grid tasks, and `tes launch` learns it over ROS 2.
+#[cfg(feature = "ros2")]
+mod ros2_world {
+    use std::io::{BufRead, BufReader};
+    use std::path::{Path, PathBuf};
+    use std::process::{Child, Command, Stdio};
+    use std::time::Duration;
+
+    use serde_json::{Value, json};
+    use tes_controller::summary::EpisodeLine;
+    use tes_experiments::episode::{AgentSettings, run_agent};
+    use tes_experiments::grid::GridEnv;
+    use tes_experiments::method::Method;
+    use tes_perception_sim::grid::{GridSuite, GridTask};
+
+    use crate::common::{Group, launch_file};
+
+    /// The grid task played: the suite's task 1 (20 × 20, 160 actions at most an episode),
+    /// with the paper's 200 irrelevant features.
+    const TASK: usize = 1;
+    /// The suite's seed.
+    const WORLD_SEED: u64 = 2017;
+    /// Episodes the robot plays and the launch runs.
+    const EPISODES: u32 = 20;
+    /// In-process runs of the same task that make the spread.
+    const RUNS: u64 = 20;
+
+    fn task() -> GridTask {
+        GridSuite::paper(WORLD_SEED, 200).swap_remove(TASK)
+    }
+
+    /// The task as the robot node reads it: its map (with the unreachable out state the
+    /// group's map numbers after the cells), its true dynamics and its starts.
+    fn task_json(task: &GridTask) -> Value {
+        let n = task.n_states();
+        let (e, a) = (task.n_effects(), task.n_actions());
+        let mut next: Vec<Vec<usize>> = (0..n)
+            .map(|s| (0..e).map(|k| task.apply_effect(s, k)).collect())
+            .collect();
+        next.push(vec![n; e]);
+        let mut reward: Vec<f64> = (0..n).map(|s| task.reward(s)).collect();
+        reward.push(0.0);
+        let mut terminal: Vec<bool> = (0..n).map(|s| task.is_terminal(s)).collect();
+        terminal.push(true);
+        let mut features: Vec<Vec<u32>> = (0..n).map(|s| task.features(s).to_vec()).collect();
+        features.push(Vec::new());
+        let mut probs: Vec<Vec<Vec<f64>>> = (0..n)
+            .map(|s| {
+                (0..a)
+                    .map(|k| task.true_effect_probs(s, k).to_vec())
+                    .collect()
+            })
+            .collect();
+        probs.push(vec![[1.0, 0.0, 0.0, 0.0, 0.0][..e].to_vec(); a]);
+        let starts: Vec<usize> = (0..n).filter(|&s| !task.is_terminal(s)).collect();
+        json!({
+            "width": task.width(), "height": task.height(), "n_states": n + 1,
+            "n_actions": a, "n_effects": e, "n_features": task.n_features(),
+            "next_state": next, "reward": reward, "terminal": terminal,
+            "features": features, "effect_probs": probs, "starts": starts,
+            "step_cap": task.step_cap(),
+        })
+    }
+
+    /// The launch file's `[ros2_world]` for the task, and the controller's mDAGL at the
+    /// paper's §5.1 settings (λ = 0.05, α = 1.5), as loreRL has them in process.
+    fn world_table(task: &GridTask) -> String {
+        format!(
+            "\n[controller]\nlambda = 0.05\nalpha = 1.5\n\n[ros2_world]\ncells = [{}, {}]\nactions = [\"north\", \"east\", \"south\", \
+             \"west\"]\neffects = [\"north\", \"east\", \"south\", \"west\", \"stay\"]\n\
+             features = {}\nmap_timeout_s = 120\n",
+            task.width(),
+            task.height(),
+            task.n_features()
+        )
+    }
+
+    /// The robot node (its output kept open: it says `done` at the end), killed when dropped.
+    struct Robot {
+        child: Child,
+        _out: BufReader<std::process::ChildStdout>,
+    }
+
+    impl Robot {
+        fn start(task_file: &Path, result: &Path, domain: u16) -> Self {
+            let peers = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../ros2/tests/peers");
+            let mut child = Command::new(env!("TES_ROS2_PYTHON"))
+                .arg(peers.join("grid_robot.py"))
+                .arg(task_file)
+                .args(["--domain", &domain.to_string()])
+                .args(["--episodes", &EPISODES.to_string(), "--seed", "7"])
+                .arg("--out")
+                .arg(result)
+                .args(["--timeout", "300", "--send-malformed"])
+                .current_dir(&peers)
+                .stdout(Stdio::piped())
+                .stderr(Stdio::inherit())
+                .spawn()
+                .expect("the Cyclone DDS robot starts");
+            let mut out = BufReader::new(child.stdout.take().expect("its output"));
+            let mut line = String::new();
+            out.read_line(&mut line).expect("the robot's output");
+            assert_eq!(line.trim(), "ready");
+            Self { child, _out: out }
+        }
+
+        fn wait(mut self) -> bool {
+            // Dropped after: killing an ended child does nothing.
+            self.child.wait().is_ok_and(|s| s.success())
+        }
+    }
+
+    impl Drop for Robot {
+        fn drop(&mut self) {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+
+    /// The spread of `RUNS` in-process runs of loreRL (what the controller's TES is with an
+    /// empty library) on the task over [`EPISODES`] episodes: the mean and standard deviation
+    /// of the reward accumulated over them.
+    fn in_process_spread(task: GridTask) -> (f64, f64) {
+        let env = GridEnv::new(task).expect("the task forms a CMDP");
+        let totals: Vec<f64> = (0..RUNS)
+            .map(|seed| {
+                run_agent(
+                    Method::LoreRl,
+                    &env,
+                    EPISODES as usize,
+                    seed,
+                    AgentSettings::default(),
+                    |_| {},
+                )
+                .expect("loreRL runs")
+                .iter()
+                .map(|e| e.reward)
+                .sum()
+            })
+            .collect();
+        let mean = totals.iter().sum::<f64>() / totals.len() as f64;
+        let var =
+            totals.iter().map(|t| (t - mean).powi(2)).sum::<f64>() / (totals.len() - 1) as f64;
+        (mean, var.sqrt())
+    }
+
+    /// The robot plays [`EPISODES`] episodes of the grid task over ROS 2 and the launch runs
+    /// as many: every episode's reward is the same on both sides (the robot's count, the ROS
+    /// 2 world's report, the launch's episode lines), the one malformed step the robot sends
+    /// is counted and dropped saying why, nothing else is refused, and the reward accumulated
+    /// lies within three standard deviations of the same task run in-process.
+    #[test]
+    #[cfg_attr(
+        not(tes_cyclonedds),
+        ignore = "PyPI's cyclonedds is not installed: python3 -m venv target/ros2-venv && target/ros2-venv/bin/pip install cyclonedds rosbags"
+    )]
+    fn tes_learns_a_grid_task_a_cyclone_dds_robot_plays_over_ros2() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let task = task();
+        let task_features = task.n_features();
+        let task_file = dir.path().join("task.json");
+        std::fs::write(&task_file, task_json(&task).to_string()).expect("the task file");
+        let result = dir.path().join("robot.json");
+        let domain = 1 + (std::process::id() % 200) as u16 + 17;
+        let robot = Robot::start(&task_file, &result, domain);
+        let toml = launch_file(dir.path(), &world_table(&task));
+        let domain_text = domain.to_string();
+        let mut group = Group::start_in(
+            dir.path(),
+            &toml,
+            EPISODES,
+            &[],
+            &[("ROS_DOMAIN_ID", domain_text.as_str())],
+        );
+        let (ok, out, err) = group.finish(Duration::from_secs(600));
+        assert!(ok, "the launch failed: {out:?} {err:?}");
+        assert!(robot.wait(), "the robot node failed");
+
+        let robot: Value = serde_json::from_slice(&std::fs::read(&result).expect("its result"))
+            .expect("the robot's JSON");
+        let played: Vec<f64> = robot["episodes"]
+            .as_array()
+            .expect("episodes")
+            .iter()
+            .map(|e| e["reward"].as_f64().expect("a reward"))
+            .collect();
+        assert_eq!(played.len(), EPISODES as usize);
+        assert_eq!(robot["malformed_actions"], 0);
+        let world: Value = serde_json::from_slice(
+            &std::fs::read(dir.path().join("run/ros2-world.json")).expect("the world's report"),
+        )
+        .expect("its JSON");
+        // The one step of the wrong size the robot sent: counted, dropped, said once.
+        assert_eq!(world["malformed"], 1, "{world}");
+        assert_eq!(world["stale"], 0, "{world}");
+        let taken: Vec<f64> = world["episode_rewards"]
+            .as_array()
+            .expect("episode rewards")
+            .iter()
+            .map(|r| r.as_f64().expect("a number"))
+            .collect();
+        let lines: Vec<EpisodeLine> = out.iter().filter_map(|l| EpisodeLine::parse(l)).collect();
+        assert_eq!(lines.len(), EPISODES as usize, "{out:?}");
+        for (i, p) in played.iter().enumerate() {
+            // The rewards travel as f32 once (the group's observations).
+            assert!(
+                (taken[i] - p).abs() < 1e-4,
+                "episode {i}: {} vs {p}",
+                taken[i]
+            );
+            assert!(
+                (lines[i].reward - p).abs() <= 0.005 + 1e-6,
+                "episode {i}: the launch printed {}, the robot had {p}",
+                lines[i].reward
+            );
+        }
+        let total: f64 = played.iter().sum();
+        let (mean, sd) = in_process_spread(task);
+        assert!(
+            (total - mean).abs() <= 3.0 * sd,
+            "over ROS 2: {total:.3}; in process: {mean:.3} ± {sd:.3} (sd of {RUNS} runs)"
+        );
+        eprintln!("over ROS 2: {total:.3}; in process: {mean:.3} ± {sd:.3} ({RUNS} runs)");
+        let said = err.join("\n");
+        assert!(said.contains("the world of a ROS 2 robot"), "{said}");
+        let features = task_features;
+        let dropped = format!(
+            "dropped a step on /tes/world/step: 3 numbers where the declared 7 step numbers + \
+             {features} features make {}",
+            7 + features
+        );
+        assert_eq!(said.matches(&dropped).count(), 1, "{said}");
+        assert!(!said.contains("rustdds"), "DDS's own lines: {said}");
+    }
+}

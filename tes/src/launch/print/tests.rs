@@ -81,7 +81,7 @@ fn a_live_view_beyond_loopback_is_warned_about() {
 #[test]
 fn the_plan_is_said_in_the_files_words() {
     let planned = Event::Planned {
-        arena: 3,
+        world: "arena Env 3".into(),
         episodes: 1,
         real_time_factor: 0.0,
         wait: tes_launch::file::ChosenWait::new(
