@@ -26,6 +26,9 @@ pub const ROBOT_FRAME: &str = "robot";
 /// Metres per centimetre (the worlds are in centimetres, ROS 2 in metres).
 const M_PER_CM: f64 = 0.01;
 
+mod grid;
+use grid::GridWorld;
+
 /// How a topic's messages are delivered (ROS 2's QoS profile, as `ros2 topic info -v` says).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Qos {
@@ -259,6 +262,8 @@ struct Episode {
 pub struct RosScene {
     settings: SceneSettings,
     arena: Option<Arena>,
+    /// A world that is not an arena, drawn from its map.
+    grid: Option<GridWorld>,
     odometry: Odometry,
     observed_ns: u64,
     episode: Episode,
@@ -272,6 +277,7 @@ impl RosScene {
         Self {
             settings,
             arena: None,
+            grid: None,
             odometry: Odometry::default(),
             observed_ns: 0,
             episode: Episode::default(),
@@ -290,27 +296,34 @@ impl RosScene {
         }
     }
 
-    /// The world map: the arena's markers (latched). A world that is not an arena has no
-    /// markers, pose or path; its numbers and logs still go out.
+    /// The world map: the arena's markers (latched), or a grid world's drawn from its map
+    /// ([`grid`]). A map that is neither has no markers, pose or path; its numbers and logs
+    /// still go out.
     pub fn world_map<S: Sink + ?Sized>(
         &mut self,
         map: &WorldMap,
         stamp_ns: u64,
         sink: &mut S,
     ) -> Result<(), S::Error> {
-        let Ok(id) = ArenaId::from_number(map.world) else {
+        let header = self.header(stamp_ns, ARENA_FRAME);
+        let markers = if let Ok(id) = ArenaId::from_number(map.world) {
+            let arena = Arena::new(id);
+            let markers = arena_markers(&arena, &header);
+            self.arena = Some(arena);
+            markers
+        } else if let Some(grid) = GridWorld::from_map(map) {
+            let markers = grid.markers(&header);
+            self.grid = Some(grid);
+            markers
+        } else {
             if self.not_drawn.replace(map.world).is_none() {
                 tracing::info!(
-                    "world {} is not an arena: no markers, pose or path",
+                    "world {} is neither an arena nor a grid: no markers, pose or path",
                     map.world
                 );
             }
             return Ok(());
         };
-        let arena = Arena::new(id);
-        let header = self.header(stamp_ns, ARENA_FRAME);
-        let markers = arena_markers(&arena, &header);
-        self.arena = Some(arena);
         sink.put(
             &RosMessage::Arena(markers),
             self.wall_ns(stamp_ns),
@@ -337,14 +350,9 @@ impl RosScene {
         }
         self.observed_ns = self.observed_ns.max(o.stamp_ns);
         let wall = self.wall_ns(o.stamp_ns);
-        if let Some(arena) = &self.arena {
-            let pose = arena
-                .state_index(o.state)
-                .and_then(|s| arena.state_pose(s))
-                .map(|p| FloorPose {
-                    position: p.position,
-                    heading: p.heading,
-                });
+        let drawn = self.arena.is_some() || self.grid.is_some();
+        if drawn {
+            let pose = self.pose_of(o.state);
             self.odometry.observed(pose);
             if let Some(p) = pose {
                 sink.put(&self.tf(p, o.stamp_ns), wall, Delivery::Motion)?;
@@ -363,6 +371,20 @@ impl RosScene {
             self.episode_end(o, wall, sink)?;
         }
         Ok(())
+    }
+
+    /// Where the robot is drawn in state `s` (`None` out of the area or in no drawn world).
+    fn pose_of(&self, s: tes_topics::StateAttributes) -> Option<FloorPose> {
+        if let Some(arena) = &self.arena {
+            return arena
+                .state_index(s)
+                .and_then(|i| arena.state_pose(i))
+                .map(|p| FloorPose {
+                    position: p.position,
+                    heading: p.heading,
+                });
+        }
+        self.grid.as_ref().and_then(|g| g.pose(s))
     }
 
     fn episode_end<S: Sink + ?Sized>(

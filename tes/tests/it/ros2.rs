@@ -111,14 +111,14 @@ mod on_ros2 {
     const LISTEN_S: u32 = 600;
 
     /// The Cyclone DDS listener of `ros2/tests/peers`, killed when dropped.
-    struct Listener {
+    pub(super) struct Listener {
         child: Child,
         stdin: Option<ChildStdin>,
         out: BufReader<ChildStdout>,
     }
 
     impl Listener {
-        fn start(domain: u16) -> Self {
+        pub(super) fn start(domain: u16) -> Self {
             let peers = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../ros2/tests/peers");
             let mut child = Command::new(env!("TES_ROS2_PYTHON"))
                 .arg(peers.join("listen.py"))
@@ -135,7 +135,7 @@ mod on_ros2 {
             Self { child, stdin, out }
         }
 
-        fn line(&mut self) -> String {
+        pub(super) fn line(&mut self) -> String {
             let mut line = String::new();
             self.out
                 .read_line(&mut line)
@@ -144,7 +144,7 @@ mod on_ros2 {
         }
 
         /// Closes its input (the run is over) and reads its report.
-        fn report(&mut self) -> Value {
+        pub(super) fn report(&mut self) -> Value {
             if let Some(mut stdin) = self.stdin.take() {
                 let _ = stdin.flush();
             }
@@ -328,6 +328,7 @@ mod ros2_world {
     use tes_experiments::method::Method;
     use tes_perception_sim::grid::{GridSuite, GridTask};
 
+    use super::on_ros2::Listener;
     use crate::common::{Group, launch_file};
 
     /// The grid task played: the suite's task 1 (20 × 20, 160 actions at most an episode),
@@ -459,11 +460,51 @@ mod ros2_world {
         (mean, var.sqrt())
     }
 
+    /// Every topic of the group on ROS 2 was heard, the grid drawn and the robot on it, and
+    /// the episode ends and rewards heard are the robot's.
+    fn every_topic_is_heard(report: &Value, played: &[f64]) {
+        for topic in [
+            "/tf",
+            "/tes/arena",
+            "/tes/path",
+            "/tes/decision/action",
+            "/tes/decision/latency_us",
+            "/tes/episode/reward",
+            "/tes/episode/end",
+            "/rosout",
+        ] {
+            assert!(
+                report[topic]["count"].as_u64() > Some(0),
+                "nothing on {topic}: {report}"
+            );
+        }
+        assert_eq!(
+            report["/tes/arena"]["last"]["frames"],
+            json!(["arena", "robot"])
+        );
+        assert_eq!(report["/tf"]["last"]["parent"], "arena");
+        assert!(
+            report["/tes/decision/action"]["last"]["data"].as_u64() < Some(4),
+            "one of the task's four actions: {report}"
+        );
+        let rewards: Vec<f64> = report["/tes/episode/reward"]["all"]
+            .as_array()
+            .expect("the rewards")
+            .iter()
+            .map(|r| r.as_f64().expect("a number"))
+            .collect();
+        assert_eq!(rewards.len(), played.len(), "{report}");
+        for (heard, p) in rewards.iter().zip(played) {
+            assert!((heard - p).abs() < 1e-4, "heard {heard}, played {p}");
+        }
+    }
+
     /// The robot plays [`EPISODES`] episodes of the grid task over ROS 2 and the launch runs
     /// as many: every episode's reward is the same on both sides (the robot's count, the ROS
-    /// 2 world's report, the launch's episode lines), the one malformed step the robot sends
-    /// is counted and dropped saying why, nothing else is refused, and the reward accumulated
-    /// lies within three standard deviations of the same task run in-process.
+    /// 2 world's report, the launch's episode lines, what a ROS 2 listener hears of the group
+    /// on every topic), the one malformed step the robot sends is counted and dropped saying
+    /// why, nothing else is refused, and the reward accumulated lies within three standard
+    /// deviations of the same task run in-process.
     #[test]
     #[cfg_attr(
         not(tes_cyclonedds),
@@ -477,19 +518,29 @@ mod ros2_world {
         std::fs::write(&task_file, task_json(&task).to_string()).expect("the task file");
         let result = dir.path().join("robot.json");
         let domain = 1 + (std::process::id() % 200) as u16 + 17;
-        let robot = Robot::start(&task_file, &result, domain);
+        // The group is also published on ROS 2 (`--ros2`) and heard by a listener that has
+        // matched every topic before the robot starts (the world waits for its map).
+        let mut listener = Listener::start(domain);
+        assert_eq!(listener.line(), "ready");
         let toml = launch_file(dir.path(), &world_table(&task));
         let domain_text = domain.to_string();
         let mut group = Group::start_in(
             dir.path(),
             &toml,
             EPISODES,
-            &[],
+            &["--ros2"],
             &[("ROS_DOMAIN_ID", domain_text.as_str())],
         );
+        assert_eq!(
+            listener.line(),
+            "matched",
+            "the listener never matched every topic"
+        );
+        let robot = Robot::start(&task_file, &result, domain);
         let (ok, out, err) = group.finish(Duration::from_secs(600));
         assert!(ok, "the launch failed: {out:?} {err:?}");
         assert!(robot.wait(), "the robot node failed");
+        let heard = listener.report();
 
         let robot: Value = serde_json::from_slice(&std::fs::read(&result).expect("its result"))
             .expect("the robot's JSON");
@@ -529,6 +580,7 @@ mod ros2_world {
                 lines[i].reward
             );
         }
+        every_topic_is_heard(&heard, &played);
         let total: f64 = played.iter().sum();
         let (mean, sd) = in_process_spread(task);
         assert!(
