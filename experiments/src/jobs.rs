@@ -130,6 +130,66 @@ pub struct Manifest {
     /// summary's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub run_seconds: Option<f64>,
+    /// The machine's load while its jobs ran: the lowest and highest 1-minute load average
+    /// seen (at the start and end of each stretch of jobs and as each job finished), so that
+    /// its times say what they were measured under. `None` in folders written before it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub load: Option<LoadRange>,
+}
+
+/// The lowest and highest 1-minute load average (`/proc/loadavg`) seen.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LoadRange {
+    /// The lowest.
+    pub lowest: f64,
+    /// The highest.
+    pub highest: f64,
+}
+
+impl LoadRange {
+    /// The 1-minute load average now (`None` where `/proc/loadavg` cannot be read).
+    pub fn now() -> Option<f64> {
+        let text = fs::read_to_string("/proc/loadavg").ok()?;
+        text.split_whitespace().next()?.parse().ok()
+    }
+
+    /// The range widened to hold `other`.
+    pub fn with(self, other: LoadRange) -> LoadRange {
+        LoadRange {
+            lowest: self.lowest.min(other.lowest),
+            highest: self.highest.max(other.highest),
+        }
+    }
+
+    /// The range holding both (either, if only one is known).
+    pub fn both(a: Option<LoadRange>, b: Option<LoadRange>) -> Option<LoadRange> {
+        match (a, b) {
+            (Some(a), Some(b)) => Some(a.with(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
+    /// `range` widened to hold the load now (`range` as it was if it cannot be read).
+    fn sampled(range: Option<LoadRange>) -> Option<LoadRange> {
+        let Some(load) = Self::now() else {
+            return range;
+        };
+        let here = LoadRange {
+            lowest: load,
+            highest: load,
+        };
+        Some(range.map_or(here, |r| r.with(here)))
+    }
+}
+
+impl fmt::Display for LoadRange {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if (self.highest - self.lowest).abs() < 0.05 {
+            write!(f, "{:.1}", self.lowest)
+        } else {
+            write!(f, "{:.1}–{:.1}", self.lowest, self.highest)
+        }
+    }
 }
 
 /// A machine jobs ran on, as Linux describes it (`unknown` and 0 elsewhere).
@@ -199,6 +259,7 @@ impl Manifest {
             written_by: vec![code_version()],
             machines: Vec::new(),
             run_seconds: None,
+            load: None,
         })
     }
 
@@ -234,7 +295,7 @@ impl Manifest {
         serde_json::from_str(&text).with_context(|| format!("{} is malformed", path.display()))
     }
 
-    fn write(&self, dir: &Path) -> Result<()> {
+    pub(crate) fn write(&self, dir: &Path) -> Result<()> {
         let json = serde_json::to_string_pretty(self).context("cannot encode the manifest")?;
         write_atomically(&dir.join(MANIFEST), json.as_bytes())
     }
@@ -345,11 +406,12 @@ fn dirty_refusal(version: &str, manifest: &Manifest, options: JobOptions) -> Res
     Ok(())
 }
 
-/// Adds a finished stretch of jobs to `out`'s manifest: `seconds` of wall time, this machine
-/// and this binary's code version.
-fn record_run(out: &Path, seconds: f64) -> Result<()> {
+/// Adds a finished stretch of jobs to `out`'s manifest: `seconds` of wall time under `load`,
+/// this machine and this binary's code version.
+fn record_run(out: &Path, seconds: f64, load: Option<LoadRange>) -> Result<()> {
     let mut manifest = Manifest::read(out)?;
     manifest.run_seconds = Some(manifest.run_seconds.unwrap_or(0.0) + seconds);
+    manifest.load = LoadRange::both(manifest.load, load);
     let machine = Machine::this();
     if !manifest.machines.contains(&machine) {
         manifest.machines.push(machine);
@@ -465,18 +527,27 @@ where
     let done = AtomicU64::new(total - todo.len() as u64);
     progress(done.load(Ordering::Relaxed), total);
     let started = std::time::Instant::now();
+    let load = std::sync::Mutex::new(LoadRange::sampled(None));
+    let sample_load = || {
+        if let Ok(mut range) = load.lock() {
+            *range = LoadRange::sampled(*range);
+        }
+    };
     let ran = todo.par_iter().try_for_each(|&index| -> Result<()> {
         let result = job(index)?;
         let json = serde_json::to_vec(&Record { index, result })
             .with_context(|| format!("cannot encode job {index}"))?;
         write_atomically(&record_path(out, index), &json)?;
+        sample_load();
         progress(done.fetch_add(1, Ordering::Relaxed) + 1, total);
         Ok(())
     });
+    sample_load();
     // An interrupted stretch counts too (a resume adds the rest); reading a complete folder
     // back runs nothing and records nothing.
     if done.load(Ordering::Relaxed) > total - todo.len() as u64 {
-        record_run(out, started.elapsed().as_secs_f64())?;
+        let load = load.into_inner().ok().flatten();
+        record_run(out, started.elapsed().as_secs_f64(), load)?;
     }
     ran?;
     mine.into_iter()
@@ -680,6 +751,7 @@ fn merged_manifest(manifests: &[Manifest]) -> Manifest {
         written_by: Vec::new(),
         machines: Vec::new(),
         run_seconds: None,
+        load: None,
         ..manifests[0].clone()
     };
     for m in manifests {
@@ -693,6 +765,7 @@ fn merged_manifest(manifests: &[Manifest]) -> Manifest {
                 merged.machines.push(machine.clone());
             }
         }
+        merged.load = LoadRange::both(merged.load, m.load);
         if let Some(s) = m.run_seconds {
             merged.run_seconds = Some(merged.run_seconds.unwrap_or(0.0) + s);
         }
@@ -841,6 +914,12 @@ mod tests {
             let written = Manifest::read(dir.path()).unwrap();
             assert!(written.run_seconds.is_some_and(|s| s >= 0.0));
             assert_eq!(written.machines, [Machine::this()]);
+            // The load it ran under, from /proc/loadavg.
+            let load = written.load.expect("the load recorded");
+            assert!(
+                load.lowest <= load.highest && load.lowest >= 0.0,
+                "{load:?}"
+            );
             assert_eq!(written.written_by, [code_version()]);
         }
         let out = tempfile::tempdir().unwrap();
@@ -903,5 +982,27 @@ mod tests {
         let other = Manifest::new("test", &serde_json::json!({"x": 2}), 5, Shard::ALL).unwrap();
         let err = run_jobs(dir.path(), &other, resume, &|_, _| {}, |_| Ok(0.0)).unwrap_err();
         assert!(err.to_string().contains("x 1 against 2"), "{err}");
+    }
+
+    #[test]
+    fn a_load_range_widens_to_hold_both_and_says_itself() {
+        let a = LoadRange {
+            lowest: 0.5,
+            highest: 1.25,
+        };
+        let b = LoadRange {
+            lowest: 0.75,
+            highest: 2.0,
+        };
+        let both = LoadRange::both(Some(a), Some(b)).unwrap();
+        assert_eq!((both.lowest, both.highest), (0.5, 2.0));
+        assert_eq!(LoadRange::both(None, Some(b)), Some(b));
+        assert_eq!(LoadRange::both(None, None), None);
+        assert_eq!(both.to_string(), "0.5–2.0");
+        let flat = LoadRange {
+            lowest: 1.02,
+            highest: 1.04,
+        };
+        assert_eq!(flat.to_string(), "1.0");
     }
 }

@@ -28,7 +28,7 @@ use crate::method::Method;
 use crate::robot::{self, RobotReport};
 use crate::stats::Summary;
 use crate::transfer::{self, Claim, TransferReport};
-use crate::verdict::{Paired, Side, TargetCheck, difference, interval, paired};
+use crate::verdict::{Paired, Side, TIME_RATIO_TEST, TargetCheck, difference, interval, paired};
 
 /// A result folder's summary, whichever experiment wrote it.
 #[derive(Debug)]
@@ -795,8 +795,24 @@ impl BlockCommand {
         if let Some(base) = &self.against {
             md.push_str(&provenance_note(&root.join(base))?);
         }
+        if self.shows_times(root)? {
+            md.push_str(&load_note(&root.join(&self.dir))?);
+        }
         md.push_str(&self.tables(root)?);
         Ok(md)
+    }
+
+    /// Whether the block shows times: a `times` table, or targets judged on times (all the
+    /// tables hold both).
+    fn shows_times(&self, root: &Path) -> Result<bool> {
+        Ok(match self.table.as_deref() {
+            Some("times") => true,
+            Some("targets") | None => Results::read(&root.join(&self.dir))?
+                .targets()
+                .iter()
+                .any(|t| t.test == TIME_RATIO_TEST),
+            Some(_) => false,
+        })
     }
 
     fn tables(&self, root: &Path) -> Result<String> {
@@ -835,6 +851,30 @@ pub fn provenance_note(dir: &Path) -> Result<String> {
          commit.*\n\n",
         versions.join(", ")
     ))
+}
+
+/// A note for a table of times from folder `dir`: the load they were measured under (the
+/// manifest's), or that it was not recorded — wall-clock times move with the load, so a time
+/// verdict says what it was measured under.
+pub fn load_note(dir: &Path) -> Result<String> {
+    let manifest = Manifest::read(dir)?;
+    let machines: Vec<String> = manifest.machines.iter().map(ToString::to_string).collect();
+    let what = "*Times are wall-clock seconds of the agents' work";
+    Ok(match (manifest.load, machines.is_empty()) {
+        (Some(load), _) => format!(
+            "{what}, measured on {} while its 1-minute load average was {load}.*\n\n",
+            machines.join("; ")
+        ),
+        (None, false) => format!(
+            "{what}, measured on {}; the load was not recorded (the folder predates it), so \
+             they compare only with each other.*\n\n",
+            machines.join("; ")
+        ),
+        (None, true) => format!(
+            "{what}; the machine and load they were measured under were not recorded (the \
+             folder predates them), so they compare only with each other.*\n\n"
+        ),
+    })
 }
 
 /// A generated block of a document: its command, and the lines it holds now.
@@ -975,5 +1015,37 @@ mod tests {
         assert!(blocks(&format!("{END}\n")).is_err());
         assert!(BlockCommand::parse("x --colour red").is_err());
         assert!(BlockCommand::parse("x --table").is_err());
+    }
+
+    /// A table of times says the load and machine its folder ran under, or that they were
+    /// not recorded.
+    #[test]
+    fn a_table_of_times_says_what_it_was_measured_under() {
+        use crate::jobs::{LoadRange, Machine, Manifest, Shard};
+        let dir = tempfile::tempdir().unwrap();
+        let mut manifest =
+            Manifest::new("lifelong", &serde_json::json!({}), 1, Shard::ALL).unwrap();
+        manifest.write(dir.path()).unwrap();
+        let note = load_note(dir.path()).unwrap();
+        assert!(
+            note.contains("the machine and load they were measured under were not recorded"),
+            "{note}"
+        );
+        manifest.machines.push(Machine {
+            cpu: "Some CPU".into(),
+            cores: 2,
+            memory_mib: 1024,
+        });
+        manifest.load = Some(LoadRange {
+            lowest: 0.8,
+            highest: 1.6,
+        });
+        manifest.write(dir.path()).unwrap();
+        let note = load_note(dir.path()).unwrap();
+        assert_eq!(
+            note,
+            "*Times are wall-clock seconds of the agents' work, measured on Some CPU, 2 cores, \
+             1024 MiB while its 1-minute load average was 0.8–1.6.*\n\n"
+        );
     }
 }

@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import base64
 import json
+import os
 import struct
 import sys
 import time
@@ -289,6 +290,7 @@ def recorded_messages(path: str) -> Iterable[tuple[str, int, Any]]:
 def convert(mcap_path: str, rrd_path: str, recording_id: str | None = None) -> int:
     """Writes the run of the recording ``mcap_path`` as Rerun's ``rrd_path``; returns the
     number of messages drawn."""
+    _give_way(addr)
     import rerun as rr
 
     rec = rr.RecordingStream("tes", recording_id=recording_id or mcap_path)
@@ -352,9 +354,28 @@ def _advertised(op: dict, channels: dict[int, tuple[str, Any]]) -> list[int]:
     return new
 
 
-def follow(addr: str, rrd_path: str | None, spawn: bool, seconds: float | None) -> int:
+def _give_way(addr: str) -> None:
+    """Keeps this process (and every thread it starts from here on: rerun-sdk's, the
+    socket's) out of the way of a group it follows on the group's own host (``addr`` on
+    loopback): at ``SCHED_IDLE``, the lowest priority Linux has, which the group's threads
+    preempt at once; it still gets every idle moment of the CPUs. (Where Linux's scheduling
+    calls are missing, or the group is on another host, it runs as started.)"""
+    host = addr.rsplit(":", 1)[0].strip("[]")
+    if host not in ("127.0.0.1", "localhost", "::1"):
+        return
+    try:
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+    except (AttributeError, OSError):
+        pass
+
+
+def follow(addr: str, rrd_path: str | None, spawn: bool, seconds: float | None,
+           give_way: bool = True) -> int:
     """Logs a live group's run to a Rerun viewer (``spawn``) and/or ``rrd_path``; returns the
-    number of messages drawn."""
+    number of messages drawn. Unless ``give_way`` is false it runs at ``SCHED_IDLE`` when the
+    group is on this host (:func:`_give_way`)."""
+    if give_way:
+        _give_way(addr)
     import rerun as rr
 
     rr.init("tes", recording_id=f"live {addr} {time.time_ns()}")
@@ -385,11 +406,16 @@ def main(argv: list[str] | None = None) -> int:
                         help="follow a group's live Foxglove server instead of a file")
     parser.add_argument("--spawn", action="store_true", help="live: show it in a Rerun viewer")
     parser.add_argument("--seconds", type=float, help="live: stop after this long")
+    parser.add_argument("--normal-priority", action="store_true",
+                        help="live: keep normal priority (following a group on this host it "
+                             "runs at SCHED_IDLE, so as never to hold the group up; a busy "
+                             "host can then starve it)")
     args = parser.parse_args(argv)
     if args.live:
         if not (args.output or args.spawn):
             parser.error("--live needs -o FILE.rrd or --spawn")
-        drawn = follow(args.live, args.output, args.spawn, args.seconds)
+        drawn = follow(args.live, args.output, args.spawn, args.seconds,
+                       give_way=not args.normal_priority)
     elif args.mcap and args.output:
         drawn = convert(args.mcap, args.output)
     else:

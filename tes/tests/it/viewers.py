@@ -149,8 +149,12 @@ def facts_of_native(mcap_path, rrd_path):
 
 
 def facts_of_native_live(addr, rrd_path, seconds):
+    # At normal priority: at SCHED_IDLE (its default on this host) the tests running beside
+    # it could starve it of its few seconds (what SCHED_IDLE costs the loop is measured by
+    # `tes bench latency --rerun`, which runs it as a user does).
     run = subprocess.run([sys.executable, rerun_view(), "--live", addr, "-o", rrd_path,
-                          "--seconds", seconds], capture_output=True, text=True,
+                          "--seconds", seconds, "--normal-priority"],
+                         capture_output=True, text=True,
                          env={"RERUN_ANALYTICS": "0", "PATH": "/usr/bin:/bin"})
     if run.returncode != 0:
         raise SystemExit(f"rerun_view.py --live failed: {run.stderr}")
