@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use tes_bridge::config::{BridgeSettings, TransportKind};
 
-use crate::ros2::WorldSettings;
+use crate::world::WorldSettings;
 use tes_controller::config::{ControllerConfig, default_data_dir};
 use tes_perception_sim::process::PerceptionConfig;
 use tes_runtime::channel::WaitStrategy;
@@ -293,7 +293,7 @@ pub fn process_of(table: &str) -> Option<&'static str> {
         "perception" => Some(tes_perception_sim::process::config::PROCESS),
         "controller" => Some(tes_controller::config::PROCESS),
         "bridge" => Some(tes_bridge::config::PROCESS),
-        "ros2_world" => Some(crate::ros2::WORLD),
+        "ros2_world" => Some(crate::world::WORLD),
         _ => None,
     }
 }
@@ -663,7 +663,7 @@ impl LaunchFile {
                         "launch",
                     ));
                 }
-                crate::ros2::check_world(table).map_err(|e| self.place(e, "ros2_world"))?;
+                crate::world::check_world(table).map_err(|e| self.place(e, "ros2_world"))?;
                 Some(table.clone())
             }
             None => None,
@@ -1046,7 +1046,8 @@ pub fn prepare(file: &LaunchFile) -> Result<Prepared, LaunchFileError> {
             (Role::Controller, _) => toml::to_string(&children.controller),
             (Role::Perception, None) => toml::to_string(&children.perception),
             (Role::Perception, Some(world)) => {
-                crate::ros2::world_file(world, &file.launch, &run_dir)
+                let (episodes, prefix) = (file.launch.episodes, &file.launch.service_prefix);
+                crate::world::world_file(world, episodes, prefix, &run_dir)
             }
         }
         .map_err(|e| {
@@ -1569,6 +1570,59 @@ mod tests {
             assert!(text.contains(reason), "{text}");
             assert!(text.starts_with("cannot read the launch file"), "{text}");
             assert!(text.ends_with("nothing was started"), "{text}");
+        }
+    }
+
+    /// The launch file docs/ros2.md shows for a ROS 2 robot's world.
+    fn documented_world() -> LaunchFile {
+        let doc = include_str!("../../docs/ros2.md");
+        let block = doc
+            .split_once("<!-- launch file: ros2 world -->\n```toml\n")
+            .and_then(|(_, rest)| rest.split_once("```"))
+            .expect("docs/ros2.md shows the launch file")
+            .0;
+        LaunchFile::from_toml(block, Origin::Defaults).expect("the documented launch file parses")
+    }
+
+    /// docs/ros2.md's launch file is taken as written by a `tes` with ROS 2, and it runs the
+    /// ROS 2 world in perception's place with no bridge; without ROS 2 it is refused saying
+    /// how to build it in.
+    #[test]
+    fn the_documented_ros2_world_is_taken_or_refused_by_how_tes_was_built() {
+        let file = documented_world();
+        let children = file.children();
+        #[cfg(feature = "ros2")]
+        {
+            let children = children.expect("the documented world checks");
+            let world = children.ros2_world.expect("a ROS 2 world");
+            assert_eq!(world.cells, [20, 20]);
+            assert_eq!(world.twist[0].seconds, 1.5);
+            assert_eq!(
+                file.world_name(),
+                "the world of a ROS 2 robot ([ros2_world])"
+            );
+            let dir = tempfile::tempdir().expect("temp dir");
+            let mut file = file;
+            file.launch.run_dir = Some(dir.path().to_owned());
+            let prepared = prepare(&file).expect("prepared");
+            let roles: Vec<_> = prepared.specs.iter().map(|s| s.role).collect();
+            assert_eq!(roles, [Role::Controller, Role::Perception]);
+            let text = std::fs::read_to_string(&prepared.specs[1].config).expect("its settings");
+            assert!(crate::world::is_world_file(&text), "{text}");
+            let back: tes_ros2::world::WorldFile = toml::from_str(&text).expect("its file");
+            assert_eq!(back.run.episodes, 50);
+            assert_eq!(
+                back.run.report.as_deref(),
+                Some(dir.path().join(crate::world::WORLD_REPORT).as_path())
+            );
+        }
+        #[cfg(not(feature = "ros2"))]
+        {
+            let e = children.unwrap_err().to_string();
+            assert!(
+                e.contains("built without ROS 2") && e.contains("--features ros2"),
+                "{e}"
+            );
         }
     }
 }

@@ -54,6 +54,7 @@ pub mod run_folder;
 pub mod run_record;
 pub mod status;
 pub mod supervisor;
+pub mod world;
 
 pub use children::{ChildCommand, ChildSpec};
 pub use event::{Event, ExitConsequence, Observer, Verdict};

@@ -71,8 +71,8 @@ pub fn run_role(role: Role, config: &Path) -> Result<(), RoleError> {
                 n => Err(RoleError::SavesFailed(n)),
             }
         }
-        Role::Perception if crate::ros2::is_world_file(&text) => {
-            crate::ros2::run_world(&text, &stop).map_err(RoleError::Failed)
+        Role::Perception if crate::world::is_world_file(&text) => {
+            crate::world::run_world(&text, &stop).map_err(RoleError::Failed)
         }
         Role::Perception => {
             let cfg =

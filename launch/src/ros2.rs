@@ -4,10 +4,7 @@
 //! only with the `ros2` cargo feature; without it, asking for ROS 2 is refused at start with
 //! how to build it in. A launch that asks for neither starts nothing of it.
 
-use std::path::{Path, PathBuf};
-use std::sync::atomic::AtomicBool;
-
-use tes_runtime::settings::SettingError;
+use std::path::PathBuf;
 
 use crate::file::LaunchFile;
 
@@ -65,19 +62,6 @@ impl std::fmt::Display for Ros2Done {
     }
 }
 
-/// The process name of errors about `[ros2_world]`.
-pub const WORLD: &str = "ros2 world";
-
-/// The summary the ROS 2 world writes in the run folder.
-pub const WORLD_REPORT: &str = "ros2-world.json";
-
-/// The world a perception settings file asks for: a ROS 2 robot's if it holds a
-/// `ros2_world` table.
-pub fn is_world_file(text: &str) -> bool {
-    text.parse::<toml::Table>()
-        .is_ok_and(|t| t.contains_key("ros2_world"))
-}
-
 /// Whether the launch asks for ROS 2 at all.
 fn asked(file: &LaunchFile) -> bool {
     file.launch.ros2 || file.launch.rosbag.is_some()
@@ -132,44 +116,6 @@ mod built_in {
         Ok(Some((running, started)))
     }
 
-    pub use tes_ros2::world::WorldSettings;
-
-    /// Refuses `[ros2_world]` settings the group cannot carry.
-    pub fn check_world(world: &WorldSettings) -> Result<(), SettingError> {
-        world
-            .check()
-            .map_err(|e| SettingError::new(WORLD, e.key, e.reason))
-    }
-
-    /// The ROS 2 world's settings file: `[ros2_world]` and the run's (episodes, services,
-    /// the report in the run folder).
-    pub fn world_file(
-        world: &WorldSettings,
-        launch: &crate::file::LaunchSection,
-        run_dir: &Path,
-    ) -> Result<String, toml::ser::Error> {
-        use tes_ros2::world::{WorldFile, WorldRun};
-        toml::to_string(&WorldFile {
-            ros2_world: world.clone(),
-            run: WorldRun {
-                episodes: launch.episodes,
-                service_prefix: launch.service_prefix.clone(),
-                report: Some(run_dir.join(WORLD_REPORT)),
-            },
-        })
-    }
-
-    /// Runs the ROS 2 world of a perception settings file `text` until its episodes are
-    /// done or `stop` is raised.
-    pub fn run_world(
-        text: &str,
-        stop: &AtomicBool,
-    ) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
-        let file: tes_ros2::world::WorldFile = toml::from_str(text)?;
-        tes_ros2::world::run(&file, stop)?;
-        Ok(())
-    }
-
     /// Hands a process's log line to `/rosout`.
     pub fn send_line(lines: &Lines, role: tes_topics::Role, text: &str) {
         lines.send(role.name(), text);
@@ -204,36 +150,6 @@ mod left_out {
     /// Never made.
     #[derive(Debug, Clone)]
     pub enum Lines {}
-
-    /// `[ros2_world]` as this build reads it: any table, refused by [`check_world`].
-    pub type WorldSettings = toml::Table;
-
-    /// Refuses a ROS 2 robot's world: this build cannot speak to it.
-    pub fn check_world(_world: &WorldSettings) -> Result<(), SettingError> {
-        Err(SettingError::new(
-            WORLD,
-            tes_runtime::settings::FILE_KEY,
-            "this tes was built without ROS 2; build it in with `cargo install --locked \
-             --path tes --features ros2`",
-        ))
-    }
-
-    /// Never called: [`check_world`] refuses every world first.
-    pub fn world_file(
-        world: &WorldSettings,
-        _launch: &crate::file::LaunchSection,
-        _run_dir: &Path,
-    ) -> Result<String, toml::ser::Error> {
-        toml::to_string(world)
-    }
-
-    /// Never called: [`check_world`] refuses every world first.
-    pub fn run_world(
-        _text: &str,
-        _stop: &AtomicBool,
-    ) -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
-        Err(Ros2Error::NotBuiltIn.into())
-    }
 
     /// Refuses a launch that asks for ROS 2; starts nothing otherwise.
     pub fn start(
@@ -300,64 +216,5 @@ mod tests {
             done.to_string(),
             "published 120 ROS 2 messages (2 not taken by DDS); wrote 300 to the rosbag2 bag run-bag"
         );
-    }
-
-    /// The launch file docs/ros2.md shows for a ROS 2 robot's world.
-    fn documented_world() -> LaunchFile {
-        let doc = include_str!("../../docs/ros2.md");
-        let block = doc
-            .split_once("<!-- launch file: ros2 world -->\n```toml\n")
-            .and_then(|(_, rest)| rest.split_once("```"))
-            .expect("docs/ros2.md shows the launch file")
-            .0;
-        LaunchFile::from_toml(block, tes_runtime::settings::Origin::Defaults)
-            .expect("the documented launch file parses")
-    }
-
-    /// docs/ros2.md's launch file is taken as written by a `tes` with ROS 2, and it runs the
-    /// ROS 2 world in perception's place with no bridge; without ROS 2 it is refused saying
-    /// how to build it in.
-    #[test]
-    fn the_documented_ros2_world_is_taken_or_refused_by_how_tes_was_built() {
-        let file = documented_world();
-        let children = file.children();
-        #[cfg(feature = "ros2")]
-        {
-            let children = children.expect("the documented world checks");
-            let world = children.ros2_world.expect("a ROS 2 world");
-            assert_eq!(world.cells, [20, 20]);
-            assert_eq!(world.twist[0].seconds, 1.5);
-            assert_eq!(
-                file.world_name(),
-                "the world of a ROS 2 robot ([ros2_world])"
-            );
-            let dir = tempfile::tempdir().expect("temp dir");
-            let mut file = file;
-            file.launch.run_dir = Some(dir.path().to_owned());
-            let prepared = crate::file::prepare(&file).expect("prepared");
-            let roles: Vec<_> = prepared.specs.iter().map(|s| s.role).collect();
-            assert_eq!(
-                roles,
-                [tes_topics::Role::Controller, tes_topics::Role::Perception]
-            );
-            let text = std::fs::read_to_string(dir.path().join("perception-sim.toml"))
-                .or_else(|_| std::fs::read_to_string(&prepared.specs[1].config))
-                .expect("the world's settings");
-            assert!(is_world_file(&text), "{text}");
-            let back: tes_ros2::world::WorldFile = toml::from_str(&text).expect("its file");
-            assert_eq!(back.run.episodes, 50);
-            assert_eq!(
-                back.run.report.as_deref(),
-                Some(dir.path().join(WORLD_REPORT).as_path())
-            );
-        }
-        #[cfg(not(feature = "ros2"))]
-        {
-            let e = children.unwrap_err().to_string();
-            assert!(
-                e.contains("built without ROS 2") && e.contains("--features ros2"),
-                "{e}"
-            );
-        }
     }
 }

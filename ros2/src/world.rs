@@ -37,8 +37,10 @@ use tes_topics::{
     Role, ServiceNames, WorldMap, observation_flags, progress_flags,
 };
 
-use crate::dds::{DdsError, WorldNode};
-use crate::msg::{Float32MultiArray, Float64MultiArray, Twist, UInt32MultiArray, Vector3};
+use ros2_client::{Context, ContextOptions, NodeName, NodeOptions};
+
+use crate::dds::{DdsError, DiscoveryRange, Reach, create, reliable, topic};
+use crate::msg::{Float32MultiArray, Float64MultiArray, Message, Twist, UInt32MultiArray, Vector3};
 
 /// The topic the robot's node publishes the world's structure on, once (transient-local).
 pub const MAP_TOPIC: &str = "/tes/world/map";
@@ -470,6 +472,120 @@ struct Sent {
     step: (u64, u64),
     /// The message.
     message: UInt32MultiArray,
+}
+
+/// The node of a ROS 2 world (`crate::world`): it reads the robot's map and steps, and sends
+/// its actions (and, for a wheeled base, twists).
+pub struct WorldNode {
+    map: ros2_client::Subscription<Float32MultiArray>,
+    step: ros2_client::Subscription<Float64MultiArray>,
+    action: ros2_client::Publisher<UInt32MultiArray>,
+    twist: Option<ros2_client::Publisher<Twist>>,
+    _node: ros2_client::Node,
+    _context: Context,
+    reach: Reach,
+}
+
+impl std::fmt::Debug for WorldNode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("WorldNode")
+            .field("reach", &self.reach)
+            .finish_non_exhaustive()
+    }
+}
+
+impl WorldNode {
+    /// Joins `domain` as node `/tes/world`, subscribed to the robot's map and steps, with a
+    /// publisher of actions and, if `cmd_vel` is given, of twists on it.
+    pub fn start(
+        domain: u16,
+        range: &DiscoveryRange,
+        cmd_vel: Option<&str>,
+    ) -> Result<Self, DdsError> {
+        let reach = Reach::of_this_host(domain);
+        reach.allowed_by(range)?;
+        let context = create(
+            "DDS participant",
+            Context::with_options(ContextOptions::new().domain_id(domain)),
+        )?;
+        let node_name = create("node name", NodeName::new("/tes", "world"))?;
+        let mut node = create(
+            "node",
+            context.new_node(node_name, NodeOptions::new().enable_rosout(false)),
+        )?;
+        // The map is published once and kept (as `/map` is); steps and actions keep a
+        // backlog a slow reader can catch up on.
+        let (latched, queue) = (reliable(1, true), reliable(64, false));
+        let t = topic(&mut node, MAP_TOPIC, Float32MultiArray::TYPE, &latched)?;
+        let map = create(
+            MAP_TOPIC,
+            node.create_subscription(&t, Some(latched.clone())),
+        )?;
+        let t = topic(&mut node, STEP_TOPIC, Float64MultiArray::TYPE, &queue)?;
+        let step = create(
+            STEP_TOPIC,
+            node.create_subscription(&t, Some(queue.clone())),
+        )?;
+        let t = topic(&mut node, ACTION_TOPIC, UInt32MultiArray::TYPE, &queue)?;
+        let action = create(ACTION_TOPIC, node.create_publisher(&t, Some(queue.clone())))?;
+        let twist = match cmd_vel {
+            Some(name) => {
+                // As a ROS 2 node's default publisher: reliable, keep-last 10.
+                let q = reliable(10, false);
+                let t = topic(&mut node, name, Twist::TYPE, &q)?;
+                Some(create(name, node.create_publisher(&t, Some(q)))?)
+            }
+            None => None,
+        };
+        Ok(Self {
+            map,
+            step,
+            action,
+            twist,
+            _node: node,
+            _context: context,
+            reach,
+        })
+    }
+
+    /// Where it is reachable.
+    pub fn reach(&self) -> &Reach {
+        &self.reach
+    }
+
+    /// The next map received, if any, or why the next one cannot be read (its bytes are not
+    /// a `Float32MultiArray`).
+    pub fn take_map(&self) -> Result<Option<Float32MultiArray>, String> {
+        self.map
+            .take()
+            .map(|m| m.map(|(m, _)| m))
+            .map_err(|e| e.to_string())
+    }
+
+    /// The next step received, if any, or why the next one cannot be read.
+    pub fn take_step(&self) -> Result<Option<Float64MultiArray>, String> {
+        self.step
+            .take()
+            .map(|m| m.map(|(m, _)| m))
+            .map_err(|e| e.to_string())
+    }
+
+    /// Sends an action; a reader that keeps DDS waiting loses it (the robot repeats its step
+    /// and the action goes again).
+    pub fn send_action(&self, m: UInt32MultiArray) {
+        if self.action.publish(m).is_err() {
+            tracing::debug!("DDS did not take an action");
+        }
+    }
+
+    /// Sends a twist, if the node has a `cmd_vel` publisher.
+    pub fn send_twist(&self, m: Twist) {
+        if let Some(p) = &self.twist
+            && p.publish(m).is_err()
+        {
+            tracing::debug!("DDS did not take a twist");
+        }
+    }
 }
 
 /// Why the ROS 2 world stopped.
