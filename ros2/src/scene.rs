@@ -297,7 +297,7 @@ impl RosScene {
     }
 
     /// The world map: the arena's markers (latched), or a grid world's drawn from its map
-    /// ([`grid`]). A map that is neither has no markers, pose or path; its numbers and logs
+    /// (`scene/grid.rs`). A map that is neither has no markers, pose or path; its numbers and logs
     /// still go out.
     pub fn world_map<S: Sink + ?Sized>(
         &mut self,
