@@ -242,11 +242,19 @@ pub fn qos_of(topic: Topic) -> QosPolicies {
         .build()
 }
 
-impl RosNode {
-    /// Joins `domain` as node `/tes/<name>` and creates its publishers, unless `range` asks
-    /// for less reach than RustDDS has here. RustDDS starts its own threads here, with the
-    /// calling thread's priority and CPU placement.
-    pub fn start(domain: u16, range: &DiscoveryRange, name: &str) -> Result<Self, DdsError> {
+/// A node of TES in a domain: the DDS participant, the node, and where they reach. (A
+/// node's publishers and subscriptions must be dropped before it: the structs that hold them
+/// declare these after them.)
+pub(crate) struct Joined {
+    pub(crate) node: ros2_client::Node,
+    pub(crate) context: Context,
+    pub(crate) reach: Reach,
+}
+
+impl Joined {
+    /// Joins `domain` as node `/tes/<name>`, unless `range` asks for less reach than
+    /// RustDDS has here.
+    pub(crate) fn start(domain: u16, range: &DiscoveryRange, name: &str) -> Result<Self, DdsError> {
         let reach = Reach::of_this_host(domain);
         reach.allowed_by(range)?;
         let context = create(
@@ -254,10 +262,28 @@ impl RosNode {
             Context::with_options(ContextOptions::new().domain_id(domain)),
         )?;
         let node_name = create("node name", NodeName::new("/tes", name))?;
-        let mut node = create(
+        let node = create(
             "node",
             context.new_node(node_name, NodeOptions::new().enable_rosout(false)),
         )?;
+        Ok(Self {
+            node,
+            context,
+            reach,
+        })
+    }
+}
+
+impl RosNode {
+    /// Joins `domain` as node `/tes/<name>` and creates its publishers, unless `range` asks
+    /// for less reach than RustDDS has here. RustDDS starts its own threads here, with the
+    /// calling thread's priority and CPU placement.
+    pub fn start(domain: u16, range: &DiscoveryRange, name: &str) -> Result<Self, DdsError> {
+        let Joined {
+            mut node,
+            context,
+            reach,
+        } = Joined::start(domain, range, name)?;
         macro_rules! publisher {
             ($topic:expr) => {{
                 let of: Topic = $topic;

@@ -37,7 +37,7 @@ use tes_topics::{
     Role, ServiceNames, WorldMap, observation_flags, progress_flags,
 };
 
-use ros2_client::{Context, ContextOptions, NodeName, NodeOptions};
+use ros2_client::Context;
 
 use crate::dds::{DdsError, DiscoveryRange, Reach, create, reliable, topic};
 use crate::msg::{Float32MultiArray, Float64MultiArray, Message, Twist, UInt32MultiArray, Vector3};
@@ -502,17 +502,11 @@ impl WorldNode {
         range: &DiscoveryRange,
         cmd_vel: Option<&str>,
     ) -> Result<Self, DdsError> {
-        let reach = Reach::of_this_host(domain);
-        reach.allowed_by(range)?;
-        let context = create(
-            "DDS participant",
-            Context::with_options(ContextOptions::new().domain_id(domain)),
-        )?;
-        let node_name = create("node name", NodeName::new("/tes", "world"))?;
-        let mut node = create(
-            "node",
-            context.new_node(node_name, NodeOptions::new().enable_rosout(false)),
-        )?;
+        let crate::dds::Joined {
+            mut node,
+            context,
+            reach,
+        } = crate::dds::Joined::start(domain, range, "world")?;
         // The map is published once and kept (as `/map` is); steps and actions keep a
         // backlog a slow reader can catch up on.
         let (latched, queue) = (reliable(1, true), reliable(64, false));
