@@ -290,7 +290,6 @@ def recorded_messages(path: str) -> Iterable[tuple[str, int, Any]]:
 def convert(mcap_path: str, rrd_path: str, recording_id: str | None = None) -> int:
     """Writes the run of the recording ``mcap_path`` as Rerun's ``rrd_path``; returns the
     number of messages drawn."""
-    _give_way(addr)
     import rerun as rr
 
     rec = rr.RecordingStream("tes", recording_id=recording_id or mcap_path)
