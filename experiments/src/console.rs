@@ -239,11 +239,16 @@ pub fn lifelong(report: &LifelongReport, out: &Path) -> Result<String, fmt::Erro
     let c = &report.config;
     writeln!(
         text,
-        "{:.1} s wall clock. {} tasks ({} worlds, {} not logistic), {} episodes each; over the whole sequence (mean over {} runs):",
+        "{:.1} s wall clock. {} tasks ({} worlds, {} not logistic{}), {} episodes each; over the whole sequence (mean over {} runs):",
         report.wall_seconds,
-        report.sequence.len(),
+        report.tasks(),
         c.worlds(),
         c.table_worlds,
+        if c.same_worlds {
+            "; the same for every run"
+        } else {
+            "; each run's own"
+        },
         c.episodes,
         c.runs
     )?;

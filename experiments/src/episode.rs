@@ -107,6 +107,8 @@ pub fn build_agent(
         Method::Tes
         | Method::TesWoRi
         | Method::TesUnbounded
+        | Method::TesNoRecency
+        | Method::LoreRlContinual
         | Method::Lwt
         | Method::ManLoreRl
         | Method::Rands(_) => {

@@ -4,14 +4,20 @@
 //! task of its own dynamics — logistic sets drawn at random, and interaction tables that are
 //! not logistic in the features ([`Dynamics::random_table`]) — visited in
 //! [`LifelongConfig::rounds`] shuffled passes, so every world recurs, some after long gaps.
+//! Each run draws its own worlds and order from the world seed and the run (unless
+//! [`LifelongConfig::same_worlds`]), so the runs vary the sequence, not only the agents' luck.
 //! The worlds need more views (up to one per action each) than a library of `M = 20` holds.
 //! Along the same sequence, with the same world stream per task:
 //!
 //! * **TES** — the library carried from task to task, `M = 20`, recency `μ > 0`;
 //! * **TES, unbounded** — the same with no practical limit on the library;
+//! * **TES, no recency** — the bounded library with `μ = 0` (the paper's setting): the
+//!   ablation of recency;
 //! * **LWT** — at each task, the best-track-record view per action of TES's library as TES
 //!   starts the task, frozen;
-//! * **loreRL** — a fresh agent on every task.
+//! * **loreRL** — a fresh agent on every task;
+//! * **loreRL, continual** — one mDAGL model per action carried from task to task and never
+//!   reset: the baseline that keeps learning across the sequence without a library.
 //!
 //! Reported: each task's accumulated reward per method over the sequence, the library's size
 //! after each task, the time per episode, and questions of our own judged by paired tests.
@@ -26,8 +32,9 @@ use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-use tes_learning::agents::{Agent, Tes, TesParams, ViewPolicy};
+use tes_learning::agents::{Agent, LoreRl, LoreRlParams, Tes, TesParams, ViewPolicy};
 use tes_learning::library::{LibraryParams, ViewLibrary};
+use tes_learning::mdagl::Mdagl;
 use tes_learning::plan::PlannerParams;
 use tes_perception_sim::grid::{Dynamics, GridParams, GridSuite, GridTask};
 
@@ -65,8 +72,13 @@ pub struct LifelongConfig {
     pub recency: f64,
     /// Irrelevant features per cell (the paper's grid: 200).
     pub irrelevant: usize,
-    /// Seed of the worlds (dynamics, layouts) and of the sequence: the same for every run.
+    /// Seed of the worlds (dynamics, layouts) and of the sequence; each run draws its own from
+    /// it unless `same_worlds`.
     pub world_seed: u64,
+    /// Every run visits the same worlds in the same order, drawn once from `world_seed` (the
+    /// benchmark's first design; its earlier manifests, which lack the setting, ran so).
+    #[serde(default = "the_first_design")]
+    pub same_worlds: bool,
     /// Base agent seed; run `r` derives its agents' and its world stream's seeds from it.
     pub seed: u64,
     /// Whether this is the reduced `--quick` configuration.
@@ -75,7 +87,8 @@ pub struct LifelongConfig {
 
 impl LifelongConfig {
     /// Our defaults: 8 logistic and 4 table worlds, 4 passes (48 tasks), 50 episodes each,
-    /// `M = 20`, `μ = 0.1`, 200 irrelevant features, 20 runs.
+    /// `M = 20`, `μ = 0.1`, 200 irrelevant features, 20 runs, each with worlds and order of
+    /// its own.
     pub fn standard() -> Self {
         Self {
             runs: 20,
@@ -88,6 +101,7 @@ impl LifelongConfig {
             recency: 0.1,
             irrelevant: 200,
             world_seed: 2017,
+            same_worlds: false,
             seed: 1,
             quick: false,
         }
@@ -189,11 +203,24 @@ impl Settings for LifelongConfig {
         Setting {
             flag: "world-seed",
             value_name: "WORLD_SEED",
-            help: "Seed of the worlds and of the sequence.",
+            help: "Seed of the worlds and of the sequence (each run draws its own from it).",
             kind: Kind::Value,
             show: |c| c.world_seed.to_string(),
             take: |c, v| {
                 c.world_seed = number(v)?;
+                Ok(())
+            },
+        },
+        Setting {
+            flag: "same-worlds",
+            value_name: "",
+            help: "Every run visits the same worlds in the same order, drawn once from the \
+                   world seed (the benchmark's first design), instead of worlds and an order \
+                   of its own.",
+            kind: Kind::Switch,
+            show: |c| crate::settings::on_off(c.same_worlds),
+            take: |c, _| {
+                c.same_worlds = true;
                 Ok(())
             },
         },
@@ -208,13 +235,24 @@ impl Settings for LifelongConfig {
     }
 }
 
+/// What a manifest written before [`LifelongConfig::same_worlds`] existed ran: one sequence
+/// for every run.
+fn the_first_design() -> bool {
+    true
+}
+
 /// The compared methods, in report order.
-pub const METHODS: [Method; 4] = [
+pub const METHODS: [Method; 6] = [
     Method::Tes,
     Method::TesUnbounded,
+    Method::TesNoRecency,
     Method::Lwt,
     Method::LoreRl,
+    Method::LoreRlContinual,
 ];
+
+/// The methods that carry a view library, whose size is reported after each task.
+const LIBRARIES: [Method; 3] = [Method::Tes, Method::TesUnbounded, Method::TesNoRecency];
 
 /// One task of the sequence.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -238,8 +276,21 @@ struct Worlds {
 }
 
 impl Worlds {
-    fn new(config: &LifelongConfig) -> Result<Self> {
-        let mut rng = ChaCha8Rng::seed_from_u64(config.world_seed ^ 0x11FE_10E6);
+    /// The worlds and order of run `run`: its own, or with `same_worlds` those of every run.
+    fn of_run(config: &LifelongConfig, run: usize) -> Result<Self> {
+        let world_seed = if config.same_worlds {
+            config.world_seed
+        } else {
+            // Run 0 keeps the first design's draw; each later run is another.
+            config
+                .world_seed
+                .wrapping_add((run as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15))
+        };
+        Self::drawn(config, world_seed)
+    }
+
+    fn drawn(config: &LifelongConfig, world_seed: u64) -> Result<Self> {
+        let mut rng = ChaCha8Rng::seed_from_u64(world_seed ^ 0x11FE_10E6);
         let mut envs = Vec::with_capacity(config.worlds());
         for w in 0..config.worlds() {
             let logistic = w < config.logistic_worlds;
@@ -253,7 +304,7 @@ impl Worlds {
                 dynamics_set: w,
                 ..GridSuite::params(1 + w % (GridSuite::TASKS - 1), config.irrelevant)
             };
-            let seed = config.world_seed.wrapping_mul(7_919).wrapping_add(w as u64);
+            let seed = world_seed.wrapping_mul(7_919).wrapping_add(w as u64);
             let task = GridTask::generate_with(params, dynamics, seed)
                 .with_context(|| format!("world {w}"))?;
             envs.push(GridEnv::new(task)?);
@@ -279,10 +330,12 @@ impl Worlds {
     }
 }
 
-/// One run's record: per method, each task's episodes; the libraries' sizes after each task.
+/// One run's record: its sequence; per method, each task's episodes; the libraries' sizes
+/// after each task.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 struct RunRecord {
     run: usize,
+    sequence: Vec<SequenceTask>,
     episodes: BTreeMap<Method, Vec<Vec<Episode>>>,
     library_views: BTreeMap<Method, Vec<usize>>,
 }
@@ -303,11 +356,7 @@ fn planner() -> PlannerParams {
     }
 }
 
-fn empty_library(
-    config: &LifelongConfig,
-    worlds: &Worlds,
-    max_views: usize,
-) -> Result<ViewLibrary> {
+fn empty_library(worlds: &Worlds, max_views: usize, recency: f64) -> Result<ViewLibrary> {
     let s = worlds.envs[0].structure();
     Ok(ViewLibrary::new(
         s.n_actions(),
@@ -315,7 +364,7 @@ fn empty_library(
         s.n_features(),
         LibraryParams {
             max_views,
-            recency: config.recency,
+            recency,
             ..LibraryParams::default()
         },
     )?)
@@ -345,11 +394,19 @@ fn live(
         .collect()
 }
 
-fn run_job(config: &LifelongConfig, worlds: &Worlds, run: usize) -> Result<RunRecord> {
+fn run_job(config: &LifelongConfig, run: usize) -> Result<RunRecord> {
+    let worlds = Worlds::of_run(config, run)?;
     let mut episodes: BTreeMap<Method, Vec<Vec<Episode>>> = BTreeMap::new();
     let mut library_views: BTreeMap<Method, Vec<usize>> = BTreeMap::new();
-    let mut bounded = empty_library(config, worlds, config.max_views)?;
-    let mut unbounded = empty_library(config, worlds, config.unbounded_views)?;
+    let mut libraries = Vec::with_capacity(LIBRARIES.len());
+    for (method, max_views, recency) in [
+        (Method::Tes, config.max_views, config.recency),
+        (Method::TesUnbounded, config.unbounded_views, config.recency),
+        (Method::TesNoRecency, config.max_views, 0.0),
+    ] {
+        libraries.push((method, empty_library(&worlds, max_views, recency)?));
+    }
+    let mut continual: Option<Vec<Mdagl>> = None;
     let tes = |policy| TesParams {
         policy,
         planner: planner(),
@@ -364,32 +421,35 @@ fn run_job(config: &LifelongConfig, worlds: &Worlds, run: usize) -> Result<RunRe
                 task.position, task.world
             )
         };
-        let mut lwt = Tes::new(
-            env.structure(),
-            bounded.clone(),
-            tes(ViewPolicy::Lwt),
-            agent_seed,
-        )
-        .with_context(|| context(Method::Lwt))?;
         let mut record = |m: Method, e: Vec<Episode>| episodes.entry(m).or_default().push(e);
-        record(
-            Method::Lwt,
-            live(&mut lwt, env, config.episodes, world_seed)?,
-        );
-        for (method, library) in [
-            (Method::Tes, &mut bounded),
-            (Method::TesUnbounded, &mut unbounded),
-        ] {
+        for (method, library) in &mut libraries {
+            if *method == Method::Tes {
+                // LWT takes the bounded library as TES starts the task.
+                let mut lwt = Tes::new(
+                    env.structure(),
+                    library.clone(),
+                    tes(ViewPolicy::Lwt),
+                    agent_seed,
+                )
+                .with_context(|| context(Method::Lwt))?;
+                record(
+                    Method::Lwt,
+                    live(&mut lwt, env, config.episodes, world_seed)?,
+                );
+            }
             let mut agent = Tes::new(
                 env.structure(),
                 library.clone(),
                 tes(ViewPolicy::Tes),
                 agent_seed,
             )
-            .with_context(|| context(method))?;
-            record(method, live(&mut agent, env, config.episodes, world_seed)?);
-            *library = agent.finish_task().with_context(|| context(method))?.0;
-            library_views.entry(method).or_default().push(library.len());
+            .with_context(|| context(*method))?;
+            record(*method, live(&mut agent, env, config.episodes, world_seed)?);
+            *library = agent.finish_task().with_context(|| context(*method))?.0;
+            library_views
+                .entry(*method)
+                .or_default()
+                .push(library.len());
         }
         let settings = AgentSettings {
             planner: planner(),
@@ -401,9 +461,24 @@ fn run_job(config: &LifelongConfig, worlds: &Worlds, run: usize) -> Result<RunRe
             Method::LoreRl,
             live(lore.as_mut(), env, config.episodes, world_seed)?,
         );
+        let params = LoreRlParams {
+            planner: planner(),
+            ..LoreRlParams::default()
+        };
+        let mut carried = match continual.take() {
+            None => LoreRl::new(env.structure(), params, agent_seed),
+            Some(views) => LoreRl::with_views(env.structure(), params, views, agent_seed),
+        }
+        .with_context(|| context(Method::LoreRlContinual))?;
+        record(
+            Method::LoreRlContinual,
+            live(&mut carried, env, config.episodes, world_seed)?,
+        );
+        continual = Some(carried.into_views());
     }
     Ok(RunRecord {
         run,
+        sequence: worlds.sequence,
         episodes,
         library_views,
     })
@@ -430,22 +505,14 @@ pub fn run_with(
     config.check()?;
     let started = Instant::now();
     fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let worlds = Worlds::new(config)?;
     let manifest = manifest(config, options.shard)?;
     let results = jobs::run_jobs(out, &manifest, options, progress, |run| {
-        run_job(config, &worlds, run)
+        run_job(config, run)
     })?;
     if !options.shard.is_all() {
         return Ok(None);
     }
-    report_from(
-        config,
-        &worlds,
-        results.into_values().collect(),
-        out,
-        started,
-    )
-    .map(Some)
+    report_from(config, results.into_values().collect(), out, started).map(Some)
 }
 
 /// Computes the summary and figures of a complete result folder from its job records.
@@ -454,15 +521,8 @@ pub fn summarise_dir(out: &Path) -> Result<LifelongReport> {
     let manifest = Manifest::read(out)?;
     let config: LifelongConfig = manifest.settings()?;
     config.check()?;
-    let worlds = Worlds::new(&config)?;
     let results: BTreeMap<usize, RunRecord> = jobs::read_all(out, &manifest)?;
-    report_from(
-        &config,
-        &worlds,
-        results.into_values().collect(),
-        out,
-        started,
-    )
+    report_from(&config, results.into_values().collect(), out, started)
 }
 
 impl Experiment for LifelongConfig {
@@ -504,11 +564,17 @@ pub struct LifelongReport {
     pub config: LifelongConfig,
     /// Wall-clock seconds.
     pub wall_seconds: f64,
-    /// The sequence of tasks.
-    pub sequence: Vec<SequenceTask>,
+    /// Each run's sequence of tasks, in run order (all alike with `same_worlds`); empty in a
+    /// summary written before runs drew their own (see [`sequence_of`](Self::sequence_of)).
+    #[serde(default)]
+    pub sequences: Vec<Vec<SequenceTask>>,
+    /// The one sequence every run lived, in a summary written before runs drew their own.
+    #[serde(default, rename = "sequence", skip_serializing)]
+    first_design: Vec<SequenceTask>,
     /// Per method, each task's accumulated reward over runs, in sequence order.
     pub per_task: BTreeMap<String, Vec<Summary>>,
-    /// Per library (TES, TES unbounded), its views after each task over runs.
+    /// Per library (TES, TES unbounded, TES without recency), its views after each task over
+    /// runs.
     pub library_views: BTreeMap<String, Vec<Summary>>,
     /// Agent seconds per episode over the whole sequence, per method.
     pub seconds_per_episode: BTreeMap<String, Summary>,
@@ -518,9 +584,32 @@ pub struct LifelongReport {
     pub targets: Vec<TargetCheck>,
 }
 
+impl LifelongReport {
+    /// Tasks in each run's sequence.
+    pub fn tasks(&self) -> usize {
+        self.config.rounds * self.config.worlds()
+    }
+
+    /// The sequence run `run` lived.
+    pub fn sequence_of(&self, run: usize) -> &[SequenceTask] {
+        self.sequences
+            .get(run)
+            .map_or(&self.first_design, Vec::as_slice)
+    }
+
+    /// Every run's sequence, in run order.
+    pub fn run_sequences(&self) -> impl Iterator<Item = &[SequenceTask]> + '_ {
+        (0..self.config.runs).map(|run| self.sequence_of(run))
+    }
+
+    /// Each run's task at `position`, in run order.
+    pub fn at_position(&self, position: usize) -> impl Iterator<Item = &SequenceTask> + '_ {
+        self.run_sequences().filter_map(move |s| s.get(position))
+    }
+}
+
 fn report_from(
     config: &LifelongConfig,
-    worlds: &Worlds,
     mut records: Vec<RunRecord>,
     out: &Path,
     started: Instant,
@@ -541,7 +630,7 @@ fn report_from(
             (m.name().into_owned(), per_run)
         })
         .collect();
-    let positions = worlds.sequence.len();
+    let positions = config.rounds * config.worlds();
     let per_task = runs
         .iter()
         .map(|(m, per_run)| {
@@ -558,7 +647,7 @@ fn report_from(
             (m.clone(), by_task)
         })
         .collect();
-    let library_views = [Method::Tes, Method::TesUnbounded]
+    let library_views = LIBRARIES
         .iter()
         .map(|&m| {
             let sizes = (0..positions)
@@ -590,7 +679,8 @@ fn report_from(
     let mut report = LifelongReport {
         config: config.clone(),
         wall_seconds: 0.0,
-        sequence: worlds.sequence.clone(),
+        sequences: records.iter().map(|r| r.sequence.clone()).collect(),
+        first_design: Vec::new(),
         per_task,
         library_views,
         seconds_per_episode,
@@ -616,9 +706,9 @@ fn over_tasks(
     };
     a.iter()
         .zip(b)
-        .map(|(ra, rb)| {
-            report
-                .sequence
+        .zip(report.run_sequences())
+        .map(|((ra, rb), sequence)| {
+            sequence
                 .iter()
                 .filter(|t| which(t))
                 .filter_map(|t| {
@@ -636,10 +726,10 @@ fn mean_over_tasks(
     b: Method,
     which: &dyn Fn(&SequenceTask) -> bool,
 ) -> Vec<f64> {
-    let n = report.sequence.iter().filter(|t| which(t)).count().max(1) as f64;
     over_tasks(report, a, b, which)
         .into_iter()
-        .map(|x| x / n)
+        .zip(report.run_sequences())
+        .map(|(x, sequence)| x / sequence.iter().filter(|t| which(t)).count().max(1) as f64)
         .collect()
 }
 
@@ -652,21 +742,19 @@ fn mean_over_tasks(
 /// * does TES beat loreRL on the worlds that are logistic in the features? on those that
 ///   are not?
 /// * is the bounded library faster per episode than the unbounded one?
+///
+/// and the ablation's and continual baseline's ([`ablation_targets`]).
 fn targets(report: &LifelongReport) -> Vec<TargetCheck> {
-    let quick = report.config.quick;
-    let all = |_: &SequenceTask| true;
-    let test = "paired t-test over runs, two-sided 5 %";
-    let check = |target: String, measured: String, p: &Paired| {
-        TargetCheck::new(target, test, measured, quick, Verdict::of_side(p.side))
-    };
+    let check = |target, measured, p: &Paired| paired_check(report, target, measured, p);
     let over =
         |a, b, which: &dyn Fn(&SequenceTask) -> bool| paired(&over_tasks(report, a, b, which));
+    let all = |_: &SequenceTask| true;
     let tes_lore = over(Method::Tes, Method::LoreRl, &all);
     let tes_lwt = over(Method::Tes, Method::Lwt, &all);
     let unbounded = over(Method::TesUnbounded, Method::Tes, &all);
     let long_gap = report
-        .sequence
-        .iter()
+        .run_sequences()
+        .flatten()
         .filter_map(|t| t.gap)
         .max()
         .map_or(usize::MAX, |g| g / 2);
@@ -683,27 +771,9 @@ fn targets(report: &LifelongReport) -> Vec<TargetCheck> {
             .map(|(r, f)| r - f)
             .collect();
     let returns = paired(&returns);
-    let time = |m: Method| {
-        report
-            .runs
-            .get(&*m.name())
-            .map(|runs| {
-                runs.iter()
-                    .map(|t| {
-                        t.iter().map(|o| o.seconds_per_episode).sum::<f64>() / t.len().max(1) as f64
-                    })
-                    .collect::<Vec<_>>()
-            })
-            .unwrap_or_default()
-    };
-    let ratios: Vec<f64> = time(Method::Tes)
-        .iter()
-        .zip(time(Method::TesUnbounded))
-        .map(|(b, u)| b / u)
-        .collect();
-    let ratio_summary = summarise(&ratios);
-    let n = report.sequence.len();
-    vec![
+    let ratio_summary = summarise(&time_ratios(report, Method::Tes, Method::TesUnbounded));
+    let n = report.tasks();
+    let mut checks = vec![
         check(
             format!("ours: TES accumulates more than loreRL over the {n} tasks"),
             format!("TES − loreRL {}", difference(&tes_lore)),
@@ -743,10 +813,87 @@ fn targets(report: &LifelongReport) -> Vec<TargetCheck> {
             format!("ours: the bounded library (M = {}) costs less time per episode than the unbounded one", report.config.max_views),
             TIME_RATIO_TEST,
             ratio(&ratio_summary),
-            quick,
+            report.config.quick,
             Verdict::at_most(&ratio_summary, 1.0),
         ),
+    ];
+    checks.extend(ablation_targets(report));
+    checks
+}
+
+/// The ablation of recency and the continual baseline: TES with `μ` above `μ = 0`, TES above
+/// loreRL-continual, loreRL-continual above a fresh loreRL (preregistered as
+/// `lifelong.ablations`).
+fn ablation_targets(report: &LifelongReport) -> [TargetCheck; 3] {
+    let all = |_: &SequenceTask| true;
+    let over = |a, b| paired(&over_tasks(report, a, b, &all));
+    let recency = over(Method::Tes, Method::TesNoRecency);
+    let tes_continual = over(Method::Tes, Method::LoreRlContinual);
+    let continual_lore = over(Method::LoreRlContinual, Method::LoreRl);
+    let n = report.tasks();
+    let check = |target, measured, p: &Paired| paired_check(report, target, measured, p);
+    [
+        check(
+            format!(
+                "ours: TES with recency μ = {} accumulates more than with μ = 0 over the {n} tasks",
+                report.config.recency
+            ),
+            format!(
+                "μ = {} − μ = 0 {}",
+                report.config.recency,
+                difference(&recency)
+            ),
+            &recency,
+        ),
+        check(
+            format!(
+                "ours: TES accumulates more than loreRL-continual (one model per action learning through all {n} tasks)"
+            ),
+            format!("TES − loreRL-continual {}", difference(&tes_continual)),
+            &tes_continual,
+        ),
+        check(
+            format!(
+                "ours: loreRL-continual accumulates more than a fresh loreRL on every task over the {n} tasks"
+            ),
+            format!("loreRL-continual − loreRL {}", difference(&continual_lore)),
+            &continual_lore,
+        ),
     ]
+}
+
+/// A target judged by the paired t-test `p`.
+fn paired_check(
+    report: &LifelongReport,
+    target: String,
+    measured: String,
+    p: &Paired,
+) -> TargetCheck {
+    TargetCheck::new(
+        target,
+        "paired t-test over runs, two-sided 5 %",
+        measured,
+        report.config.quick,
+        Verdict::of_side(p.side),
+    )
+}
+
+/// Per run, `a`'s mean time per episode over the sequence over `b`'s.
+fn time_ratios(report: &LifelongReport, a: Method, b: Method) -> Vec<f64> {
+    let time = |m: Method| {
+        report
+            .runs
+            .get(&*m.name())
+            .map(|runs| {
+                runs.iter()
+                    .map(|t| {
+                        t.iter().map(|o| o.seconds_per_episode).sum::<f64>() / t.len().max(1) as f64
+                    })
+                    .collect::<Vec<_>>()
+            })
+            .unwrap_or_default()
+    };
+    time(a).iter().zip(time(b)).map(|(a, b)| a / b).collect()
 }
 
 /// The figures: each task's accumulated reward per method over the sequence, TES's lead
@@ -778,7 +925,7 @@ fn write_figures(report: &LifelongReport, out: &Path) -> Result<()> {
     };
     write_file(&out.join("lifelong-reward.svg"), &chart.to_svg())?;
     let lead = |m: Method| -> Vec<crate::svg::BandPoint> {
-        (0..report.sequence.len())
+        (0..report.tasks())
             .map(|p| {
                 let d: Vec<f64> = over_tasks(report, m, Method::LoreRl, &|t| t.position == p);
                 summarise(&d).at(position(p))
@@ -789,8 +936,9 @@ fn write_figures(report: &LifelongReport, out: &Path) -> Result<()> {
         title: "Lifelong: each task's accumulated reward minus loreRL's (paired by run)".into(),
         x_label: "task in the sequence".into(),
         y_label: "difference to loreRL".into(),
-        series: [Method::Tes, Method::TesUnbounded, Method::Lwt]
+        series: METHODS
             .into_iter()
+            .filter(|&m| m != Method::LoreRl)
             .map(|m| Series::method(m, lead(m)))
             .collect(),
         markers: true,
@@ -827,28 +975,69 @@ mod tests {
     #[test]
     fn the_sequence_visits_every_world_each_round_and_knows_the_gaps() {
         let config = LifelongConfig::quick();
-        let worlds = Worlds::new(&config).unwrap();
-        assert_eq!(worlds.sequence.len(), config.rounds * config.worlds());
-        for round in worlds.sequence.chunks(config.worlds()) {
-            let mut seen: Vec<usize> = round.iter().map(|t| t.world).collect();
-            seen.sort_unstable();
-            assert_eq!(seen, (0..config.worlds()).collect::<Vec<_>>());
+        for run in 0..3 {
+            let worlds = Worlds::of_run(&config, run).unwrap();
+            assert_eq!(worlds.sequence.len(), config.rounds * config.worlds());
+            for round in worlds.sequence.chunks(config.worlds()) {
+                let mut seen: Vec<usize> = round.iter().map(|t| t.world).collect();
+                seen.sort_unstable();
+                assert_eq!(seen, (0..config.worlds()).collect::<Vec<_>>());
+            }
+            for t in &worlds.sequence {
+                let earlier = worlds.sequence[..t.position]
+                    .iter()
+                    .rposition(|e| e.world == t.world);
+                assert_eq!(t.gap, earlier.map(|e| t.position - e - 1));
+                assert_eq!(
+                    t.logistic,
+                    worlds.envs[t.world].task().dynamics().is_logistic()
+                );
+            }
         }
-        for t in &worlds.sequence {
-            let earlier = worlds.sequence[..t.position]
+    }
+
+    /// What tells one run's worlds and order from another's: the order visited, and each
+    /// world's size and dynamics.
+    fn drawn(worlds: &Worlds) -> (Vec<usize>, Vec<String>) {
+        (
+            worlds.sequence.iter().map(|t| t.world).collect(),
+            worlds
+                .envs
                 .iter()
-                .rposition(|e| e.world == t.world);
-            assert_eq!(t.gap, earlier.map(|e| t.position - e - 1));
-            assert_eq!(
-                t.logistic,
-                worlds.envs[t.world].task().dynamics().is_logistic()
-            );
+                .map(|e| {
+                    let task = e.task();
+                    format!("{}x{} {:?}", task.width(), task.height(), task.dynamics())
+                })
+                .collect(),
+        )
+    }
+
+    #[test]
+    fn each_run_draws_worlds_and_an_order_of_its_own_from_the_seed() {
+        let config = LifelongConfig::standard();
+        let runs: Vec<_> = (0..4)
+            .map(|run| drawn(&Worlds::of_run(&config, run).unwrap()))
+            .collect();
+        for (i, a) in runs.iter().enumerate() {
+            for b in &runs[i + 1..] {
+                assert_ne!(a.0, b.0, "orders differ between runs");
+                assert_ne!(a.1, b.1, "worlds differ between runs");
+            }
         }
-        // The same seed, the same worlds and order.
-        let again = Worlds::new(&config).unwrap();
-        assert_eq!(
-            again.sequence.iter().map(|t| t.world).collect::<Vec<_>>(),
-            worlds.sequence.iter().map(|t| t.world).collect::<Vec<_>>()
-        );
+        // Reproducible: the same seed and run, the same worlds and order.
+        assert_eq!(runs[2], drawn(&Worlds::of_run(&config, 2).unwrap()));
+        // `same_worlds`: every run is run 0's draw, which is the first design's.
+        let same = LifelongConfig {
+            same_worlds: true,
+            ..config.clone()
+        };
+        for run in 0..3 {
+            assert_eq!(drawn(&Worlds::of_run(&same, run).unwrap()), runs[0]);
+        }
+        // A manifest written before the setting existed ran the first design.
+        let mut old = serde_json::to_value(&config).unwrap();
+        old.as_object_mut().unwrap().remove("same_worlds");
+        let old: LifelongConfig = serde_json::from_value(old).unwrap();
+        assert!(old.same_worlds);
     }
 }

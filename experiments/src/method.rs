@@ -52,6 +52,13 @@ pub enum Method {
     LseRmax,
     /// TES with a library of no practical bound (the lifelong benchmark).
     TesUnbounded,
+    /// TES with no recency decay of the track record (`μ = 0`, the paper's setting; the
+    /// lifelong benchmark's ablation).
+    TesNoRecency,
+    /// loreRL whose views are carried from task to task and never reset: one mDAGL model per
+    /// action learning across the whole sequence (the lifelong benchmark's continual
+    /// baseline).
+    LoreRlContinual,
     /// The `i`-th random view combination (from 1): a random library view per action,
     /// learning, never switched (the transfer study's "Rands").
     Rands(usize),
@@ -60,7 +67,7 @@ pub enum Method {
 impl Method {
     /// Every method without a parameter, in order; the random combinations
     /// ([`Rands`](Self::Rands)) come after them.
-    pub const FIXED: [Method; 12] = [
+    pub const FIXED: [Method; 14] = [
         Method::Tes,
         Method::TesWoRi,
         Method::Lwt,
@@ -73,6 +80,8 @@ impl Method {
         Method::RlDt,
         Method::LseRmax,
         Method::TesUnbounded,
+        Method::TesNoRecency,
+        Method::LoreRlContinual,
     ];
 
     /// The name in reports, files and legends; borrowed for every method but the numbered
@@ -91,6 +100,8 @@ impl Method {
             Method::RlDt => "RL-DT",
             Method::LseRmax => "LSE-Rmax",
             Method::TesUnbounded => "TES-unbounded",
+            Method::TesNoRecency => "TES-norecency",
+            Method::LoreRlContinual => "loreRL-continual",
             Method::Rands(i) => return Cow::Owned(format!("Rands {i}")),
         })
     }
@@ -121,6 +132,8 @@ impl Method {
             Method::RlDt => "#000000",
             Method::LseRmax => "#332288",
             Method::TesUnbounded => "#AA3377",
+            Method::TesNoRecency => "#BBCC33",
+            Method::LoreRlContinual => "#EE8866",
             Method::Rands(1) => "#8C510A",
             Method::Rands(2) => "#BF812D",
             Method::Rands(3) => "#DDCC77",
@@ -221,6 +234,8 @@ mod tests {
                 "RL-DT",
                 "LSE-Rmax",
                 "TES-unbounded",
+                "TES-norecency",
+                "loreRL-continual",
                 "Rands 1",
                 "Rands 2",
                 "Rands 3",

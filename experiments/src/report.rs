@@ -632,37 +632,48 @@ fn fig4c(f: &Fig4Report) -> String {
     md
 }
 
-/// The sequence task by task: the world, whether it is logistic, the gap since its last
-/// visit, each method's accumulated reward on it, and the bounded library's size after it.
+/// The sequence position by position, over runs: how many runs met a logistic world there
+/// and how many a return visit (each run draws its own worlds and order), the mean gap since
+/// the last visit, each method's mean accumulated reward, and the bounded library's size
+/// after it.
 fn lifelong_sequence(l: &LifelongReport) -> String {
     let methods = lifelong::METHODS;
+    let runs = l.run_sequences().count();
     let mut md = format!(
-        "| task | world | logistic | gap | {} | views after (M = {}) |\n|---|---|---|---|{}---|\n",
+        "| task | logistic world (of {runs} runs) | return visit (of {runs}) | mean gap | {} | views after (M = {}) |\n|---|---|---|---|{}---|\n",
         methods.map(|m| m.name().into_owned()).join(" | "),
         l.config.max_views,
         "---|".repeat(methods.len())
     );
     let views = l.library_views.get(&*Method::Tes.name());
-    for t in &l.sequence {
+    for position in 0..l.tasks() {
+        let logistic = l.at_position(position).filter(|t| t.logistic).count();
+        let gaps: Vec<usize> = l.at_position(position).filter_map(|t| t.gap).collect();
+        let mean_gap = if gaps.is_empty() {
+            "-".into()
+        } else {
+            format!(
+                "{:.1}",
+                gaps.iter().sum::<usize>() as f64 / gaps.len() as f64
+            )
+        };
         let cells: Vec<String> = methods
             .iter()
             .map(|m| {
                 l.per_task
                     .get(&*m.name())
-                    .and_then(|v| v.get(t.position))
+                    .and_then(|v| v.get(position))
                     .map_or("-".into(), |s| format!("{:.1}", s.mean))
             })
             .collect();
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {} | {} |",
-            t.position + 1,
-            t.world,
-            if t.logistic { "yes" } else { "no" },
-            t.gap.map_or("first".into(), |g| g.to_string()),
+            "| {} | {logistic} | {} | {mean_gap} | {} | {} |",
+            position + 1,
+            gaps.len(),
             cells.join(" | "),
             views
-                .and_then(|v| v.get(t.position))
+                .and_then(|v| v.get(position))
                 .map_or("-".into(), |s| format!("{:.1}", s.mean))
         );
     }

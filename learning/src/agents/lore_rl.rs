@@ -82,6 +82,41 @@ impl LoreRl {
         })
     }
 
+    /// An agent on `structure` that starts from `views` (one per action, shaped for the
+    /// structure's effects and features) and goes on learning them: a model carried from task
+    /// to task (the lifelong benchmark's continual baseline). [`into_views`](Self::into_views)
+    /// hands them back at the task's end.
+    pub fn with_views(
+        structure: Arc<CmdpStructure>,
+        params: LoreRlParams,
+        views: Vec<Mdagl>,
+        seed: u64,
+    ) -> Result<Self, AgentError> {
+        let fits = views.len() == structure.n_actions()
+            && views.iter().all(|v| {
+                v.n_classes() == structure.n_effects() && v.n_features() == structure.n_features()
+            });
+        if !fits {
+            return Err(AgentError::ViewsShape {
+                views: views.len(),
+                actions: structure.n_actions(),
+                effects: structure.n_effects(),
+                features: structure.n_features(),
+            });
+        }
+        let mut agent = Self::new(structure, params, seed)?;
+        for (a, view) in views.into_iter().enumerate() {
+            agent.model.refresh(a, &view)?;
+            agent.views[a] = view;
+        }
+        Ok(agent)
+    }
+
+    /// The views as learned so far, one per action: what a continual learner carries on.
+    pub fn into_views(self) -> Vec<Mdagl> {
+        self.views
+    }
+
     /// The view (effect predictor) of `action`.
     pub fn view(&self, action: usize) -> Option<&Mdagl> {
         self.views.get(action)
@@ -220,6 +255,48 @@ mod tests {
         ));
         let blore = LoreRl::new(c, LoreRlParams::blore_rl(), 0).unwrap();
         assert_eq!(blore.name(), "bloreRL");
+    }
+
+    /// Views carried into a new task (a longer corridor of the same features) go on from what
+    /// they learned: the continued agent plans with them at once and keeps updating them.
+    #[test]
+    fn carried_views_start_the_next_task_where_the_last_ended() {
+        let first = Arc::new(corridor(10, &[3, 6]));
+        let mut agent = LoreRl::new(first.clone(), LoreRlParams::default(), 7).unwrap();
+        let mut world = ChaCha8Rng::seed_from_u64(11);
+        for _ in 0..100 {
+            run_episode(&mut agent, &first, 5, &mut world);
+        }
+        let views = agent.into_views();
+        let learned: Vec<u64> = views.iter().map(Mdagl::n_updates).collect();
+        assert!(learned.iter().all(|&n| n > 0), "{learned:?}");
+        let next = Arc::new(corridor(12, &[2, 8]));
+        let mut carried = LoreRl::with_views(next.clone(), LoreRlParams::default(), views, 9)
+            .expect("same features and effects");
+        // The slip learned in the first corridor is known on arrival in the second.
+        assert!(carried.view(1).unwrap().is_selected(1));
+        run_episode(&mut carried, &next, 6, &mut world);
+        let after: Vec<u64> = (0..2)
+            .map(|a| carried.view(a).unwrap().n_updates())
+            .collect();
+        assert!(
+            after.iter().zip(&learned).any(|(a, b)| a > b),
+            "still learning"
+        );
+        assert!(after.iter().zip(&learned).all(|(a, b)| a >= b));
+    }
+
+    #[test]
+    fn views_that_do_not_fit_the_task_are_refused() {
+        let c = Arc::new(corridor(5, &[]));
+        let one = LoreRl::new(c.clone(), LoreRlParams::default(), 0)
+            .unwrap()
+            .into_views()
+            .into_iter()
+            .take(1)
+            .collect();
+        let e = LoreRl::with_views(c, LoreRlParams::default(), one, 0).unwrap_err();
+        assert!(matches!(e, AgentError::ViewsShape { views: 1, .. }), "{e}");
     }
 
     #[test]

@@ -81,6 +81,21 @@ pub enum AgentError {
         /// Its features.
         features: usize,
     },
+    /// Views given to start from do not fit the task.
+    #[error(
+        "{views} views do not fit a task of {actions} actions, {effects} effects and \
+         {features} features: it needs one view per action, of its effects and features"
+    )]
+    ViewsShape {
+        /// Views given.
+        views: usize,
+        /// The task's actions.
+        actions: usize,
+        /// Its effects.
+        effects: usize,
+        /// Its features.
+        features: usize,
+    },
     /// A view refused the step.
     #[error("view update: {0}")]
     Update(#[from] MdaglError),
