@@ -38,7 +38,7 @@ const LIFELONG_PER_RUN: WorldChange = WorldChange {
     changed_in: "the commit that added LifelongConfig::same_worlds",
     results_at: "2896153",
     verdict_before: "20 runs of one sequence of 12 fixed worlds: TES above loreRL undecided (+53.8 [−1.1, +108.8], p = 0.055); TES above LWT holds; its lead larger on return visits holds; unbounded above M = 20 holds, also after long gaps; TES above loreRL on logistic worlds holds, on table worlds fails (−62.6); the bounded library cheaper holds (0.80)",
-    verdict_after: "see docs/results.md's lifelong tables at 20 and 100 runs",
+    verdict_after: "each run's own worlds: TES above loreRL holds at 20 runs (+201.6) and 100 (+148.8); unbounded above M = 20 undecided at 20, holds at 100 (+72.4); TES above loreRL on table worlds undecided at 20 (+8.3), fails at 100 (−18.1)",
     why: "with the worlds and order fixed, the runs varied only the agents' seeds, so every conclusion rested on one draw of 8 logistic and 4 table worlds",
     fingerprint_before: Some("40fd29c93070e306"),
 };
