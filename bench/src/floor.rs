@@ -99,11 +99,20 @@ pub fn relay_floor(
         let used = serde_json::from_str(&text).map_err(BenchError::Malformed)?;
         cpu.insert(role.trim_start_matches("relay-").to_owned(), used);
     }
+    let hop_catches = match std::fs::read_to_string(relay::catches_file(dir)) {
+        Ok(text) => Some(serde_json::from_str(&text).map_err(BenchError::Malformed)?),
+        // A hop that does not anticipate keeps no score.
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+        Err(e) => {
+            return Err(BenchError::io("cannot read the floor hop's catches".into())(e));
+        }
+    };
     Ok(Floor {
         round_trip: load(&report)?,
         first_hop: load(&hop_report)?,
         second_hop: load(&second_hop_report)?,
         cpu,
+        hop_catches,
     })
 }
 

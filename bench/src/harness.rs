@@ -696,6 +696,8 @@ pub struct Floor {
     pub second_hop: LatencyReport,
     /// Each role's CPU (`source`, `hop`, `sink`; empty where not measured).
     pub cpu: std::collections::BTreeMap<String, CpuUse>,
+    /// How the hop's observations came against its poll windows, when it anticipated them.
+    pub hop_catches: Option<Catches>,
 }
 
 /// The observer a comparison switches on and off.

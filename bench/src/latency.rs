@@ -235,6 +235,7 @@ fn floor_of_via(
                 // The link's two hops are timed on its two sides: only the whole is measured.
                 second_hop: Default::default(),
                 cpu: Default::default(),
+                hop_catches: None,
             })
         }
     }
@@ -262,7 +263,12 @@ fn result(
         first_hop: floor_decision,
         second_hop: floor_second_hop,
         cpu: floor_cpu,
+        hop_catches,
     } = floor;
+    let mut catches = catches;
+    if let Some(hop) = hop_catches {
+        catches.insert("floor hop".to_owned(), hop);
+    }
     let (ratio_p50, ratio_p99) = (
         ratio(report.p50_us, floor.p50_us),
         ratio(report.p99_us, floor.p99_us),

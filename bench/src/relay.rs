@@ -25,7 +25,7 @@ use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
 use tes_runtime::channel::{
-    self, Idle, Inbox, IpcError, LatestInbox, LatestOutbox, Loan, Outbox, WaitStrategy,
+    self, Catches, Idle, Inbox, IpcError, LatestInbox, LatestOutbox, Loan, Outbox, WaitStrategy,
 };
 use tes_runtime::clock::monotonic_ns;
 use tes_runtime::cpu::CpuMeter;
@@ -171,6 +171,18 @@ impl RelayConfig {
         }
     }
 
+    /// Writes the hop's catches to `cpu_dir`, if set and it anticipated.
+    fn save_catches(&self, catches: Option<Catches>) -> Result<(), RelayError> {
+        let (Some(dir), Some(catches)) = (&self.cpu_dir, catches) else {
+            return Ok(());
+        };
+        let path = catches_file(dir);
+        serde_json::to_string_pretty(&catches)
+            .map_err(std::io::Error::other)
+            .and_then(|text| std::fs::write(&path, text))
+            .map_err(|error| RelayError::Report { path, error })
+    }
+
     /// Writes `role`'s CPU to `cpu_dir`, if set.
     fn save_cpu(&self, role: &str, meter: &CpuMeter) -> Result<(), RelayError> {
         let (Some(dir), Some(used)) = (&self.cpu_dir, meter.report()) else {
@@ -210,6 +222,11 @@ pub enum RelayError {
     /// The hop could not be pinned to `hop_cpu`.
     #[error("relay-hop: {0}")]
     Affinity(#[from] tes_runtime::affinity::AffinityError),
+}
+
+/// Where the hop writes in `dir` how its observations came against its poll windows.
+pub fn catches_file(dir: &std::path::Path) -> PathBuf {
+    dir.join("relay-hop-catches.json")
 }
 
 /// Where `role` writes its CPU in `dir`.
@@ -358,10 +375,14 @@ fn hop(
     }
     let helper = Helper::spawn(cfg);
     let mut cpu = CpuMeter::process();
+    let done = |cpu: &CpuMeter| {
+        cfg.save_catches(observations.catches())?;
+        cfg.save_cpu("relay-hop", cpu)
+    };
     loop {
         let obs = match observations.next(idle, stop)? {
             Ok(o) => o,
-            Err(Idle::Stopped) => return cfg.save_cpu("relay-hop", &cpu),
+            Err(Idle::Stopped) => return done(&cpu),
             Err(Idle::Timeout) => return Err(RelayError::Silent(idle, "relay-hop")),
         };
         out.send(Command {
@@ -374,7 +395,7 @@ fn hop(
         helper.wake();
         cfg.mark(&mut cpu, obs.seq);
         if obs.flags & observation_flags::TERMINAL != 0 {
-            return cfg.save_cpu("relay-hop", &cpu);
+            return done(&cpu);
         }
     }
 }

@@ -207,8 +207,8 @@ fn cpu(out: &mut String, result: &LatencyResult) {
     for (who, c) in &result.catches {
         let _ = writeln!(
             out,
-            "anticipation ({who}): {} caught polling, {} woken (early, late or unannounced), {} windows passed empty",
-            c.polled, c.woken, c.missed_windows
+            "anticipation ({who}): {} caught polling, {} woken (early, late or unannounced), {} windows passed empty, {} polled under SCHED_FIFO",
+            c.polled, c.woken, c.missed_windows, c.realtime_windows
         );
     }
 }

@@ -227,6 +227,39 @@ pub fn pin_this_thread(cpu: usize) -> Result<(), AffinityError> {
     }
 }
 
+/// The real-time priority a receiver alone on its CPU polls its window at (`SCHED_FIFO`, the
+/// lowest of the range): above every normal thread, the kernel's workers and page reclaim
+/// included, and below any real-time thread the system runs.
+const POLL_PRIORITY: i32 = 1;
+
+/// Puts the calling thread under `SCHED_FIFO` at the lowest real-time priority (`true`), or
+/// back under the normal policy (`false`). Refused without `CAP_SYS_NICE` or an
+/// `RLIMIT_RTPRIO` of at least 1 (and everywhere but Linux).
+pub fn set_this_thread_realtime(on: bool) -> std::io::Result<()> {
+    #[cfg(target_os = "linux")]
+    {
+        let (policy, priority) = if on {
+            (libc::SCHED_FIFO, POLL_PRIORITY)
+        } else {
+            (libc::SCHED_OTHER, 0)
+        };
+        let param = libc::sched_param {
+            sched_priority: priority,
+        };
+        // SAFETY: pid 0 is the calling thread; `param` outlives the call.
+        if unsafe { libc::sched_setscheduler(0, policy, &param) } == 0 {
+            Ok(())
+        } else {
+            Err(std::io::Error::last_os_error())
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = (on, POLL_PRIORITY);
+        Err(std::io::Error::from(std::io::ErrorKind::Unsupported))
+    }
+}
+
 /// `SCHED_IDLE` for the calling thread, or nice +19 if that is refused (Linux schedules
 /// threads individually): for background work (planning, saving, recording) that must take
 /// only time the acting path does not want. Under `SCHED_IDLE` a waking thread of normal

@@ -24,7 +24,7 @@
 //! [`ArrivalModel`] is the pure part — what is known and what to do next — and is tested
 //! with made-up times; the channels' anticipation adds the heads-up channel.
 
-use std::cell::RefCell;
+use std::cell::{Cell, RefCell};
 use std::fmt;
 
 use iceoryx2::port::update_connections::UpdateConnections;
@@ -104,6 +104,10 @@ pub struct Catches {
     pub woken: u64,
     /// Poll windows that passed with no message (the message came later, or never).
     pub missed_windows: u64,
+    /// Poll windows polled under `SCHED_FIFO` (a receiver alone on its CPU, where the
+    /// system lets it).
+    #[serde(default)]
+    pub realtime_windows: u64,
 }
 
 /// What a receiver has learned of its sender's timing, and what it expects next. Times are
@@ -251,6 +255,11 @@ impl ArrivalModel {
         self.window_spent = false;
     }
 
+    /// A poll window is polled under `SCHED_FIFO`.
+    pub fn polled_realtime(&mut self) {
+        self.catches.realtime_windows += 1;
+    }
+
     /// A timed wake-up asked for `asked_ns` came at `now_ns`.
     pub fn woke(&mut self, asked_ns: u64, now_ns: u64) {
         self.oversleep.push(now_ns.saturating_sub(asked_ns));
@@ -268,9 +277,24 @@ pub(crate) struct Anticipation<S: Service = ipc::Service> {
     pub(crate) model: RefCell<ArrivalModel>,
     /// The receiver has its CPU to itself (pinned, everything else kept off it): its poll
     /// spins instead of yielding, since a yield would only hand the CPU to whatever else
-    /// wakes there (a kernel thread, a log follower) when the message comes.
+    /// wakes there (a kernel thread, a log follower) when the message comes; and it polls
+    /// under `SCHED_FIFO` where the system lets it, so that nothing else that wakes there
+    /// (a kernel worker, page reclaim) takes the CPU from it mid-window.
     pub(crate) alone: bool,
+    /// The receiving thread's scheduling policy, as this anticipation set it.
+    priority: Cell<PollPriority>,
     heads_up: Option<HeadsUpPorts<S>>,
+}
+
+/// Where a receiver alone on its CPU stands with `SCHED_FIFO`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum PollPriority {
+    /// The normal policy.
+    Normal,
+    /// Raised for a poll window, until the thread next sleeps.
+    Raised,
+    /// The system refused it once: not asked again.
+    Refused,
 }
 
 struct HeadsUpPorts<S: Service> {
@@ -283,6 +307,7 @@ impl<S: Service> fmt::Debug for Anticipation<S> {
         f.debug_struct("Anticipation")
             .field("model", &self.model)
             .field("alone", &self.alone)
+            .field("priority", &self.priority.get())
             .field("heads_up", &self.heads_up.is_some())
             .finish()
     }
@@ -306,6 +331,7 @@ impl<S: Service> Anticipation<S> {
         Self {
             model: RefCell::new(model),
             alone: false,
+            priority: Cell::new(PollPriority::Normal),
             heads_up: None,
         }
     }
@@ -333,6 +359,40 @@ impl<S: Service> Anticipation<S> {
         Ok(())
     }
 
+    /// Raises the receiving thread to `SCHED_FIFO` for its poll window, if it polls alone and
+    /// the system lets it; it stays raised through what it does with the message (the
+    /// decision, the command) until [`lower_to_sleep`](Self::lower_to_sleep). A refusal is
+    /// logged once and the thread polls at normal priority from then on.
+    pub(crate) fn raise_for_window(&self) {
+        if !self.alone || self.priority.get() != PollPriority::Normal {
+            return;
+        }
+        match crate::affinity::set_this_thread_realtime(true) {
+            Ok(()) => {
+                self.priority.set(PollPriority::Raised);
+                self.model.borrow_mut().polled_realtime();
+            }
+            Err(e) => {
+                tracing::info!(error = %e, "polling at normal priority: SCHED_FIFO refused");
+                self.priority.set(PollPriority::Refused);
+            }
+        }
+    }
+
+    /// Back to the normal policy before the thread sleeps or blocks.
+    pub(crate) fn lower_to_sleep(&self) {
+        if self.priority.get() != PollPriority::Raised {
+            return;
+        }
+        if let Err(e) = crate::affinity::set_this_thread_realtime(false) {
+            // Cannot happen (lowering needs no privilege); not asked again either way.
+            tracing::warn!(error = %e, "could not return to the normal policy");
+            self.priority.set(PollPriority::Refused);
+            return;
+        }
+        self.priority.set(PollPriority::Normal);
+    }
+
     /// The heads-up listener, to sleep on beside the message's own.
     pub(crate) fn heads_up_listener(&self) -> Option<&iceoryx2::port::listener::Listener<S>> {
         self.heads_up.as_ref().map(|h| &h.listener)
@@ -354,6 +414,13 @@ impl<S: Service> Anticipation<S> {
             self.model.borrow_mut().announce(sample.due_ns);
         }
         Ok(())
+    }
+}
+
+/// A receiver dropped mid-decision leaves its thread as it found it.
+impl<S: Service> Drop for Anticipation<S> {
+    fn drop(&mut self) {
+        self.lower_to_sleep();
     }
 }
 

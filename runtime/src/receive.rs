@@ -125,6 +125,7 @@ where
         let step = model.borrow_mut().step(now);
         match step {
             Step::SleepUntil(until) => {
+                anticipation.lower_to_sleep();
                 let nap = Duration::from_nanos(until - now);
                 if nap <= FINAL_APPROACH && nap <= left {
                     // The last stretch by the timer alone: a wait on the listeners comes back
@@ -138,6 +139,7 @@ where
                 }
             }
             Step::PollUntil(until) => {
+                anticipation.raise_for_window();
                 loop {
                     if let Some(v) = try_next()? {
                         model.borrow_mut().arrived(monotonic_ns(), true);
@@ -161,6 +163,7 @@ where
                 }
             }
             Step::Block => {
+                anticipation.lower_to_sleep();
                 wait_readable_any(listener, heads_up, left.min(STOP_POLL))?;
                 drain(listener)?;
             }

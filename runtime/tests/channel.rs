@@ -218,3 +218,89 @@ fn work_is_done_between_polls_only_while_spinning() {
         assert_eq!(got.map(|c| c.seq), Ok(7));
     }
 }
+
+/// A receiver alone on its CPU polls each window under `SCHED_FIFO` where the system lets it
+/// (root, or an `RLIMIT_RTPRIO`), counts those windows, and is back under the normal policy
+/// whenever it sleeps or blocks; where the system refuses, it polls as before and counts none.
+#[test]
+fn a_receiver_alone_on_its_cpu_polls_under_sched_fifo_and_sleeps_normal() {
+    use std::sync::{Arc, Barrier};
+    use tes_runtime::affinity;
+    let Some((acting, other)) = affinity::auto_pair() else {
+        return; // one CPU: no receiver is alone
+    };
+    let allowed = std::thread::spawn(|| affinity::set_this_thread_realtime(true).is_ok())
+        .join()
+        .unwrap();
+    let base = format!("tes-test/{}/alone-fifo", std::process::id());
+    let (payload, event, due, due_event) = (
+        format!("{base}/payload"),
+        format!("{base}/event"),
+        format!("{base}/due"),
+        format!("{base}/due/event"),
+    );
+    const MESSAGES: u64 = 20;
+    // The receiver's ports exist before the first message is sent.
+    let ready = Arc::new(Barrier::new(2));
+    let receiver = {
+        let (payload, event, due, due_event) = (
+            payload.clone(),
+            event.clone(),
+            due.clone(),
+            due_event.clone(),
+        );
+        let ready = ready.clone();
+        std::thread::spawn(move || {
+            affinity::pin_this_thread(acting).unwrap();
+            let node = channel::node(false).unwrap();
+            let mut inbox: Inbox<Command> =
+                Inbox::open(&node, &payload, &event, 0, WaitStrategy::Anticipate)
+                    .unwrap()
+                    .with_heads_up(&node, &due, &due_event)
+                    .unwrap();
+            inbox.poll_alone(true);
+            ready.wait();
+            let stop = AtomicBool::new(false);
+            for seq in 1..=MESSAGES {
+                let got = inbox.next(Duration::from_secs(5), &stop).unwrap();
+                assert_eq!(got.map(|c| c.seq), Ok(seq));
+            }
+            // Nothing more comes: it blocks, under the normal policy, and times out.
+            assert_eq!(
+                inbox.next(Duration::from_millis(5), &stop).unwrap(),
+                Err(Idle::Timeout)
+            );
+            // SAFETY: reads the calling thread's own policy.
+            let policy = unsafe { libc::sched_getscheduler(0) };
+            (inbox.catches().unwrap(), policy)
+        })
+    };
+    let sender = std::thread::spawn(move || {
+        affinity::pin_this_thread(other).unwrap();
+        let node = channel::node(false).unwrap();
+        let outbox: Outbox<Command> = Outbox::open(&node, &payload, &event, 0).unwrap();
+        let heads_up: Outbox<HeadsUp> = Outbox::open(&node, &due, &due_event, 0).unwrap();
+        ready.wait();
+        for seq in 1..=MESSAGES {
+            let due_ns = monotonic_ns() + 20_000_000;
+            heads_up.send(HeadsUp { seq, due_ns }).unwrap();
+            tes_runtime::anticipate::sleep_until(due_ns);
+            outbox
+                .send(Command {
+                    seq,
+                    ..Command::default()
+                })
+                .unwrap();
+        }
+    });
+    sender.join().unwrap();
+    let (catches, policy_asleep) = receiver.join().unwrap();
+    assert_eq!(policy_asleep, libc::SCHED_OTHER, "{catches:?}");
+    assert!(catches.polled >= MESSAGES / 2, "{catches:?}");
+    if allowed {
+        // One raise per window, and every message caught polling was caught in one.
+        assert!(catches.realtime_windows >= catches.polled, "{catches:?}");
+    } else {
+        assert_eq!(catches.realtime_windows, 0, "{catches:?}");
+    }
+}

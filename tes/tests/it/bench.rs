@@ -316,6 +316,19 @@ fn latency_at_the_robots_pace_anticipates_by_default_and_catches_in_the_windows(
         assert!(caught >= 25 / 2, "{who}: most windows caught: {v}");
         assert!(missed <= 25 / 2, "{who}: {v}");
     }
+    // The floor's hop anticipates as the controller does, alone on its CPU as the acting
+    // thread is: both poll under SCHED_FIFO where the system lets them, or neither does.
+    let fifo = |who: &str| v["catches"][who]["realtime_windows"].as_u64();
+    let (controller, hop) = (fifo("controller"), fifo("floor hop"));
+    assert!(
+        controller.is_some() && hop.is_some(),
+        "the floor hop's catches are reported: {v}"
+    );
+    assert_eq!(
+        controller > Some(0),
+        hop > Some(0),
+        "the floor gets the same help: {v}"
+    );
     assert_eq!(v["allocations"], 0, "{v}");
 }
 
