@@ -477,10 +477,8 @@ impl Shell {
         // Ready (map, library, first plan): the first report tells perception it may start.
         let progress = ProgressOutbox::open(&node, &names, Role::Controller)?;
         if let Some(cpu) = checked.placement().acting {
-            tes_runtime::affinity::pin_this_thread(cpu)?;
-            ports
-                .observations
-                .poll_alone(tes_runtime::affinity::kept_clear(cpu));
+            let alone = tes_runtime::affinity::pin_this_thread_alone(cpu)?;
+            ports.observations.poll_alone(alone);
         }
         Ok(Some(Self {
             progress,
