@@ -369,9 +369,9 @@ fn hop(
     let out: LatestOutbox<Command> =
         LatestOutbox::open(node, &names.command, &names.command_event)?;
     if let Some(cpu) = cfg.hop_cpu {
+        tes_runtime::affinity::pin_this_thread(cpu)?;
         // As the controller's acting thread: polls without yielding when alone on its CPU.
-        let alone = tes_runtime::affinity::pin_this_thread_alone(cpu)?;
-        observations.poll_alone(alone);
+        observations.poll_alone(tes_runtime::affinity::kept_clear(cpu));
     }
     let helper = Helper::spawn(cfg);
     let mut cpu = CpuMeter::process();

@@ -477,8 +477,10 @@ impl Shell {
         // Ready (map, library, first plan): the first report tells perception it may start.
         let progress = ProgressOutbox::open(&node, &names, Role::Controller)?;
         if let Some(cpu) = checked.placement().acting {
-            let alone = tes_runtime::affinity::pin_this_thread_alone(cpu)?;
-            ports.observations.poll_alone(alone);
+            tes_runtime::affinity::pin_this_thread(cpu)?;
+            ports
+                .observations
+                .poll_alone(tes_runtime::affinity::kept_clear(cpu));
         }
         Ok(Some(Self {
             progress,

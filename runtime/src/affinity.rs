@@ -116,14 +116,10 @@ pub fn pin_off_the_acting_cpu() -> Result<Option<usize>, AffinityError> {
     pin_this_thread(other).map(|()| Some(other))
 }
 
-/// Pins the calling thread to `cpu` and says whether it has that CPU to itself as far as TES
-/// goes: the processes that keep off the acting thread's CPU ([`pin_off_the_acting_cpu`]) run
-/// elsewhere. Judged from the CPUs the thread could run on *before* pinning: afterwards it
-/// sees only `cpu`, and no CPU would look kept clear.
-pub fn pin_this_thread_alone(cpu: usize) -> Result<bool, AffinityError> {
-    let alone = auto_pair().is_some_and(|(_, other)| other != cpu);
-    pin_this_thread(cpu)?;
-    Ok(alone)
+/// Whether a thread pinned to `cpu` has it to itself as far as TES goes: the processes that
+/// keep off the acting thread's CPU ([`pin_off_the_acting_cpu`]) run elsewhere.
+pub fn kept_clear(cpu: usize) -> bool {
+    auto_pair().is_some_and(|(_, other)| other != cpu)
 }
 
 /// [`pin_off_the_acting_cpu`] for a process `who` if `needed` (it anticipates its input,
@@ -331,26 +327,6 @@ mod placement_tests {
             let err = toml::from_str::<Keys>(bad).expect_err(bad).to_string();
             assert!(err.contains("auto") && err.contains("none"), "{bad}: {err}");
         }
-    }
-
-    /// The acting CPU of the automatic pair is the pinned thread's alone; the helper's is not;
-    /// and the answer does not depend on the pinning it follows (which leaves the thread one
-    /// CPU, where every CPU would look shared).
-    #[test]
-    fn a_thread_pinned_to_the_acting_cpu_knows_it_is_alone() {
-        let Some((acting, helper)) = auto_pair() else {
-            return;
-        };
-        let on = |cpu| {
-            std::thread::spawn(move || {
-                let alone = pin_this_thread_alone(cpu).unwrap();
-                (alone, allowed_cpus())
-            })
-            .join()
-            .unwrap()
-        };
-        assert_eq!(on(acting), (true, vec![acting]));
-        assert_eq!(on(helper), (false, vec![helper]));
     }
 
     #[test]
