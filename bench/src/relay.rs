@@ -276,10 +276,10 @@ fn source(
         &names.observation_due_event,
         0,
     )?;
-    // Where perception runs when it announces: off the hop's CPU.
-    if cfg.announce {
-        tes_runtime::affinity::pin_off_the_acting_cpu()?;
-    }
+    // As every process of the measured group, once its ports are open.
+    tes_runtime::memory::keep_resident("the relay's source");
+    // Where perception runs: off the hop's CPU when it announces, else on it.
+    tes_runtime::affinity::place_beside_the_acting_thread(cfg.announce, "the relay's source");
     let mut cpu = CpuMeter::process();
     let gap = Duration::from_micros(cfg.gap_us);
     // The arena's payload: a full feature vector's worth of bits.
@@ -368,10 +368,12 @@ fn hop(
         )?;
     let out: LatestOutbox<Command> =
         LatestOutbox::open(node, &names.command, &names.command_event)?;
+    tes_runtime::memory::keep_resident("the relay's hop");
     if let Some(cpu) = cfg.hop_cpu {
-        tes_runtime::affinity::pin_this_thread(cpu)?;
         // As the controller's acting thread: polls without yielding when alone on its CPU.
-        observations.poll_alone(tes_runtime::affinity::kept_clear(cpu));
+        let alone =
+            tes_runtime::affinity::pin_acting_thread(cpu, wait == WaitStrategy::Anticipate)?;
+        observations.poll_alone(alone);
     }
     let helper = Helper::spawn(cfg);
     let mut cpu = CpuMeter::process();
@@ -465,10 +467,12 @@ fn sink(
         )?;
     let acks: Outbox<MotorState> =
         Outbox::open(node, &names.motor_state, &names.motor_state_event, 0)?;
-    // Where the bridge runs when it anticipates: off the hop's CPU.
-    if wait == WaitStrategy::Anticipate {
-        tes_runtime::affinity::pin_off_the_acting_cpu()?;
-    }
+    tes_runtime::memory::keep_resident("the relay's sink");
+    // Where the bridge runs: off the hop's CPU when it anticipates, else on it.
+    tes_runtime::affinity::place_beside_the_acting_thread(
+        wait == WaitStrategy::Anticipate,
+        "the relay's sink",
+    );
     let mut cpu = CpuMeter::process();
     let mut latency = LatencyRecorder::new(cfg.budget_us, cfg.warmup);
     let mut first_hop = LatencyRecorder::new(cfg.budget_us, cfg.warmup);

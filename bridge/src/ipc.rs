@@ -243,7 +243,11 @@ pub fn run_with<T: Transport, C: Clock>(
     let mut cpu = CpuMeter::process();
     // Anticipating, it polls beside the controller's acting thread around each observation:
     // off that thread's CPU, so the acting thread polls alone.
-    tes_runtime::affinity::keep_off_the_acting_cpu(wait == WaitStrategy::Anticipate, "the bridge");
+    tes_runtime::affinity::place_beside_the_acting_thread(
+        wait == WaitStrategy::Anticipate,
+        "the bridge",
+    );
+    tes_runtime::memory::keep_resident("the bridge");
     let states: Outbox<MotorState> =
         Outbox::open(&node, &names.motor_state, &names.motor_state_event, 0)?;
     let mut progress = ProgressOutbox::open(&node, names, Role::Bridge)?;

@@ -446,6 +446,12 @@ struct Shell {
     cpu: CpuMeter,
     /// The acting thread's alone (this thread's).
     acting_thread_cpu: CpuMeter,
+    /// Whether the acting thread yields its CPU once the command is out, before it learns: it
+    /// does unless it polls alone, since the bridge the command wakes may be queued on this
+    /// CPU (blocking, the chain shares it: see
+    /// [`place_beside_the_acting_thread`](tes_runtime::affinity::place_beside_the_acting_thread)),
+    /// and would otherwise wait for the learning.
+    hands_over_after_send: bool,
 }
 
 impl Shell {
@@ -476,11 +482,12 @@ impl Shell {
         let saver = Saver::spawn(library.path.clone(), library.names.clone())?;
         // Ready (map, library, first plan): the first report tells perception it may start.
         let progress = ProgressOutbox::open(&node, &names, Role::Controller)?;
+        tes_runtime::memory::keep_resident("the controller");
+        let mut alone = false;
         if let Some(cpu) = checked.placement().acting {
-            tes_runtime::affinity::pin_this_thread(cpu)?;
-            ports
-                .observations
-                .poll_alone(tes_runtime::affinity::kept_clear(cpu));
+            let anticipates = ports.observations.strategy() == WaitStrategy::Anticipate;
+            alone = tes_runtime::affinity::pin_acting_thread(cpu, anticipates)?;
+            ports.observations.poll_alone(alone);
         }
         Ok(Some(Self {
             progress,
@@ -496,6 +503,7 @@ impl Shell {
             warmup_allocations: None,
             cpu: CpuMeter::process(),
             acting_thread_cpu: CpuMeter::this_thread(),
+            hands_over_after_send: !alone,
         }))
     }
 
@@ -590,6 +598,9 @@ impl Shell {
         self.ports.send(command)?;
         if self.warmup_allocations.is_some() {
             self.ipc_allocations += alloc_count::counted() - before_send;
+        }
+        if self.hands_over_after_send {
+            std::thread::yield_now();
         }
         let sent = self.acting.command_sent(&self.clock)?;
         Ok(Answer::Sent { command, sent })

@@ -194,11 +194,13 @@ pub fn run_resuming(
         return Ok(PerceptionSummary::default());
     };
     // Announcing its observations (at the robot's pace), perception publishes while
-    // anticipating receivers poll: off the acting thread's CPU, that thread polls alone.
-    tes_runtime::affinity::keep_off_the_acting_cpu(
+    // anticipating receivers poll: off the acting thread's CPU, that thread polls alone. Not
+    // announcing, it shares that CPU, where the controller it wakes sleeps.
+    tes_runtime::affinity::place_beside_the_acting_thread(
         !settle.is_zero() || strategy == tes_runtime::wait::WaitStrategy::Anticipate,
         "perception",
     );
+    tes_runtime::memory::keep_resident("perception");
     let (trajectory, first_episode) = open_trajectory(config, resume)?;
     if first_episode > 0 {
         tracing::info!(

@@ -116,20 +116,34 @@ pub fn pin_off_the_acting_cpu() -> Result<Option<usize>, AffinityError> {
     pin_this_thread(other).map(|()| Some(other))
 }
 
-/// Whether a thread pinned to `cpu` has it to itself as far as TES goes: the processes that
-/// keep off the acting thread's CPU ([`pin_off_the_acting_cpu`]) run elsewhere.
-pub fn kept_clear(cpu: usize) -> bool {
-    auto_pair().is_some_and(|(_, other)| other != cpu)
+/// Pins the controller's acting thread (or the floor's hop) to `cpu` and says whether it has
+/// that CPU to itself as far as TES goes: when it `anticipates` its messages, the chain around
+/// it keeps off its CPU ([`place_beside_the_acting_thread`]); blocking, the chain shares it.
+/// Judged from the CPUs the thread could run on *before* pinning: afterwards it sees only
+/// `cpu`, and no CPU would look kept clear.
+pub fn pin_acting_thread(cpu: usize, anticipates: bool) -> Result<bool, AffinityError> {
+    let alone = anticipates && auto_pair().is_some_and(|(_, other)| other != cpu);
+    pin_this_thread(cpu)?;
+    Ok(alone)
 }
 
-/// [`pin_off_the_acting_cpu`] for a process `who` if `needed` (it anticipates its input,
-/// or announces its output to receivers that may anticipate it); a refusal is logged (the
-/// process runs unpinned), not an error.
-pub fn keep_off_the_acting_cpu(needed: bool, who: &str) {
-    if !needed {
+/// Places a process of the chain around the controller's acting thread — perception and the
+/// bridge, and the floor's source and sink — on the CPUs of [`auto_pair`] (`who` names it in
+/// the log; a refusal is logged and the process runs unpinned, not an error):
+///
+/// * `anticipating` (it announces its messages to receivers that poll for them, or polls
+///   for its own): off the acting thread's CPU ([`pin_off_the_acting_cpu`]), so that
+///   thread polls alone;
+/// * otherwise, when every receiver blocks: on the acting thread's CPU. Each hand-over of the
+///   chain is then a wake-up on the CPU its sender is about to leave, a few microseconds,
+///   rather than a wake-up of the other CPU, which in a virtual machine is a halted virtual
+///   CPU: about 40 µs on this project's test machine (`docs/performance.md`).
+pub fn place_beside_the_acting_thread(anticipating: bool, who: &str) {
+    let Some((acting, other)) = auto_pair() else {
         return;
-    }
-    if let Err(e) = pin_off_the_acting_cpu() {
+    };
+    let cpu = if anticipating { other } else { acting };
+    if let Err(e) = pin_this_thread(cpu) {
         tracing::warn!(error = %e, "{who} runs unpinned");
     }
 }
@@ -326,6 +340,49 @@ mod placement_tests {
         ] {
             let err = toml::from_str::<Keys>(bad).expect_err(bad).to_string();
             assert!(err.contains("auto") && err.contains("none"), "{bad}: {err}");
+        }
+    }
+
+    /// Anticipating, the acting CPU of the automatic pair is the pinned thread's alone; the
+    /// helper's is not; blocking, neither is (the chain shares it); and the answer does not
+    /// depend on the pinning it follows (which leaves the thread one CPU, where every CPU
+    /// would look shared).
+    #[test]
+    fn a_thread_pinned_to_the_acting_cpu_knows_whether_it_is_alone() {
+        let Some((acting, helper)) = auto_pair() else {
+            return;
+        };
+        let on = |cpu, anticipates| {
+            std::thread::spawn(move || {
+                let alone = pin_acting_thread(cpu, anticipates).unwrap();
+                (alone, allowed_cpus())
+            })
+            .join()
+            .unwrap()
+        };
+        assert_eq!(on(acting, true), (true, vec![acting]));
+        assert_eq!(on(helper, true), (false, vec![helper]));
+        assert_eq!(on(acting, false), (false, vec![acting]));
+    }
+
+    /// A process of the chain anticipating keeps off the acting thread's CPU; blocking, it
+    /// shares it; with fewer than two CPUs it stays where it was.
+    #[test]
+    fn the_chain_shares_the_acting_cpu_when_blocking_and_keeps_off_it_when_anticipating() {
+        let placed = |anticipating| {
+            std::thread::spawn(move || {
+                place_beside_the_acting_thread(anticipating, "this test");
+                allowed_cpus()
+            })
+            .join()
+            .unwrap()
+        };
+        match auto_pair() {
+            Some((acting, other)) => {
+                assert_eq!(placed(false), vec![acting]);
+                assert_eq!(placed(true), vec![other]);
+            }
+            None => assert_eq!(placed(false), allowed_cpus()),
         }
     }
 

@@ -9,7 +9,7 @@
 //!   message ([`anticipate`]);
 //! * [`cpu`] — a process's or thread's CPU time per action and share of a core;
 //! * [`ipc`] — the node, the service settings every opener must share, stale-resource clean-up;
-//! * [`affinity`] — CPU placement of threads;
+//! * [`affinity`] — CPU placement of threads; [`memory`] — keeping a process's pages resident;
 //! * [`latency`] — latency histograms against a budget;
 //! * [`settings`] — the one error type for a bad settings key, and the TOML parsing every
 //!   process shares;
@@ -33,6 +33,7 @@ pub mod ipc;
 pub mod latency;
 pub mod lock;
 pub mod logging;
+pub mod memory;
 pub mod progress;
 mod receive;
 pub mod ring;
