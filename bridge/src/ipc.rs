@@ -242,7 +242,8 @@ pub fn run_with<T: Transport, C: Clock>(
             .with_heads_up(&node, &names.observation_due, &names.observation_due_event)?;
     let mut cpu = CpuMeter::process();
     // Anticipating, it polls beside the controller's acting thread around each observation:
-    // off that thread's CPU, so the acting thread polls alone.
+    // off that thread's CPU, so the acting thread polls alone. Blocking, it shares that CPU,
+    // which the acting thread hands over once the command is out.
     tes_runtime::affinity::place_beside_the_acting_thread(
         wait == WaitStrategy::Anticipate,
         "the bridge",
