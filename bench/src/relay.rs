@@ -276,10 +276,8 @@ fn source(
         &names.observation_due_event,
         0,
     )?;
-    // As every process of the measured group, once its ports are open.
-    tes_runtime::memory::keep_resident("the relay's source");
-    // Where perception runs: off the hop's CPU when it announces, else on it.
-    tes_runtime::affinity::place_beside_the_acting_thread(cfg.announce, "the relay's source");
+    // Placed as perception: off the hop's CPU when it announces, else on it.
+    tes_runtime::affinity::join_the_chain(cfg.announce, "the relay's source");
     let mut cpu = CpuMeter::process();
     let gap = Duration::from_micros(cfg.gap_us);
     // The arena's payload: a full feature vector's worth of bits.
@@ -467,12 +465,8 @@ fn sink(
         )?;
     let acks: Outbox<MotorState> =
         Outbox::open(node, &names.motor_state, &names.motor_state_event, 0)?;
-    tes_runtime::memory::keep_resident("the relay's sink");
-    // Where the bridge runs: off the hop's CPU when it anticipates, else on it.
-    tes_runtime::affinity::place_beside_the_acting_thread(
-        wait == WaitStrategy::Anticipate,
-        "the relay's sink",
-    );
+    // Placed as the bridge: off the hop's CPU when it anticipates, else on it.
+    tes_runtime::affinity::join_the_chain(wait == WaitStrategy::Anticipate, "the relay's sink");
     let mut cpu = CpuMeter::process();
     let mut latency = LatencyRecorder::new(cfg.budget_us, cfg.warmup);
     let mut first_hop = LatencyRecorder::new(cfg.budget_us, cfg.warmup);

@@ -241,14 +241,8 @@ pub fn run_with<T: Transport, C: Clock>(
             // controller's decision, so perception's word of when it is due serves here too.
             .with_heads_up(&node, &names.observation_due, &names.observation_due_event)?;
     let mut cpu = CpuMeter::process();
-    // Anticipating, it polls beside the controller's acting thread around each observation:
-    // off that thread's CPU, so the acting thread polls alone. Blocking, it shares that CPU,
-    // which the acting thread hands over once the command is out.
-    tes_runtime::affinity::place_beside_the_acting_thread(
-        wait == WaitStrategy::Anticipate,
-        "the bridge",
-    );
-    tes_runtime::memory::keep_resident("the bridge");
+    // Anticipating, off the acting thread's CPU (which then polls alone); blocking, on it.
+    tes_runtime::affinity::join_the_chain(wait == WaitStrategy::Anticipate, "the bridge");
     let states: Outbox<MotorState> =
         Outbox::open(&node, &names.motor_state, &names.motor_state_event, 0)?;
     let mut progress = ProgressOutbox::open(&node, names, Role::Bridge)?;

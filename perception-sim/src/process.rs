@@ -196,11 +196,10 @@ pub fn run_resuming(
     // Announcing its observations (at the robot's pace), perception publishes while
     // anticipating receivers poll: off the acting thread's CPU, that thread polls alone. Not
     // announcing, it shares that CPU, where the controller it wakes sleeps.
-    tes_runtime::affinity::place_beside_the_acting_thread(
+    tes_runtime::affinity::join_the_chain(
         !settle.is_zero() || strategy == tes_runtime::wait::WaitStrategy::Anticipate,
         "perception",
     );
-    tes_runtime::memory::keep_resident("perception");
     let (trajectory, first_episode) = open_trajectory(config, resume)?;
     if first_episode > 0 {
         tracing::info!(

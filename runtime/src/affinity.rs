@@ -148,6 +148,14 @@ pub fn place_beside_the_acting_thread(anticipating: bool, who: &str) {
     }
 }
 
+/// What every process of the chain does once its ports are open: takes its place beside the
+/// acting thread ([`place_beside_the_acting_thread`]) and locks its pages
+/// ([`crate::memory::keep_resident`]); `who` names it in what either says.
+pub fn join_the_chain(anticipating: bool, who: &str) {
+    place_beside_the_acting_thread(anticipating, who);
+    crate::memory::keep_resident(who);
+}
+
 /// Makes the calling thread a background one (`who` names it in the log): the lowest priority
 /// ([`lower_this_threads_priority`]) and off the acting thread's CPU
 /// ([`pin_off_the_acting_cpu`]), so its wake-ups and work never sit between the acting thread
