@@ -9,13 +9,11 @@
 //!   command, as a plain struct with the clock passed in;
 //! * [`config`] — its settings, checked once;
 //! * [`saver`] — the library saved atomically off the acting thread;
-//! * [`priority`] — background threads raised back to normal priority at shutdown;
 //! * [`summary`] — the per-episode lines and the run's summary;
 //! * [`process`] — the controller process's loop over iceoryx2.
 
 pub mod acting;
 pub mod config;
-pub mod priority;
 pub mod process;
 pub mod realtime;
 pub mod saver;

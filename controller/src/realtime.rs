@@ -53,7 +53,7 @@ use crossbeam::channel::{self, Receiver, RecvTimeoutError, Sender, TryRecvError}
 use tes_runtime::affinity::{AffinityError, check_cpu, pin_this_thread};
 use thiserror::Error;
 
-use crate::priority::Background;
+use tes_runtime::background::Background;
 
 use tes_learning::cmdp::{CmdpError, CmdpStructure};
 use tes_learning::plan::{

@@ -9,8 +9,8 @@ use tes_learning::library::store::{self, StoreError, StoredLibrary};
 use tes_topics::WorldMap;
 use thiserror::Error;
 
-use crate::priority::Background;
 use crate::summary::LibraryCounts;
+use tes_runtime::background::Background;
 
 /// Why the library could not be saved.
 #[derive(Debug, Error)]

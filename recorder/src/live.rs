@@ -26,9 +26,11 @@
 //! the group runs loses what they held: a subscriber's queued samples go with their publisher
 //! when it exits (perception at the end of its episodes), so a run recorded under full load
 //! came out with no observation and no world map. A watcher at normal priority
-//! ([`LAG_LIMIT`]) raises the recorder back to normal scheduling, for the rest of the run, once
-//! it has not drained for that long; where this process cannot undo `SCHED_IDLE` (no
-//! `CAP_SYS_NICE`), the recorder keeps normal priority from the start. Nothing is formatted or
+//! ([`tes_runtime::background::Watcher`], [`LAG_LIMIT`]: 100 ms) raises the recorder back to normal
+//! scheduling, for the rest of the run, once it has not drained for that long; where this
+//! process cannot undo `SCHED_IDLE` (no `CAP_SYS_NICE`), the recorder keeps normal priority
+//! from the start. It lowers itself only once its services are open: the group starts after
+//! that, and on a machine whose cores are busy a lowered recorder takes minutes to open them. Nothing is formatted or
 //! written on the controller's side. A sample the recorder could not
 //! take in time (a machine that kept it from running for a whole buffer's worth of actions)
 //! is counted from the gaps in the sequence numbers and written in the file's end record.
@@ -36,13 +38,13 @@
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
-use tes_controller::priority::Background;
+use tes_runtime::background::{Background, LAG_LIMIT, Watcher};
 use tes_runtime::channel::{self, IpcError};
 use tes_runtime::ipc::RECORDER_BUFFER;
 use tes_runtime::ring::RingReader;
@@ -119,61 +121,13 @@ const LOOK_EVERY: Duration = Duration::from_micros(500);
 /// fastest real-time factor (`RECORDER_BUFFER` samples; about 17 motor states per action).
 const DRAIN_AT_LEAST: Duration = Duration::from_millis(20);
 
-/// How long the recorder may go without draining the services before the watcher raises it
-/// to normal priority: five times `DRAIN_AT_LEAST`, far less than a buffer's worth of
-/// actions, and far more than a healthy recorder on an idle machine ever lags.
-pub const LAG_LIMIT: Duration = Duration::from_millis(100);
-
-/// How often the watcher looks at the recorder's last drain.
-const WATCH_EVERY: Duration = Duration::from_millis(10);
-
-/// What the recorder thread and its watcher share: the recorder's scheduling and when it
-/// last drained the services.
-#[derive(Debug, Default)]
-struct Pace {
-    background: Background,
-    /// Monotonic ns of the last drain (0: none yet).
-    last_drain_ns: AtomicU64,
-}
-
-impl Pace {
-    fn drained(&self) {
-        self.last_drain_ns
-            .store(tes_runtime::clock::monotonic_ns(), Ordering::Relaxed);
-    }
-
-    /// How long since the last drain (or since `since_ns`, before the first).
-    fn lag(&self, since_ns: u64) -> Duration {
-        let last = self.last_drain_ns.load(Ordering::Relaxed).max(since_ns);
-        Duration::from_nanos(tes_runtime::clock::monotonic_ns().saturating_sub(last))
-    }
-}
-
-/// The watcher: raises the recorder to normal priority once it lags by [`LAG_LIMIT`] (for
-/// the rest of the run: the machine has shown it is busy), and ends then or at the stop.
-fn watch(pace: &Pace, stop: &AtomicBool) {
-    let since_ns = tes_runtime::clock::monotonic_ns();
-    while !stop.load(Ordering::SeqCst) {
-        std::thread::sleep(WATCH_EVERY);
-        if pace.lag(since_ns) >= LAG_LIMIT {
-            let raised = pace.background.restore();
-            tracing::debug!(
-                raised,
-                "the recorder had not drained the services for {LAG_LIMIT:?} (a busy \
-                 machine): it runs at normal priority from now on"
-            );
-            return;
-        }
-    }
-}
-
 /// A running recorder (a file, a live Foxglove server, or both); [`stop`](Self::stop)
 /// finishes the file.
 #[derive(Debug)]
 pub struct Recorder {
     stop: Arc<AtomicBool>,
     handle: Option<std::thread::JoinHandle<Result<RecordCounts, RecordError>>>,
-    watcher: Option<std::thread::JoinHandle<()>>,
+    watcher: Option<Watcher>,
     path: Option<PathBuf>,
     foxglove: Option<SocketAddr>,
     lines: mpsc::Sender<LogLine>,
@@ -258,14 +212,11 @@ impl Recorder {
         let (lines, line_rx) = mpsc::channel();
         let path = outputs.file.as_ref().map(|(p, _)| p.clone());
         let (prefix, flag) = (service_prefix.to_owned(), stop.clone());
-        let pace = Arc::new(Pace::default());
-        let recorder_pace = pace.clone();
+        let background = Arc::new(Background::new());
+        let lowered = background.clone();
         let handle = std::thread::Builder::new()
             .name("recorder".into())
-            .spawn(move || {
-                let pace = recorder_pace;
-                record(&prefix, outputs, &flag, &line_rx, ready_tx, &pace)
-            })
+            .spawn(move || record(&prefix, outputs, &flag, &line_rx, ready_tx, &lowered))
             .map_err(|_| RecordError::Thread("could not start"))?;
         match ready.recv() {
             Ok(Ok(foxglove)) => {
@@ -277,11 +228,8 @@ impl Recorder {
                     foxglove,
                     lines,
                 };
-                let flag = recorder.stop.clone();
                 // A recorder without its watcher is stopped (by the drop) and refused.
-                let watcher = std::thread::Builder::new()
-                    .name("recorder-watch".into())
-                    .spawn(move || watch(&pace, &flag))
+                let watcher = Watcher::start(background, LAG_LIMIT, "the recorder")
                     .map_err(|_| RecordError::Thread("could not start its watcher"))?;
                 recorder.watcher = Some(watcher);
                 Ok(recorder)
@@ -316,7 +264,7 @@ impl Recorder {
     pub fn stop(mut self) -> Result<RecordCounts, RecordError> {
         self.stop.store(true, Ordering::SeqCst);
         if let Some(watcher) = self.watcher.take() {
-            let _ = watcher.join();
+            watcher.stop();
         }
         match self.handle.take().map(|h| h.join()) {
             Some(Ok(result)) => result,
@@ -329,7 +277,7 @@ impl Drop for Recorder {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::SeqCst);
         if let Some(watcher) = self.watcher.take() {
-            let _ = watcher.join();
+            watcher.stop();
         }
         if let Some(h) = self.handle.take() {
             let _ = h.join();
@@ -519,11 +467,8 @@ fn record(
     stop: &AtomicBool,
     lines: &mpsc::Receiver<LogLine>,
     ready: mpsc::Sender<Result<Option<SocketAddr>, RecordError>>,
-    pace: &Pace,
+    background: &Background,
 ) -> Result<RecordCounts, RecordError> {
-    // Recording works at any priority, at some cost to the group's latency; a lowering the
-    // watcher could not undo would lose the run on a busy machine.
-    pace.background.lower_if_restorable();
     if let Err(e) = tes_runtime::affinity::pin_off_the_acting_cpu() {
         tracing::debug!("the recorder stays unpinned: {e}");
     }
@@ -548,6 +493,11 @@ fn record(
         }
     };
     let _ = ready.send(Ok(live.as_ref().map(LiveServer::addr)));
+    // Lowered only now: opening the services is not on the acting path (the group starts
+    // once the recorder is ready), and under SCHED_IDLE on a busy machine it takes minutes.
+    // Recording works at any priority, at some cost to the group's latency; a lowering the
+    // watcher could not undo would lose the run on a busy machine.
+    background.lower_if_restorable();
     let mut tap = Tap {
         file,
         live,
@@ -568,7 +518,7 @@ fn record(
         }
         last_drain = Instant::now();
         tap.drain(&mut ports, lines, stopping)?;
-        pace.drained();
+        background.beat();
         if stopping {
             let (scene, mut canvas) = tap.canvas();
             scene.finish(&mut canvas)?;

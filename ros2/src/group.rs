@@ -8,7 +8,9 @@
 //! nice +19 under the normal policy, not `SCHED_IDLE`: a caution — DDS discovery already
 //! takes seconds (docs/ros2.md), though a run with them at `SCHED_IDLE` matched its peer as
 //! soon. The thread itself then reads the group at `SCHED_IDLE`: publishing takes only time
-//! the group does not want. No process of the group notifies it or waits for it: it looks
+//! the group does not want; a watcher at normal priority ([`tes_runtime::background::Watcher`])
+//! raises it back, for the rest of the run, once it has not drained for
+//! [`tes_runtime::background::LAG_LIMIT`] (a busy machine), as it does the recorder. No process of the group notifies it or waits for it: it looks
 //! every half millisecond whether a new command is out (one entry of the command log read)
 //! and then takes everything queued, at least every 20 ms. The node gets the robot's motion
 //! (`/tf`, `/tes/path`) at a screen's pace (`tes_viewer::live::MotionPace`, 30 a second per
@@ -22,6 +24,7 @@ use std::time::{Duration, Instant};
 
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
+use tes_runtime::background::{Background, LAG_LIMIT, Watcher};
 use tes_runtime::channel::{self, IpcError};
 use tes_runtime::ipc::RECORDER_BUFFER;
 use tes_runtime::ring::RingReader;
@@ -97,6 +100,7 @@ impl LogLines {
 pub struct GroupOnRos2 {
     stop: Arc<AtomicBool>,
     handle: Option<std::thread::JoinHandle<Result<Published, GroupError>>>,
+    watcher: Option<Watcher>,
     reach: Option<Reach>,
     lines: mpsc::Sender<(&'static str, String, u64)>,
 }
@@ -109,17 +113,28 @@ impl GroupOnRos2 {
         let (ready_tx, ready) = mpsc::channel::<Result<Option<Reach>, GroupError>>();
         let (lines, line_rx) = mpsc::channel();
         let (prefix, flag) = (service_prefix.to_owned(), stop.clone());
+        let background = Arc::new(Background::new());
+        let lowered = background.clone();
         let handle = std::thread::Builder::new()
             .name("ros2".into())
-            .spawn(move || run(&prefix, outputs, &flag, &line_rx, ready_tx))
+            .spawn(move || run(&prefix, outputs, &flag, &line_rx, ready_tx, &lowered))
             .map_err(|_| GroupError::Thread("could not start"))?;
         match ready.recv() {
-            Ok(Ok(reach)) => Ok(Self {
-                stop,
-                handle: Some(handle),
-                reach,
-                lines,
-            }),
+            Ok(Ok(reach)) => {
+                let mut group = Self {
+                    stop,
+                    handle: Some(handle),
+                    watcher: None,
+                    reach,
+                    lines,
+                };
+                // Without its watcher the side is stopped (by the drop) and refused.
+                group.watcher = Some(
+                    Watcher::start(background, LAG_LIMIT, "the ROS 2 side")
+                        .map_err(|_| GroupError::Thread("could not start its watcher"))?,
+                );
+                Ok(group)
+            }
             Ok(Err(e)) => {
                 let _ = handle.join();
                 Err(e)
@@ -144,6 +159,9 @@ impl GroupOnRos2 {
     /// Takes what is still queued, finishes the bag and stops the node.
     pub fn stop(mut self) -> Result<Published, GroupError> {
         self.stop.store(true, Ordering::SeqCst);
+        if let Some(watcher) = self.watcher.take() {
+            watcher.stop();
+        }
         match self.handle.take().map(std::thread::JoinHandle::join) {
             Some(Ok(result)) => result,
             _ => Err(GroupError::Thread("panicked")),
@@ -336,12 +354,10 @@ fn run(
     stop: &AtomicBool,
     lines: &mpsc::Receiver<(&'static str, String, u64)>,
     ready: mpsc::Sender<Result<Option<Reach>, GroupError>>,
+    background: &Background,
 ) -> Result<Published, GroupError> {
     keep_off_the_acting_cpu_at_nice_19();
     let opened = open(prefix, &outputs);
-    if !tes_runtime::affinity::lower_this_threads_priority() {
-        tracing::warn!("the ROS 2 publisher runs at nice +19, not SCHED_IDLE");
-    }
     let (mut ports, outlets) = match opened {
         Ok(opened) => opened,
         Err(e) => {
@@ -350,6 +366,9 @@ fn run(
         }
     };
     let _ = ready.send(Ok(outlets.node.as_ref().map(|n| n.reach().clone())));
+    // Lowered once its services and node are open (the group starts after that), and only
+    // where the watcher can raise it back: a side left starved would lose what it reads.
+    background.lower_if_restorable();
     let mut tap = Tap {
         scene: RosScene::new(outputs.scene),
         outlets,
@@ -365,6 +384,7 @@ fn run(
         }
         last_drain = Instant::now();
         tap.drain(&mut ports, lines, stopping)?;
+        background.beat();
         if stopping {
             break;
         }

@@ -10,6 +10,7 @@
 //! * [`cpu`] — a process's or thread's CPU time per action and share of a core;
 //! * [`ipc`] — the node, the service settings every opener must share, stale-resource clean-up;
 //! * [`affinity`] — CPU placement of threads; [`memory`] — keeping a process's pages resident;
+//!   [`background`] — background threads at the lowest priority, raised back when a run needs them;
 //! * [`latency`] — latency histograms against a budget;
 //! * [`settings`] — the one error type for a bad settings key, and the TOML parsing every
 //!   process shares;
@@ -24,6 +25,7 @@
 pub mod affinity;
 pub mod alloc_count;
 pub mod anticipate;
+pub mod background;
 pub mod board;
 pub mod cause;
 pub mod channel;

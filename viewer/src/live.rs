@@ -2,8 +2,13 @@
 //! fed the same drawings as a recording.
 //!
 //! The server runs on a one-worker Tokio runtime whose threads are placed off the CPU the
-//! controller's acting thread is pinned to and run at the lowest priority (`SCHED_IDLE`, else
-//! nice +19), so serving a viewer never takes that CPU nor delays a waking group process.
+//! controller's acting thread is pinned to and run at the lowest priority (`SCHED_IDLE`), so
+//! serving a viewer never takes that CPU nor delays a waking group process. On a machine
+//! whose cores are all busy at normal priority such threads would get almost no CPU and a
+//! viewer's handshake would time out: a task on the runtime beats every [`BEAT_EVERY`], and a
+//! watcher at normal priority ([`tes_runtime::background::Watcher`]) raises the threads back
+//! to normal scheduling for the rest of the run once the beat is [`LAG_LIMIT`] (100 ms) late. Where
+//! this process could not undo `SCHED_IDLE`, the threads keep normal priority.
 //! [`LiveServer::draw`] only queues a message for each subscribed client (a bounded queue per
 //! client, oldest dropped when full): a viewer that stops reading loses messages, never slows
 //! the caller. Pictures of the robot's motion go out at a screen's pace ([`MotionPace`]), not
@@ -26,6 +31,8 @@ use std::time::Duration;
 
 use foxglove::websocket::{ChannelView, Client, ServerListener};
 use foxglove::{ChannelBuilder, Context, PartialMetadata, RawChannel, WebSocketServer};
+
+use tes_runtime::background::{Background, LAG_LIMIT, Watcher};
 
 use crate::canvas::{Canvas, Channel, Drawing};
 
@@ -58,6 +65,9 @@ pub const CLIENT_MESSAGE_MAX: usize = 64 * 1024;
 /// The longest [`LiveServer::stop`] waits for the crate's server to close its connections,
 /// and then for the runtime's threads.
 pub const STOP_WAIT: Duration = Duration::from_secs(1);
+
+/// How often the server's runtime says it runs (a timer task on its worker).
+pub const BEAT_EVERY: Duration = Duration::from_millis(20);
 
 /// The live view's pace for the robot's motion: at most this many pictures a second per
 /// channel, about a screen's rate. The loop may decide 500 times a second; each picture sent
@@ -131,6 +141,8 @@ pub struct LiveServer {
     door: Option<tokio::task::JoinHandle<()>>,
     // Kept for its channels' lifetime; dropped last.
     _context: Arc<Context>,
+    /// Raises the runtime's threads once their beat is late; stopped before the runtime.
+    watcher: Option<Watcher>,
     runtime: Option<tokio::runtime::Runtime>,
 }
 
@@ -149,15 +161,31 @@ impl LiveServer {
         addr: SocketAddr,
         channels: impl IntoIterator<Item = &'a Channel>,
     ) -> Result<Self, LiveError> {
+        let background = Arc::new(Background::new());
+        let lowered = background.clone();
         let runtime = tokio::runtime::Builder::new_multi_thread()
             .worker_threads(1)
             .max_blocking_threads(1)
             .thread_name("foxglove")
-            .on_thread_start(|| {
-                tes_runtime::affinity::make_this_a_background_thread("a Foxglove server thread")
+            .on_thread_start(move || {
+                if let Err(e) = tes_runtime::affinity::pin_off_the_acting_cpu() {
+                    tracing::debug!("a Foxglove server thread stays unpinned: {e}");
+                }
+                lowered.lower_if_restorable();
             })
             .enable_all()
             .build()
+            .map_err(LiveError::Runtime)?;
+        let beating = background.clone();
+        runtime.spawn(async move {
+            let mut every = tokio::time::interval(BEAT_EVERY);
+            every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            loop {
+                every.tick().await;
+                beating.beat();
+            }
+        });
+        let watcher = Watcher::start(background, LAG_LIMIT, "the Foxglove server")
             .map_err(LiveError::Runtime)?;
         let context = Context::new();
         let channels = channels
@@ -199,6 +227,7 @@ impl LiveServer {
             inner: Some(inner),
             door: Some(door),
             _context: context,
+            watcher: Some(watcher),
             runtime: Some(runtime),
         })
     }
@@ -220,6 +249,9 @@ impl LiveServer {
     }
 
     fn shut_down(&mut self) {
+        if let Some(watcher) = self.watcher.take() {
+            watcher.stop();
+        }
         // The door first: with it go the connections it holds (handshaking or spliced), so
         // the crate's server sees its clients leave.
         if let Some(door) = self.door.take() {

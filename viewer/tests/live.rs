@@ -12,6 +12,7 @@ use std::net::{SocketAddr, TcpStream};
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
+use tes_runtime::background::{LAG_LIMIT, can_restore};
 use tes_viewer::canvas::{Canvas, Drawing};
 use tes_viewer::live::handshake::{SDK_V1, WEBSOCKET_V1};
 use tes_viewer::live::{
@@ -329,4 +330,86 @@ fn stopping_takes_a_bounded_time_whatever_the_clients_do() {
     // Its own bound is twice STOP_WAIT; the slack is for a loaded machine.
     assert!(took < 2 * STOP_WAIT + PATIENCE, "stopping took {took:?}");
     drop(idle);
+}
+
+/// Busy shells, two per core at normal priority; killed when dropped, even when the test
+/// fails.
+struct CpuHogs(Vec<std::process::Child>);
+
+impl CpuHogs {
+    fn two_per_core() -> Self {
+        let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
+        let hogs = (0..2 * cores)
+            .map(|_| {
+                std::process::Command::new("sh")
+                    .args(["-c", "while :; do :; done"])
+                    .stdin(std::process::Stdio::null())
+                    .spawn()
+                    .expect("a busy shell starts")
+            })
+            .collect();
+        Self(hogs)
+    }
+}
+
+impl Drop for CpuHogs {
+    fn drop(&mut self) {
+        for hog in &mut self.0 {
+            let _ = hog.kill();
+            let _ = hog.wait();
+        }
+    }
+}
+
+/// The scheduling policy of each of this process's threads named `name`.
+fn policies_of_threads_named(name: &str) -> Vec<i32> {
+    let tasks = std::fs::read_dir("/proc/self/task").expect("this process's threads");
+    tasks
+        .filter_map(|t| {
+            let t = t.ok()?;
+            let comm = std::fs::read_to_string(t.path().join("comm")).ok()?;
+            let tid: libc::pid_t = t.file_name().to_str()?.parse().ok()?;
+            // SAFETY: a query on a thread id of this process.
+            (comm.trim() == name).then(|| unsafe { libc::sched_getscheduler(tid) })
+        })
+        .collect()
+}
+
+/// The server's threads run under `SCHED_IDLE`; with every core busy at normal priority they
+/// would get almost no CPU and a viewer's handshake would time out. Their watcher raises them
+/// back to normal scheduling once their beat is late (where this process may), and a viewer
+/// is then served as on an idle machine.
+#[test]
+fn under_a_cpu_hog_the_servers_threads_are_raised_and_a_viewer_is_served() {
+    let (mut server, scene) = start();
+    let idle_before = policies_of_threads_named("foxglove");
+    assert!(
+        !idle_before.is_empty(),
+        "the server's threads are named foxglove"
+    );
+    let hogs = CpuHogs::two_per_core();
+    // Long enough for the beat to be late by the limit under the hog.
+    std::thread::sleep(LAG_LIMIT * 5);
+    let (mut ws, chosen) = viewer(server.addr(), SDK_V1);
+    assert_eq!(chosen, SDK_V1);
+    let channels = advertised(&mut ws, scene.channels().count());
+    let log = channels
+        .iter()
+        .find(|(t, _)| t == LOG)
+        .map(|&(_, id)| id)
+        .expect("/log");
+    subscribe(&mut ws, 3, log);
+    assert!(
+        received_drawn(&mut server, &scene, &mut ws, 3, b"a line under load"),
+        "no message in {PATIENCE:?}"
+    );
+    let after = policies_of_threads_named("foxglove");
+    drop(hogs);
+    if can_restore() && idle_before.contains(&libc::SCHED_IDLE) {
+        assert!(
+            after.iter().all(|&p| p == libc::SCHED_OTHER),
+            "raised to SCHED_OTHER ({}): {after:?}",
+            libc::SCHED_OTHER
+        );
+    }
 }

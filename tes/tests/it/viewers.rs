@@ -561,42 +561,13 @@ fn the_robot_moves_as_its_wheels_allow(all: &[(String, u64, Vec<u8>)]) {
     assert!(largest > 0.0);
 }
 
-/// Busy processes, two per core at normal priority (`yes > /dev/null`), the kind of load under
-/// which the recorder once drew the belief back in time; killed when dropped, even when the
-/// test fails.
-struct CpuHog(Vec<std::process::Child>);
-
-impl CpuHog {
-    fn start() -> Self {
-        let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
-        let hogs = (0..2 * cores)
-            .map(|_| {
-                Command::new("yes")
-                    .stdout(std::process::Stdio::null())
-                    .spawn()
-                    .expect("yes runs")
-            })
-            .collect();
-        Self(hogs)
-    }
-}
-
-impl Drop for CpuHog {
-    fn drop(&mut self) {
-        for hog in &mut self.0 {
-            let _ = hog.kill();
-            let _ = hog.wait();
-        }
-    }
-}
-
 /// On a machine whose every core is busy with other work, a recording at the fastest pace
 /// still has every channel in time order (a sample read late from one service is drawn after
 /// the older ones of another), every label true and the robot moving as its wheels allow.
 #[test]
 fn under_a_cpu_hog_every_channel_stays_in_time_order_and_every_drawing_true() {
     let dir = tempfile::tempdir().expect("temp dir");
-    let hog = CpuHog::start();
+    let hog = CpuHogs::two_per_core();
     let file = record_by_default(dir.path(), 12);
     drop(hog);
     let bytes = std::fs::read(&file).expect("the recording reads");
