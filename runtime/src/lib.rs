@@ -20,7 +20,8 @@
 //! * [`cause`] — an operating-system error said as its cause (disk full, read-only, out of
 //!   descriptors, missing device);
 //! * [`progress`] — each process's progress report, and who holds a stalled group up;
-//! * [`lock`] — one owner at a time for a data directory or a library (a `flock` naming its pid).
+//! * [`lock`] — one owner at a time for a data directory or a library (a `flock` naming its pid);
+//! * `test_support` (feature `test-support`) — what tests of several crates share.
 
 pub mod affinity;
 pub mod alloc_count;
@@ -41,4 +42,6 @@ mod receive;
 pub mod ring;
 pub mod settings;
 pub mod signals;
+#[cfg(feature = "test-support")]
+pub mod test_support;
 pub mod wait;

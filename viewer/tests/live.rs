@@ -13,6 +13,7 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 use tes_runtime::background::{LAG_LIMIT, can_restore};
+use tes_runtime::test_support::CpuHogs;
 use tes_viewer::canvas::{Canvas, Drawing};
 use tes_viewer::live::handshake::{SDK_V1, WEBSOCKET_V1};
 use tes_viewer::live::{
@@ -330,35 +331,6 @@ fn stopping_takes_a_bounded_time_whatever_the_clients_do() {
     // Its own bound is twice STOP_WAIT; the slack is for a loaded machine.
     assert!(took < 2 * STOP_WAIT + PATIENCE, "stopping took {took:?}");
     drop(idle);
-}
-
-/// Busy shells, two per core at normal priority; killed when dropped, even when the test
-/// fails.
-struct CpuHogs(Vec<std::process::Child>);
-
-impl CpuHogs {
-    fn two_per_core() -> Self {
-        let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
-        let hogs = (0..2 * cores)
-            .map(|_| {
-                std::process::Command::new("sh")
-                    .args(["-c", "while :; do :; done"])
-                    .stdin(std::process::Stdio::null())
-                    .spawn()
-                    .expect("a busy shell starts")
-            })
-            .collect();
-        Self(hogs)
-    }
-}
-
-impl Drop for CpuHogs {
-    fn drop(&mut self) {
-        for hog in &mut self.0 {
-            let _ = hog.kill();
-            let _ = hog.wait();
-        }
-    }
 }
 
 /// The scheduling policy of each of this process's threads named `name`.

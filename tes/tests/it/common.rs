@@ -491,31 +491,4 @@ pub fn assert_braked_at_the_deadline(lines: &[String]) {
     );
 }
 
-/// Busy processes at normal priority, two per core, killed on drop.
-pub struct CpuHogs(Vec<Child>);
-
-impl CpuHogs {
-    /// `sh -c 'while :; do :; done'`, twice per core.
-    pub fn two_per_core() -> Self {
-        let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
-        let hogs = (0..2 * cores)
-            .map(|_| {
-                Command::new("sh")
-                    .args(["-c", "while :; do :; done"])
-                    .stdin(Stdio::null())
-                    .spawn()
-                    .expect("a busy shell starts")
-            })
-            .collect();
-        Self(hogs)
-    }
-}
-
-impl Drop for CpuHogs {
-    fn drop(&mut self) {
-        for hog in &mut self.0 {
-            let _ = hog.kill();
-            let _ = hog.wait();
-        }
-    }
-}
+pub use tes_runtime::test_support::CpuHogs;
