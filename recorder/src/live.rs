@@ -26,11 +26,12 @@
 //! the group runs loses what they held: a subscriber's queued samples go with their publisher
 //! when it exits (perception at the end of its episodes), so a run recorded under full load
 //! came out with no observation and no world map. A watcher at normal priority
-//! ([`tes_runtime::background::Watcher`], [`LAG_LIMIT`]: 100 ms) raises the recorder back to normal
-//! scheduling, for the rest of the run, once it has not drained for that long; where this
-//! process cannot undo `SCHED_IDLE` (no `CAP_SYS_NICE`), the recorder keeps normal priority
-//! from the start. It lowers itself only once its services are open: the group starts after
-//! that, and on a machine whose cores are busy a lowered recorder takes minutes to open them. Nothing is formatted or
+//! ([`tes_runtime::background::Watcher`], [`LAG_LIMIT`]: 100 ms) raises the recorder back to
+//! normal scheduling, for the rest of the run, once it has not drained for that long; where
+//! this process cannot undo `SCHED_IDLE` (no `CAP_SYS_NICE`), the recorder keeps normal
+//! priority from the start. It lowers itself only once its services are open: the group
+//! starts after that, and on a machine whose cores are busy a lowered recorder takes minutes
+//! to open them. Nothing is formatted or
 //! written on the controller's side. A sample the recorder could not
 //! take in time (a machine that kept it from running for a whole buffer's worth of actions)
 //! is counted from the gaps in the sequence numbers and written in the file's end record.
