@@ -257,6 +257,8 @@ fn latency_runs_both_paths_and_reports_every_key() {
 /// runs at the same cadence with the same help, and the CPU is reported for both.
 #[test]
 fn latency_at_the_robots_pace_anticipates_by_default_and_catches_in_the_windows() {
+    // No other test's group beside it: their wake-ups land in its windows.
+    let _alone = alone_on_the_machine();
     let dir = tempfile::tempdir().unwrap();
     let (ok, stdout, stderr) = run(
         &[
@@ -301,8 +303,12 @@ fn latency_at_the_robots_pace_anticipates_by_default_and_catches_in_the_windows(
     assert_floor_consistent(&v);
     assert_cpu_reported(&v);
     // Both anticipating receivers took every message (25, warm-up included), and caught
-    // most inside their poll windows: a window that opens too late or closes too early
+    // many inside their poll windows: a window that opens too late or closes too early
     // leaves its message to a blocking wake-up, counted as woken, and its window as missed.
+    // A window broken so misses nearly every message; a quiet machine catches nearly all,
+    // and a compiler running beside the test on this 2-core machine was seen to make the
+    // controller miss 14 of 27. So the bound is a quarter, not a timing target (that is
+    // `tes bench latency`'s, over 1 000 actions).
     for who in ["controller", "bridge"] {
         let c = &v["catches"][who];
         let count = |key: &str| {
@@ -313,8 +319,8 @@ fn latency_at_the_robots_pace_anticipates_by_default_and_catches_in_the_windows(
         let (caught, woken, missed) = (count("polled"), count("woken"), count("missed_windows"));
         assert!(caught + woken >= 25, "{who}: {v}");
         // Of the 25 announced messages (the bridge also wakes for keep-alives, unannounced).
-        assert!(caught >= 25 / 2, "{who}: most windows caught: {v}");
-        assert!(missed <= 25 / 2, "{who}: {v}");
+        assert!(caught >= 25 / 4, "{who}: windows caught: {v}");
+        assert!(missed <= 25 * 3 / 4, "{who}: {v}");
     }
     // The floor's hop anticipates as the controller does, alone on its CPU as the acting
     // thread is: both poll under SCHED_FIFO where the system lets them (every window caught
