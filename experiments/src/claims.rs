@@ -29,6 +29,10 @@ pub struct ClaimRow {
     pub check: TargetCheck,
     /// "before the data" or the commit it was written at, with data in hand.
     pub registered: String,
+    /// The stricter reading, in words, when this row judges its target at one in place of the
+    /// registered form: a stricter threshold (a sensitivity check of a threshold set with data
+    /// in hand), or a second test that must agree; `None` for the target's own verdict.
+    pub stricter: Option<String>,
 }
 
 fn registered(target: &Target) -> String {
@@ -43,6 +47,20 @@ fn row(target: &'static Target, measured: String, verdict: Verdict) -> ClaimRow 
         id: target.id,
         check: TargetCheck::new(target.target, target.test, measured, false, verdict),
         registered: registered(target),
+        stricter: None,
+    }
+}
+
+/// A row judging `target` at the `stricter` reading (in words) in place of its own.
+fn sensitivity_row(
+    target: &'static Target,
+    stricter: String,
+    measured: String,
+    verdict: Verdict,
+) -> ClaimRow {
+    ClaimRow {
+        stricter: Some(stricter),
+        ..row(target, measured, verdict)
     }
 }
 
@@ -359,11 +377,19 @@ pub fn transfer(t: &TransferReport) -> Vec<ClaimRow> {
             continue;
         };
         let (sides, measured) = pooled_family(&[claim.key()], &[per_task]);
-        rows.push(row(
+        let judged = sensitivity_row(
             &prereg::TRANSFER_POOLED,
+            "the run-level sign-flip test agreeing".to_owned(),
             measured,
             Verdict::of_side(sides[0]),
-        ));
+        );
+        rows.push(ClaimRow {
+            check: TargetCheck {
+                target: claim.pooled_target(),
+                ..judged.check
+            },
+            ..judged
+        });
     }
     rows.extend(sensitivity_counts(t));
     rows.push(rands(t));
@@ -385,8 +411,9 @@ fn sensitivity_counts(t: &TransferReport) -> Vec<ClaimRow> {
             .find(|c| c.other == other && !c.key().starts_with("jumpstart"))?;
         let decided = t.claims.get(&claim.key())?;
         let at = 12;
-        Some(row(
+        Some(sensitivity_row(
             target,
+            format!("at >= {at} of 15 tasks"),
             format!(
                 "sensitivity, at >= {at} of 15 (registered: {}): {}",
                 target.threshold.count(),
@@ -549,11 +576,21 @@ pub fn robot(r: &RobotReport) -> Vec<ClaimRow> {
     rows.push(match by_run(runs(Method::TesWoRi), runs(Method::LoreRl), |w, l| w.accumulated - 0.95 * l.accumulated) {
         Some(d) => {
             let t = paired_family(&[d]);
-            row(target, format!("sensitivity, by less than 5 % (registered: 10 %): TES-woRi − 0.95 × loreRL {}", difference(&t[0])), all_ahead(&t))
+            sensitivity_row(target, "by less than 5 %".to_owned(), format!("sensitivity, by less than 5 % (registered: 10 %): TES-woRi − 0.95 × loreRL {}", difference(&t[0])), all_ahead(&t))
         }
         None => not_run(target),
     });
     rows
+}
+
+/// A verdict's label in the tables: the registry's id (where known), the target in words and
+/// the stricter reading it is judged at (if any).
+pub fn label(id: Option<&str>, target: &str, stricter: Option<&str>) -> String {
+    let id = id.map(|id| format!("`{id}`: ")).unwrap_or_default();
+    match stricter {
+        Some(stricter) => format!("{id}{target} — stricter: {stricter}"),
+        None => format!("{id}{target}"),
+    }
 }
 
 /// The claims table of a folder: id, target, what was measured, verdict, when registered.
@@ -561,9 +598,8 @@ pub fn table(rows: &[ClaimRow]) -> String {
     let mut md = String::from("| target | measured | verdict | registered |\n|---|---|---|---|\n");
     for r in rows {
         md.push_str(&format!(
-            "| `{}`: {} | {} | **{}** | {} |\n",
-            r.id,
-            r.check.target,
+            "| {} | {} | **{}** | {} |\n",
+            label(Some(r.id), &r.check.target, r.stricter.as_deref()),
             r.check.measured,
             r.check.verdict.text(),
             r.registered

@@ -116,6 +116,12 @@ pub struct Target {
 }
 
 impl Target {
+    /// Whether it is judged on times, which move with the machine's load: a time ratio's
+    /// interval (§5.1.2's ratio of mean times over the tasks among them).
+    pub fn on_times(&self) -> bool {
+        self.test == RATIO_TEST || self.id == TRANSFER_TIME.id
+    }
+
     /// The fingerprint of the current form.
     pub fn fingerprint(&self) -> String {
         form_fingerprint(self.id, self.target, self.test, self.threshold)
@@ -638,6 +644,22 @@ pub const TARGETS: [&Target; 31] = [
 /// Looks a target up by its id.
 pub fn target(id: &str) -> Option<&'static Target> {
     TARGETS.iter().copied().find(|t| t.id == id)
+}
+
+/// The registered target that a verdict of an `experiment` folder judges, from the words its
+/// `summary.json` records: the target with those words (now or in an earlier form), else the
+/// experiment's family whose checks carry words of their own (`fig4.targets`,
+/// `lifelong.targets`, and `transfer.pooled` for the "across tasks" checks).
+pub fn judged_by(experiment: &str, words: &str) -> Option<&'static Target> {
+    let worded = |t: &&Target| t.target == words || t.history.iter().any(|h| h.target == words);
+    let family = |t: &&Target| {
+        let pooled = t.id == TRANSFER_POOLED.id;
+        t.experiment == experiment
+            && (t.id.ends_with(".targets") || pooled)
+            && (!pooled || words.contains("across tasks"))
+    };
+    let targets = || TARGETS.iter().copied();
+    targets().find(worded).or_else(|| targets().find(family))
 }
 
 #[cfg(test)]

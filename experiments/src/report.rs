@@ -13,7 +13,7 @@
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::fs;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use serde::de::DeserializeOwned;
@@ -25,10 +25,13 @@ use crate::grid::{self, GridReport};
 use crate::jobs::Manifest;
 use crate::lifelong::{self, LifelongReport};
 use crate::method::Method;
+use crate::prereg;
 use crate::robot::{self, RobotReport};
 use crate::stats::Summary;
 use crate::transfer::{self, Claim, TransferReport};
-use crate::verdict::{Paired, Side, TIME_RATIO_TEST, TargetCheck, difference, interval, paired};
+use crate::verdict::{
+    Paired, Side, TIME_RATIO_TEST, TargetCheck, Verdict, difference, interval, paired,
+};
 
 /// A result folder's summary, whichever experiment wrote it.
 #[derive(Debug)]
@@ -73,10 +76,13 @@ impl Results {
     /// The names of the tables this experiment's folders give, in report order.
     pub fn table_names(&self) -> &'static [&'static str] {
         match self {
-            Self::Grid(_) => &["targets", "claims", "fig3a", "fig3b", "fig3c", "table1"],
+            Self::Grid(_) => &[
+                "targets", "claims", "verdicts", "fig3a", "fig3b", "fig3c", "table1",
+            ],
             Self::Transfer(_) => &[
                 "targets",
                 "claims",
+                "verdicts",
                 "table2",
                 "first-episode-ends",
                 "late-caps",
@@ -85,13 +91,14 @@ impl Results {
             Self::Robot(_) => &[
                 "targets",
                 "claims",
+                "verdicts",
                 "accumulated",
                 "by-range",
                 "table5",
                 "times",
             ],
-            Self::Fig4(_) => &["targets", "fig4a", "fig4c"],
-            Self::Lifelong(_) => &["targets", "sequence", "times"],
+            Self::Fig4(_) => &["targets", "verdicts", "fig4a", "fig4c"],
+            Self::Lifelong(_) => &["targets", "verdicts", "sequence", "times"],
         }
     }
 
@@ -99,6 +106,7 @@ impl Results {
     pub fn table(&self, name: &str) -> Result<String> {
         let table = match (self, name) {
             (_, "targets") => targets(self.targets()),
+            (_, "verdicts") => verdicts(&[self]),
             (Self::Grid(g), "claims") => claims::table(&claims::grid(g)),
             (Self::Transfer(t), "claims") => claims::table(&claims::transfer(t)),
             (Self::Robot(r), "claims") => claims::table(&claims::robot(r)),
@@ -147,6 +155,47 @@ impl Results {
         }
     }
 
+    /// The number of runs the folder's settings asked for.
+    pub fn runs(&self) -> usize {
+        match self {
+            Self::Grid(g) => g.config.runs,
+            Self::Transfer(t) => t.config.runs,
+            Self::Robot(r) => r.config.runs,
+            Self::Fig4(f) => f.config.runs,
+            Self::Lifelong(l) => l.config.runs,
+        }
+    }
+
+    /// Every verdict of the folder's `targets` and `claims` tables, in their order: the
+    /// experiment's own targets, then the claims judged from the same summary (each
+    /// sensitivity check after its target's verdict).
+    fn verdict_lines(&self) -> Vec<VerdictLine> {
+        let experiment = self.experiment();
+        let own = self.targets().iter().map(|t| VerdictLine {
+            id: prereg::judged_by(experiment, &t.target).map(|r| r.id),
+            target: t.target.clone(),
+            stricter: None,
+            verdict: t.verdict,
+            timed: t.test == TIME_RATIO_TEST,
+            partly: judged_on_part(&t.measured),
+        });
+        let claims = match self {
+            Self::Grid(g) => claims::grid(g),
+            Self::Transfer(t) => claims::transfer(t),
+            Self::Robot(r) => claims::robot(r),
+            Self::Fig4(_) | Self::Lifelong(_) => Vec::new(),
+        };
+        let claimed = claims.into_iter().map(|c| VerdictLine {
+            id: Some(c.id),
+            partly: judged_on_part(&c.check.measured),
+            timed: prereg::target(c.id).is_some_and(prereg::Target::on_times),
+            target: c.check.target,
+            stricter: c.stricter,
+            verdict: c.check.verdict,
+        });
+        own.chain(claimed).collect()
+    }
+
     fn targets(&self) -> &[TargetCheck] {
         match self {
             Self::Grid(g) => &g.targets,
@@ -162,13 +211,7 @@ impl Results {
 /// setting changed: the paired differences of what the claims measure, and the verdicts side
 /// by side.
 pub fn against(this: &Results, base: &Results) -> Result<String> {
-    if this.experiment() != base.experiment() {
-        bail!(
-            "a {} folder cannot be compared with a {} folder",
-            this.experiment(),
-            base.experiment()
-        );
-    }
+    same_experiment(this, base)?;
     let mut md = match (this, base) {
         (Results::Transfer(t), Results::Transfer(b)) => transfer_against(t, b),
         (Results::Grid(t), Results::Grid(b)) => grid_against(t, b),
@@ -181,14 +224,19 @@ pub fn against(this: &Results, base: &Results) -> Result<String> {
 /// The verdicts of `this` and `base` (runs of one experiment) side by side, target by target:
 /// `report DIR --table targets --against BASE`.
 pub fn targets_against(this: &Results, base: &Results) -> Result<String> {
-    if this.experiment() != base.experiment() {
+    same_experiment(this, base)?;
+    Ok(verdicts_side_by_side(this, base))
+}
+
+fn same_experiment(this: &Results, other: &Results) -> Result<()> {
+    if this.experiment() != other.experiment() {
         bail!(
             "a {} folder cannot be compared with a {} folder",
             this.experiment(),
-            base.experiment()
+            other.experiment()
         );
     }
-    Ok(verdicts_side_by_side(this, base))
+    Ok(())
 }
 
 fn verdicts_side_by_side(this: &Results, base: &Results) -> String {
@@ -201,6 +249,84 @@ fn verdicts_side_by_side(this: &Results, base: &Results) -> String {
             b.verdict.text(),
             t.verdict.text()
         );
+    }
+    md
+}
+
+/// One verdict of a folder, as the `verdicts` table lists it.
+#[derive(Debug, Clone, PartialEq)]
+struct VerdictLine {
+    /// The registered target it judges, where the registry names one for these words.
+    id: Option<&'static str>,
+    /// The target in the tables' words.
+    target: String,
+    /// The stricter threshold a sensitivity check judges the target at.
+    stricter: Option<String>,
+    verdict: Verdict,
+    /// Whether it is judged on times.
+    timed: bool,
+    /// What the verdict was judged on when the folder ran only some of the methods the target
+    /// compares (e.g. "RL-DT not run: judged on fEpsG alone").
+    partly: Option<String>,
+}
+
+impl VerdictLine {
+    /// Whether `other` (a line of another folder) gives a verdict on the same thing.
+    fn same_claim(&self, other: &Self) -> bool {
+        (self.id, &self.target, &self.stricter) == (other.id, &other.target, &other.stricter)
+    }
+
+    fn target_cell(&self) -> String {
+        claims::label(self.id, &self.target, self.stricter.as_deref())
+    }
+
+    fn verdict_cell(&self) -> String {
+        let verdict = match self.verdict {
+            Verdict::NotRun => return "—".to_owned(),
+            Verdict::Fails => "**fails**".to_owned(),
+            other => other.text().to_owned(),
+        };
+        match &self.partly {
+            Some(part) => format!("{verdict} ({part})"),
+            None => verdict,
+        }
+    }
+}
+
+/// The "X not run: judged on Y" note of a measurement, without its parentheses.
+fn judged_on_part(measured: &str) -> Option<String> {
+    let at = measured.find(" not run: judged on ")?;
+    let open = measured[..at].rfind('(')? + 1;
+    let close = at + measured[at..].find(')')?;
+    Some(measured[open..close].to_owned())
+}
+
+/// The `verdicts` table: every verdict of the first folder's `targets` and `claims` tables,
+/// with the same verdict of each further folder (runs of the same experiment at other
+/// settings, e.g. 100 runs) beside it; "—" where a folder did not run the methods a claim
+/// compares.
+fn verdicts(folders: &[&Results]) -> String {
+    let columns: Vec<Vec<VerdictLine>> = folders.iter().map(|f| f.verdict_lines()).collect();
+    let Some(first) = columns.first() else {
+        return String::new();
+    };
+    let mut md = String::from("| target |");
+    for folder in folders {
+        let _ = write!(md, " {} runs |", folder.runs());
+    }
+    md.push_str("\n|---|");
+    md.push_str(&"---|".repeat(folders.len()));
+    md.push('\n');
+    for line in first {
+        let _ = write!(md, "| {} |", line.target_cell());
+        for column in &columns {
+            let cell = column
+                .iter()
+                .find(|other| line.same_claim(other))
+                .map_or_else(|| "—".to_owned(), VerdictLine::verdict_cell);
+            let _ = write!(md, " {cell} |");
+        }
+        md.push('\n');
     }
     md
 }
@@ -762,79 +888,93 @@ pub const BEGIN: &str = "<!-- generated by: tes experiment report ";
 /// The last line of a generated block.
 pub const END: &str = "<!-- end of generated table -->";
 
-/// What a block's first line asks for.
+/// What `tes experiment report` is asked for, on its command line or on a generated block's
+/// first line (`DIR [--table NAME] [--against BASE] [--beside OTHER]`): one folder's tables,
+/// its paired differences from a default run, or its verdicts beside another run's.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct BlockCommand {
+pub struct Request {
     /// The result folder.
-    pub dir: String,
+    pub dir: PathBuf,
     /// One table, or every table.
     pub table: Option<String>,
-    /// A default run to compare against.
-    pub against: Option<String>,
+    /// A default run of the same experiment and seeds to compare against, paired by run.
+    pub against: Option<PathBuf>,
+    /// A run of the same experiment at other settings (e.g. 100 runs) whose verdicts the
+    /// `verdicts` table puts beside the folder's.
+    pub beside: Option<PathBuf>,
 }
 
-impl BlockCommand {
+impl Request {
     fn parse(args: &str) -> Result<Self> {
         let mut words = args.split_whitespace();
-        let dir = words
-            .next()
-            .context("a generated block names no folder")?
-            .to_owned();
-        let (mut table, mut against) = (None, None);
+        let dir = words.next().context("a generated block names no folder")?;
+        let mut request = Self {
+            dir: dir.into(),
+            table: None,
+            against: None,
+            beside: None,
+        };
         while let Some(flag) = words.next() {
             let value = words
                 .next()
-                .with_context(|| format!("{flag} needs a value"))?
-                .to_owned();
+                .with_context(|| format!("{flag} needs a value"))?;
             match flag {
-                "--table" => table = Some(value),
-                "--against" => against = Some(value),
+                "--table" => request.table = Some(value.to_owned()),
+                "--against" => request.against = Some(value.into()),
+                "--beside" => request.beside = Some(value.into()),
                 other => bail!("unknown option {other:?} in a generated block"),
             }
         }
-        Ok(Self {
-            dir,
-            table,
-            against,
-        })
+        Ok(request)
     }
 
-    /// The Markdown the block holds, its folders read under `root`: a note first for a
-    /// folder written from a modified tree.
+    /// The Markdown asked for, its folders read under `root`: a note first for a folder
+    /// written from a modified tree, then the load times were measured under, then the tables.
     pub fn render(&self, root: &Path) -> Result<String> {
+        let this = Results::read(&root.join(&self.dir))?;
         let mut md = provenance_note(&root.join(&self.dir))?;
-        if let Some(base) = &self.against {
-            md.push_str(&provenance_note(&root.join(base))?);
+        for other in [&self.against, &self.beside].into_iter().flatten() {
+            md.push_str(&provenance_note(&root.join(other))?);
         }
-        if self.shows_times(root)? {
+        if self.table.as_deref() == Some("verdicts") {
+            let dirs: Vec<PathBuf> = std::iter::once(&self.dir)
+                .chain(&self.beside)
+                .map(|d| root.join(d))
+                .collect();
+            md.push_str(&verdicts_load_note(&dirs)?);
+        } else if self.shows_times(&this) {
             md.push_str(&load_note(&root.join(&self.dir))?);
         }
-        md.push_str(&self.tables(root)?);
+        md.push_str(&self.tables(&this, root)?);
         Ok(md)
     }
 
-    /// Whether the block shows times: a `times` table, or targets judged on times (all the
+    /// Whether the tables show times: a `times` table, or targets judged on times (all the
     /// tables hold both).
-    fn shows_times(&self, root: &Path) -> Result<bool> {
-        Ok(match self.table.as_deref() {
+    fn shows_times(&self, this: &Results) -> bool {
+        match self.table.as_deref() {
             Some("times") => true,
-            Some("targets") | None => Results::read(&root.join(&self.dir))?
-                .targets()
-                .iter()
-                .any(|t| t.test == TIME_RATIO_TEST),
+            Some("targets") | None => this.targets().iter().any(|t| t.test == TIME_RATIO_TEST),
             Some(_) => false,
-        })
+        }
     }
 
-    fn tables(&self, root: &Path) -> Result<String> {
-        let this = Results::read(&root.join(&self.dir))?;
-        match (&self.against, &self.table) {
-            (Some(base), Some(table)) if table == "targets" => {
-                targets_against(&this, &Results::read(&root.join(base))?)
+    fn tables(&self, this: &Results, root: &Path) -> Result<String> {
+        let table = self.table.as_deref();
+        match (&self.against, &self.beside, table) {
+            (Some(_), Some(_), _) => bail!("--against and --beside cannot be asked for together"),
+            (None, Some(other), Some("verdicts")) => {
+                let other = Results::read(&root.join(other))?;
+                same_experiment(this, &other)?;
+                Ok(verdicts(&[this, &other]))
             }
-            (Some(base), _) => against(&this, &Results::read(&root.join(base))?),
-            (None, Some(table)) => this.table(table),
-            (None, None) => this.all_tables(),
+            (None, Some(_), _) => bail!("--beside goes with --table verdicts"),
+            (Some(base), None, Some("targets")) => {
+                targets_against(this, &Results::read(&root.join(base))?)
+            }
+            (Some(base), None, _) => against(this, &Results::read(&root.join(base))?),
+            (None, None, Some(table)) => this.table(table),
+            (None, None, None) => this.all_tables(),
         }
     }
 }
@@ -868,23 +1008,49 @@ pub fn provenance_note(dir: &Path) -> Result<String> {
 /// manifest's), or that it was not recorded — wall-clock times move with the load, so a time
 /// verdict says what it was measured under.
 pub fn load_note(dir: &Path) -> Result<String> {
+    Ok(format!(
+        "*Times are wall-clock seconds of the agents' work{}.*\n\n",
+        measured_under(dir)?
+    ))
+}
+
+/// The load note of a `verdicts` table of folders `dirs`: what each folder's time verdicts
+/// were measured under. Empty when no verdict is judged on times.
+fn verdicts_load_note(dirs: &[PathBuf]) -> Result<String> {
+    let mut under = Vec::new();
+    let mut timed = false;
+    for dir in dirs {
+        let results = Results::read(dir)?;
+        timed |= results.verdict_lines().iter().any(|l| l.timed);
+        under.push(format!("{} runs{}", results.runs(), measured_under(dir)?));
+    }
+    if !timed {
+        return Ok(String::new());
+    }
+    Ok(format!(
+        "*Time verdicts compare wall-clock seconds of the agents' work: {}.*\n\n",
+        under.join("; ")
+    ))
+}
+
+/// ", measured on MACHINE while its 1-minute load average was LOAD", or what of that the
+/// folder's manifest does not record.
+fn measured_under(dir: &Path) -> Result<String> {
     let manifest = Manifest::read(dir)?;
     let machines: Vec<String> = manifest.machines.iter().map(ToString::to_string).collect();
-    let what = "*Times are wall-clock seconds of the agents' work";
     Ok(match (manifest.load, machines.is_empty()) {
         (Some(load), _) => format!(
-            "{what}, measured on {} while its 1-minute load average was {load}.*\n\n",
+            ", measured on {} while its 1-minute load average was {load}",
             machines.join("; ")
         ),
         (None, false) => format!(
-            "{what}, measured on {}; the load was not recorded (the folder predates it), so \
-             they compare only with each other.*\n\n",
+            ", measured on {}; the load was not recorded (the folder predates it), so they \
+             compare only with each other",
             machines.join("; ")
         ),
-        (None, true) => format!(
-            "{what}; the machine and load they were measured under were not recorded (the \
-             folder predates them), so they compare only with each other.*\n\n"
-        ),
+        (None, true) => "; the machine and load they were measured under were not recorded (the \
+             folder predates them), so they compare only with each other"
+            .to_owned(),
     })
 }
 
@@ -931,7 +1097,7 @@ pub fn sync(doc: &str, root: &Path) -> Result<String> {
     let mut out = String::with_capacity(doc.len());
     let mut copied = 0;
     for block in blocks(doc)? {
-        let command = BlockCommand::parse(block.command)?;
+        let command = Request::parse(block.command)?;
         let body = command
             .render(root)
             .with_context(|| format!("cannot render `{}`", block.command))?;
@@ -975,7 +1141,7 @@ pub fn check_file(file: &Path, root: &Path) -> Result<()> {
 pub fn stale_blocks(doc: &str, root: &Path) -> Result<Vec<String>> {
     let mut stale = Vec::new();
     for block in blocks(doc)? {
-        let command = BlockCommand::parse(block.command)?;
+        let command = Request::parse(block.command)?;
         let now = command.render(root)?;
         if now.trim_end() != doc[block.body_start..block.body_end].trim_end() {
             stale.push(block.command.to_owned());
@@ -1000,6 +1166,42 @@ mod tests {
     }
 
     #[test]
+    fn a_claim_judged_on_part_of_its_methods_says_which() {
+        let measured = "loreRL − 0.95 × fEpsG +56.7 [+53.3, +60.1] (p < 0.0001) (RL-DT not run: judged on fEpsG alone)";
+        assert_eq!(
+            judged_on_part(measured).as_deref(),
+            Some("RL-DT not run: judged on fEpsG alone")
+        );
+        assert_eq!(judged_on_part("loreRL − fRmax +121.8 (p < 0.0001)"), None);
+        let line = VerdictLine {
+            id: Some("grid.fig3a.as-fast"),
+            target: "Fig. 3a".into(),
+            stricter: None,
+            verdict: Verdict::Holds,
+            timed: false,
+            partly: judged_on_part(measured),
+        };
+        assert_eq!(
+            line.verdict_cell(),
+            "holds (RL-DT not run: judged on fEpsG alone)"
+        );
+        assert_eq!(line.target_cell(), "`grid.fig3a.as-fast`: Fig. 3a");
+        let stricter = VerdictLine {
+            stricter: Some("at >= 12 of 15 tasks".into()),
+            verdict: Verdict::Fails,
+            partly: None,
+            ..line.clone()
+        };
+        assert!(!line.same_claim(&stricter));
+        assert_eq!(stricter.verdict_cell(), "**fails**");
+        assert!(
+            stricter
+                .target_cell()
+                .ends_with(" — stricter: at >= 12 of 15 tasks")
+        );
+    }
+
+    #[test]
     fn blocks_are_found_and_their_commands_read() {
         let doc = format!(
             "intro\n{BEGIN}docs/results/robot --table targets -->\nold\n{END}\nmiddle\n{BEGIN}a --against b -->\n{END}\n"
@@ -1008,24 +1210,28 @@ mod tests {
         assert_eq!(found.len(), 2);
         assert_eq!(&doc[found[0].body_start..found[0].body_end], "old\n");
         assert_eq!(
-            BlockCommand::parse(found[0].command).unwrap(),
-            BlockCommand {
+            Request::parse(found[0].command).unwrap(),
+            Request {
                 dir: "docs/results/robot".into(),
                 table: Some("targets".into()),
-                against: None
+                against: None,
+                beside: None,
             }
         );
         assert_eq!(
-            BlockCommand::parse(found[1].command)
+            Request::parse(found[1].command).unwrap().against,
+            Some("b".into())
+        );
+        assert_eq!(
+            Request::parse("a --table verdicts --beside b")
                 .unwrap()
-                .against
-                .as_deref(),
-            Some("b")
+                .beside,
+            Some("b".into())
         );
         assert!(blocks(&format!("{BEGIN}x -->\n")).is_err());
         assert!(blocks(&format!("{END}\n")).is_err());
-        assert!(BlockCommand::parse("x --colour red").is_err());
-        assert!(BlockCommand::parse("x --table").is_err());
+        assert!(Request::parse("x --colour red").is_err());
+        assert!(Request::parse("x --table").is_err());
     }
 
     /// A table of times says the load and machine its folder ran under, or that they were

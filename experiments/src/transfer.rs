@@ -988,6 +988,16 @@ impl Claim {
         format!("{}: TES − {}", self.what(), self.other)
     }
 
+    /// Its pooled target in words: "SOURCE: across tasks, TES's MEASURE beats OTHER's".
+    pub fn pooled_target(&self) -> String {
+        format!(
+            "{}: across tasks, TES's {} beats {}'s",
+            self.source,
+            self.what(),
+            self.other
+        )
+    }
+
     fn what(&self) -> &'static str {
         match self.measure {
             Measure::Jumpstart => "jumpstart",
@@ -1051,12 +1061,7 @@ impl Claim {
                 decided.count_verdict(self.needed),
             )),
             partial_run(TargetCheck::new(
-                format!(
-                    "{}: across tasks, TES's {} beats {}'s",
-                    self.source,
-                    self.what(),
-                    self.other
-                ),
+                self.pooled_target(),
                 POOLED_TEST,
                 decided.describe_pooled(),
                 quick,

@@ -39,12 +39,12 @@ fn the_settings_page_is_the_settings_definitions() {
 /// targets the registry holds as one (Fig. 4, lifelong, the pooled transfer tests).
 #[test]
 fn every_committed_target_is_preregistered() {
-    use tes_experiments::prereg::{TARGETS, Target};
+    use tes_experiments::prereg::judged_by;
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/results");
-    let family = |t: &Target| t.id.ends_with(".targets") || t.id == "transfer.pooled";
     let mut checked = 0;
     for entry in std::fs::read_dir(&root).unwrap() {
-        let summary = entry.unwrap().path().join("summary.json");
+        let dir = entry.unwrap().path();
+        let summary = dir.join("summary.json");
         let Ok(text) = std::fs::read_to_string(&summary) else {
             continue;
         };
@@ -52,23 +52,14 @@ fn every_committed_target_is_preregistered() {
         let Some(targets) = json["targets"].as_array() else {
             continue;
         };
+        let manifest: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("manifest.json")).unwrap())
+                .unwrap();
+        let experiment = manifest["experiment"].as_str().unwrap();
         for t in targets {
             let words = t["target"].as_str().unwrap();
-            let experiment = summary
-                .parent()
-                .unwrap()
-                .file_name()
-                .unwrap()
-                .to_string_lossy();
-            let registered = TARGETS.iter().any(|r| {
-                r.target == words
-                    || r.history.iter().any(|h| h.target == words)
-                    || (family(r)
-                        && experiment.starts_with(r.experiment)
-                        && (r.id != "transfer.pooled" || words.contains("across tasks")))
-            });
             assert!(
-                registered,
+                judged_by(experiment, words).is_some(),
                 "{}: {words:?} is not preregistered",
                 summary.display()
             );
@@ -76,4 +67,68 @@ fn every_committed_target_is_preregistered() {
         }
     }
     assert!(checked >= 60, "only {checked} targets found");
+}
+
+/// The verdicts table of a folder beside its 100-run folder gives, row by row, the verdict
+/// each folder's own `targets` and `claims` tables give: the page's overview of every claim
+/// cannot say other than the folders' tables.
+#[test]
+fn the_verdicts_table_gives_each_folders_own_verdicts() {
+    use tes_experiments::claims;
+    use tes_experiments::report::{Request, Results};
+    use tes_experiments::verdict::Verdict;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/results");
+    for name in ["grid", "transfer", "robot"] {
+        let (dir, other) = (root.join(name), root.join(format!("{name}-100")));
+        let md = Request {
+            dir: dir.clone(),
+            table: Some("verdicts".into()),
+            against: None,
+            beside: Some(other.clone()),
+        }
+        .render(Path::new(""))
+        .unwrap();
+        assert!(md.contains("| target | 20 runs | 100 runs |"), "{md}");
+        let rows: Vec<Vec<&str>> = md
+            .lines()
+            .filter(|l| l.starts_with("| ") && !l.starts_with("| target |"))
+            .map(|l| l.trim_matches('|').split(" | ").map(str::trim).collect())
+            .collect();
+        let mut seen = 0;
+        for (column, folder) in [dir, other].iter().enumerate() {
+            let results = Results::read(folder).unwrap();
+            let (own, claimed) = match &results {
+                Results::Grid(g) => (g.targets.clone(), claims::grid(g)),
+                Results::Transfer(t) => (t.targets.clone(), claims::transfer(t)),
+                Results::Robot(r) => (r.targets.clone(), claims::robot(r)),
+                _ => unreachable!("{name} is a grid, transfer or robot folder"),
+            };
+            let judged =
+                own.iter()
+                    .map(|t| (t.target.clone(), t.verdict))
+                    .chain(claimed.iter().map(|c| {
+                        let label =
+                            claims::label(Some(c.id), &c.check.target, c.stricter.as_deref());
+                        (label, c.check.verdict)
+                    }));
+            for (target, verdict) in judged {
+                let row = rows
+                    .iter()
+                    .find(|r| r[0] == target || r[0].ends_with(&format!(": {target}")))
+                    .unwrap_or_else(|| panic!("{name}: no row for {target:?} in\n{md}"));
+                let cell = row[1 + column];
+                let expected = match verdict {
+                    Verdict::NotRun => "—",
+                    Verdict::Fails => "**fails**",
+                    v => v.text(),
+                };
+                assert!(
+                    cell.starts_with(expected),
+                    "{name}, column {column}: {target:?} says {cell:?}, its folder {expected:?}"
+                );
+                seen += 1;
+            }
+        }
+        assert!(seen >= 12, "{name}: only {seen} verdicts compared");
+    }
 }

@@ -41,10 +41,58 @@ pub(super) fn committed_folders(from: &Path) -> Result<Vec<(String, Manifest)>> 
     Ok(folders)
 }
 
-/// Regenerates every result folder of `from` into `out/NAME`; a folder `out/NAME` already
-/// holds is resumed (its finished runs kept), so an interrupted `--full` goes on where it
-/// stopped when given the same `--out` again.
-pub(super) fn run_full(from: &Path, out: &Path, allow_dirty: bool) -> Result<()> {
+/// The folder `--from` takes when not given, and a regeneration did not record one.
+const DEFAULT_FROM: &str = "docs/results";
+
+/// The file in OUT that records the folder a regeneration into OUT is made from, so that
+/// `--resume OUT` needs nothing else.
+const FROM_RECORD: &str = "regenerated-from.txt";
+
+/// The folder to regenerate into `out` from: `given`, or the one `out` records, or
+/// [`DEFAULT_FROM`]; recorded in `out`. A `given` folder other than the recorded one is
+/// refused: the result folders of one OUT come from one source.
+fn source_of(given: Option<&Path>, out: &Path) -> Result<PathBuf> {
+    let record = out.join(FROM_RECORD);
+    let recorded = match std::fs::read_to_string(&record) {
+        Ok(text) => Some(PathBuf::from(text.trim_end_matches('\n'))),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+        Err(e) => return Err(e).with_context(|| format!("cannot read {}", record.display())),
+    };
+    let from = match (given, recorded) {
+        (Some(given), Some(recorded)) => {
+            let given = std::path::absolute(given)
+                .with_context(|| format!("cannot resolve {}", given.display()))?;
+            if given != recorded {
+                bail!(
+                    "{} was regenerated from {}, not {}: resume it without --from, or give a new --out",
+                    out.display(),
+                    recorded.display(),
+                    given.display()
+                );
+            }
+            given
+        }
+        (None, Some(recorded)) => recorded,
+        (given, None) => {
+            let from = given.unwrap_or(Path::new(DEFAULT_FROM));
+            std::path::absolute(from)
+                .with_context(|| format!("cannot resolve {}", from.display()))?
+        }
+    };
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let text = from
+        .to_str()
+        .with_context(|| format!("{} is not UTF-8", from.display()))?;
+    std::fs::write(&record, format!("{text}\n"))
+        .with_context(|| format!("cannot write {}", record.display()))?;
+    Ok(from)
+}
+
+/// Regenerates every result folder of `from` (or of the folder `out` records) into
+/// `out/NAME`; a folder `out/NAME` already holds is resumed (its finished runs kept), so an
+/// interrupted `--full` goes on where it stopped when given the same `--out` again.
+pub(super) fn run_full(from: Option<&Path>, out: &Path, allow_dirty: bool) -> Result<()> {
+    let from = &source_of(from, out)?;
     let folders = committed_folders(from)?;
     let dirs: Vec<PathBuf> = folders.iter().map(|(name, _)| out.join(name)).collect();
     stop_on_interrupt(out, "all --full", &dirs)?;
@@ -74,10 +122,16 @@ pub(super) fn run_full(from: &Path, out: &Path, allow_dirty: bool) -> Result<()>
             ),
         }
     }
+    // Every stretch of every folder, resumed ones included, from the manifests.
+    let mut running = 0.0;
+    for dir in &dirs {
+        running += Manifest::read(dir)?.run_seconds.unwrap_or(0.0);
+    }
     println!(
-        "regenerated {} result folders into {} in {:.0} s",
+        "regenerated {} result folders into {}: {:.0} s of running in all (this invocation: {:.0} s)",
         folders.len(),
         out.display(),
+        running,
         started.elapsed().as_secs_f64()
     );
     Ok(())

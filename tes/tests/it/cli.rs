@@ -750,6 +750,39 @@ fn experiment_all_full_regenerates_every_committed_folder_from_its_manifest() {
     );
     assert!(String::from_utf8_lossy(&resumed.stderr).contains("resuming"));
     assert_eq!(job_records(&again.join("robot-quick")), records);
+    // `--resume OUT` alone, from any working directory, finds the folder OUT was regenerated
+    // from (not docs/results of wherever it runs).
+    let out = again.to_str().unwrap();
+    let elsewhere = tes_command()
+        .args(["experiment", "all", "--full", "--resume", out])
+        .current_dir(dir.path())
+        .output()
+        .expect("tes runs");
+    let said = String::from_utf8_lossy(&elsewhere.stderr);
+    assert!(elsewhere.status.success(), "{said}");
+    assert!(said.contains("[1/1] robot-quick"), "{said}");
+    assert!(
+        String::from_utf8_lossy(&elsewhere.stdout).contains("s of running in all"),
+        "{}",
+        String::from_utf8_lossy(&elsewhere.stdout)
+    );
+    assert_eq!(job_records(&again.join("robot-quick")), records);
+    // Another source for the same OUT is refused, naming both.
+    let other = tes(&[
+        "experiment",
+        "all",
+        "--full",
+        "--from",
+        dir.path().to_str().unwrap(),
+        "--out",
+        out,
+    ]);
+    let said = String::from_utf8_lossy(&other.stderr);
+    assert!(!other.status.success(), "{said}");
+    assert!(
+        said.contains("was regenerated from") && said.contains("committed"),
+        "{said}"
+    );
 }
 
 /// Job records (`jobs/NNNNN.json`, finished ones only) in a result folder.
