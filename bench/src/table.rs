@@ -19,9 +19,21 @@ fn row(out: &mut String, name: &str, r: &LatencyReport) {
 
 /// The latency run as a table: the floor, ours and the controller's parts, the ratios, the
 /// recorder's cost, and the planner's work.
-#[allow(clippy::too_many_lines, reason = "one row of the table a statement")]
 pub fn latency(result: &LatencyResult, warmup: u64) -> String {
     let mut out = String::new();
+    heading(&mut out, result, warmup);
+    floor_rows(&mut out, result);
+    our_rows(&mut out, result);
+    ratios(&mut out, result);
+    p50_by_hop(&mut out, result);
+    cpu(&mut out, result);
+    result.observers().for_each(|r| observer_cost(&mut out, r));
+    learning_and_planning(&mut out, result, warmup);
+    out
+}
+
+/// What was run (pace, wait, order, counts, CPUs), then the columns' heading.
+fn heading(out: &mut String, result: &LatencyResult, warmup: u64) {
     let on = |c: Option<usize>| c.map_or("unpinned".to_owned(), |c| format!("CPU {c}"));
     let _ = writeln!(
         out,
@@ -48,8 +60,12 @@ pub fn latency(result: &LatencyResult, warmup: u64) -> String {
         "{:<34} {:>8} {:>8} {:>8} {:>8} {:>8} {:>8}",
         "", "p50 us", "p90 us", "p99 us", "p99.9 us", "max us", "misses"
     );
+}
+
+/// The floor's round trip and hops, and the same kept awake where it was measured.
+fn floor_rows(out: &mut String, result: &LatencyResult) {
     row(
-        &mut out,
+        out,
         match result.via {
             Via::Shm => "floor (raw two-hop relay)",
             Via::Zenoh => "floor (two hops over Zenoh)",
@@ -57,35 +73,36 @@ pub fn latency(result: &LatencyResult, warmup: u64) -> String {
         },
         &result.floor(),
     );
-    row(&mut out, "floor: first hop only", &result.floor_decision);
+    row(out, "floor: first hop only", &result.floor_decision);
     if result.floor_second_hop.count > 0 {
-        row(&mut out, "floor: second hop only", &result.floor_second_hop);
+        row(out, "floor: second hop only", &result.floor_second_hop);
     }
     if let Some(awake) = &result.floor_awake {
-        row(&mut out, "floor, every CPU kept awake", &awake.round_trip);
-        row(&mut out, "  its first hop only", &awake.first_hop);
+        row(out, "floor, every CPU kept awake", &awake.round_trip);
+        row(out, "  its first hop only", &awake.first_hop);
         if awake.second_hop.count > 0 {
-            row(&mut out, "  its second hop only", &awake.second_hop);
+            row(out, "  its second hop only", &awake.second_hop);
         }
     }
-    row(&mut out, "ours: observation -> bridge", &result.ours());
-    row(&mut out, "ours: controller decision only", &result.decision);
-    row(&mut out, "  of which: stamp -> received", &result.wake);
-    row(
-        &mut out,
-        "  of which: received -> published",
-        &result.compute,
-    );
+}
+
+/// The group's round trip, the controller's decision and its parts, the command's hop and
+/// the learning after it.
+fn our_rows(out: &mut String, result: &LatencyResult) {
+    row(out, "ours: observation -> bridge", &result.ours());
+    row(out, "ours: controller decision only", &result.decision);
+    row(out, "  of which: stamp -> received", &result.wake);
+    row(out, "  of which: received -> published", &result.compute);
     if result.command_hop.count > 0 {
-        row(
-            &mut out,
-            "ours: command -> bridge only",
-            &result.command_hop,
-        );
+        row(out, "ours: command -> bridge only", &result.command_hop);
     }
     if result.learn.count > 0 {
-        row(&mut out, "learning after the command", &result.learn);
+        row(out, "learning after the command", &result.learn);
     }
+}
+
+/// Ours over the floor (and over the floor kept awake), and the acting path's allocations.
+fn ratios(out: &mut String, result: &LatencyResult) {
     let _ = writeln!(
         out,
         "ratio ours/floor: p50 {:.2}, p99 {:.2}{}; allocations on the acting path: {}",
@@ -114,9 +131,10 @@ pub fn latency(result: &LatencyResult, warmup: u64) -> String {
             }
         );
     }
-    p50_by_hop(&mut out, result);
-    cpu(&mut out, result);
-    result.observers().for_each(|r| observer_cost(&mut out, r));
+}
+
+/// Whether learning kept up with the observations, and how often the planner's plans came.
+fn learning_and_planning(out: &mut String, result: &LatencyResult, warmup: u64) {
     // A planner thread yields to everything: where the measured loops keep both CPUs busy
     // (spin on two cores) it barely runs, and the agent acts on an old policy.
     if result.learn.count > 0 {
@@ -134,7 +152,6 @@ pub fn latency(result: &LatencyResult, warmup: u64) -> String {
         result.plans,
         (result.actions + warmup) as f64 / result.plans.max(1) as f64
     );
-    out
 }
 
 /// Where ours and the floor differ at the median, hop by hop: each hop's wake-up (the first

@@ -228,12 +228,7 @@ pub fn run_with<T: Transport, C: Clock>(
     latency: &mut LatencyRecorder,
     link_timeout: Duration,
 ) -> Result<RunSummary, IpcError> {
-    let stop: Arc<AtomicBool> = opts.stop.clone().unwrap_or_default();
-    if opts.handle_signals {
-        for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-            signal_hook::flag::register(signal, stop.clone()).map_err(ipc_err("handle signals"))?;
-        }
-    }
+    let stop = stop_flag(opts)?;
     let node = tes_runtime::channel::group_node(names, Role::Bridge, false)?;
     let mut commands: LatestInbox<Command> =
         LatestInbox::open(&node, &names.command, &names.command_event, wait)?
@@ -274,17 +269,10 @@ pub fn run_with<T: Transport, C: Clock>(
             .real_duration(bridge.next_wakeup(clock.now()))
             .clamp(Duration::from_micros(20), IDLE_TICK);
         match commands.next(timeout, &stop)? {
-            Ok(cmd) => {
-                on_command(
-                    bridge,
-                    clock,
-                    (&mut *latency, &mut command_hop),
-                    cmd,
-                    &mut summary,
-                    &mut cpu,
-                );
-                // Take every other pending command too.
-                while let Some(cmd) = commands.try_next()? {
+            Ok(first) => {
+                // This command, then every other pending one.
+                let mut next = Some(first);
+                while let Some(cmd) = next {
                     on_command(
                         bridge,
                         clock,
@@ -293,6 +281,7 @@ pub fn run_with<T: Transport, C: Clock>(
                         &mut summary,
                         &mut cpu,
                     );
+                    next = commands.try_next()?;
                 }
             }
             Err(Idle::Timeout) => {
@@ -305,17 +294,7 @@ pub fn run_with<T: Transport, C: Clock>(
                 break;
             }
         }
-        if let Some(state) = bridge.tick(clock.now()) {
-            states.send(MotorState {
-                stamp_ns: monotonic_ns(),
-                ..state
-            })?;
-            summary.published += 1;
-            if state.flags & motor_flags::SETTLED != 0 && state.flags & motor_flags::LINK_DOWN == 0
-            {
-                progress.report_mut().out_seq = state.after_command;
-            }
-        }
+        publish_motor_state(bridge, clock, &states, &mut summary, &mut progress)?;
         report_progress(&mut progress, bridge, &summary, &mut was_down)?;
         if let Some(verdict) = link.check(bridge) {
             summary.link_down = Some(verdict);
@@ -329,6 +308,41 @@ pub fn run_with<T: Transport, C: Clock>(
     summary.catches = commands.catches();
     tracing::info!(%summary, "bridge loop stopped");
     Ok(summary)
+}
+
+/// The flag that stops the loop: the caller's, or a new one; raised by SIGINT and SIGTERM
+/// when the loop handles signals.
+fn stop_flag(opts: &RunOptions) -> Result<Arc<AtomicBool>, IpcError> {
+    let stop: Arc<AtomicBool> = opts.stop.clone().unwrap_or_default();
+    if opts.handle_signals {
+        for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+            signal_hook::flag::register(signal, stop.clone()).map_err(ipc_err("handle signals"))?;
+        }
+    }
+    Ok(stop)
+}
+
+/// Advances the brick's timed duties and publishes the motor state they report, if any; a
+/// settled motion over a live link is how far the bridge got.
+fn publish_motor_state<T: Transport, C: Clock>(
+    bridge: &mut Bridge<T>,
+    clock: &C,
+    states: &Outbox<MotorState>,
+    summary: &mut RunSummary,
+    progress: &mut ProgressOutbox,
+) -> Result<(), IpcError> {
+    let Some(state) = bridge.tick(clock.now()) else {
+        return Ok(());
+    };
+    states.send(MotorState {
+        stamp_ns: monotonic_ns(),
+        ..state
+    })?;
+    summary.published += 1;
+    if state.flags & motor_flags::SETTLED != 0 && state.flags & motor_flags::LINK_DOWN == 0 {
+        progress.report_mut().out_seq = state.after_command;
+    }
+    Ok(())
 }
 
 /// Tells the launcher how far the bridge got and whether its link is down: at once when the

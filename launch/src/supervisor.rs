@@ -197,30 +197,10 @@ impl Supervisor {
         };
         let record = RunRecord::create(&prepared.run_dir, file.controller.budget_us, file.arena())?;
         let library = file.controller.library_path();
-        let report = controller_report(&prepared)?;
-        if let Some(path) = &prepared.bridge_report {
-            library::remove_stale_report(path, "bridge")?;
-        }
-        if report.is_some() {
-            observer.event(&Event::LibraryAtStart {
-                path: library.clone(),
-                exists: std::fs::symlink_metadata(&library).is_ok(),
-            });
-        }
+        let report = fresh_reports(&prepared, &library, observer)?;
         let library_at_start = Fingerprint::of(&library);
         // Subscribed before any child starts, so it misses nothing.
-        let recorder = recording::start(file, &prepared.specs, &prefix, &library)?;
-        if let Some(path) = recorder.as_ref().and_then(Recorder::path) {
-            observer.event(&Event::Recording {
-                path: path.to_owned(),
-            });
-        }
-        if let Some(addr) = recorder.as_ref().and_then(Recorder::foxglove_addr) {
-            observer.event(&Event::Foxglove {
-                addr,
-                exposed: !addr.ip().is_loopback(),
-            });
-        }
+        let recorder = start_recording(file, &prepared, &library, observer)?;
         let log_to = recorder.as_ref().map(Recorder::log_lines);
         let ros2 = crate::ros2::start(file, &prefix)?.map(|(running, started)| {
             observer.event(&Event::Ros2(started));
@@ -1081,6 +1061,49 @@ fn say_the_plan(file: &LaunchFile, prepared: &Prepared, observer: &mut dyn Obser
         service_prefix: prepared.service_prefix.clone(),
         run_dir: prepared.run_dir.clone(),
     });
+}
+
+/// The controller's report file of this run (if it writes one), with any stale report of
+/// the controller and the bridge removed; says the library the controller starts from.
+fn fresh_reports(
+    prepared: &Prepared,
+    library: &Path,
+    observer: &mut dyn Observer,
+) -> Result<Option<PathBuf>, LaunchError> {
+    let report = controller_report(prepared)?;
+    if let Some(path) = &prepared.bridge_report {
+        library::remove_stale_report(path, "bridge")?;
+    }
+    if report.is_some() {
+        observer.event(&Event::LibraryAtStart {
+            path: library.to_owned(),
+            exists: std::fs::symlink_metadata(library).is_ok(),
+        });
+    }
+    Ok(report)
+}
+
+/// Starts the run's recorder, if the launch file asks for one, and says where it records
+/// and serves.
+fn start_recording(
+    file: &LaunchFile,
+    prepared: &Prepared,
+    library: &Path,
+    observer: &mut dyn Observer,
+) -> Result<Option<Recorder>, LaunchError> {
+    let recorder = recording::start(file, &prepared.specs, &prepared.service_prefix, library)?;
+    if let Some(path) = recorder.as_ref().and_then(Recorder::path) {
+        observer.event(&Event::Recording {
+            path: path.to_owned(),
+        });
+    }
+    if let Some(addr) = recorder.as_ref().and_then(Recorder::foxglove_addr) {
+        observer.event(&Event::Foxglove {
+            addr,
+            exposed: !addr.ip().is_loopback(),
+        });
+    }
+    Ok(recorder)
 }
 
 /// The controller's report path, when this launch plays the controller (an old report
