@@ -1092,14 +1092,25 @@ fn blocks(doc: &str) -> Result<Vec<Block<'_>>> {
     Ok(found)
 }
 
+/// What a block whose first line asks for `command` holds: the registry's record of changes
+/// made after results ([`CHANGES`]), or a [`Request`] of folders under `root`.
+fn render_block(command: &str, root: &Path) -> Result<String> {
+    if command == CHANGES {
+        return Ok(crate::ledger::changes_table());
+    }
+    Request::parse(command)?.render(root)
+}
+
+/// The block command (and `tes experiment report` option) for every change made after a
+/// result existed, from the registry and the ledger.
+pub const CHANGES: &str = "--changes";
+
 /// `doc` with every generated block rewritten from its folders under `root`.
 pub fn sync(doc: &str, root: &Path) -> Result<String> {
     let mut out = String::with_capacity(doc.len());
     let mut copied = 0;
     for block in blocks(doc)? {
-        let command = Request::parse(block.command)?;
-        let body = command
-            .render(root)
+        let body = render_block(block.command, root)
             .with_context(|| format!("cannot render `{}`", block.command))?;
         out.push_str(&doc[copied..block.body_start]);
         out.push_str(body.trim_end());
@@ -1141,8 +1152,7 @@ pub fn check_file(file: &Path, root: &Path) -> Result<()> {
 pub fn stale_blocks(doc: &str, root: &Path) -> Result<Vec<String>> {
     let mut stale = Vec::new();
     for block in blocks(doc)? {
-        let command = Request::parse(block.command)?;
-        let now = command.render(root)?;
+        let now = render_block(block.command, root)?;
         if now.trim_end() != doc[block.body_start..block.body_end].trim_end() {
             stale.push(block.command.to_owned());
         }

@@ -202,7 +202,10 @@ fn summarise_folder(dir: &Path) -> Result<()> {
 #[derive(Debug, Args)]
 struct ReportArgs {
     /// A result folder (it holds manifest.json and summary.json).
-    #[arg(required_unless_present_any = ["sync", "check"], conflicts_with_all = ["sync", "check"])]
+    #[arg(
+        required_unless_present_any = ["sync", "check", "changes"],
+        conflicts_with_all = ["sync", "check", "changes"]
+    )]
     dir: Option<PathBuf>,
     /// Only this table (the folder's experiment names them; all by default).
     #[arg(long)]
@@ -221,6 +224,10 @@ struct ReportArgs {
     /// Fail, naming them, if FILE's generated blocks no longer say what their folders hold.
     #[arg(long, value_name = "FILE")]
     check: Option<PathBuf>,
+    /// Every change made after a result existed (a target's earlier form, a world or default
+    /// changed), with the verdicts before and after and why, from the preregistration.
+    #[arg(long, conflicts_with_all = ["sync", "check"])]
+    changes: bool,
     /// The folder the blocks' paths are relative to.
     #[arg(long, default_value = ".")]
     root: PathBuf,
@@ -236,6 +243,10 @@ fn run_report(args: &ReportArgs) -> Result<()> {
     if let Some(file) = &args.check {
         report::check_file(file, &args.root)?;
         println!("every generated block of {} holds", file.display());
+        return Ok(());
+    }
+    if args.changes {
+        print!("{}", tes_experiments::ledger::changes_table());
         return Ok(());
     }
     let request = report::Request {
