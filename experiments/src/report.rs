@@ -167,8 +167,8 @@ impl Results {
     }
 
     /// Every verdict of the folder's `targets` and `claims` tables, in their order: the
-    /// experiment's own targets, then the claims judged from the same summary (each
-    /// sensitivity check after its target's verdict).
+    /// experiment's own targets, then the claims judged from the same summary (the stricter
+    /// readings of some targets among them).
     fn verdict_lines(&self) -> Vec<VerdictLine> {
         let experiment = self.experiment();
         let own = self.targets().iter().map(|t| VerdictLine {
@@ -260,7 +260,7 @@ struct VerdictLine {
     id: Option<&'static str>,
     /// The target in the tables' words.
     target: String,
-    /// The stricter threshold a sensitivity check judges the target at.
+    /// The stricter reading it is judged at ([`claims::ClaimRow::stricter`]).
     stricter: Option<String>,
     verdict: Verdict,
     /// Whether it is judged on times.
