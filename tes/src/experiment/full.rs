@@ -49,8 +49,8 @@ const DEFAULT_FROM: &str = "docs/results";
 const FROM_RECORD: &str = "regenerated-from.txt";
 
 /// The folder to regenerate into `out` from: `given`, or the one `out` records, or
-/// [`DEFAULT_FROM`]; recorded in `out`. A `given` folder other than the recorded one is
-/// refused: the result folders of one OUT come from one source.
+/// [`DEFAULT_FROM`]. A `given` folder other than the recorded one is refused: the result
+/// folders of one OUT come from one source.
 fn source_of(given: Option<&Path>, out: &Path) -> Result<PathBuf> {
     let record = out.join(FROM_RECORD);
     let recorded = match std::fs::read_to_string(&record) {
@@ -79,13 +79,18 @@ fn source_of(given: Option<&Path>, out: &Path) -> Result<PathBuf> {
                 .with_context(|| format!("cannot resolve {}", from.display()))?
         }
     };
+    Ok(from)
+}
+
+/// Records in `out` the folder it is regenerated from (once that folder has been read).
+fn record_source(from: &Path, out: &Path) -> Result<()> {
+    let record = out.join(FROM_RECORD);
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let text = from
         .to_str()
         .with_context(|| format!("{} is not UTF-8", from.display()))?;
     std::fs::write(&record, format!("{text}\n"))
-        .with_context(|| format!("cannot write {}", record.display()))?;
-    Ok(from)
+        .with_context(|| format!("cannot write {}", record.display()))
 }
 
 /// Regenerates every result folder of `from` (or of the folder `out` records) into
@@ -93,7 +98,9 @@ fn source_of(given: Option<&Path>, out: &Path) -> Result<PathBuf> {
 /// interrupted `--full` goes on where it stopped when given the same `--out` again.
 pub(super) fn run_full(from: Option<&Path>, out: &Path, allow_dirty: bool) -> Result<()> {
     let from = &source_of(from, out)?;
+    // Read before it is recorded: a mistyped --from is not kept for every later --resume.
     let folders = committed_folders(from)?;
+    record_source(from, out)?;
     let dirs: Vec<PathBuf> = folders.iter().map(|(name, _)| out.join(name)).collect();
     stop_on_interrupt(out, "all --full", &dirs)?;
     let started = std::time::Instant::now();
